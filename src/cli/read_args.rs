@@ -1,0 +1,41 @@
+//! Flags shared by every command that reads frames.
+
+use afterimage::frame::MotionConvention;
+use afterimage::io::{ChannelSpec, PresetChoice, ReadOptions};
+use clap::Args;
+
+/// How to map file channels onto frame channels.
+#[derive(Args, Debug, Clone)]
+pub struct ReadArgs {
+    /// Channel-name preset of the files: auto (detect), afterimage, blender, plain.
+    #[arg(long, default_value = "auto", value_name = "PRESET")]
+    pub preset: String,
+    /// Map a frame channel to file channels, overriding the preset: KIND=PREFIX
+    /// (e.g. color=ViewLayer.Combined) or KIND=NAME,NAME,... (e.g. motion=Vec.X,Vec.Y).
+    /// KIND is color, depth, motion, normal, object_id, albedo or reference. Repeatable.
+    #[arg(long = "channel", value_name = "KIND=NAMES")]
+    pub channel: Vec<String>,
+    /// Motion-vector convention of the files (default: the preset's): internal,
+    /// blender, fsr2, unreal, unity, bevy.
+    #[arg(long, value_name = "NAME")]
+    pub motion_convention: Option<String>,
+}
+
+impl ReadArgs {
+    /// The library's read options.
+    pub fn options(&self) -> anyhow::Result<ReadOptions> {
+        Ok(ReadOptions {
+            preset: self.preset.parse::<PresetChoice>()?,
+            mapping: self
+                .channel
+                .iter()
+                .map(|s| ChannelSpec::parse_mapping(s))
+                .collect::<Result<_, _>>()?,
+            motion_convention: self
+                .motion_convention
+                .as_deref()
+                .map(str::parse::<MotionConvention>)
+                .transpose()?,
+        })
+    }
+}

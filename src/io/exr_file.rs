@@ -1,0 +1,279 @@
+//! OpenEXR through the `exr` crate.
+
+use super::preset::Preset;
+use super::raw::{RawChannel, RawData, RawImage};
+use super::IoError;
+use crate::frame::{ChannelKind, DepthKind, Frame, FrameMeta, NormalSpace, Plane};
+use exr::prelude::{self as x, AttributeValue, ReadChannels, ReadLayers, Text, WritableImage};
+use std::path::Path;
+
+/// Attribute names under which the `afterimage` layout stores per-frame values.
+mod attr {
+    pub const INDEX: &str = "afterimage.index";
+    pub const JITTER: &str = "afterimage.jitter";
+    pub const RESET: &str = "afterimage.reset";
+    pub const DEPTH_KIND: &str = "afterimage.depth_kind";
+    pub const NORMAL_SPACE: &str = "afterimage.normal_space";
+}
+
+/// Sample precision of written float channels (object ids are always u32).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// Half floats: half the bytes, about 3 significant digits, max 65504.
+    F16,
+    /// Full floats.
+    #[default]
+    F32,
+}
+
+/// Compression of written files (all lossless).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Compression {
+    /// None: largest, fastest.
+    None,
+    /// ZIP over 16 scan lines: the common default.
+    #[default]
+    Zip,
+    /// PIZ (wavelet): best on noisy renders.
+    Piz,
+}
+
+/// Which channels a written file holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ExrLayout {
+    /// Every channel of the frame, in the `afterimage` preset, with the frame values.
+    #[default]
+    Afterimage,
+    /// Colour only, as plain `R,G,B` (what compositing tools open by default).
+    Plain,
+}
+
+/// How to write a frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WriteOptions {
+    /// Float precision.
+    pub precision: Precision,
+    /// Compression.
+    pub compression: Compression,
+    /// Channel layout.
+    pub layout: ExrLayout,
+}
+
+fn exr_error(path: &Path, e: exr::error::Error) -> IoError {
+    match e {
+        exr::error::Error::Io(source) if source.kind() != std::io::ErrorKind::UnexpectedEof => {
+            IoError::os(path, source)
+        }
+        other => IoError::Format {
+            path: path.to_path_buf(),
+            format: "OpenEXR",
+            reason: other.to_string(),
+        },
+    }
+}
+
+/// Reads every channel of every layer (part) of an EXR file. Channel names of named
+/// layers get the layer name as prefix (`layer.channel`), as in single-part multilayer
+/// files; all layers must have the same size.
+pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
+    if !path.exists() {
+        return Err(IoError::os(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
+    let image = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| exr_error(path, e))?;
+    let mut size = None;
+    let mut channels = Vec::new();
+    let mut meta = FrameMeta::default();
+    for layer in &image.layer_data {
+        let lname = layer.attributes.layer_name.as_ref().map(|t| t.to_string());
+        let s = (layer.size.0, layer.size.1);
+        match size {
+            None => size = Some((s, lname.clone())),
+            Some((first, ref first_name)) if first != s => {
+                return Err(IoError::Inconsistent {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "layer {} is {}x{} but layer {} is {}x{}",
+                        lname.as_deref().unwrap_or("(unnamed)"),
+                        s.0,
+                        s.1,
+                        first_name.as_deref().unwrap_or("(unnamed)"),
+                        first.0,
+                        first.1
+                    ),
+                })
+            }
+            _ => {}
+        }
+        read_meta(&layer.attributes, &mut meta);
+        for ch in &layer.channel_data.list {
+            if ch.sampling != x::Vec2(1, 1) {
+                return Err(IoError::Format {
+                    path: path.to_path_buf(),
+                    format: "OpenEXR",
+                    reason: format!("channel {} is subsampled, which is not supported", ch.name),
+                });
+            }
+            let name = match &lname {
+                Some(l) if !l.is_empty() => format!("{l}.{}", ch.name),
+                _ => ch.name.to_string(),
+            };
+            let (file_type, data) = match &ch.sample_data {
+                x::FlatSamples::F16(v) => ("f16", RawData::F32(v.iter().map(|h| h.to_f32()).collect())),
+                x::FlatSamples::F32(v) => ("f32", RawData::F32(v.clone())),
+                x::FlatSamples::U32(v) => ("u32", RawData::U32(v.clone())),
+            };
+            channels.push(RawChannel {
+                name,
+                file_type,
+                data,
+            });
+        }
+    }
+    let ((width, height), _) = size.ok_or_else(|| IoError::Format {
+        path: path.to_path_buf(),
+        format: "OpenEXR",
+        reason: "the file has no layers".into(),
+    })?;
+    channels.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(RawImage {
+        path: path.to_path_buf(),
+        width,
+        height,
+        channels,
+        meta,
+    })
+}
+
+fn read_meta(a: &x::LayerAttributes, meta: &mut FrameMeta) {
+    if let Some(e) = a.exposure {
+        meta.exposure = Some(e);
+    }
+    if let (Some(n), Some(f)) = (a.near_clip_plane, a.far_clip_plane) {
+        meta.near_far = Some([n, f]);
+    }
+    let get = |k: &str| a.other.get(&Text::from(k));
+    if let Some(AttributeValue::Text(t)) = get(attr::INDEX) {
+        if let Ok(i) = t.to_string().parse() {
+            meta.index = i;
+        }
+    }
+    if let Some(AttributeValue::FloatVec2(v)) = get(attr::JITTER) {
+        meta.jitter = [v.0, v.1];
+    }
+    if let Some(AttributeValue::I32(r)) = get(attr::RESET) {
+        meta.reset = *r != 0;
+    }
+    if let Some(AttributeValue::Text(t)) = get(attr::DEPTH_KIND) {
+        if let Ok(k) = serde_json::from_value::<DepthKind>(t.to_string().into()) {
+            meta.depth_kind = k;
+        }
+    }
+    if let Some(AttributeValue::Text(t)) = get(attr::NORMAL_SPACE) {
+        if let Ok(k) = serde_json::from_value::<NormalSpace>(t.to_string().into()) {
+            meta.normal_space = k;
+        }
+    }
+}
+
+fn write_meta(meta: &FrameMeta, a: &mut x::LayerAttributes) {
+    a.exposure = meta.exposure;
+    if let Some([n, f]) = meta.near_far {
+        a.near_clip_plane = Some(n);
+        a.far_clip_plane = Some(f);
+    }
+    let mut put = |k: &str, v: AttributeValue| {
+        a.other.insert(Text::from(k), v);
+    };
+    put(
+        attr::INDEX,
+        AttributeValue::Text(Text::from(meta.index.to_string().as_str())),
+    );
+    put(
+        attr::JITTER,
+        AttributeValue::FloatVec2(x::Vec2(meta.jitter[0], meta.jitter[1])),
+    );
+    put(attr::RESET, AttributeValue::I32(meta.reset as i32));
+    let name = |v: serde_json::Value| v.as_str().unwrap_or_default().to_string();
+    put(
+        attr::DEPTH_KIND,
+        AttributeValue::Text(Text::from(name(serde_json::json!(meta.depth_kind)).as_str())),
+    );
+    put(
+        attr::NORMAL_SPACE,
+        AttributeValue::Text(Text::from(name(serde_json::json!(meta.normal_space)).as_str())),
+    );
+}
+
+fn float_samples(p: &Plane<f32>, precision: Precision) -> x::FlatSamples {
+    match precision {
+        Precision::F32 => x::FlatSamples::F32(p.data().to_vec()),
+        Precision::F16 => x::FlatSamples::F16(p.data().iter().map(|&v| half::f16::from_f32(v)).collect()),
+    }
+}
+
+/// Writes a frame as OpenEXR.
+pub fn write_exr(path: &Path, frame: &Frame, opts: &WriteOptions) -> Result<(), IoError> {
+    let mut list: Vec<x::AnyChannel<x::FlatSamples>> = Vec::new();
+    match opts.layout {
+        ExrLayout::Plain => {
+            for (p, n) in frame.color().iter().zip(["R", "G", "B"]) {
+                list.push(x::AnyChannel::new(n, float_samples(p, opts.precision)));
+            }
+        }
+        ExrLayout::Afterimage => {
+            for kind in frame.channels().iter() {
+                let names = Preset::Afterimage
+                    .names(kind)
+                    .expect("afterimage names every channel");
+                if kind == ChannelKind::ObjectId {
+                    let ids = frame.object_id().expect("listed channel exists");
+                    list.push(x::AnyChannel::new(
+                        names[0].as_str(),
+                        x::FlatSamples::U32(ids.data().to_vec()),
+                    ));
+                    continue;
+                }
+                let planes = frame.planes(kind).expect("listed channel exists");
+                for (p, n) in planes.iter().zip(&names) {
+                    list.push(x::AnyChannel::new(n.as_str(), float_samples(p, opts.precision)));
+                }
+            }
+        }
+    }
+    let mut attributes = x::LayerAttributes::default();
+    if opts.layout == ExrLayout::Afterimage {
+        write_meta(&frame.meta, &mut attributes);
+    }
+    let encoding = x::Encoding {
+        compression: match opts.compression {
+            Compression::None => x::Compression::Uncompressed,
+            Compression::Zip => x::Compression::ZIP16,
+            Compression::Piz => x::Compression::PIZ,
+        },
+        blocks: x::Blocks::ScanLines,
+        line_order: x::LineOrder::Increasing,
+    };
+    let layer = x::Layer::new(
+        (frame.width(), frame.height()),
+        attributes,
+        encoding,
+        x::AnyChannels::sort(list.into()),
+    );
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
+    }
+    x::Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| exr_error(path, e))
+}

@@ -1,0 +1,181 @@
+//! Reading and writing frames: OpenEXR (single-layer and multilayer, f16/f32, with
+//! channel-name presets), PNG/JPEG for LDR input and previews, and frame sequences.
+//!
+//! Interleaved pixels exist only in here: everything that leaves this module is planar.
+
+mod colormap;
+mod exr_file;
+mod ldr;
+mod preset;
+mod raw;
+mod sequence;
+
+pub use colormap::inferno;
+pub use exr_file::{read_raw_exr, write_exr, Compression, ExrLayout, Precision, WriteOptions};
+pub use ldr::{linear_to_srgb, read_ldr, srgb_to_linear, write_png, write_png_rgb8};
+pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
+pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
+pub use sequence::{Sequence, SequenceEntry};
+
+use crate::frame::{ChannelKind, Frame, FrameError};
+use std::path::{Path, PathBuf};
+use thiserror::Error;
+
+/// Errors of reading and writing frames, sorted by whose fault they are: the file
+/// system's, the file's, or the request's (a channel or preset that does not fit).
+#[derive(Debug, Error)]
+pub enum IoError {
+    /// The operating system refused (missing file, permissions, disk full).
+    #[error("{path}: {source}")]
+    Os {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The file is not a valid image of its format (truncated, corrupt, unsupported).
+    #[error("{path}: not a readable {format} file: {reason}")]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// "OpenEXR", "PNG", ...
+        format: &'static str,
+        /// What the decoder said.
+        reason: String,
+    },
+    /// Layers or channels of one file disagree in size.
+    #[error("{path}: {reason}")]
+    Inconsistent {
+        /// The file.
+        path: PathBuf,
+        /// What disagrees.
+        reason: String,
+    },
+    /// A channel that was asked for is not in the file.
+    #[error("{path}: no {wanted} for channel {channel} (preset {preset}); the file has: {present}")]
+    MissingChannel {
+        /// The file.
+        path: PathBuf,
+        /// The frame channel.
+        channel: ChannelKind,
+        /// The file channel names looked for.
+        wanted: String,
+        /// The preset in use.
+        preset: String,
+        /// The channel names the file has.
+        present: String,
+    },
+    /// No preset fits the file's channel names.
+    #[error("{path}: cannot tell the channel layout (no colour as `color.R`, `<layer>.Combined.R` or `R`); pass --preset or --channel color=...; the file has: {present}")]
+    UnknownLayout {
+        /// The file.
+        path: PathBuf,
+        /// The channel names the file has.
+        present: String,
+    },
+    /// The file's channels do not make a valid frame.
+    #[error("{path}: {source}")]
+    Frame {
+        /// The file.
+        path: PathBuf,
+        /// The frame error.
+        #[source]
+        source: FrameError,
+    },
+    /// A file type this crate does not read or write.
+    #[error("{path}: unsupported file type (expected .exr, .png, .jpg or .jpeg)")]
+    UnsupportedType {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A sequence specification that matches nothing, or has a gap.
+    #[error("{0}")]
+    Sequence(String),
+    /// A bad argument: unknown preset, malformed channel mapping.
+    #[error("{0}")]
+    Argument(String),
+}
+
+impl IoError {
+    pub(crate) fn os(path: &Path, source: std::io::Error) -> Self {
+        IoError::Os {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// The kind of file, from its extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FileType {
+    /// OpenEXR.
+    Exr,
+    /// PNG or JPEG (8/16-bit, sRGB-encoded).
+    Ldr,
+}
+
+impl FileType {
+    /// The type of `path`, from its extension (case-insensitive).
+    pub fn of(path: &Path) -> Option<FileType> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "exr" => Some(FileType::Exr),
+            "png" | "jpg" | "jpeg" => Some(FileType::Ldr),
+            _ => None,
+        }
+    }
+}
+
+/// Decodes any supported file into named channels: EXR as stored, PNG/JPEG as linear
+/// `R,G,B` (sRGB decoded).
+pub fn read_raw(path: &Path) -> Result<RawImage, IoError> {
+    match FileType::of(path) {
+        Some(FileType::Exr) => read_raw_exr(path),
+        Some(FileType::Ldr) => {
+            let frame = read_ldr(path)?;
+            let channels = frame
+                .color()
+                .iter()
+                .zip(["R", "G", "B"])
+                .map(|(p, n)| RawChannel {
+                    name: n.to_string(),
+                    file_type: "srgb",
+                    data: RawData::F32(p.data().to_vec()),
+                })
+                .collect();
+            Ok(RawImage {
+                path: path.to_path_buf(),
+                width: frame.width(),
+                height: frame.height(),
+                channels,
+                meta: frame.meta,
+            })
+        }
+        None => Err(IoError::UnsupportedType {
+            path: path.to_path_buf(),
+        }),
+    }
+}
+
+/// Reads one frame from an EXR, PNG or JPEG file, with motion converted to the internal
+/// convention assuming the previous frame had the same jitter (a sequence reader passes
+/// the real one through [`read_frame_after`]).
+pub fn read_frame(path: &Path, opts: &ReadOptions) -> Result<Frame, IoError> {
+    read_frame_after(path, opts, None)
+}
+
+/// Reads one frame, converting jittered motion with the previous frame's jitter
+/// `jitter_prev` (None: the same as this frame's).
+pub fn read_frame_after(
+    path: &Path,
+    opts: &ReadOptions,
+    jitter_prev: Option<[f32; 2]>,
+) -> Result<Frame, IoError> {
+    let raw = read_raw(path)?;
+    let mut frame = raw.to_frame(opts)?;
+    let conv = raw.motion_convention(opts)?;
+    let prev = jitter_prev.unwrap_or(frame.meta.jitter);
+    conv.frame_to_internal(&mut frame, prev);
+    Ok(frame)
+}

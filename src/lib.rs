@@ -1,0 +1,15 @@
+//! afterimage: temporal anti-aliasing and deflickering of rendered frames.
+//!
+//! The library holds the frame model ([`frame`]), image I/O ([`io`]) and quality
+//! metrics ([`metrics`]); the binary (`src/main.rs` and its `cli` module) is a thin layer
+//! over them.
+//! See `DESIGN.md` of the project for the map.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod frame;
+pub mod io;
+pub mod metrics;
+pub mod rng;
+pub mod tolerance;

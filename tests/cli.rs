@@ -1,0 +1,222 @@
+//! The `afterimage` binary: `info`, `eval`, `--help`.
+
+mod common;
+
+use afterimage::frame::{ChannelKind, Frame, Plane};
+use afterimage::io::{read_frame, write_exr, ReadOptions, Sequence, WriteOptions};
+use afterimage::metrics::{Evaluator, SpaceChoice};
+use afterimage::tolerance::Tolerance;
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = common::bin().args(args).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn help_on_every_command() {
+    for args in [&["--help"][..], &["info", "--help"], &["eval", "--help"]] {
+        let (ok, out, _) = run(args);
+        assert!(ok && out.contains("Usage"), "{args:?}: {out}");
+    }
+    let (ok, out, _) = run(&["eval", "--help"]);
+    assert!(ok && out.contains("--reference") && out.contains("--preset"));
+}
+
+#[test]
+fn info_describes_a_blender_file() {
+    let f = common::fixture("blender-motion/frame_0002.exr");
+    let (ok, out, err) = run(&["info", "--json", f.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["width"], 320);
+    assert_eq!(v["preset"], "blender");
+    assert_eq!(v["motion_convention"], "blender");
+    assert_eq!(v["non_finite_total"], 0);
+    let vx = v["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == "ViewLayer.Vector.X")
+        .unwrap();
+    Tolerance::abs(1e-4)
+        .check("min Vector.X", vx["min"].as_f64().unwrap(), -5.0)
+        .unwrap();
+    let (ok, text, _) = run(&["info", f.to_str().unwrap()]);
+    assert!(ok);
+    assert!(text.contains("preset:  blender (detected)"), "{text}");
+    assert!(
+        text.contains("motion     <- ViewLayer.Vector.X, ViewLayer.Vector.Y"),
+        "{text}"
+    );
+}
+
+#[test]
+fn info_reports_non_finite_counts_instead_of_failing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nan.exr");
+    let mut c = Plane::filled(6, 4, 0.5f32);
+    c.set(1, 1, f32::NAN);
+    c.set(2, 1, f32::NEG_INFINITY);
+    let f = Frame::new([c, Plane::filled(6, 4, f32::NAN), Plane::filled(6, 4, 0.1)]).unwrap();
+    write_exr(&path, &f, &WriteOptions::default()).unwrap();
+    let (ok, out, err) = run(&["info", "--json", path.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["non_finite_total"], 26);
+    let r = v["channels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|c| c["name"] == "color.R")
+        .unwrap();
+    assert_eq!((r["nan"].as_u64(), r["inf"].as_u64()), (Some(1), Some(1)));
+    let (_, text, _) = run(&["info", path.to_str().unwrap()]);
+    assert!(text.contains("warning: 26 non-finite samples"), "{text}");
+}
+
+#[test]
+fn bad_files_fail_with_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("broken.exr");
+    std::fs::write(&path, b"\x76\x2f\x31\x01garbage").unwrap();
+    let (ok, out, err) = run(&["info", path.to_str().unwrap()]);
+    assert!(!ok && out.is_empty());
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.starts_with("error: ") && err.contains("broken.exr"), "{err}");
+    let (ok, _, err) = run(&["eval", "--input", path.to_str().unwrap()]);
+    assert!(!ok && err.contains("broken.exr"), "{err}");
+}
+
+#[test]
+fn eval_matches_the_library_and_writes_every_format() {
+    let input = common::fixture("blender-fence/input");
+    let reference = common::fixture("blender-fence/reference");
+    let (i, r) = (input.to_str().unwrap(), reference.to_str().unwrap());
+    let (ok, out, err) = run(&["eval", "--input", i, "--reference", r, "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    // The same figures in process.
+    let mut e = Evaluator::new(SpaceChoice::Auto);
+    let opts = ReadOptions::default();
+    let ins: Vec<Frame> = Sequence::open(i)
+        .unwrap()
+        .frames(&opts)
+        .collect::<Result<_, _>>()
+        .unwrap();
+    let refs: Vec<Frame> = Sequence::open(r)
+        .unwrap()
+        .frames(&opts)
+        .collect::<Result<_, _>>()
+        .unwrap();
+    for (a, b) in ins.iter().zip(&refs) {
+        e.push(a.meta.index, a.color(), b.color(), false);
+    }
+    let s = e.summary().unwrap();
+    let t = Tolerance::rel(1e-12);
+    t.check(
+        "mean psnr",
+        v["summary"]["mean_psnr"].as_f64().unwrap(),
+        s.mean_psnr,
+    )
+    .unwrap();
+    t.check("trmse", v["summary"]["trmse"].as_f64().unwrap(), s.trmse.unwrap())
+        .unwrap();
+    assert_eq!(v["frames"].as_array().unwrap().len(), 4);
+    assert_eq!(v["summary"]["space"], "tonemapped", "the reference goes above 1");
+    // CSV: a header and a row per frame.
+    let (ok, csv, _) = run(&[
+        "eval",
+        "--input",
+        i,
+        "--reference",
+        r,
+        "--csv",
+        "--space",
+        "linear",
+    ]);
+    assert!(ok);
+    assert_eq!(csv.lines().count(), 5);
+    assert!(csv.starts_with("frame,mse,rmse,psnr_db,ssim,temporal_mse"));
+    // The table, and an SSIM map that decodes as an image of the frame's size.
+    let map = tempfile::tempdir().unwrap();
+    let png = map.path().join("ssim.png");
+    let (ok, table, err) = run(&[
+        "eval",
+        "--input",
+        i,
+        "--reference",
+        r,
+        "--ssim-map",
+        "2",
+        "--ssim-map-out",
+        png.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        table.contains("| frame | PSNR dB |") && table.contains("4 frames"),
+        "{table}"
+    );
+    let img = image::open(&png).unwrap();
+    assert_eq!((img.width(), img.height()), (160, 90));
+    let (ok, _, err) = run(&[
+        "eval",
+        "--input",
+        i,
+        "--reference",
+        r,
+        "--ssim-map",
+        "9",
+        "--ssim-map-out",
+        png.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("no frame numbered 9"), "{err}");
+}
+
+#[test]
+fn eval_uses_the_reference_channel_and_checks_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = read_frame(
+        &common::fixture("blender-motion/frame_0001.exr"),
+        &ReadOptions::default(),
+    )
+    .unwrap();
+    // A frame carrying its own reference: the colour, 0.1 brighter.
+    let mut f = src.clone();
+    let brighter = f.color().clone().map(|p| p.map(|v| v + 0.1));
+    f.set_f32(ChannelKind::Reference, brighter.to_vec()).unwrap();
+    write_exr(&dir.path().join("f_0001.exr"), &f, &WriteOptions::default()).unwrap();
+    let (ok, out, err) = run(&[
+        "eval",
+        "--input",
+        dir.path().to_str().unwrap(),
+        "--json",
+        "--space",
+        "linear",
+    ]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let rmse = v["frames"][0]["rmse"].as_f64().unwrap();
+    assert!(rmse > 0.05 && rmse <= 0.1 + 1e-6, "{rmse}");
+    // Without a reference anywhere: a clear error.
+    let bare = tempfile::tempdir().unwrap();
+    write_exr(&bare.path().join("f_0001.exr"), &src, &WriteOptions::default()).unwrap();
+    let (ok, _, err) = run(&["eval", "--input", bare.path().to_str().unwrap()]);
+    assert!(!ok && err.contains("no reference channel"), "{err}");
+    // Size mismatch against the fence reference.
+    let r = common::fixture("blender-fence/reference/frame_0001.exr");
+    let (ok, _, err) = run(&[
+        "eval",
+        "--input",
+        bare.path().to_str().unwrap(),
+        "--reference",
+        r.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("is 320x180 but its reference is 160x90"),
+        "{err}"
+    );
+}

@@ -1,0 +1,290 @@
+//! The real Blender renders in tests/fixtures load through the `blender` preset, and the
+//! converted motion vectors reproject geometry where the renderer's cameras say it was.
+
+mod common;
+
+use afterimage::frame::{ChannelKind, ChannelSet, Frame};
+use afterimage::io::{read_frame, PresetChoice, ReadOptions, Sequence};
+use afterimage::tolerance::Tolerance;
+
+fn blender() -> ReadOptions {
+    ReadOptions {
+        preset: PresetChoice::Blender,
+        ..ReadOptions::default()
+    }
+}
+
+fn load(dir: &str) -> Vec<Frame> {
+    let seq = Sequence::open(common::fixture(dir).to_str().unwrap()).unwrap();
+    seq.frames(&blender()).collect::<Result<_, _>>().unwrap()
+}
+
+#[test]
+fn fixtures_load_with_every_channel() {
+    let all = ChannelSet::of(&[
+        ChannelKind::Color,
+        ChannelKind::Depth,
+        ChannelKind::Motion,
+        ChannelKind::Normal,
+        ChannelKind::ObjectId,
+        ChannelKind::Albedo,
+    ]);
+    for (dir, n, w, h) in [
+        ("blender-motion", 3, 320, 180),
+        ("blender-fence/input", 4, 160, 90),
+    ] {
+        let frames = load(dir);
+        assert_eq!(frames.len(), n, "{dir}");
+        for (i, f) in frames.iter().enumerate() {
+            assert_eq!((f.width(), f.height()), (w, h), "{dir}");
+            assert_eq!(f.channels(), all, "{dir}");
+            assert_eq!(f.meta.index, i as u64 + 1, "{dir}: index from the file name");
+            assert_eq!(f.non_finite().total(), 0);
+        }
+        // Auto-detection picks the same preset.
+        let auto = read_frame(
+            &common::fixture(dir).join("frame_0001.exr"),
+            &ReadOptions::default(),
+        )
+        .unwrap();
+        assert_eq!(auto.channels(), all);
+        assert_eq!(auto.motion(), frames[0].motion());
+    }
+    // The reference renders are plain RGB(A): colour only.
+    let r = read_frame(
+        &common::fixture("blender-fence/reference/frame_0001.exr"),
+        &ReadOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(r.channels(), ChannelSet::of(&[ChannelKind::Color]));
+}
+
+/// The square moves 5 px right and 3 px up per frame: internally its motion is
+/// (-5, +3) (previous position = left of and below the current one), the backdrop's 0,
+/// and following the motion lands on the square in the previous frame.
+#[test]
+fn moving_square_motion_is_converted_and_reprojects() {
+    let frames = load("blender-motion");
+    for k in 1..frames.len() {
+        let (cur, prev) = (&frames[k], &frames[k - 1]);
+        let ids = cur.object_id().unwrap();
+        let [mx, my] = cur.motion().unwrap();
+        let mut square = 0;
+        for y in 0..cur.height() {
+            for x in 0..cur.width() {
+                let id = ids.get(x, y);
+                let (vx, vy) = (mx.get(x, y), my.get(x, y));
+                if id == 2 {
+                    square += 1;
+                    // Cycles writes the vector through a float pipeline: -4.99998 for -5.
+                    let t = Tolerance::abs(1e-4);
+                    t.check("square mv x", vx as f64, -5.0).unwrap();
+                    t.check("square mv y", vy as f64, 3.0).unwrap();
+                    let (px, py) = ((x as f32 + vx) as usize, (y as f32 + vy) as usize);
+                    assert_eq!(
+                        prev.object_id().unwrap().get(px, py),
+                        2,
+                        "({x},{y}) -> ({px},{py})"
+                    );
+                } else {
+                    assert_eq!((vx, vy), (0.0, 0.0));
+                }
+            }
+        }
+        assert_eq!(square, 400, "a 20x20 square");
+    }
+    // The README's centres: frame 2's square centre (160, 90) came from (155, 93).
+    let f2 = &frames[1];
+    let [mx, my] = f2.motion().unwrap();
+    let (x, y) = (160usize, 90usize);
+    let t = Tolerance::abs(1e-4);
+    t.check("centre x", (x as f32 + mx.get(x, y)) as f64, 155.0)
+        .unwrap();
+    t.check("centre y", (y as f32 + my.get(x, y)) as f64, 93.0)
+        .unwrap();
+}
+
+/// Blender camera: matrix_world (camera to world, looking down -Z, y up), 28 mm lens on a
+/// 36 mm sensor fitted to the width.
+struct Camera {
+    m: [[f64; 4]; 4],
+    focal_px: f64,
+    w: f64,
+    h: f64,
+}
+
+impl Camera {
+    fn from_meta(frame: &serde_json::Value, w: usize, h: usize) -> Camera {
+        let mut m = [[0.0; 4]; 4];
+        for (i, row) in frame["cam_matrix_world"].as_array().unwrap().iter().enumerate() {
+            for (j, v) in row.as_array().unwrap().iter().enumerate() {
+                m[i][j] = v.as_f64().unwrap();
+            }
+        }
+        let focal_px =
+            frame["lens_mm"].as_f64().unwrap() / frame["sensor_width_mm"].as_f64().unwrap() * w as f64;
+        Camera {
+            m,
+            focal_px,
+            w: w as f64,
+            h: h as f64,
+        }
+    }
+
+    /// World point of the pixel position (x, y) (from the top-left, pixel centres at
+    /// +0.5) at planar depth d.
+    fn unproject(&self, x: f64, y: f64, d: f64) -> [f64; 3] {
+        let c = [
+            (x - self.w / 2.0) * d / self.focal_px,
+            (self.h / 2.0 - y) * d / self.focal_px,
+            -d,
+        ];
+        let m = &self.m;
+        [0, 1, 2].map(|i| m[i][0] * c[0] + m[i][1] * c[1] + m[i][2] * c[2] + m[i][3])
+    }
+
+    /// Pixel position and planar depth of a world point.
+    fn project(&self, p: [f64; 3]) -> (f64, f64, f64) {
+        let m = &self.m;
+        // Inverse of a rigid transform: R^T (p - t).
+        let d = [p[0] - m[0][3], p[1] - m[1][3], p[2] - m[2][3]];
+        let c: [f64; 3] = [0, 1, 2].map(|j| m[0][j] * d[0] + m[1][j] * d[1] + m[2][j] * d[2]);
+        let depth = -c[2];
+        (
+            self.w / 2.0 + self.focal_px * c[0] / depth,
+            self.h / 2.0 - self.focal_px * c[1] / depth,
+            depth,
+        )
+    }
+}
+
+/// On the fence render (moving camera, moving sphere): for static geometry, the position
+/// the converted motion points to is where the previous camera sees the same world point;
+/// the previous frame's depth there is that point's depth; and its object id is the same.
+#[test]
+fn fence_motion_reprojects_static_geometry_onto_itself() {
+    let frames = load("blender-fence/input");
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(common::fixture("blender-fence/input/meta.json")).unwrap(),
+    )
+    .unwrap();
+    let sphere_id = meta["object_pass_index"]["sphere"].as_u64().unwrap() as u32;
+    let (w, h) = (frames[0].width(), frames[0].height());
+    let mut checked = 0usize;
+    let mut id_agree = 0usize;
+    let mut id_total = 0usize;
+    let mut max_px_err = 0.0f64;
+    let mut max_depth_rel_err = 0.0f64;
+    for k in 1..frames.len() {
+        let (cur, prev) = (&frames[k], &frames[k - 1]);
+        let cam = Camera::from_meta(&meta["per_frame"][(k + 1).to_string()], w, h);
+        let cam_prev = Camera::from_meta(&meta["per_frame"][k.to_string()], w, h);
+        let (ids, depth) = (cur.object_id().unwrap(), cur.depth().unwrap());
+        let [mx, my] = cur.motion().unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let id = ids.get(x, y);
+                if id == 0 || id == sphere_id {
+                    continue; // sky has no motion in Blender; the sphere moves on its own
+                }
+                let (px, py) = (
+                    x as f64 + 0.5 + mx.get(x, y) as f64,
+                    y as f64 + 0.5 + my.get(x, y) as f64,
+                );
+                if !(1.0..w as f64 - 1.0).contains(&px) || !(1.0..h as f64 - 1.0).contains(&py) {
+                    continue;
+                }
+                let world = cam.unproject(x as f64 + 0.5, y as f64 + 0.5, depth.get(x, y) as f64);
+                let (ex, ey, ed) = cam_prev.project(world);
+                max_px_err = max_px_err.max((ex - px).abs()).max((ey - py).abs());
+                checked += 1;
+                // Id and depth in the previous frame where the point is interior to an
+                // object (all four bilinear neighbours share its id, so no edge and no
+                // occluder).
+                let (ix, iy) = ((px - 0.5).floor() as usize, (py - 0.5).floor() as usize);
+                let pid = prev.object_id().unwrap();
+                let neighbours = [
+                    pid.get(ix, iy),
+                    pid.get(ix + 1, iy),
+                    pid.get(ix, iy + 1),
+                    pid.get(ix + 1, iy + 1),
+                ];
+                // Visible in the previous frame: its depth there is the point's depth
+                // (otherwise something else covered it then: a disocclusion).
+                let visible =
+                    (prev.depth().unwrap().get(px as usize, py as usize) as f64 - ed).abs() < 0.02 * ed;
+                if visible {
+                    id_total += 1;
+                    if pid.get(px as usize, py as usize) == id {
+                        id_agree += 1;
+                    }
+                }
+                if neighbours.iter().all(|&n| n == id) {
+                    let d = prev.depth().unwrap().sample_bilinear(px as f32, py as f32) as f64;
+                    max_depth_rel_err = max_depth_rel_err.max((d - ed).abs() / ed);
+                }
+            }
+        }
+    }
+    println!(
+        "checked {checked} pixels: max reprojection error {max_px_err:.2e} px, \
+         max depth error {max_depth_rel_err:.2e} (relative), object id agrees on {id_agree}/{id_total} visible"
+    );
+    assert!(checked > 20_000, "checked {checked}");
+    assert!(max_px_err < 2e-3, "reprojection off by {max_px_err} px");
+    // Bilinear depth on a plane seen in perspective is not exactly linear in screen space.
+    assert!(max_depth_rel_err < 1e-2, "depth off by {max_depth_rel_err}");
+    assert!(id_agree as f64 >= 0.99 * id_total as f64, "{id_agree}/{id_total}");
+}
+
+/// The sphere moves rigidly (its tracked world position steps 0.5 m a frame): every
+/// sphere pixel's motion points to where the previous camera saw that surface point
+/// before the step.
+#[test]
+fn fence_sphere_motion_matches_its_rigid_motion() {
+    let frames = load("blender-fence/input");
+    let meta: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(common::fixture("blender-fence/input/meta.json")).unwrap(),
+    )
+    .unwrap();
+    let sphere_id = meta["object_pass_index"]["sphere"].as_u64().unwrap() as u32;
+    let (w, h) = (frames[0].width(), frames[0].height());
+    let track = |n: usize| -> [f64; 3] {
+        let v = meta["per_frame"][n.to_string()]["track_world_pos"]
+            .as_array()
+            .unwrap();
+        [0, 1, 2].map(|i| v[i].as_f64().unwrap())
+    };
+    let mut checked = 0;
+    let mut max_err = 0.0f64;
+    for k in 1..frames.len() {
+        let (n, f) = (k + 1, &frames[k]);
+        let cam = Camera::from_meta(&meta["per_frame"][n.to_string()], w, h);
+        let cam_prev = Camera::from_meta(&meta["per_frame"][k.to_string()], w, h);
+        let (step, step_prev) = (track(n), track(k));
+        let [mx, my] = f.motion().unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                if f.object_id().unwrap().get(x, y) != sphere_id {
+                    continue;
+                }
+                let p = cam.unproject(
+                    x as f64 + 0.5,
+                    y as f64 + 0.5,
+                    f.depth().unwrap().get(x, y) as f64,
+                );
+                let before = [0, 1, 2].map(|i| p[i] - (step[i] - step_prev[i]));
+                let (ex, ey, _) = cam_prev.project(before);
+                let (px, py) = (
+                    x as f64 + 0.5 + mx.get(x, y) as f64,
+                    y as f64 + 0.5 + my.get(x, y) as f64,
+                );
+                max_err = max_err.max((ex - px).abs()).max((ey - py).abs());
+                checked += 1;
+            }
+        }
+    }
+    println!("sphere: {checked} pixels, max error {max_err:.2e} px");
+    assert!(checked > 100, "{checked}");
+    assert!(max_err < 2e-3, "sphere motion off by {max_err} px");
+}
