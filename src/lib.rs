@@ -12,4 +12,5 @@ pub mod frame;
 pub mod io;
 pub mod metrics;
 pub mod rng;
+pub mod scene;
 pub mod tolerance;

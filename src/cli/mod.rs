@@ -4,6 +4,7 @@
 mod eval;
 mod info;
 mod read_args;
+mod scene;
 
 use clap::{Parser, Subcommand};
 
@@ -22,6 +23,8 @@ enum Command {
     Info(info::InfoArgs),
     /// Measure a sequence against a reference: PSNR, SSIM, RMSE per frame and tRMSE.
     Eval(eval::EvalArgs),
+    /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
+    Scene(scene::SceneArgs),
 }
 
 /// Runs the parsed command.
@@ -29,5 +32,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(a) => info::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Scene(a) => scene::run(a),
     }
 }

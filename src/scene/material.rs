@@ -1,0 +1,98 @@
+//! Procedural textures and materials.
+
+use glam::{DVec2, DVec3};
+
+/// A procedural pattern mixing two colours over local texture coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Pattern {
+    /// Colour `a` everywhere.
+    Solid,
+    /// Squares of side `size`.
+    Checker {
+        /// Side of a square, world units.
+        size: f64,
+    },
+    /// Stripes across u with this period (half `a`, half `b`).
+    Stripes {
+        /// Period, world units.
+        period: f64,
+    },
+    /// A zone plate `0.5 + 0.5 cos(k |uv|^2)`: frequency rising without bound, the
+    /// hardest case for any anti-aliasing filter.
+    ZonePlate {
+        /// Chirp rate.
+        k: f64,
+    },
+}
+
+/// A surface: albedo pattern, emission, optional Blinn-Phong specular.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Material {
+    /// The albedo pattern.
+    pub pattern: Pattern,
+    /// First colour.
+    pub a: DVec3,
+    /// Second colour.
+    pub b: DVec3,
+    /// Emitted radiance (added regardless of light).
+    pub emission: DVec3,
+    /// Specular strength (0: none).
+    pub specular: f64,
+    /// Blinn-Phong exponent.
+    pub shininess: f64,
+}
+
+impl Material {
+    /// A matte solid colour.
+    pub fn matte(c: DVec3) -> Material {
+        Material {
+            pattern: Pattern::Solid,
+            a: c,
+            b: c,
+            emission: DVec3::ZERO,
+            specular: 0.0,
+            shininess: 1.0,
+        }
+    }
+
+    /// A matte pattern of two colours.
+    pub fn patterned(pattern: Pattern, a: DVec3, b: DVec3) -> Material {
+        Material {
+            pattern,
+            a,
+            b,
+            ..Material::matte(a)
+        }
+    }
+
+    /// A pure emitter (black albedo).
+    pub fn emitter(e: DVec3) -> Material {
+        Material {
+            emission: e,
+            ..Material::matte(DVec3::ZERO)
+        }
+    }
+
+    /// With Blinn-Phong specular.
+    pub fn with_specular(self, strength: f64, shininess: f64) -> Material {
+        Material {
+            specular: strength,
+            shininess,
+            ..self
+        }
+    }
+
+    /// Albedo at texture coordinates `uv`.
+    pub fn albedo(&self, uv: DVec2) -> DVec3 {
+        let m = match self.pattern {
+            Pattern::Solid => 0.0,
+            Pattern::Checker { size } => {
+                let c = (uv / size).floor();
+                ((c.x as i64 + c.y as i64) & 1) as f64
+            }
+            Pattern::Stripes { period } => (((2.0 * uv.x / period).floor() as i64) & 1) as f64,
+            Pattern::ZonePlate { k } => 0.5 - 0.5 * (k * uv.length_squared()).cos(),
+        };
+        self.a + (self.b - self.a) * m
+    }
+}

@@ -1,0 +1,477 @@
+//! Ray casting one instant of a scene: visibility, shading, exact motion, and the frame
+//! assembly (G-buffer from one jittered sample, reference from N x N samples).
+
+use super::bvh::Bvh;
+use super::camera::{Camera, Projected};
+use super::math::{radical_inverse, Ray, Rigid};
+use super::shapes::LocalHit;
+use super::{SceneDef, Settings};
+use crate::frame::{ChannelKind, Frame, FrameMeta, Plane};
+use crate::rng::SplitMix64;
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Depth written for sky pixels (also the far plane in the frame values): far beyond
+/// every scene, finite so that depth arithmetic in filters stays finite.
+pub const SKY_DEPTH: f64 = 1000.0;
+
+/// Motion written for a point that was behind the camera in the previous frame: far off
+/// screen in both axes, so that every filter treats it as "reprojects off screen".
+pub const BEHIND_CAMERA_MOTION: f32 = -1.0e4;
+
+/// Offset of shadow-ray origins along the normal, against self-intersection.
+const SHADOW_EPSILON: f64 = 1e-6;
+
+/// Everything about one instant: placed objects, their BVH, the camera, the sun.
+pub struct Instant<'a> {
+    def: &'a SceneDef,
+    xf: Vec<Rigid>,
+    bvh: Bvh,
+    planes: Vec<usize>,
+    /// The camera.
+    pub camera: Camera,
+    sun: DVec3,
+}
+
+/// A surface hit in world terms.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    /// Index of the object.
+    pub object: usize,
+    /// Hit in the object's local frame.
+    pub local: LocalHit,
+    /// The hit point in the object's local coordinates.
+    pub local_point: DVec3,
+    /// Texture coordinates of the hit.
+    pub uv: glam::DVec2,
+    /// World normal.
+    pub normal: DVec3,
+}
+
+/// What one camera sample sees.
+#[derive(Clone, Copy, Debug)]
+pub struct Sample {
+    /// Shaded linear colour.
+    pub color: DVec3,
+    /// Planar depth ([`SKY_DEPTH`] for sky).
+    pub depth: f64,
+    /// World normal (zero for sky).
+    pub normal: DVec3,
+    /// Object id (0 for sky).
+    pub object_id: u32,
+    /// Albedo (zero for sky).
+    pub albedo: DVec3,
+    /// Where the seen point was in the previous frame (None: behind the camera then).
+    pub prev: Option<Projected>,
+}
+
+impl<'a> Instant<'a> {
+    /// The scene at time `t`.
+    pub fn new(def: &'a SceneDef, t: f64) -> Instant<'a> {
+        let xf: Vec<Rigid> = def.objects.iter().map(|o| (o.motion)(t)).collect();
+        let mut finite = Vec::new();
+        let mut planes = Vec::new();
+        for (i, o) in def.objects.iter().enumerate() {
+            match o.shape.bounds() {
+                Some(b) => finite.push((i, b.transformed(&xf[i]))),
+                None => planes.push(i),
+            }
+        }
+        Instant {
+            def,
+            bvh: Bvh::build(&finite),
+            planes,
+            xf,
+            camera: (def.camera)(t),
+            sun: (def.sun)(t).normalize(),
+        }
+    }
+
+    /// The object transforms at this instant.
+    pub fn transform(&self, object: usize) -> &Rigid {
+        &self.xf[object]
+    }
+
+    /// The finite primitives that a beam bounded by four corner rays (in order around
+    /// the beam) may hit, into `out` (cleared first).
+    pub fn beam_candidates(&self, corners: &[Ray; 4], out: &mut Vec<usize>) {
+        out.clear();
+        let centre = corners.iter().fold(DVec3::ZERO, |a, r| a + r.origin + r.dir) / 4.0;
+        let planes: Vec<(DVec3, DVec3)> = (0..4)
+            .map(|i| {
+                let (a, b) = (&corners[i], &corners[(i + 1) % 4]);
+                let n = a.dir.cross(b.origin + b.dir - a.origin);
+                let n = if n.dot(centre - a.origin) < 0.0 { -n } else { n };
+                (a.origin, n)
+            })
+            .collect();
+        self.bvh.collect_in_beam(&planes, out);
+    }
+
+    /// The nearest hit along `ray` among the planes and the finite primitives
+    /// `candidates` (from [`Instant::beam_candidates`] of a beam holding the ray).
+    pub fn intersect_among(&self, ray: &Ray, candidates: &[usize]) -> Option<Hit> {
+        let mut best: Option<(usize, LocalHit, Ray)> = None;
+        let mut t = f64::INFINITY;
+        for &i in self.planes.iter().chain(candidates) {
+            let local = self.xf[i].ray_to_local(ray);
+            if let Some(h) = self.def.objects[i].shape.intersect(&local, 0.0, t) {
+                t = h.t;
+                best = Some((i, h, local));
+            }
+        }
+        self.finish_hit(best)
+    }
+
+    fn finish_hit(&self, best: Option<(usize, LocalHit, Ray)>) -> Option<Hit> {
+        best.map(|(object, local, lray)| {
+            let local_point = lray.at(local.t);
+            Hit {
+                object,
+                local,
+                local_point,
+                uv: self.def.objects[object].shape.uv(local_point, local.normal),
+                normal: self.xf[object].vector(local.normal),
+            }
+        })
+    }
+
+    /// The nearest hit along `ray` before `t_max`.
+    pub fn intersect(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
+        let mut best: Option<(usize, LocalHit, Ray)> = None;
+        let mut test = |i: usize, t_max: f64| -> f64 {
+            let local = self.xf[i].ray_to_local(ray);
+            match self.def.objects[i].shape.intersect(&local, 0.0, t_max) {
+                Some(h) => {
+                    best = Some((i, h, local));
+                    h.t
+                }
+                None => t_max,
+            }
+        };
+        let mut t = t_max;
+        for &i in &self.planes {
+            t = test(i, t);
+        }
+        self.bvh.walk(ray, t, &mut test);
+        self.finish_hit(best)
+    }
+
+    /// The finite primitives that may shadow any point of the box `lo..hi` from the
+    /// sun's centre direction, into `out` (cleared first).
+    pub fn shadow_candidates(&self, lo: DVec3, hi: DVec3, out: &mut Vec<usize>) {
+        out.clear();
+        if lo.cmple(hi).all() {
+            self.bvh
+                .collect_swept((lo + hi) * 0.5, (hi - lo) * 0.5 + SHADOW_EPSILON, self.sun, out);
+        }
+    }
+
+    /// Whether a plane or one of `candidates` (but not `skip`) blocks `ray`.
+    pub fn occluded_among(&self, ray: &Ray, skip: usize, candidates: &[usize]) -> bool {
+        self.planes.iter().chain(candidates).any(|&i| {
+            i != skip && {
+                let local = self.xf[i].ray_to_local(ray);
+                self.def.objects[i]
+                    .shape
+                    .intersect(&local, 0.0, f64::INFINITY)
+                    .is_some()
+            }
+        })
+    }
+
+    /// Whether anything but object `skip` blocks `ray` before `t_max`. (A shadow ray
+    /// leaving a convex primitive on its lit side cannot hit that primitive again, and
+    /// every primitive here is convex.)
+    pub fn occluded(&self, ray: &Ray, t_max: f64, skip: usize) -> bool {
+        let mut blocked = false;
+        let mut test = |i: usize, t_max: f64| -> f64 {
+            if i == skip {
+                return t_max;
+            }
+            let local = self.xf[i].ray_to_local(ray);
+            if self.def.objects[i].shape.intersect(&local, 0.0, t_max).is_some() {
+                blocked = true;
+                -1.0
+            } else {
+                t_max
+            }
+        };
+        for &i in &self.planes {
+            if test(i, t_max) < 0.0 {
+                return true;
+            }
+        }
+        self.bvh.walk(ray, t_max, &mut test);
+        blocked
+    }
+
+    /// Distance fog towards the horizon colour (none when the scene has no fog).
+    fn fog(&self, c: DVec3, distance: f64) -> DVec3 {
+        match self.def.fog_distance {
+            Some(f) => {
+                let h = self.def.sky_horizon;
+                h + (c - h) * (-distance / f).exp()
+            }
+            None => c,
+        }
+    }
+
+    fn sky(&self, dir: DVec3) -> DVec3 {
+        let (top, horizon) = (self.def.sky_top, self.def.sky_horizon);
+        horizon + (top - horizon) * dir.y.max(0.0)
+    }
+
+    /// Direction towards the sun, or a point of the sun's disc for `light` in [0,1)^2
+    /// (uniform over the cone of the disc's angular radius).
+    fn sun_direction(&self, light: Option<(f64, f64)>) -> DVec3 {
+        let Some((u, v)) = light else { return self.sun };
+        let cos_max = self.def.sun_angular_radius.cos();
+        let cos_t = 1.0 - u * (1.0 - cos_max);
+        let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+        let phi = 2.0 * std::f64::consts::PI * v;
+        let w = self.sun;
+        let a = if w.x.abs() > 0.9 { DVec3::Y } else { DVec3::X };
+        let t1 = w.cross(a).normalize();
+        let t2 = w.cross(t1);
+        (w * cos_t + (t1 * phi.cos() + t2 * phi.sin()) * sin_t).normalize()
+    }
+
+    /// Colour seen along `ray`; `light` picks a point of the sun's disc (None: its
+    /// centre, hard shadows).
+    pub fn shade(&self, ray: &Ray, hit: Option<&Hit>, light: Option<(f64, f64)>) -> DVec3 {
+        self.shade_with(ray, hit, light, None)
+    }
+
+    /// [`Instant::shade`], testing shadow rays only against the planes and
+    /// `shadow_candidates` when given (see [`Instant::shadow_candidates`]).
+    pub fn shade_with(
+        &self,
+        ray: &Ray,
+        hit: Option<&Hit>,
+        light: Option<(f64, f64)>,
+        shadow_candidates: Option<&[usize]>,
+    ) -> DVec3 {
+        let Some(hit) = hit else { return self.sky(ray.dir) };
+        let m = &self.def.objects[hit.object].material;
+        let mut n = hit.normal;
+        if n.dot(ray.dir) > 0.0 {
+            n = -n; // back faces (inside a box seen through a gap) shade like front faces
+        }
+        let albedo = m.albedo(hit.uv);
+        let mut c = m.emission + albedo * self.def.ambient;
+        let l = self.sun_direction(light);
+        let ndl = n.dot(l);
+        if ndl > 0.0 && self.def.sun_irradiance.max_element() > 0.0 {
+            let p =
+                ray.at(hit.local.t) + n * SHADOW_EPSILON * (1.0 + ray.at(hit.local.t).abs().max_element());
+            let shadow = Ray { origin: p, dir: l };
+            let blocked = match shadow_candidates {
+                None => self.occluded(&shadow, f64::INFINITY, hit.object),
+                Some(c) => self.occluded_among(&shadow, hit.object, c),
+            };
+            if !blocked {
+                c += albedo * self.def.sun_irradiance * ndl;
+                if m.specular > 0.0 {
+                    let h = (l - ray.dir).normalize();
+                    c += self.def.sun_irradiance * m.specular * n.dot(h).max(0.0).powf(m.shininess);
+                }
+            }
+        }
+        self.fog(c, hit.local.t)
+    }
+
+    /// The full sample through image position `(x, y)` of a `w x h` image, with motion
+    /// against the instant `prev`.
+    pub fn sample(
+        &self,
+        prev: &Instant,
+        x: f64,
+        y: f64,
+        w: usize,
+        h: usize,
+        light: Option<(f64, f64)>,
+    ) -> Sample {
+        let ray = self.camera.ray(x, y, w, h);
+        let hit = self.intersect(&ray, f64::INFINITY);
+        let color = self.shade(&ray, hit.as_ref(), light);
+        match hit {
+            None => Sample {
+                color,
+                depth: SKY_DEPTH,
+                normal: DVec3::ZERO,
+                object_id: 0,
+                albedo: DVec3::ZERO,
+                prev: prev.camera.project_sky(&ray, SKY_DEPTH, w, h),
+            },
+            Some(hit) => {
+                let o = &self.def.objects[hit.object];
+                let world = ray.at(hit.local.t);
+                let fwd = DVec3::from_array(self.camera.forward);
+                let was = prev.transform(hit.object).point(hit.local_point);
+                Sample {
+                    color,
+                    depth: (world - DVec3::from_array(self.camera.position)).dot(fwd),
+                    normal: hit.normal,
+                    object_id: o.id,
+                    albedo: o.material.albedo(hit.uv),
+                    prev: prev.camera.project(was, w, h),
+                }
+            }
+        }
+    }
+}
+
+/// Halton(2,3) jitter of frame `index` with `phases` phases, in [-0.5, 0.5)^2.
+pub fn halton_jitter(index: u64, phases: u32) -> [f32; 2] {
+    let i = index % phases as u64 + 1;
+    [
+        (radical_inverse(i, 2) - 0.5) as f32,
+        (radical_inverse(i, 3) - 0.5) as f32,
+    ]
+}
+
+fn pixel_seed(seed: u64, frame: u64, x: usize, y: usize) -> u64 {
+    let mut r = SplitMix64::new(seed ^ frame.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let a = r.next_u64();
+    SplitMix64::new(a ^ ((y as u64) << 32 | x as u64)).next_u64()
+}
+
+#[derive(Clone, Copy, Default)]
+struct Pixel {
+    color: [f32; 3],
+    depth: f32,
+    motion: [f32; 2],
+    normal: [f32; 3],
+    id: u32,
+    albedo: [f32; 3],
+    reference: [f32; 3],
+}
+
+fn f3(v: DVec3) -> [f32; 3] {
+    [v.x as f32, v.y as f32, v.z as f32]
+}
+
+/// Renders frame `index` of `def` under `settings`.
+pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
+    let (w, h) = (settings.width, settings.height);
+    let t = index as f64;
+    let now = Instant::new(def, t);
+    let before = Instant::new(def, t - 1.0);
+    let jitter = settings.jitter.offset(index);
+    let n = settings.reference_grid() as usize;
+    let rays = now.camera.rays(w, h);
+    let rows: Vec<Vec<Pixel>> = (0..h)
+        .into_par_iter()
+        .map(|py| {
+            let mut candidates = Vec::new();
+            let mut shadow_candidates = Vec::new();
+            let mut hits = Vec::with_capacity(n * n);
+            (0..w)
+                .map(|px| {
+                    let mut rng = SplitMix64::new(pixel_seed(settings.seed, index, px, py));
+                    let light = settings.noise.then(|| (rng.next_f64(), rng.next_f64()));
+                    let (sx, sy) = (
+                        px as f64 + 0.5 + jitter[0] as f64,
+                        py as f64 + 0.5 + jitter[1] as f64,
+                    );
+                    let s = now.sample(&before, sx, sy, w, h, light);
+                    let motion = match s.prev {
+                        Some(p) => [(p.x - sx) as f32, (p.y - sy) as f32],
+                        None => [BEHIND_CAMERA_MOTION; 2],
+                    };
+                    // The reference's rotation of the sun-disc samples depends on the pixel
+                    // only, so a still scene has the same reference in every frame.
+                    let mut still = SplitMix64::new(pixel_seed(settings.seed, u64::MAX, px, py));
+                    let (ru, rv) = (still.next_f64(), still.next_f64());
+                    let (x0, y0) = (px as f64, py as f64);
+                    let corners = [(x0, y0), (x0 + 1.0, y0), (x0 + 1.0, y0 + 1.0), (x0, y0 + 1.0)]
+                        .map(|(x, y)| rays.ray(x, y));
+                    now.beam_candidates(&corners, &mut candidates);
+                    // Pass 1: visibility of N x N stratified positions over the pixel
+                    // box (one jittered point per cell: a regular grid leaves edge errors
+                    // of O(1/N), jittered strata O(N^-1.5)), and the bounds of the points
+                    // they hit.
+                    hits.clear();
+                    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                    for j in 0..n {
+                        for i in 0..n {
+                            // Jittered stratification: one uniform point per cell.
+                            let (u, v) = (still.next_f64(), still.next_f64());
+                            let ray =
+                                rays.ray(x0 + (i as f64 + u) / n as f64, y0 + (j as f64 + v) / n as f64);
+                            let hit = now.intersect_among(&ray, &candidates);
+                            if let Some(h) = &hit {
+                                let p = ray.at(h.local.t);
+                                lo = lo.min(p);
+                                hi = hi.max(p);
+                            }
+                            hits.push((ray, hit));
+                        }
+                    }
+                    // Pass 2: shading. Without noise every shadow ray goes to the sun's
+                    // centre, so one swept-box query bounds the occluders of the whole
+                    // pixel; with noise each sample has its own point of the sun's disc
+                    // (Halton 2,3 with a per-pixel rotation), so the reference integrates
+                    // the soft shadow that the input estimates with one sample.
+                    let shadow = (!settings.noise).then(|| {
+                        now.shadow_candidates(lo, hi, &mut shadow_candidates);
+                        shadow_candidates.as_slice()
+                    });
+                    let mut sum = DVec3::ZERO;
+                    for (k, (ray, hit)) in hits.iter().enumerate() {
+                        let k = k as u64 + 1;
+                        let light = settings.noise.then(|| {
+                            (
+                                (radical_inverse(k, 2) + ru).fract(),
+                                (radical_inverse(k, 3) + rv).fract(),
+                            )
+                        });
+                        sum += now.shade_with(ray, hit.as_ref(), light, shadow);
+                    }
+                    Pixel {
+                        color: f3(s.color),
+                        depth: s.depth as f32,
+                        motion,
+                        normal: f3(s.normal),
+                        id: s.object_id,
+                        albedo: f3(s.albedo),
+                        reference: f3(sum / (n * n) as f64),
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let pixels: Vec<Pixel> = rows.into_iter().flatten().collect();
+    let plane = |f: &dyn Fn(&Pixel) -> f32| -> Plane<f32> {
+        Plane::from_vec(w, h, pixels.iter().map(f).collect()).expect("w x h pixels")
+    };
+    let rgb = |f: &dyn Fn(&Pixel) -> [f32; 3]| -> Vec<Plane<f32>> {
+        (0..3).map(|c| plane(&|p: &Pixel| f(p)[c])).collect()
+    };
+    let color: [Plane<f32>; 3] = rgb(&|p| p.color).try_into().expect("three planes");
+    let mut frame = Frame::new(color).expect("non-empty");
+    let set = |frame: &mut Frame, k, planes| frame.set_f32(k, planes).expect("sizes match");
+    set(&mut frame, ChannelKind::Depth, vec![plane(&|p| p.depth)]);
+    set(
+        &mut frame,
+        ChannelKind::Motion,
+        vec![plane(&|p| p.motion[0]), plane(&|p| p.motion[1])],
+    );
+    set(&mut frame, ChannelKind::Normal, rgb(&|p| p.normal));
+    set(&mut frame, ChannelKind::Albedo, rgb(&|p| p.albedo));
+    set(&mut frame, ChannelKind::Reference, rgb(&|p| p.reference));
+    frame
+        .set_object_id(Plane::from_vec(w, h, pixels.iter().map(|p| p.id).collect()).expect("w x h"))
+        .expect("sizes match");
+    frame.meta = FrameMeta {
+        index,
+        jitter,
+        reset: def.cut_at == Some(index),
+        exposure: None,
+        near_far: None,
+        depth_kind: crate::frame::DepthKind::Linear,
+        normal_space: crate::frame::NormalSpace::World,
+    };
+    frame
+}

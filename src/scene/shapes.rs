@@ -1,0 +1,238 @@
+//! Analytic primitives in their own (local) coordinates.
+
+use super::math::{Aabb, Ray};
+use glam::{DVec2, DVec3};
+
+/// A primitive, centred at its local origin.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    /// The plane y = 0, normal +y (infinite).
+    Plane,
+    /// A sphere of this radius.
+    Sphere {
+        /// Radius.
+        radius: f64,
+    },
+    /// A box with these half extents.
+    Cuboid {
+        /// Half extents along x, y, z.
+        half: DVec3,
+    },
+    /// A capped cylinder along y.
+    Cylinder {
+        /// Radius.
+        radius: f64,
+        /// Half of the height.
+        half_height: f64,
+    },
+}
+
+/// A hit in local coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct LocalHit {
+    /// Ray parameter.
+    pub t: f64,
+    /// Local normal (unit, facing outwards).
+    pub normal: DVec3,
+}
+
+fn solve_quadratic(a: f64, b: f64, c: f64) -> Option<(f64, f64)> {
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return None;
+    }
+    let s = disc.sqrt();
+    // Numerically stable roots.
+    let q = -0.5 * (b + b.signum() * s);
+    let (r0, r1) = if q == 0.0 { (0.0, 0.0) } else { (q / a, c / q) };
+    Some((r0.min(r1), r0.max(r1)))
+}
+
+impl Shape {
+    /// Local bounds (None for the infinite plane).
+    pub fn bounds(&self) -> Option<Aabb> {
+        let half = match *self {
+            Shape::Plane => return None,
+            Shape::Sphere { radius } => DVec3::splat(radius),
+            Shape::Cuboid { half } => half,
+            Shape::Cylinder { radius, half_height } => DVec3::new(radius, half_height, radius),
+        };
+        Some(Aabb {
+            min: -half,
+            max: half,
+        })
+    }
+
+    /// Texture coordinates of the local surface point `p` whose local normal is `n`
+    /// (world units along the surface, so patterns keep their scale).
+    pub fn uv(&self, p: DVec3, n: DVec3) -> DVec2 {
+        match *self {
+            Shape::Plane => DVec2::new(p.x, p.z),
+            Shape::Sphere { radius } => {
+                let d = p / radius;
+                DVec2::new(d.z.atan2(d.x) * radius, d.y.clamp(-1.0, 1.0).asin() * radius)
+            }
+            Shape::Cuboid { .. } => {
+                if n.x != 0.0 {
+                    DVec2::new(p.z, p.y)
+                } else if n.y != 0.0 {
+                    DVec2::new(p.x, p.z)
+                } else {
+                    DVec2::new(p.x, p.y)
+                }
+            }
+            Shape::Cylinder { radius, .. } => {
+                if n.y != 0.0 {
+                    DVec2::new(p.x, p.z)
+                } else {
+                    DVec2::new(p.z.atan2(p.x) * radius, p.y)
+                }
+            }
+        }
+    }
+
+    /// The nearest hit with `t_min < t < t_max` of a local ray.
+    pub fn intersect(&self, r: &Ray, t_min: f64, t_max: f64) -> Option<LocalHit> {
+        let ok = |t: f64| t > t_min && t < t_max;
+        match *self {
+            Shape::Plane => {
+                if r.dir.y.abs() < 1e-15 {
+                    return None;
+                }
+                let t = -r.origin.y / r.dir.y;
+                ok(t).then_some(LocalHit { t, normal: DVec3::Y })
+            }
+            Shape::Sphere { radius } => {
+                let b = 2.0 * r.origin.dot(r.dir);
+                let c = r.origin.length_squared() - radius * radius;
+                let (t0, t1) = solve_quadratic(1.0, b, c)?;
+                let t = if ok(t0) {
+                    t0
+                } else if ok(t1) {
+                    t1
+                } else {
+                    return None;
+                };
+                Some(LocalHit {
+                    t,
+                    normal: r.at(t) / radius,
+                })
+            }
+            Shape::Cuboid { half } => {
+                let inv = r.dir.recip();
+                let t0 = (-half - r.origin) * inv;
+                let t1 = (half - r.origin) * inv;
+                let tn = t0.min(t1);
+                let tf = t0.max(t1);
+                let near = tn.max_element();
+                let far = tf.min_element();
+                if near > far {
+                    return None;
+                }
+                let (t, inside) = if ok(near) {
+                    (near, false)
+                } else if ok(far) {
+                    (far, true)
+                } else {
+                    return None;
+                };
+                let p = r.at(t);
+                // The face: the axis whose slab boundary this is.
+                let axis = if inside {
+                    tf.to_array().iter().position(|&v| v == far).unwrap_or(0)
+                } else {
+                    tn.to_array().iter().position(|&v| v == near).unwrap_or(0)
+                };
+                let mut normal = DVec3::ZERO;
+                normal[axis] = p[axis].signum();
+                Some(LocalHit { t, normal })
+            }
+            Shape::Cylinder { radius, half_height } => {
+                let mut best: Option<LocalHit> = None;
+                let mut consider = |h: LocalHit| {
+                    if ok(h.t) && best.is_none_or(|b| h.t < b.t) {
+                        best = Some(h);
+                    }
+                };
+                let a = r.dir.x * r.dir.x + r.dir.z * r.dir.z;
+                if a > 1e-18 {
+                    let b = 2.0 * (r.origin.x * r.dir.x + r.origin.z * r.dir.z);
+                    let c = r.origin.x * r.origin.x + r.origin.z * r.origin.z - radius * radius;
+                    if let Some((t0, t1)) = solve_quadratic(a, b, c) {
+                        for t in [t0, t1] {
+                            let p = r.at(t);
+                            if p.y.abs() <= half_height {
+                                consider(LocalHit {
+                                    t,
+                                    normal: DVec3::new(p.x / radius, 0.0, p.z / radius),
+                                });
+                            }
+                        }
+                    }
+                }
+                if r.dir.y.abs() > 1e-15 {
+                    for s in [-1.0, 1.0] {
+                        let t = (s * half_height - r.origin.y) / r.dir.y;
+                        let p = r.at(t);
+                        if p.x * p.x + p.z * p.z <= radius * radius {
+                            consider(LocalHit {
+                                t,
+                                normal: DVec3::new(0.0, s, 0.0),
+                            });
+                        }
+                    }
+                }
+                best
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tolerance::Tolerance;
+
+    #[test]
+    fn hits_land_on_the_surface() {
+        let shapes = [
+            Shape::Sphere { radius: 1.3 },
+            Shape::Cuboid {
+                half: DVec3::new(0.5, 1.0, 2.0),
+            },
+            Shape::Cylinder {
+                radius: 0.7,
+                half_height: 1.1,
+            },
+        ];
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let t = Tolerance::abs(1e-9);
+        for s in shapes {
+            let mut hits = 0;
+            for _ in 0..500 {
+                let o = DVec3::new(rng.range(-5.0, 5.0), rng.range(-5.0, 5.0), rng.range(-5.0, 5.0));
+                if o.abs().max_element() < 2.5 {
+                    continue; // start outside every shape
+                }
+                let target = DVec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0));
+                let r = Ray {
+                    origin: o,
+                    dir: (target - o).normalize(),
+                };
+                let Some(h) = s.intersect(&r, 1e-9, 1e9) else {
+                    continue;
+                };
+                hits += 1;
+                let p = r.at(h.t);
+                let b = s.bounds().unwrap();
+                assert!(p.cmpge(b.min - 1e-9).all() && p.cmple(b.max + 1e-9).all());
+                t.check("unit normal", h.normal.length(), 1.0).unwrap();
+                assert!(h.normal.dot(r.dir) < 0.0, "outside rays hit front faces");
+                if let Shape::Sphere { radius } = s {
+                    t.check("on sphere", p.length(), radius).unwrap();
+                }
+            }
+            assert!(hits > 100, "{s:?}: {hits}");
+        }
+    }
+}
