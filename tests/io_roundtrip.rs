@@ -187,3 +187,30 @@ fn a_gap_in_a_sequence_names_the_missing_frame() {
         .to_string();
     assert!(err.contains("no file matches"), "{err}");
 }
+
+#[test]
+fn jpeg_and_16_bit_png_are_decoded_from_srgb() {
+    let dir = tempfile::tempdir().unwrap();
+    // A smooth 8-bit gradient as JPEG (lossy: a few code values of error).
+    let (w, h) = (32u32, 16u32);
+    let img = image::RgbImage::from_fn(w, h, |x, y| image::Rgb([(x * 8) as u8, (y * 16) as u8, 128]));
+    let jpg = dir.path().join("g.jpg");
+    img.save(&jpg).unwrap();
+    let f = read_frame(&jpg, &ReadOptions::default()).unwrap();
+    assert_eq!((f.width(), f.height()), (32, 16));
+    let back = afterimage::io::linear_to_srgb(f.color()[2].get(5, 5)) * 255.0;
+    // Chroma subsampling moves it a few code values; undecoded sRGB would give 187.
+    assert!(Tolerance::abs(8.0).eq(back as f64, 128.0), "{back}");
+    // 16-bit PNG: full precision survives.
+    let img16 = image::ImageBuffer::<image::Rgb<u16>, _>::from_fn(w, h, |x, _| {
+        image::Rgb([x as u16 * 2000, 65535, 0])
+    });
+    let png = dir.path().join("g16.png");
+    img16.save(&png).unwrap();
+    let f = read_frame(&png, &ReadOptions::default()).unwrap();
+    let v = afterimage::io::linear_to_srgb(f.color()[0].get(7, 3));
+    Tolerance::abs(1e-5)
+        .check("16-bit", v as f64, 14000.0 / 65535.0)
+        .unwrap();
+    assert_eq!(f.color()[1].get(0, 0), 1.0);
+}

@@ -24,7 +24,8 @@ fn psnr_and_ssim_match_scikit_image() {
     let expected: serde_json::Value = serde_json::from_str(&text).unwrap();
     let cases = expected["cases"].as_array().unwrap();
     assert!(cases.len() >= 4);
-    let tol = Tolerance::abs(1e-4);
+    // The issue asks for 1e-4; we agree to ~1e-8, so hold a tighter line.
+    let tol = Tolerance::abs(1e-6);
     for case in cases {
         let name = case["name"].as_str().unwrap();
         let w = case["width"].as_u64().unwrap() as usize;
@@ -40,6 +41,11 @@ fn psnr_and_ssim_match_scikit_image() {
         tol.check(&format!("{name} PSNR"), psnr, case["psnr"].as_f64().unwrap())
             .unwrap();
         let s = ssim(&luma(&a, space), &luma(&b, space), false).mean;
+        println!(
+            "{name:<11} PSNR {psnr:.6} (scikit-image {:.6}), SSIM {s:.8} (scikit-image {:.8})",
+            case["psnr"].as_f64().unwrap(),
+            case["ssim"].as_f64().unwrap()
+        );
         tol.check(&format!("{name} SSIM"), s, case["ssim"].as_f64().unwrap())
             .unwrap();
     }

@@ -194,16 +194,14 @@ impl Sequence {
         self.entries.is_empty()
     }
 
-    /// Reads the frames in order, each converted with its predecessor's jitter; the frame
-    /// index is the file's frame number unless the file stores its own.
+    /// Reads the frames in order, each converted with its predecessor's jitter; in a
+    /// sequence the frame index is the file's frame number.
     pub fn frames<'a>(&'a self, opts: &'a ReadOptions) -> impl Iterator<Item = Result<Frame, IoError>> + 'a {
         let mut jitter_prev = None;
         self.entries.iter().map(move |e| {
             let mut f = read_frame_after(&e.path, opts, jitter_prev)?;
             jitter_prev = Some(f.meta.jitter);
-            if f.meta.index == 0 {
-                f.meta.index = e.number;
-            }
+            f.meta.index = e.number;
             Ok(f)
         })
     }
