@@ -80,6 +80,7 @@ fn motion_is_exact_in_every_scene() {
                             "{} frame {t} ({x},{y}): sky motion off by {err}",
                             entry.name
                         );
+                        assert_eq!(depth.get(x, y) as f64, SKY_DEPTH, "sky depth");
                         if hit.is_none() {
                             checked += 1;
                         } else {
