@@ -158,18 +158,44 @@ impl Camera {
     }
 }
 
+/// The fence render with its bookkeeping.
+struct Fence {
+    frames: Vec<Frame>,
+    meta: serde_json::Value,
+    sphere_id: u32,
+    w: usize,
+    h: usize,
+}
+
+impl Fence {
+    fn load() -> Fence {
+        let frames = load("blender-fence/input");
+        let text = std::fs::read_to_string(common::fixture("blender-fence/input/meta.json")).unwrap();
+        let meta: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let sphere_id = meta["object_pass_index"]["sphere"].as_u64().unwrap() as u32;
+        let (w, h) = (frames[0].width(), frames[0].height());
+        Fence {
+            frames,
+            meta,
+            sphere_id,
+            w,
+            h,
+        }
+    }
+}
+
 /// On the fence render (moving camera, moving sphere): for static geometry, the position
 /// the converted motion points to is where the previous camera sees the same world point;
 /// the previous frame's depth there is that point's depth; and its object id is the same.
 #[test]
 fn fence_motion_reprojects_static_geometry_onto_itself() {
-    let frames = load("blender-fence/input");
-    let meta: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(common::fixture("blender-fence/input/meta.json")).unwrap(),
-    )
-    .unwrap();
-    let sphere_id = meta["object_pass_index"]["sphere"].as_u64().unwrap() as u32;
-    let (w, h) = (frames[0].width(), frames[0].height());
+    let Fence {
+        frames,
+        meta,
+        sphere_id,
+        w,
+        h,
+    } = Fence::load();
     let mut checked = 0usize;
     let mut id_agree = 0usize;
     let mut id_total = 0usize;
@@ -242,13 +268,13 @@ fn fence_motion_reprojects_static_geometry_onto_itself() {
 /// before the step.
 #[test]
 fn fence_sphere_motion_matches_its_rigid_motion() {
-    let frames = load("blender-fence/input");
-    let meta: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(common::fixture("blender-fence/input/meta.json")).unwrap(),
-    )
-    .unwrap();
-    let sphere_id = meta["object_pass_index"]["sphere"].as_u64().unwrap() as u32;
-    let (w, h) = (frames[0].width(), frames[0].height());
+    let Fence {
+        frames,
+        meta,
+        sphere_id,
+        w,
+        h,
+    } = Fence::load();
     let track = |n: usize| -> [f64; 3] {
         let v = meta["per_frame"][n.to_string()]["track_world_pos"]
             .as_array()

@@ -69,24 +69,18 @@ impl Bvh {
         id
     }
 
-    /// Appends to `out` every primitive whose bounds are not entirely outside one of the
-    /// `planes` (point, inward normal): a conservative list for a beam of rays.
-    pub fn collect_in_beam(&self, planes: &[(glam::DVec3, glam::DVec3)], out: &mut Vec<usize>) {
+    /// Appends to `out` every primitive in the leaves reached through nodes whose bounds
+    /// pass `keep`.
+    fn collect(&self, keep: impl Fn(&Aabb) -> bool, out: &mut Vec<usize>) {
         if self.nodes.is_empty() {
             return;
         }
-        let outside = |b: &Aabb| {
-            planes.iter().any(|(o, n)| {
-                let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
-                n.dot(p - *o) < 0.0
-            })
-        };
         let mut stack = [0u32; 64];
         let mut sp = 1;
         while sp > 0 {
             sp -= 1;
             let n = stack[sp] as usize;
-            if outside(&self.bounds[n]) {
+            if !keep(&self.bounds[n]) {
                 continue;
             }
             match self.nodes[n] {
@@ -102,6 +96,20 @@ impl Bvh {
         }
     }
 
+    /// Appends to `out` every primitive whose bounds are not entirely outside one of the
+    /// `planes` (point, inward normal): a conservative list for a beam of rays.
+    pub fn collect_in_beam(&self, planes: &[(glam::DVec3, glam::DVec3)], out: &mut Vec<usize>) {
+        self.collect(
+            |b| {
+                !planes.iter().any(|(o, n)| {
+                    let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
+                    n.dot(p - *o) < 0.0
+                })
+            },
+            out,
+        );
+    }
+
     /// Appends to `out` every primitive that the box `centre +- half`, swept from
     /// where it is along `dir` to infinity, may touch: a ray from `centre` against every
     /// bounds grown by `half` (the Minkowski sum), so conservative for all the rays
@@ -113,35 +121,18 @@ impl Bvh {
         dir: glam::DVec3,
         out: &mut Vec<usize>,
     ) {
-        if self.nodes.is_empty() {
-            return;
-        }
         let ray = Ray { origin: centre, dir };
         let inv = dir.recip();
-        let mut stack = [0u32; 64];
-        let mut sp = 1;
-        while sp > 0 {
-            sp -= 1;
-            let n = stack[sp] as usize;
-            let b = &self.bounds[n];
-            let grown = Aabb {
-                min: b.min - half,
-                max: b.max + half,
-            };
-            if grown.hit(&ray, inv, f64::INFINITY).is_none() {
-                continue;
-            }
-            match self.nodes[n] {
-                Node::Leaf { start, count } => {
-                    out.extend_from_slice(&self.items[start as usize..(start + count) as usize]);
-                }
-                Node::Inner { left, right, .. } => {
-                    stack[sp] = right;
-                    stack[sp + 1] = left;
-                    sp += 2;
-                }
-            }
-        }
+        self.collect(
+            |b| {
+                let grown = Aabb {
+                    min: b.min - half,
+                    max: b.max + half,
+                };
+                grown.hit(&ray, inv, f64::INFINITY).is_some()
+            },
+            out,
+        );
     }
 
     /// Calls `visit(item, t_max) -> new t_max` for every primitive whose bounds the ray
