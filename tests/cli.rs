@@ -113,7 +113,7 @@ fn eval_matches_the_library_and_writes_every_format() {
         .collect::<Result<_, _>>()
         .unwrap();
     for (a, b) in ins.iter().zip(&refs) {
-        e.push(a.meta.index, a.color(), b.color(), false);
+        e.push(a.meta.index, a.color(), b.color(), false).unwrap();
     }
     let s = e.summary().unwrap();
     let t = Tolerance::rel(1e-12);

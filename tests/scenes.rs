@@ -223,11 +223,14 @@ fn reference_has_converged_on_flyover() {
         b.reference().unwrap(),
         MetricSpace::Linear,
     )
+    .unwrap()
     .sqrt();
     println!("flyover reference 16x16 vs 32x32: RMSE {rmse:.2e}");
     assert!(rmse < 1e-3, "{rmse}");
     // And the reference is far from the 1-sample input (it does integrate something).
-    let input_err = mse(a.color(), a.reference().unwrap(), MetricSpace::Linear).sqrt();
+    let input_err = mse(a.color(), a.reference().unwrap(), MetricSpace::Linear)
+        .unwrap()
+        .sqrt();
     assert!(input_err > 10.0 * rmse, "{input_err}");
 }
 
@@ -269,8 +272,8 @@ fn same_seed_same_bits_and_noise_averages_out() {
         }
     }
     let r = frames[0].reference().unwrap();
-    let one = mse(frames[0].color(), r, MetricSpace::Linear);
-    let avg = mse(&mean, r, MetricSpace::Linear);
+    let one = mse(frames[0].color(), r, MetricSpace::Linear).unwrap();
+    let avg = mse(&mean, r, MetricSpace::Linear).unwrap();
     println!("noise: MSE of one frame {one:.2e}, of the mean of {n} {avg:.2e}");
     assert!(avg < one / 4.0, "{one} -> {avg}");
 }

@@ -7,6 +7,42 @@ pub use ssim::{ssim, SsimResult, SSIM_C1_K, SSIM_C2_K, SSIM_RADIUS, SSIM_SIGMA};
 
 use crate::frame::{Plane, Rgb};
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Errors of the metrics: the caller passed images that cannot be compared.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum MetricsError {
+    /// Two images differ in size.
+    #[error("{what}: {got_w}x{got_h} does not match {w}x{h}")]
+    SizeMismatch {
+        /// Which images.
+        what: &'static str,
+        /// Size of the first.
+        w: usize,
+        /// Height of the first.
+        h: usize,
+        /// Width of the second.
+        got_w: usize,
+        /// Height of the second.
+        got_h: usize,
+    },
+}
+
+/// `Ok` when the planes `a` and `b` have the same size.
+pub fn check_same_size<T, U>(what: &'static str, a: &Plane<T>, b: &Plane<U>) -> Result<(), MetricsError> {
+    let ((w, h), (got_w, got_h)) = (a.size(), b.size());
+    if (w, h) == (got_w, got_h) {
+        Ok(())
+    } else {
+        Err(MetricsError::SizeMismatch {
+            what,
+            w,
+            h,
+            got_w,
+            got_h,
+        })
+    }
+}
 
 /// Rec. ITU-R BT.709 luma weights for linear RGB.
 pub const REC709_LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
@@ -76,7 +112,8 @@ impl MetricSpace {
 }
 
 /// Mean squared error over all three channels, in `space`.
-pub fn mse(a: &Rgb, b: &Rgb, space: MetricSpace) -> f64 {
+pub fn mse(a: &Rgb, b: &Rgb, space: MetricSpace) -> Result<f64, MetricsError> {
+    check_same_size("mse", &a[0], &b[0])?;
     let n = a[0].data().len() * 3;
     let mut sum = 0.0f64;
     for c in 0..3 {
@@ -85,7 +122,7 @@ pub fn mse(a: &Rgb, b: &Rgb, space: MetricSpace) -> f64 {
             sum += d * d;
         }
     }
-    sum / n as f64
+    Ok(sum / n as f64)
 }
 
 /// PSNR in dB for a peak of 1 (infinite when `mse` is 0).
@@ -115,7 +152,16 @@ pub fn luma(rgb: &Rgb, space: MetricSpace) -> Plane<f64> {
 /// `space`: `mean over pixels and channels of ((out_t - out_{t-1}) - (ref_t - ref_{t-1}))^2`.
 /// Charges flicker (output changes the reference does not) and lag or ghosting (changes
 /// the output misses) alike. tRMSE is the square root of its mean over frames.
-pub fn temporal_mse(out: &Rgb, out_prev: &Rgb, reference: &Rgb, ref_prev: &Rgb, space: MetricSpace) -> f64 {
+pub fn temporal_mse(
+    out: &Rgb,
+    out_prev: &Rgb,
+    reference: &Rgb,
+    ref_prev: &Rgb,
+    space: MetricSpace,
+) -> Result<f64, MetricsError> {
+    check_same_size("temporal error, previous output", &out[0], &out_prev[0])?;
+    check_same_size("temporal error, reference", &out[0], &reference[0])?;
+    check_same_size("temporal error, previous reference", &out[0], &ref_prev[0])?;
     let n = out[0].data().len() * 3;
     let mut sum = 0.0f64;
     for c in 0..3 {
@@ -129,7 +175,7 @@ pub fn temporal_mse(out: &Rgb, out_prev: &Rgb, reference: &Rgb, ref_prev: &Rgb, 
             sum += d * d;
         }
     }
-    sum / n as f64
+    Ok(sum / n as f64)
 }
 
 /// Figures of one frame.
@@ -196,13 +242,23 @@ impl Evaluator {
         self.space
     }
 
-    /// Measures one frame. `reset` drops the temporal pair (a camera cut).
-    pub fn push(&mut self, index: u64, out: &Rgb, reference: &Rgb, reset: bool) -> &FrameMetrics {
+    /// Measures one frame. `reset` drops the temporal pair (a camera cut), and so does a
+    /// change of size. Images of different sizes are an error that changes nothing.
+    pub fn push(
+        &mut self,
+        index: u64,
+        out: &Rgb,
+        reference: &Rgb,
+        reset: bool,
+    ) -> Result<&FrameMetrics, MetricsError> {
+        check_same_size("output vs reference", &reference[0], &out[0])?;
         let space = *self.space.get_or_insert_with(|| self.choice.resolve(reference));
-        let m = mse(out, reference, space);
-        let s = ssim(&luma(out, space), &luma(reference, space), false).mean;
+        let m = mse(out, reference, space)?;
+        let s = ssim(&luma(out, space), &luma(reference, space), false)?.mean;
         let t = match (&self.prev, reset) {
-            (Some((op, rp)), false) => Some(temporal_mse(out, op, reference, rp, space)),
+            (Some((op, rp)), false) if op[0].size() == out[0].size() => {
+                Some(temporal_mse(out, op, reference, rp, space)?)
+            }
             _ => None,
         };
         self.prev = Some((out.clone(), reference.clone()));
@@ -214,7 +270,7 @@ impl Evaluator {
             ssim: s,
             temporal_mse: t,
         });
-        self.frames.last().expect("just pushed")
+        Ok(self.frames.last().expect("just pushed"))
     }
 
     /// The summary so far (None before the first frame).
@@ -250,7 +306,7 @@ mod tests {
     fn mse_and_psnr_of_a_known_offset() {
         let a = rgb(8, 4, |_, _, _| 0.5);
         let b = rgb(8, 4, |_, _, _| 0.6);
-        let m = mse(&a, &b, MetricSpace::Linear);
+        let m = mse(&a, &b, MetricSpace::Linear).unwrap();
         Tolerance::rel(1e-6).check("mse", m, 0.01).unwrap();
         Tolerance::rel(1e-6)
             .check("psnr", psnr_from_mse(m), 20.0)
@@ -280,14 +336,14 @@ mod tests {
         // Output follows the reference exactly: no temporal error, even with an offset.
         let a_off = rgb(4, 4, |_, _, _| 0.25);
         let b_off = rgb(4, 4, |_, _, _| 0.45);
-        assert!(Tolerance::abs(1e-12).eq(temporal_mse(&b_off, &a_off, &b, &a, s), 0.0));
+        assert!(Tolerance::abs(1e-12).eq(temporal_mse(&b_off, &a_off, &b, &a, s).unwrap(), 0.0));
         // Output lags (does not change): charged the whole change (0.2 in f32).
         Tolerance::rel(1e-6)
-            .check("lag", temporal_mse(&a, &a, &b, &a, s), 0.04)
+            .check("lag", temporal_mse(&a, &a, &b, &a, s).unwrap(), 0.04)
             .unwrap();
         // Output flickers on a still reference: charged too.
         Tolerance::rel(1e-6)
-            .check("flicker", temporal_mse(&b, &a, &a, &a, s), 0.04)
+            .check("flicker", temporal_mse(&b, &a, &a, &a, s).unwrap(), 0.04)
             .unwrap();
     }
 
@@ -296,9 +352,14 @@ mod tests {
         let r = rgb(12, 12, |x, y, c| ((x * 3 + y * 5 + c) % 7) as f32 / 7.0);
         let o = rgb(12, 12, |x, y, c| ((x * 3 + y * 5 + c) % 7) as f32 / 7.0 + 0.05);
         let mut e = Evaluator::new(SpaceChoice::Auto);
-        e.push(1, &o, &r, false);
-        e.push(2, &o, &r, false);
-        e.push(3, &o, &r, true);
+        e.push(1, &o, &r, false).unwrap();
+        e.push(2, &o, &r, false).unwrap();
+        e.push(3, &o, &r, true).unwrap();
+        // A wrong size is refused and changes nothing.
+        let small = rgb(4, 4, |_, _, _| 0.5);
+        let err = e.push(4, &small, &r, false).unwrap_err();
+        assert_eq!(err.to_string(), "output vs reference: 4x4 does not match 12x12");
+        assert_eq!(e.frames.len(), 3);
         assert_eq!(e.frames[0].temporal_mse, None);
         assert!(e.frames[1].temporal_mse.is_some());
         assert_eq!(e.frames[2].temporal_mse, None);

@@ -6,6 +6,7 @@
 //! half-sample symmetric ("reflect") borders, and a mean over the map without a border
 //! of the window radius.
 
+use super::{check_same_size, MetricsError};
 use crate::frame::Plane;
 
 /// Gaussian window sigma (Wang et al. 2004, sec. III-C: 11x11, sigma 1.5).
@@ -76,9 +77,9 @@ fn blur(src: &[f64], w: usize, h: usize, k: &[f64]) -> Vec<f64> {
 }
 
 /// SSIM of two single-channel images in [0, 1] (data range 1).
-pub fn ssim(a: &Plane<f64>, b: &Plane<f64>, with_map: bool) -> SsimResult {
+pub fn ssim(a: &Plane<f64>, b: &Plane<f64>, with_map: bool) -> Result<SsimResult, MetricsError> {
+    check_same_size("ssim", a, b)?;
     let (w, h) = a.size();
-    assert_eq!((w, h), b.size(), "ssim: images differ in size");
     let k = gaussian_taps();
     let (x, y) = (a.data(), b.data());
     let prod = |f: fn(f64, f64) -> f64| -> Vec<f64> { x.iter().zip(y).map(|(&p, &q)| f(p, q)).collect() };
@@ -111,10 +112,10 @@ pub fn ssim(a: &Plane<f64>, b: &Plane<f64>, with_map: bool) -> SsimResult {
         }
     }
     let mean = sum / ((x1 - x0) * (y1 - y0)) as f64;
-    SsimResult {
+    Ok(SsimResult {
         mean,
         map: with_map.then(|| Plane::from_vec(w, h, map.iter().map(|&v| v as f32).collect()).expect("size")),
-    }
+    })
 }
 
 #[cfg(test)]
@@ -125,7 +126,7 @@ mod tests {
     #[test]
     fn identical_images_score_one_and_reflection_is_symmetric() {
         let a = Plane::from_fn(20, 16, |x, y| ((x * 7 + y * 3) % 11) as f64 / 11.0);
-        let r = ssim(&a, &a, true);
+        let r = ssim(&a, &a, true).unwrap();
         Tolerance::abs(1e-12).check("ssim", r.mean, 1.0).unwrap();
         assert_eq!(reflect(-1, 5), 0);
         assert_eq!(reflect(-2, 5), 1);
@@ -141,7 +142,8 @@ mod tests {
     fn structure_loss_lowers_ssim() {
         let a = Plane::from_fn(32, 32, |x, y| if (x / 2 + y / 2) % 2 == 0 { 0.9 } else { 0.1 });
         let flat = Plane::filled(32, 32, 0.5);
-        let r = ssim(&a, &flat, false);
+        let r = ssim(&a, &flat, false).unwrap();
+        assert!(ssim(&a, &Plane::filled(31, 32, 0.5), false).is_err());
         assert!(r.mean < 0.1, "{}", r.mean);
     }
 }
