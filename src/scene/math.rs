@@ -19,12 +19,15 @@ impl Ray {
 }
 
 /// A rotation followed by a translation: `world = rotation * local + translation`.
+/// Built by [`Rigid::new`], which also keeps the inverse rotation for ray transforms.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Rigid {
     /// Orthonormal rotation.
     pub rotation: DMat3,
     /// Translation.
     pub translation: DVec3,
+    /// The inverse (transpose) of `rotation`.
+    inverse: DMat3,
 }
 
 impl Rigid {
@@ -32,14 +35,12 @@ impl Rigid {
     pub const IDENTITY: Rigid = Rigid {
         rotation: DMat3::IDENTITY,
         translation: DVec3::ZERO,
+        inverse: DMat3::IDENTITY,
     };
 
     /// A pure translation.
     pub fn translate(t: DVec3) -> Rigid {
-        Rigid {
-            rotation: DMat3::IDENTITY,
-            translation: t,
-        }
+        Rigid::new(DMat3::IDENTITY, t)
     }
 
     /// Rotation `r`, then translation `t`.
@@ -47,6 +48,7 @@ impl Rigid {
         Rigid {
             rotation: r,
             translation: t,
+            inverse: r.transpose(),
         }
     }
 
@@ -61,11 +63,11 @@ impl Rigid {
     }
 
     /// World ray to local (the parameter `t` is preserved: rotations keep lengths).
+    #[inline]
     pub fn ray_to_local(&self, r: &Ray) -> Ray {
-        let inv = self.rotation.transpose();
         Ray {
-            origin: inv * (r.origin - self.translation),
-            dir: inv * r.dir,
+            origin: self.inverse * (r.origin - self.translation),
+            dir: self.inverse * r.dir,
         }
     }
 }

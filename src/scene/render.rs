@@ -26,8 +26,6 @@ const SHADOW_EPSILON: f64 = 1e-6;
 pub struct Instant<'a> {
     def: &'a SceneDef,
     xf: Vec<Rigid>,
-    /// Inverse rotations of `xf` (world to local), computed once per instant.
-    inv: Vec<glam::DMat3>,
     bvh: Bvh,
     planes: Vec<usize>,
     /// The camera.
@@ -83,19 +81,9 @@ impl<'a> Instant<'a> {
             def,
             bvh: Bvh::build(&finite),
             planes,
-            inv: xf.iter().map(|x| x.rotation.transpose()).collect(),
             xf,
             camera: (def.camera)(t),
             sun: (def.sun)(t).normalize(),
-        }
-    }
-
-    /// `ray` in the local frame of object `i`.
-    #[inline]
-    fn to_local(&self, i: usize, ray: &Ray) -> Ray {
-        Ray {
-            origin: self.inv[i] * (ray.origin - self.xf[i].translation),
-            dir: self.inv[i] * ray.dir,
         }
     }
 
@@ -126,7 +114,7 @@ impl<'a> Instant<'a> {
         let mut best: Option<(usize, LocalHit, Ray)> = None;
         let mut t = f64::INFINITY;
         for &i in self.planes.iter().chain(candidates) {
-            let local = self.to_local(i, ray);
+            let local = self.xf[i].ray_to_local(ray);
             if let Some(h) = self.def.objects[i].shape.intersect(&local, 0.0, t) {
                 t = h.t;
                 best = Some((i, h, local));
@@ -152,7 +140,7 @@ impl<'a> Instant<'a> {
     pub fn intersect(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
         let mut best: Option<(usize, LocalHit, Ray)> = None;
         let mut test = |i: usize, t_max: f64| -> f64 {
-            let local = self.to_local(i, ray);
+            let local = self.xf[i].ray_to_local(ray);
             match self.def.objects[i].shape.intersect(&local, 0.0, t_max) {
                 Some(h) => {
                     best = Some((i, h, local));
@@ -183,7 +171,7 @@ impl<'a> Instant<'a> {
     pub fn occluded_among(&self, ray: &Ray, skip: usize, candidates: &[usize]) -> bool {
         self.planes.iter().chain(candidates).any(|&i| {
             i != skip && {
-                let local = self.to_local(i, ray);
+                let local = self.xf[i].ray_to_local(ray);
                 self.def.objects[i]
                     .shape
                     .intersect(&local, 0.0, f64::INFINITY)
@@ -201,7 +189,7 @@ impl<'a> Instant<'a> {
             if i == skip {
                 return t_max;
             }
-            let local = self.to_local(i, ray);
+            let local = self.xf[i].ray_to_local(ray);
             if self.def.objects[i].shape.intersect(&local, 0.0, t_max).is_some() {
                 blocked = true;
                 -1.0
