@@ -2,7 +2,7 @@
 
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::scene::{Jitter, Scene, Settings, BEHIND_CAMERA_MOTION, CATALOGUE, SKY_DEPTH};
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
@@ -127,9 +127,6 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    if ms.is_empty() {
-        bail!("--frames must be at least 1");
-    }
     let mut sorted = ms.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];

@@ -259,33 +259,20 @@ fn flyover(_: &Settings) -> SceneDef {
 }
 
 fn moving_sphere(_: &Settings) -> SceneDef {
-    // Walls run along z (rotated so the stripes face the camera).
-    let left = object(
-        "wall_left",
-        2,
-        Shape::Cuboid {
-            half: v(0.25, 1.5, 12.0),
-        },
-        Material::patterned(
-            Pattern::Stripes { period: 0.4 },
-            v(0.75, 0.3, 0.25),
-            v(0.9, 0.85, 0.7),
-        ),
-        fixed(Rigid::translate(v(-4.0, 1.5, -6.0))),
-    );
-    let right = object(
-        "wall_right",
-        3,
-        Shape::Cuboid {
-            half: v(0.25, 1.5, 12.0),
-        },
-        Material::patterned(
-            Pattern::Stripes { period: 0.4 },
-            v(0.3, 0.5, 0.75),
-            v(0.9, 0.85, 0.7),
-        ),
-        fixed(Rigid::translate(v(4.0, 1.5, -6.0))),
-    );
+    // Side walls run along z, striped.
+    let side_wall = |name: &str, id, x: f64, colour: DVec3| {
+        object(
+            name,
+            id,
+            Shape::Cuboid {
+                half: v(0.25, 1.5, 12.0),
+            },
+            Material::patterned(Pattern::Stripes { period: 0.4 }, colour, v(0.9, 0.85, 0.7)),
+            fixed(Rigid::translate(v(x, 1.5, -6.0))),
+        )
+    };
+    let left = side_wall("wall_left", 2, -4.0, v(0.75, 0.3, 0.25));
+    let right = side_wall("wall_right", 3, 4.0, v(0.3, 0.5, 0.75));
     let back = object(
         "wall_back",
         4,
