@@ -135,6 +135,19 @@ fn ground(id: u32, size: f64) -> Object {
     )
 }
 
+/// A perspective camera at `pos` looking at `target`, y up, vertical field of view in
+/// degrees.
+fn perspective(pos: DVec3, target: DVec3, fov_y_deg: f64) -> Camera {
+    Camera::look_at(
+        pos,
+        target,
+        DVec3::Y,
+        Projection::Perspective {
+            fov_y: fov_y_deg.to_radians(),
+        },
+    )
+}
+
 /// An orthographic camera looking down -z at the xy plane, 1 world unit = 1 pixel.
 fn pixel_camera(s: &Settings) -> Anim<Camera> {
     fixed(Camera::look_at(
@@ -246,14 +259,7 @@ fn flyover(_: &Settings) -> SceneDef {
     let camera: Anim<Camera> = Arc::new(|t| {
         let pos = v(6.0 * (0.05 * t).sin(), 5.0 + (0.08 * t).sin(), 18.0 - 0.45 * t);
         let target = v(2.0 * (0.05 * t + 0.6).sin(), 0.0, pos.z - 16.0);
-        Camera::look_at(
-            pos,
-            target,
-            DVec3::Y,
-            Projection::Perspective {
-                fov_y: 50f64.to_radians(),
-            },
-        )
+        perspective(pos, target, 50.0)
     });
     lit("flyover", camera, objects)
 }
@@ -301,14 +307,7 @@ fn moving_sphere(_: &Settings) -> SceneDef {
             Rigid::new(DMat3::from_rotation_y(0.08 * t), v(x, y, -7.0))
         }),
     );
-    let camera = fixed(Camera::look_at(
-        v(0.0, 2.2, 6.0),
-        v(0.0, 1.0, -7.0),
-        DVec3::Y,
-        Projection::Perspective {
-            fov_y: 55f64.to_radians(),
-        },
-    ));
+    let camera = fixed(perspective(v(0.0, 2.2, 6.0), v(0.0, 1.0, -7.0), 55.0));
     lit(
         "moving-sphere",
         camera,
@@ -388,14 +387,7 @@ fn fence(_: &Settings) -> SceneDef {
         let yaw = 0.25 * (0.05 * t).sin() + 0.004 * t;
         let dir = DMat3::from_rotation_y(yaw) * v(0.0, -0.08, -1.0);
         let pos = v(0.0, 1.0, 2.0);
-        Camera::look_at(
-            pos,
-            pos + dir,
-            DVec3::Y,
-            Projection::Perspective {
-                fov_y: 50f64.to_radians(),
-            },
-        )
+        perspective(pos, pos + dir, 50.0)
     });
     lit("fence", camera, objects)
 }
@@ -438,14 +430,7 @@ fn foliage(_: &Settings) -> SceneDef {
     }
     let camera: Anim<Camera> = Arc::new(|t| {
         let pos = v(0.4 * (0.03 * t).sin(), 1.1, 3.0 - 0.03 * t);
-        Camera::look_at(
-            pos,
-            v(0.0, 0.4, -4.0),
-            DVec3::Y,
-            Projection::Perspective {
-                fov_y: 50f64.to_radians(),
-            },
-        )
+        perspective(pos, v(0.0, 0.4, -4.0), 50.0)
     });
     lit("foliage", camera, objects)
 }
@@ -477,14 +462,7 @@ fn dynamic_light(_: &Settings) -> SceneDef {
         ),
         fixed(Rigid::new(DMat3::from_rotation_y(0.6), v(0.9, 0.5, 0.8))),
     ));
-    let camera = fixed(Camera::look_at(
-        v(0.0, 2.5, 4.5),
-        v(0.0, 0.5, -1.0),
-        DVec3::Y,
-        Projection::Perspective {
-            fov_y: 50f64.to_radians(),
-        },
-    ));
+    let camera = fixed(perspective(v(0.0, 2.5, 4.5), v(0.0, 0.5, -1.0), 50.0));
     SceneDef {
         sun: Arc::new(|t| {
             let az = 0.08 * t;
@@ -536,14 +514,7 @@ fn static_scene(_: &Settings) -> SceneDef {
             )),
         ));
     }
-    let camera = fixed(Camera::look_at(
-        v(0.0, 1.5, 3.0),
-        v(0.0, 0.8, -2.0),
-        DVec3::Y,
-        Projection::Perspective {
-            fov_y: 50f64.to_radians(),
-        },
-    ));
+    let camera = fixed(perspective(v(0.0, 1.5, 3.0), v(0.0, 0.8, -2.0), 50.0));
     lit("static", camera, objects)
 }
 
@@ -559,17 +530,12 @@ fn camera_cut(s: &Settings) -> SceneDef {
         fixed(Rigid::translate(v(0.0, 0.8, 0.0))),
     ));
     let camera: Anim<Camera> = Arc::new(move |t| {
-        let persp = Projection::Perspective {
-            fov_y: 50f64.to_radians(),
-        };
         if t < cut as f64 {
             // Shot A: looking north, slow pan.
-            let pos = v(0.0, 3.0, 16.0);
-            Camera::look_at(pos, v(2.0 * (0.03 * t).sin(), 1.0, 0.0), DVec3::Y, persp)
+            perspective(v(0.0, 3.0, 16.0), v(2.0 * (0.03 * t).sin(), 1.0, 0.0), 50.0)
         } else {
             // Shot B: from the far side, low and looking back south.
-            let pos = v(3.0, 1.2, -30.0);
-            Camera::look_at(pos, v(0.0 + 0.05 * t, 1.0, 0.0), DVec3::Y, persp)
+            perspective(v(3.0, 1.2, -30.0), v(0.05 * t, 1.0, 0.0), 50.0)
         }
     });
     SceneDef {
@@ -620,14 +586,7 @@ fn hdr(_: &Settings) -> SceneDef {
         Material::emitter(DVec3::splat(3.0e3)),
         fixed(Rigid::translate(v(0.0, 2.6, -1.0))),
     ));
-    let camera = fixed(Camera::look_at(
-        v(0.0, 1.4, 3.0),
-        v(0.0, 1.2, -3.0),
-        DVec3::Y,
-        Projection::Perspective {
-            fov_y: 55f64.to_radians(),
-        },
-    ));
+    let camera = fixed(perspective(v(0.0, 1.4, 3.0), v(0.0, 1.2, -3.0), 55.0));
     SceneDef {
         sun_irradiance: DVec3::ZERO,
         ambient: DVec3::ONE,
