@@ -1,16 +1,20 @@
 //! afterimage: temporal anti-aliasing and deflickering of rendered frames.
 //!
-//! The library holds the frame model ([`frame`]), image I/O ([`io`]) and quality
-//! metrics ([`metrics`]); the binary (`src/main.rs` and its `cli` module) is a thin layer
+//! The library holds the frame model ([`frame`]), image I/O ([`io`]), procedural test
+//! scenes ([`scene`]), per-pixel kernels ([`kernels`]), the filters ([`filters`]) behind one
+//! interface ([`pipeline`]), and quality metrics ([`metrics`]); the binary (`src/main.rs` and its `cli` module) is a thin layer
 //! over them.
 //! See `DESIGN.md` of the project for the map.
 
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod filters;
 pub mod frame;
 pub mod io;
+pub mod kernels;
 pub mod metrics;
+pub mod pipeline;
 pub mod rng;
 pub mod scene;
 pub mod tolerance;

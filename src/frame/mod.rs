@@ -449,15 +449,22 @@ impl Frame {
             return false;
         };
         for d in depth.data_mut() {
-            // Standard perspective projection to [0, 1]: d = f (z - n) / (z (f - n)).
-            *d = match kind {
-                DepthKind::Device => n * f / (f - *d * (f - n)),
-                DepthKind::ReversedDevice => n * f / (n + *d * (f - n)),
-                DepthKind::Linear => *d,
-            };
+            *d = kind.to_linear(*d, n, f);
         }
         self.meta.depth_kind = DepthKind::Linear;
         true
+    }
+}
+
+impl DepthKind {
+    /// Linear depth of a sample `d` of this kind, for a camera with planes `near`, `far`.
+    pub fn to_linear(self, d: f32, near: f32, far: f32) -> f32 {
+        // Standard perspective projection to [0, 1]: d = f (z - n) / (z (f - n)).
+        match self {
+            DepthKind::Device => near * far / (far - d * (far - near)),
+            DepthKind::ReversedDevice => near * far / (near + d * (far - near)),
+            DepthKind::Linear => d,
+        }
     }
 }
 

@@ -1,0 +1,27 @@
+//! The filters, one module each; every module holds its filter's whole logic: parameters
+//! (with their sources and tradeoffs), state, stages, and tests.
+//!
+//! | name | what |
+//! |---|---|
+//! | `passthrough` | the input, repaired (the no-AA baseline) |
+//! | `fxaa` | FXAA 3.11, quality preset 12 (Lottes 2011): spatial only |
+//! | `taa` | industry TAA (Karis 2014, Salvi 2016): dilation, Catmull-Rom, YCoCg variance clip |
+//! | `traa` | the thesis's TRAA (004): INSIDE/Uncharted 4 baseline or the improved variant |
+
+pub mod fxaa;
+pub mod passes;
+pub mod passthrough;
+pub mod taa;
+pub mod traa;
+
+use crate::pipeline::{entry, FilterEntry};
+
+/// Every filter, in listing order.
+pub fn all() -> Vec<FilterEntry> {
+    vec![
+        entry::<passthrough::Passthrough>(),
+        entry::<fxaa::Fxaa>(),
+        entry::<taa::Taa>(),
+        entry::<traa::Traa>(),
+    ]
+}

@@ -1,0 +1,100 @@
+//! Whole-plane passes shared by the temporal filters, built on [`crate::kernels`] and run
+//! on the crate's pool by rows.
+
+use crate::frame::{Plane, Rgb};
+use crate::kernels::{sharpen_cross, tonemap, tonemap_inverse};
+use crate::pipeline::exec::for_rows;
+use std::borrow::Cow;
+
+/// Empty planes of the given size.
+pub fn planes<const N: usize>(width: usize, height: usize) -> [Plane<f32>; N] {
+    std::array::from_fn(|_| Plane::new(width, height))
+}
+
+/// Mutable slices of `N` planes.
+pub fn slices_mut<const N: usize>(p: &mut [Plane<f32>; N]) -> [&mut [f32]; N] {
+    p.each_mut().map(|p| p.data_mut())
+}
+
+/// The colour in the working space: tonemapped `c / (1 + max c)` when `tonemap` is on,
+/// else the colour itself (borrowed).
+pub fn to_working<'a>(color: &'a Rgb, on: bool) -> Cow<'a, Rgb> {
+    if !on {
+        return Cow::Borrowed(color);
+    }
+    let (w, h) = color[0].size();
+    let src = color.each_ref().map(|p| p.data());
+    let mut out: Rgb = planes(w, h);
+    for_rows(slices_mut(&mut out), w, |y, [r, g, b]| {
+        for x in 0..w {
+            let i = y * w + x;
+            let t = tonemap([src[0][i], src[1][i], src[2][i]]);
+            (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
+        }
+    });
+    Cow::Owned(out)
+}
+
+/// Back from the working space to linear colour (in place); a no-op when `tonemap` is off.
+pub fn from_working(rgb: &mut Rgb, on: bool) {
+    if !on {
+        return;
+    }
+    let w = rgb[0].width();
+    for_rows(slices_mut(rgb), w, |_, [r, g, b]| {
+        for x in 0..w {
+            let c = tonemap_inverse([r[x], g[x], b[x]]);
+            (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
+        }
+    });
+}
+
+/// Velocity dilation: each pixel takes the motion of the nearest (smallest depth) pixel of
+/// its 3x3 neighbourhood, so edges of moving foreground objects reproject with the object
+/// (Karis 2014; thesis 004 sec. 3.6.3).
+pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>) -> [Plane<f32>; 2] {
+    let (w, h) = depth.size();
+    let d = depth.data();
+    let m = motion.each_ref().map(|p| p.data());
+    let mut out = planes(w, h);
+    for_rows(slices_mut(&mut out), w, |y, [mx, my]| {
+        for x in 0..w {
+            let mut best = y * w + x;
+            let mut best_d = d[best];
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let i = yy * w + xx;
+                    if d[i] < best_d {
+                        best_d = d[i];
+                        best = i;
+                    }
+                }
+            }
+            mx[x] = m[0][best];
+            my[x] = m[1][best];
+        }
+    });
+    out
+}
+
+/// Sharpens every channel with [`sharpen_cross`] of strength `s`, keeping values >= 0 (and
+/// below 1 when `bounded`, i.e. in the tonemapped working space).
+pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool) -> Rgb {
+    let (w, h) = rgb[0].size();
+    let src = rgb.each_ref().map(|p| p.data());
+    let hi = if bounded { 1.0 - 1e-7 } else { f32::MAX };
+    let mut out: Rgb = planes(w, h);
+    for_rows(slices_mut(&mut out), w, |y, rows| {
+        let up = y.saturating_sub(1) * w;
+        let down = (y + 1).min(h - 1) * w;
+        for (k, row) in rows.into_iter().enumerate() {
+            let p = src[k];
+            for x in 0..w {
+                let i = y * w + x;
+                let n = [p[up + x], p[y * w + x.saturating_sub(1)], p[y * w + (x + 1).min(w - 1)], p[down + x]];
+                row[x] = sharpen_cross(p[i], n, s).clamp(0.0, hi);
+            }
+        }
+    });
+    out
+}

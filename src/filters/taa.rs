@@ -1,0 +1,410 @@
+//! `taa`: the industry TAA baseline (Karis 2014, "High quality temporal supersampling";
+//! Salvi 2016, "An excursion in temporal supersampling"; survey 003; the outline Bevy's TAA
+//! and FSR2's accumulate pass follow).
+//!
+//! Stages per frame:
+//! 1. `repair`: non-finite and negative input replaced and counted.
+//! 2. `tonemap`: the reversible tonemap `c / (1 + max c)` (HDR input only).
+//! 3. `ycocg`: the working colour in YCoCg, where the clip box is built.
+//! 4. `dilate`: velocity dilation (motion of the nearest pixel of the 3x3; needs depth).
+//! 5. `reproject`: history fetched at `p + motion` with Catmull-Rom (or bilinear); a pixel
+//!    whose previous position is off screen restarts. Left out when nothing moves.
+//! 6. `depth_reject` (optional): history whose depth disagrees with the current depth by
+//!    more than `depth_rejection` (relative) restarts.
+//! 7. `resolve`: 3x3 min/max and variance box (mean +- gamma sigma) in YCoCg; history
+//!    clipped toward the box centre; blend with `alpha` (raised to 1/(n+1) for young
+//!    history, so a restarted pixel converges as a running mean) and Karis's luminance
+//!    weights.
+//! 8. `sharpen` (optional), 9. `untonemap` (HDR input only).
+//!
+//! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
+
+use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::kernels::{
+    bilinear, catmull_rom, clip_toward_center, cross_and_box_stats, fetch_clamped, rgb_to_ycocg, tonemap,
+    tonemap_inverse, variance_box, ycocg_to_rgb,
+};
+use crate::pipeline::exec::{for_rows, par_rows};
+use crate::pipeline::params::FilterParams;
+use crate::pipeline::{
+    bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
+    ParamSpec, PixelCounts, Recorder, Skip,
+};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+/// How history is resampled at its reprojected position.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HistoryFilter {
+    /// 5-tap Catmull-Rom (sharp; Karis 2014).
+    CatmullRom,
+    /// Bilinear (cheaper, blurs history a little every frame that moves).
+    Bilinear,
+}
+
+/// Parameters of `taa`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Params {
+    /// Weight of the current frame in the blend.
+    pub alpha: f32,
+    /// Width of the variance box in standard deviations.
+    pub gamma: f32,
+    /// History resampling.
+    pub history_filter: HistoryFilter,
+    /// Velocity dilation (needs depth).
+    pub dilation: bool,
+    /// Karis's luminance weighting of the blend.
+    pub luminance_weighting: bool,
+    /// Relative depth difference that rejects history; 0 turns the test off.
+    pub depth_rejection: f32,
+    /// Strength of the output sharpen; 0 turns it off.
+    pub sharpen: f32,
+}
+
+/// Blend weight of the current frame: 0.1 (Karis 2014; DESIGN.md "alpha 0.1 default").
+pub const DEFAULT_ALPHA: f32 = 0.1;
+/// Variance-box width: 1.0 sigma (Salvi 2016; the survey 003 gives 0.75-1.25).
+pub const DEFAULT_GAMMA: f32 = 1.0;
+/// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
+/// anyway, and a bounded count keeps the state bounded on endless still scenes.
+const MAX_COUNT: f32 = 255.0;
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            alpha: DEFAULT_ALPHA,
+            gamma: DEFAULT_GAMMA,
+            history_filter: HistoryFilter::CatmullRom,
+            dilation: true,
+            luminance_weighting: true,
+            depth_rejection: 0.0,
+            sharpen: 0.0,
+        }
+    }
+}
+
+impl FilterParams for Params {
+    const SPECS: &'static [ParamSpec] = &[
+        ParamSpec {
+            name: "alpha",
+            doc: "weight of the current frame (Karis 2014: 0.1). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer",
+            kind: ParamKind::Float { min: 0.01, max: 1.0 },
+        },
+        ParamSpec {
+            name: "gamma",
+            doc: "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting",
+            kind: ParamKind::Float { min: 0.25, max: 4.0 },
+        },
+        ParamSpec {
+            name: "history_filter",
+            doc: "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it",
+            kind: ParamKind::Choice {
+                options: &["catmull_rom", "bilinear"],
+            },
+        },
+        ParamSpec {
+            name: "dilation",
+            doc: "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history",
+            kind: ParamKind::Bool,
+        },
+        ParamSpec {
+            name: "luminance_weighting",
+            doc: "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias",
+            kind: ParamKind::Bool,
+        },
+        ParamSpec {
+            name: "depth_rejection",
+            doc: "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry",
+            kind: ParamKind::Float { min: 0.0, max: 10.0 },
+        },
+        ParamSpec {
+            name: "sharpen",
+            doc: "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise",
+            kind: ParamKind::Float { min: 0.0, max: 4.0 },
+        },
+    ];
+}
+
+/// History planes.
+const Y: usize = 0;
+const CO: usize = 1;
+const CG: usize = 2;
+const COUNT: usize = 3;
+const DEPTH: usize = 4;
+
+/// The TAA filter with its history.
+#[derive(Debug)]
+pub struct Taa {
+    params: Params,
+    state: DoubleBuffer,
+    /// Whether the history holds tonemapped colour.
+    tonemapped: bool,
+}
+
+impl FilterKind for Taa {
+    const NAME: &'static str = "taa";
+    const SUMMARY: &'static str =
+        "industry TAA: velocity dilation, Catmull-Rom history, YCoCg variance clipping, luminance-weighted blend";
+    const STAGES: &'static [&'static str] = &[
+        "repair",
+        "tonemap",
+        "ycocg",
+        "dilate",
+        "reproject",
+        "depth_reject",
+        "resolve",
+        "sharpen",
+        "untonemap",
+    ];
+    type Params = Params;
+    fn needs() -> ChannelSet {
+        ChannelSet::of(&[ChannelKind::Color])
+    }
+    fn uses() -> ChannelSet {
+        ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
+    }
+    fn state_bytes_per_pixel(p: &Params) -> usize {
+        2 * 4 * Self::history_planes(p)
+    }
+    fn new(params: Params) -> Self {
+        Taa {
+            state: DoubleBuffer::new(Self::history_planes(&params)),
+            params,
+            tonemapped: false,
+        }
+    }
+}
+
+impl Taa {
+    fn history_planes(p: &Params) -> usize {
+        if p.depth_rejection > 0.0 {
+            5
+        } else {
+            4
+        }
+    }
+}
+
+/// Converts YCoCg history planes between linear and tonemapped working space.
+pub(crate) fn convert_history_space(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+    let w = planes[0].width();
+    let (y, rest) = planes.split_at_mut(1);
+    let (co, rest) = rest.split_at_mut(1);
+    for_rows([y[0].data_mut(), co[0].data_mut(), rest[0].data_mut()], w, |_, [y, co, cg]| {
+        for x in 0..w {
+            let rgb = ycocg_to_rgb([y[x], co[x], cg[x]]).map(|v| v.max(0.0));
+            let c = if to_tonemapped {
+                tonemap(rgb)
+            } else {
+                tonemap_inverse(rgb)
+            };
+            [y[x], co[x], cg[x]] = rgb_to_ycocg(c);
+        }
+    });
+}
+
+impl Filter for Taa {
+    fn name(&self) -> &'static str {
+        Self::NAME
+    }
+
+    fn params(&self) -> Value {
+        serde_json::to_value(&self.params).expect("serializes")
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_needs(Self::NAME, Self::needs(), frame)?;
+        let p = self.params.clone();
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        bind_size(&mut self.state, frame)?;
+        let (w, h) = (inp.width, inp.height);
+        let facts = inp.facts;
+        let hdr = facts.hdr;
+        let has_history = self.state.valid() && !frame.meta.reset;
+        if has_history && self.tonemapped != hdr {
+            convert_history_space(self.state.read_mut(), hdr);
+        }
+
+        let working = rec
+            .stage("tonemap", facts.tonemap(), || to_working(&inp.color, true))
+            .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
+
+        let ycocg: Rgb = rec.run("ycocg", || {
+            let src = working.each_ref().map(|p| p.data());
+            let mut out: Rgb = planes(w, h);
+            for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
+                for x in 0..w {
+                    let i = y * w + x;
+                    [a[x], b[x], c[x]] = rgb_to_ycocg([src[0][i], src[1][i], src[2][i]]);
+                }
+            });
+            out
+        });
+
+        let no_history = (!has_history).then_some(Skip::NoHistory);
+        let reproject_skip = no_history
+            .clone()
+            .or_else(|| inp.require(ChannelKind::Motion))
+            .or_else(|| facts.reprojection());
+        let dilated = rec.stage(
+            "dilate",
+            reproject_skip
+                .clone()
+                .or_else(|| inp.require(ChannelKind::Depth))
+                .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" })),
+            || dilate_motion(inp.motion.as_deref().expect("required"), inp.depth.as_deref().expect("required")),
+        );
+        let n_hist = self.state.read().len();
+        let (read, next) = self.state.split();
+        let reprojected: Option<Vec<Plane<f32>>> = rec.stage("reproject", reproject_skip, || {
+            let motion = dilated.as_ref().unwrap_or_else(|| inp.motion.as_deref().expect("required"));
+            let m = motion.each_ref().map(|p| p.data());
+            let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
+            let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
+            let filter = p.history_filter;
+            let rows = {
+                let mut it = out.iter_mut();
+                let a: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
+                (a, it.next().map(|p| p.data_mut()))
+            };
+            let (four, depth_out) = rows;
+            // Depth (when kept) is resampled bilinearly in a second, cheap loop below.
+            for_rows(four, w, |y, [hy, hco, hcg, hn]| {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let px = x as f32 + 0.5 + m[0][i];
+                    let py = y as f32 + 0.5 + m[1][i];
+                    let on_screen = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
+                    if !on_screen {
+                        hn[x] = 0.0;
+                        continue;
+                    }
+                    let c = match filter {
+                        HistoryFilter::CatmullRom => catmull_rom([src[Y], src[CO], src[CG]], w, h, px, py),
+                        HistoryFilter::Bilinear => bilinear([src[Y], src[CO], src[CG]], w, h, px, py),
+                    };
+                    [hy[x], hco[x], hcg[x]] = c;
+                    hn[x] = bilinear([src[COUNT]], w, h, px, py)[0];
+                }
+            });
+            if let Some(d) = depth_out {
+                for_rows([d], w, |y, [row]| {
+                    for x in 0..w {
+                        let i = y * w + x;
+                        row[x] = bilinear([src[DEPTH]], w, h, x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i])[0];
+                    }
+                });
+            }
+            out
+        });
+        let hist: Vec<&[f32]> = match &reprojected {
+            Some(r) => r.iter().map(|p| p.data()).collect(),
+            None => read.iter().map(|p| p.data()).collect(),
+        };
+
+        let mut pixels = PixelCounts::default();
+        let reject: Option<Vec<bool>> = rec.stage(
+            "depth_reject",
+            (p.depth_rejection <= 0.0)
+                .then_some(Skip::Disabled { param: "depth_rejection" })
+                .or_else(|| no_history.clone())
+                .or_else(|| inp.require(ChannelKind::Depth)),
+            || {
+                let d = inp.depth.as_deref().expect("required").data();
+                let prev = hist[DEPTH];
+                d.iter()
+                    .zip(prev)
+                    .map(|(&d, &dp)| (dp - d).abs() > p.depth_rejection * d.abs().max(1e-6))
+                    .collect()
+            },
+        );
+        if let Some(r) = &reject {
+            pixels.history_rejected = r.iter().filter(|&&b| b).count() as u64;
+        }
+
+        let mut out: Rgb = planes(w, h);
+        let counts = rec.run("resolve", || {
+            let cur = ycocg.each_ref().map(|p| p.data());
+            let [o0, o1, o2] = slices_mut(&mut out);
+            let mut it = next.iter_mut();
+            let n4: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
+            let [n0, n1, n2, n3] = n4;
+            let counts = par_rows([o0, o1, o2, n0, n1, n2, n3], w, |y, [or, og, ob, ny, nco, ncg, nn]| {
+                let mut c = PixelCounts::default();
+                for x in 0..w {
+                    let i = y * w + x;
+                    let mut taps = [[0.0f32; 3]; 9];
+                    for (t, tap) in taps.iter_mut().enumerate() {
+                        let (dx, dy) = ((t % 3) as isize - 1, (t / 3) as isize - 1);
+                        let (xx, yy) = (x as isize + dx, y as isize + dy);
+                        *tap = cur.map(|pl| fetch_clamped(pl, w, h, xx, yy));
+                    }
+                    let current = taps[4];
+                    let n = if has_history && !reject.as_ref().is_some_and(|r| r[i]) {
+                        hist[COUNT][i]
+                    } else {
+                        0.0
+                    };
+                    let (value, count) = if n < 0.5 {
+                        c.history_reset += 1;
+                        (current, 1.0)
+                    } else {
+                        let stats = cross_and_box_stats(&taps);
+                        let (lo, hi) = variance_box(&stats, p.gamma);
+                        let (h, moved) = clip_toward_center([hist[Y][i], hist[CO][i], hist[CG][i]], lo, hi);
+                        c.history_clipped += moved as u64;
+                        let a = p.alpha.max(1.0 / (n + 1.0));
+                        let (wc, wh) = if p.luminance_weighting {
+                            (a / (1.0 + current[0].max(0.0)), (1.0 - a) / (1.0 + h[0].max(0.0)))
+                        } else {
+                            (a, 1.0 - a)
+                        };
+                        let k = 1.0 / (wc + wh);
+                        let v = [0, 1, 2].map(|j| (wc * current[j] + wh * h[j]) * k);
+                        (v, (n + 1.0).min(MAX_COUNT))
+                    };
+                    [ny[x], nco[x], ncg[x]] = value;
+                    nn[x] = count;
+                    let rgb = ycocg_to_rgb(value);
+                    (or[x], og[x], ob[x]) = (rgb[0].max(0.0), rgb[1].max(0.0), rgb[2].max(0.0));
+                }
+                c
+            });
+            if let (Some(d), Some(nd)) = (inp.depth.as_deref(), next.get_mut(DEPTH)) {
+                nd.data_mut().copy_from_slice(d.data());
+            }
+            counts
+        });
+        pixels.history_reset += counts.history_reset;
+        pixels.history_clipped += counts.history_clipped;
+
+        if let Some(s) = rec.stage(
+            "sharpen",
+            (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" }),
+            || sharpen(&out, p.sharpen, hdr),
+        ) {
+            out = s;
+        }
+        rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
+
+        self.state.swap();
+        self.tonemapped = hdr;
+        let bytes = self.state.bytes();
+        Ok(Output {
+            color: out,
+            record: rec.finish(Self::NAME, frame.meta.index, pixels, inp.counts, bytes),
+        })
+    }
+
+    fn reset(&mut self) {
+        self.state.reset();
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.state.bytes()
+    }
+}

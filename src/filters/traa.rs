@@ -1,0 +1,591 @@
+//! `traa`: temporal reprojection anti-aliasing after the thesis 004 (Oliveros 2018,
+//! *Improved sampling for temporal anti-aliasing*).
+//!
+//! `variant = baseline` is the thesis's starting point, the INSIDE / Uncharted 4 TRAA
+//! (Pedersen 2016 = thesis ref. [6]; Xu 2016 = ref. [19]), sec. 3.6:
+//! velocity of the nearest pixel of the 3x3 (3.6.3); history fetched bilinearly; min/max of
+//! the 3x3 and of the cross (+) averaged into the colour box (3.6.3); history clipped toward
+//! the box centre (3.6.4); feedback from the luminance difference of clipped history and
+//! current, biased toward history (3.6.3); the sharpen of eq. 3.1 on the output (3.6.5).
+//!
+//! `variant = improved` adds chapter 4.3 (each term is left out when its channel is):
+//! - `sobel`: Sobel magnitudes of the lit luma l, the albedo luma u and the linear depth d,
+//!   `g = 0.3 u + 0.7 l + d` (eq. 4.9), clamped to [0, 1], `sobel = sqrt(g^2 (3 - 2 g))`
+//!   (eq. 4.10);
+//! - `sobel_history`: the Sobel image's own one-channel TRAA (clamp instead of clip, no
+//!   sharpen; sec. 4.3.3) kept in the state, so the edge mask is stable over time;
+//! - modelAverage: share of the 3x3 with another object id (eq. 4.1);
+//! - depth pseudo-variance and temporal pseudo-variance (eq. 4.4-4.6), zero when the
+//!   normalising distance is below 0.002;
+//! - aliasedValue = clamp01(sobelAvg + depthPV + depthTPV + modelAverage) (eq. 4.12-4.14)
+//!   mixes the cross and 3x3 boxes (eq. 4.15) and shrinks the box toward the current colour
+//!   (eq. 4.16);
+//! - the normalised sharpen of eq. 4.17.
+//!
+//! Choices where the thesis is silent, and why:
+//! - The feedback formula and its bounds 0.88 / 0.97 are INSIDE's (`_FeedbackMin`,
+//!   `_FeedbackMax` of Playdead's TemporalReprojection shader, which sec. 3.6.3 describes
+//!   in words): `k = lerp(0.88, 0.97, (1 - |l0 - l1| / max(l0, l1, 0.2))^2)`.
+//! - Linear depth is used as `depth / far` (Unity's Linear01Depth, the depth the thesis's
+//!   0.002 threshold of sec. 4.3.2 is stated in): `far` from the frame's near/far planes,
+//!   else the largest depth in the frame.
+//! - Without albedo, `g = l + d` (the lit and unlit weights of eq. 4.9 summed).
+//! - The box is clipped toward its centre, as INSIDE's `clip_aabb` does; the thesis's
+//!   figure draws the current colour at the centre, which eq. 4.16 makes true when the box
+//!   shrinks.
+//! - Sharpening is applied to the displayed output only, never fed back into history.
+//! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
+//!   3.1's "colour peak" cannot reach extreme values.
+
+use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::kernels::{
+    bilinear, clamp_to_box, clip_toward_center, cross_and_box_stats, fetch_clamped, gather3x3, luma,
+    sobel_plane, CROSS,
+};
+use crate::pipeline::exec::{for_rows, par_rows};
+use crate::pipeline::params::FilterParams;
+use crate::pipeline::{
+    bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
+    ParamSpec, PixelCounts, Recorder, Skip,
+};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::borrow::Cow;
+
+/// Which TRAA of the thesis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Variant {
+    /// INSIDE / Uncharted 4 (thesis sec. 3.6).
+    Baseline,
+    /// The thesis's improvements (sec. 4.3).
+    Improved,
+}
+
+impl Variant {
+    fn name(self) -> &'static str {
+        match self {
+            Variant::Baseline => "baseline",
+            Variant::Improved => "improved",
+        }
+    }
+}
+
+/// Parameters of `traa`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Params {
+    /// Baseline or improved.
+    pub variant: Variant,
+    /// History weight when current and history luma differ most.
+    pub feedback_min: f32,
+    /// History weight when they agree.
+    pub feedback_max: f32,
+    /// Sharpen the output (eq. 3.1 for baseline, eq. 4.17 for improved).
+    pub sharpen: bool,
+}
+
+/// INSIDE's `_FeedbackMin` (Pedersen 2016; the feedback of thesis sec. 3.6.3).
+pub const FEEDBACK_MIN: f32 = 0.88;
+/// INSIDE's `_FeedbackMax` (Pedersen 2016).
+pub const FEEDBACK_MAX: f32 = 0.97;
+/// Floor of the luma normaliser in the feedback (INSIDE: `max(lum0, max(lum1, 0.2))`).
+const FEEDBACK_LUMA_FLOOR: f32 = 0.2;
+/// Sharpen strength of eq. 3.1, `[0 -1 0; -1 5 -1; 0 -1 0]` (thesis 004, after Xu 2016).
+const SHARPEN_BASELINE: f32 = 4.0;
+/// Sharpen strength of eq. 4.17, `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]`.
+const SHARPEN_IMPROVED: f32 = 1.0;
+/// Eq. 4.9: weight of the albedo ("unlit") luma Sobel.
+const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
+/// Eq. 4.9: weight of the lit luma Sobel.
+const SOBEL_LIT_WEIGHT: f32 = 0.7;
+/// Sec. 4.3.2: below this normalising depth distance the pseudo-variances are zero.
+const DEPTH_DISTANCE_MIN: f32 = 0.002;
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            variant: Variant::Improved,
+            feedback_min: FEEDBACK_MIN,
+            feedback_max: FEEDBACK_MAX,
+            sharpen: true,
+        }
+    }
+}
+
+impl FilterParams for Params {
+    const SPECS: &'static [ParamSpec] = &[
+        ParamSpec {
+            name: "variant",
+            doc: "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)",
+            kind: ParamKind::Choice {
+                options: &["baseline", "improved"],
+            },
+        },
+        ParamSpec {
+            name: "feedback_min",
+            doc: "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting",
+            kind: ParamKind::Float { min: 0.0, max: 0.999 },
+        },
+        ParamSpec {
+            name: "feedback_max",
+            doc: "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response",
+            kind: ParamKind::Float { min: 0.0, max: 0.999 },
+        },
+        ParamSpec {
+            name: "sharpen",
+            doc: "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved",
+            kind: ParamKind::Bool,
+        },
+    ];
+}
+
+/// History planes: working RGB, then (improved) the Sobel history and depth / far.
+const SOBEL: usize = 3;
+const DEPTH01: usize = 4;
+
+/// The TRAA filter with its history.
+#[derive(Debug)]
+pub struct Traa {
+    params: Params,
+    state: DoubleBuffer,
+    tonemapped: bool,
+}
+
+impl Traa {
+    fn history_planes(p: &Params) -> usize {
+        match p.variant {
+            Variant::Baseline => 3,
+            Variant::Improved => 5,
+        }
+    }
+}
+
+impl FilterKind for Traa {
+    const NAME: &'static str = "traa";
+    const SUMMARY: &'static str =
+        "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
+    const STAGES: &'static [&'static str] = &[
+        "repair",
+        "tonemap",
+        "dilate",
+        "reproject",
+        "sobel",
+        "sobel_history",
+        "model_average",
+        "depth_variance",
+        "aliased",
+        "resolve",
+        "sharpen",
+        "untonemap",
+    ];
+    type Params = Params;
+    fn needs() -> ChannelSet {
+        ChannelSet::of(&[ChannelKind::Color])
+    }
+    fn uses() -> ChannelSet {
+        ChannelSet::of(&[
+            ChannelKind::Color,
+            ChannelKind::Motion,
+            ChannelKind::Depth,
+            ChannelKind::Albedo,
+            ChannelKind::ObjectId,
+        ])
+    }
+    fn state_bytes_per_pixel(p: &Params) -> usize {
+        2 * 4 * Self::history_planes(p)
+    }
+    fn new(params: Params) -> Self {
+        Traa {
+            state: DoubleBuffer::new(Self::history_planes(&params)),
+            params,
+            tonemapped: false,
+        }
+    }
+}
+
+/// INSIDE's feedback: the history weight from the difference of two lumas.
+#[inline]
+fn feedback(l0: f32, l1: f32, min: f32, max: f32) -> f32 {
+    let diff = (l0 - l1).abs() / l0.max(l1).max(FEEDBACK_LUMA_FLOOR);
+    let w = (1.0 - diff).max(0.0);
+    min + (max - min) * w * w
+}
+
+#[inline]
+fn mix(x: f32, y: f32, t: f32) -> f32 {
+    x * (1.0 - t) + y * t
+}
+
+/// Raw Sobel edge value per pixel (eq. 4.9-4.10) from the working colour, the albedo and
+/// depth / far, each optional but the colour.
+fn sobel_edges(working: &Rgb, albedo: Option<&Rgb>, depth01: Option<&Plane<f32>>) -> Plane<f32> {
+    let (w, h) = working[0].size();
+    let luma_of = |rgb: &Rgb| {
+        let [r, g, b] = rgb.each_ref().map(|p| p.data());
+        Plane::from_vec(w, h, (0..w * h).map(|i| luma([r[i], g[i], b[i]])).collect()).expect("sized")
+    };
+    let lit = luma_of(working);
+    let unlit = albedo.map(luma_of);
+    let mut out = Plane::new(w, h);
+    for_rows([out.data_mut()], w, |y, [row]| {
+        let mut l = vec![0.0; w];
+        sobel_plane(lit.data(), w, h, y, &mut l);
+        let u = unlit.as_ref().map(|p| {
+            let mut u = vec![0.0; w];
+            sobel_plane(p.data(), w, h, y, &mut u);
+            u
+        });
+        let d = depth01.map(|p| {
+            let mut d = vec![0.0; w];
+            sobel_plane(p.data(), w, h, y, &mut d);
+            d
+        });
+        for x in 0..w {
+            let surface = match &u {
+                Some(u) => SOBEL_UNLIT_WEIGHT * u[x] + SOBEL_LIT_WEIGHT * l[x],
+                None => l[x],
+            };
+            let g = (surface + d.as_ref().map_or(0.0, |d| d[x])).clamp(0.0, 1.0);
+            row[x] = (g * g * (3.0 - 2.0 * g)).sqrt();
+        }
+    });
+    out
+}
+
+impl Filter for Traa {
+    fn name(&self) -> &'static str {
+        Self::NAME
+    }
+
+    fn params(&self) -> Value {
+        serde_json::to_value(&self.params).expect("serializes")
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_needs(Self::NAME, Self::needs(), frame)?;
+        let p = self.params.clone();
+        let improved = p.variant == Variant::Improved;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        bind_size(&mut self.state, frame)?;
+        let (w, h) = (inp.width, inp.height);
+        let facts = inp.facts;
+        let hdr = facts.hdr;
+        let has_history = self.state.valid() && !frame.meta.reset;
+        if has_history && self.tonemapped != hdr {
+            convert_rgb_history(self.state.read_mut(), hdr);
+        }
+        let working = rec
+            .stage("tonemap", facts.tonemap(), || to_working(&inp.color, true))
+            .unwrap_or(Cow::Borrowed(&*inp.color));
+        let variant_skip = (!improved).then_some(Skip::Variant {
+            variant: p.variant.name(),
+        });
+        // Depth normalised by the far plane (or the largest depth), for eq. 4.4-4.6 and 4.9.
+        let depth01: Option<Plane<f32>> = inp.depth.as_deref().filter(|_| improved).map(|d| {
+            let far = frame
+                .meta
+                .near_far
+                .map(|nf| nf[1])
+                .unwrap_or_else(|| d.data().iter().fold(0.0f32, |a, &v| a.max(v)))
+                .max(f32::MIN_POSITIVE);
+            d.map(|v| v / far)
+        });
+
+        let no_history = (!has_history).then_some(Skip::NoHistory);
+        let reproject_skip = no_history
+            .clone()
+            .or_else(|| inp.require(ChannelKind::Motion))
+            .or_else(|| facts.reprojection());
+        let dilated = rec.stage(
+            "dilate",
+            reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            || dilate_motion(inp.motion.as_deref().expect("required"), inp.depth.as_deref().expect("required")),
+        );
+        let n_hist = self.state.read().len();
+        let (read, next) = self.state.split();
+        // Reprojected history (bilinear, as INSIDE samples its history buffer) and whether
+        // each pixel's previous position was on screen.
+        let reprojected: Option<(Vec<Plane<f32>>, Vec<bool>)> = rec.stage("reproject", reproject_skip, || {
+            let motion = dilated.as_ref().unwrap_or_else(|| inp.motion.as_deref().expect("required"));
+            let m = motion.each_ref().map(|p| p.data());
+            let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
+            let mut valid = vec![false; w * h];
+            for (k, plane) in out.iter_mut().enumerate() {
+                let src = read[k].data();
+                for_rows([plane.data_mut()], w, |y, [row]| {
+                    for x in 0..w {
+                        let i = y * w + x;
+                        row[x] = bilinear([src], w, h, x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i])[0];
+                    }
+                });
+            }
+            for (i, v) in valid.iter_mut().enumerate() {
+                let px = (i % w) as f32 + 0.5 + m[0][i];
+                let py = (i / w) as f32 + 0.5 + m[1][i];
+                *v = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
+            }
+            (out, valid)
+        });
+        let (hist, valid): (Vec<&[f32]>, Option<&[bool]>) = match &reprojected {
+            Some((planes, valid)) => (planes.iter().map(|p| p.data()).collect(), Some(valid)),
+            None => (read.iter().map(|p| p.data()).collect(), None),
+        };
+        let history_at = |i: usize| has_history && valid.is_none_or(|v| v[i]);
+
+        let raw_sobel = rec.stage("sobel", variant_skip.clone(), || {
+            sobel_edges(&working, inp.albedo.as_deref(), depth01.as_ref())
+        });
+        // The Sobel image's own TRAA (sec. 4.3.3): clamp into the averaged cross/3x3 range
+        // of the raw Sobel, INSIDE's feedback, no sharpen.
+        let sobel: Option<Cow<Plane<f32>>> = match raw_sobel {
+            None => None,
+            Some(raw) => {
+                let stable = rec.stage("sobel_history", no_history.clone(), || {
+                    let mut out = Plane::new(w, h);
+                    let r = raw.data();
+                    for_rows([out.data_mut()], w, |y, [row]| {
+                        for x in 0..w {
+                            let i = y * w + x;
+                            if !history_at(i) {
+                                row[x] = r[i];
+                                continue;
+                            }
+                            let t = gather3x3(r, w, h, x, y);
+                            let (mut lo3, mut hi3) = (f32::INFINITY, f32::NEG_INFINITY);
+                            let (mut lo_x, mut hi_x) = (f32::INFINITY, f32::NEG_INFINITY);
+                            for (j, &v) in t.iter().enumerate() {
+                                lo3 = lo3.min(v);
+                                hi3 = hi3.max(v);
+                                if CROSS.contains(&j) {
+                                    lo_x = lo_x.min(v);
+                                    hi_x = hi_x.max(v);
+                                }
+                            }
+                            let (hv, _) = clamp_to_box(hist[SOBEL][i], 0.5 * (lo3 + lo_x), 0.5 * (hi3 + hi_x));
+                            let k = feedback(r[i], hv, p.feedback_min, p.feedback_max);
+                            row[x] = mix(r[i], hv, k);
+                        }
+                    });
+                    out
+                });
+                Some(stable.map_or(Cow::Owned(raw), Cow::Owned))
+            }
+        };
+
+        // Eq. 4.1: modelAverage.
+        let model_average = rec.stage(
+            "model_average",
+            variant_skip.clone().or_else(|| inp.require(ChannelKind::ObjectId)),
+            || model_average(inp.object_id.expect("required")),
+        );
+        // Eq. 4.4-4.6: depth pseudo-variance plus temporal pseudo-variance.
+        let depth_variance = rec.stage(
+            "depth_variance",
+            variant_skip.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            || {
+                let d = depth01.as_ref().expect("with depth");
+                depth_variance(d, has_history.then(|| hist[DEPTH01]), &history_at)
+            },
+        );
+        // Eq. 4.12-4.14.
+        let aliased = rec.stage("aliased", variant_skip.clone(), || {
+            aliased(
+                w,
+                h,
+                sobel.as_deref(),
+                model_average.as_ref(),
+                depth_variance.as_ref(),
+            )
+        });
+
+        let mut out: Rgb = planes(w, h);
+        let al = aliased.as_ref().map(|p| p.data());
+        let counts = rec.run("resolve", || {
+            let cur = working.each_ref().map(|p| p.data());
+            let [o0, o1, o2] = slices_mut(&mut out);
+            let mut it = next.iter_mut();
+            let n3: [&mut [f32]; 3] = std::array::from_fn(|_| it.next().expect("3 planes").data_mut());
+            let [n0, n1, n2] = n3;
+            par_rows([o0, o1, o2, n0, n1, n2], w, |y, [or, og, ob, nr, ng, nb]| {
+                let mut c = PixelCounts::default();
+                for x in 0..w {
+                    let i = y * w + x;
+                    let mut taps = [[0.0f32; 3]; 9];
+                    for (t, tap) in taps.iter_mut().enumerate() {
+                        let (xx, yy) = (x as isize + (t % 3) as isize - 1, y as isize + (t / 3) as isize - 1);
+                        *tap = cur.map(|pl| fetch_clamped(pl, w, h, xx, yy));
+                    }
+                    let current = taps[4];
+                    let s = cross_and_box_stats(&taps);
+                    let (lo, hi) = if improved && history_at(i) {
+                        let a = al.map_or(0.0, |al| al[i]);
+                        let mut lo = [0.0; 3];
+                        let mut hi = [0.0; 3];
+                        for k in 0..3 {
+                            // Eq. 4.15 then eq. 4.16.
+                            let cmin = mix(s.min_cross[k], s.min[k], a);
+                            let cmax = mix(s.max_cross[k], s.max[k], a);
+                            lo[k] = mix(current[k], cmin, a);
+                            hi[k] = mix(current[k], cmax, a);
+                        }
+                        (lo, hi)
+                    } else {
+                        (
+                            [0, 1, 2].map(|k| 0.5 * (s.min[k] + s.min_cross[k])),
+                            [0, 1, 2].map(|k| 0.5 * (s.max[k] + s.max_cross[k])),
+                        )
+                    };
+                    let value = if history_at(i) {
+                        let (hc, moved) = clip_toward_center([hist[0][i], hist[1][i], hist[2][i]], lo, hi);
+                        c.history_clipped += moved as u64;
+                        let k = feedback(luma(current), luma(hc), p.feedback_min, p.feedback_max);
+                        [0, 1, 2].map(|j| mix(current[j], hc[j], k).max(0.0))
+                    } else {
+                        c.history_reset += 1;
+                        current
+                    };
+                    (nr[x], ng[x], nb[x]) = (value[0], value[1], value[2]);
+                    (or[x], og[x], ob[x]) = (value[0], value[1], value[2]);
+                }
+                c
+            })
+        });
+        if improved {
+            if let Some(s) = &sobel {
+                next[SOBEL].data_mut().copy_from_slice(s.data());
+            }
+            if let Some(d) = &depth01 {
+                next[DEPTH01].data_mut().copy_from_slice(d.data());
+            }
+        }
+        let strength = if improved { SHARPEN_IMPROVED } else { SHARPEN_BASELINE };
+        if let Some(s) = rec.stage(
+            "sharpen",
+            (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
+            || sharpen(&out, strength, hdr),
+        ) {
+            out = s;
+        }
+        rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
+        self.state.swap();
+        self.tonemapped = hdr;
+        let bytes = self.state.bytes();
+        Ok(Output {
+            color: out,
+            record: rec.finish(Self::NAME, frame.meta.index, counts, inp.counts, bytes),
+        })
+    }
+
+    fn reset(&mut self) {
+        self.state.reset();
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.state.bytes()
+    }
+}
+
+/// Eq. 4.1: per pixel, the share of its 3x3 (centre included, so at most 8/9) whose
+/// object id differs from its own.
+fn model_average(ids: &Plane<u32>) -> Plane<f32> {
+    let (w, h) = ids.size();
+    let id = ids.data();
+    let mut out = Plane::new(w, h);
+    for_rows([out.data_mut()], w, |y, [row]| {
+        for x in 0..w {
+            let me = id[y * w + x];
+            let mut diff = 0u32;
+            for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                    diff += (id[yy * w + xx] != me) as u32;
+                }
+            }
+            // Edge pixels count their clamped neighbours as the same object, as a clamped
+            // texture fetch would.
+            row[x] = diff as f32 / 9.0;
+        }
+    });
+    out
+}
+
+/// Eq. 4.4-4.6 summed: depth pseudo-variance `(|z - avg| / maxDist)^2` plus temporal
+/// pseudo-variance `(|z_prev - avg| / maxDist)^4`, both zero where `maxDist =
+/// min(|min - avg|, |max - avg|)` is below 0.002. `prev` is the reprojected depth / far of
+/// the previous frame (used where `has_prev(i)`).
+fn depth_variance(d: &Plane<f32>, prev: Option<&[f32]>, has_prev: &(dyn Fn(usize) -> bool + Sync)) -> Plane<f32> {
+    let (w, h) = d.size();
+    let dd = d.data();
+    let mut out = Plane::new(w, h);
+    for_rows([out.data_mut()], w, |y, [row]| {
+        for x in 0..w {
+            let i = y * w + x;
+            let t = gather3x3(dd, w, h, x, y);
+            let (mut lo, mut hi, mut sum) = (f32::INFINITY, f32::NEG_INFINITY, 0.0);
+            for &v in &t {
+                lo = lo.min(v);
+                hi = hi.max(v);
+                sum += v;
+            }
+            let avg = sum / 9.0;
+            let max_dist = (lo - avg).abs().min((hi - avg).abs());
+            row[x] = if max_dist < DEPTH_DISTANCE_MIN {
+                0.0
+            } else {
+                let pv = ((dd[i] - avg).abs() / max_dist).powi(2);
+                let tpv = match prev {
+                    Some(p) if has_prev(i) => ((p[i] - avg).abs() / max_dist).powi(4),
+                    _ => 0.0,
+                };
+                // Outliers can make these huge; eq. 4.14 clamps the sum to 1 anyway.
+                (pv + tpv).min(1.0)
+            };
+        }
+    });
+    out
+}
+
+/// Eq. 4.12-4.14: `aliasedValue = clamp01(sobelAvg + depth terms + modelAverage)` with
+/// `sobelAvg = mix(sobelAvgCross, sobelAvg3x3, clamp01(modelAverage + sobel))` on the
+/// stabilised Sobel image. Absent terms are 0.
+fn aliased(
+    w: usize,
+    h: usize,
+    sobel: Option<&Plane<f32>>,
+    model_average: Option<&Plane<f32>>,
+    depth_variance: Option<&Plane<f32>>,
+) -> Plane<f32> {
+    let mut out = Plane::new(w, h);
+    for_rows([out.data_mut()], w, |y, [row]| {
+        for x in 0..w {
+            let i = y * w + x;
+            let ma = model_average.map_or(0.0, |p| p.data()[i]);
+            let sobel_avg = sobel.map_or(0.0, |s| {
+                let t = gather3x3(s.data(), w, h, x, y);
+                let avg3 = t.iter().sum::<f32>() / 9.0;
+                let avg_cross = CROSS.iter().map(|&j| t[j]).sum::<f32>() / 5.0;
+                mix(avg_cross, avg3, (ma + t[4]).clamp(0.0, 1.0))
+            });
+            let dv = depth_variance.map_or(0.0, |p| p.data()[i]);
+            row[x] = (sobel_avg + dv + ma).clamp(0.0, 1.0);
+        }
+    });
+    out
+}
+
+/// Converts RGB history planes between linear and tonemapped working space.
+fn convert_rgb_history(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+    use crate::kernels::{tonemap, tonemap_inverse};
+    let w = planes[0].width();
+    let (r, rest) = planes.split_at_mut(1);
+    let (g, rest) = rest.split_at_mut(1);
+    for_rows([r[0].data_mut(), g[0].data_mut(), rest[0].data_mut()], w, |_, [r, g, b]| {
+        for x in 0..w {
+            let c = [r[x], g[x], b[x]];
+            let t = if to_tonemapped { tonemap(c) } else { tonemap_inverse(c) };
+            (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
+        }
+    });
+}

@@ -1,0 +1,103 @@
+//! Rectification of history against a colour box: clip toward the centre, or clamp.
+
+/// Guard added to the half-extent of the box so a flat box (min = max) never divides by
+/// zero (Pedersen 2016, INSIDE's `clip_aabb`, `FLT_EPS = 1e-8`).
+const CLIP_EPS: f32 = 1.0e-8;
+
+/// Clips `q` toward the centre of the box `[min, max]`: if `q` lies outside, it is moved
+/// along the segment to the centre until it meets the box surface; inside, it is returned
+/// unchanged (Pedersen 2016, INSIDE's `clip_aabb`; Karis 2014). Unlike a per-axis clamp this
+/// keeps the history's hue instead of snapping it to a corner (thesis 004, fig. 3.9).
+/// Returns the point and whether it moved.
+#[inline]
+pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {
+    let mut worst = 0.0f32;
+    let mut center = [0.0f32; 3];
+    let mut v = [0.0f32; 3];
+    for k in 0..3 {
+        center[k] = 0.5 * (max[k] + min[k]);
+        let extent = 0.5 * (max[k] - min[k]) + CLIP_EPS;
+        v[k] = q[k] - center[k];
+        worst = worst.max((v[k] / extent).abs());
+    }
+    if worst > 1.0 {
+        let s = 1.0 / worst;
+        ([center[0] + v[0] * s, center[1] + v[1] * s, center[2] + v[2] * s], true)
+    } else {
+        (q, false)
+    }
+}
+
+/// Clamps each component of `q` into `[min, max]` (the thesis's one-channel Sobel history
+/// uses clamping, 004 sec. 4.3.3). Returns the value and whether it moved.
+#[inline]
+pub fn clamp_to_box(q: f32, min: f32, max: f32) -> (f32, bool) {
+    let c = q.max(min).min(max);
+    (c, c != q)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
+
+    /// f64 reference: the largest s in [0, 1] with centre + s (q - centre) inside the box
+    /// (grown by the kernel's guard `CLIP_EPS` on each side, part of its definition),
+    /// found by intersecting the segment with each slab.
+    fn clip_f64(q: [f64; 3], min: [f64; 3], max: [f64; 3]) -> [f64; 3] {
+        let c: Vec<f64> = (0..3).map(|k| 0.5 * (min[k] + max[k])).collect();
+        let mut s: f64 = 1.0;
+        for k in 0..3 {
+            let v = q[k] - c[k];
+            let half = 0.5 * (max[k] - min[k]) + CLIP_EPS as f64;
+            if v.abs() > half {
+                s = s.min(half / v.abs());
+            }
+        }
+        [0, 1, 2].map(|k| c[k] + s * (q[k] - c[k]))
+    }
+
+    #[test]
+    fn clip_matches_the_slab_reference() {
+        let mut rng = SplitMix64::new(21);
+        let mut moved = 0;
+        for i in 0..20_000 {
+            let scale = [1.0, 1e3, 1e-3][i % 3];
+            let a = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+            let b = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+            let min = [0, 1, 2].map(|k| a[k].min(b[k]) as f32);
+            let max = [0, 1, 2].map(|k| a[k].max(b[k]) as f32);
+            let q = [0, 1, 2].map(|_| (rng.range(-2.0, 2.0) * scale) as f32);
+            let (got, m) = clip_toward_center(q, min, max);
+            moved += m as u32;
+            let expect = clip_f64(q.map(f64::from), min.map(f64::from), max.map(f64::from));
+            for k in 0..3 {
+                Tolerance::new(1e-6 * scale, 1e-5).check("clip", got[k] as f64, expect[k]).unwrap();
+                // The result is inside the box (up to rounding).
+                let slack = 1e-5 * scale as f32 + 2.0 * CLIP_EPS;
+                assert!(got[k] >= min[k] - slack && got[k] <= max[k] + slack);
+            }
+            let inside = (0..3).all(|k| q[k] >= min[k] && q[k] <= max[k]);
+            assert_eq!(!inside, m, "moved flag for {q:?} in {min:?}..{max:?}");
+        }
+        assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+    }
+
+    #[test]
+    fn clip_into_a_flat_box_lands_on_its_point() {
+        let p = [0.3, 0.2, 0.1];
+        let (got, moved) = clip_toward_center([5.0, -2.0, 0.0], p, p);
+        assert!(moved);
+        for k in 0..3 {
+            Tolerance::abs(1e-6).check("flat", got[k] as f64, p[k] as f64).unwrap();
+        }
+    }
+
+    #[test]
+    fn clamp_reports_movement() {
+        assert_eq!(clamp_to_box(0.5, 0.0, 1.0), (0.5, false));
+        assert_eq!(clamp_to_box(2.0, 0.0, 1.0), (1.0, true));
+        assert_eq!(clamp_to_box(-1.0, 0.0, 1.0), (0.0, true));
+    }
+}

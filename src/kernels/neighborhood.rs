@@ -1,0 +1,133 @@
+//! Statistics of a pixel's 3x3 neighbourhood: min/max and mean of the full box and of the
+//! cross (+), and the variance box.
+
+use super::fetch_clamped;
+
+/// Indices of the cross (+) taps within a row-major 3x3 gather (centre = 4).
+pub const CROSS: [usize; 5] = [1, 3, 4, 5, 7];
+
+/// The 3x3 neighbourhood of `(x, y)` in row-major order (centre at index 4), edges clamped.
+#[inline]
+pub fn gather3x3(plane: &[f32], width: usize, height: usize, x: usize, y: usize) -> [f32; 9] {
+    let (x, y) = (x as isize, y as isize);
+    let mut out = [0.0; 9];
+    for (i, o) in out.iter_mut().enumerate() {
+        let (dx, dy) = ((i % 3) as isize - 1, (i / 3) as isize - 1);
+        *o = fetch_clamped(plane, width, height, x + dx, y + dy);
+    }
+    out
+}
+
+/// Per-component statistics of nine colour taps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NeighborhoodStats {
+    /// Minimum over the 3x3 box.
+    pub min: [f32; 3],
+    /// Maximum over the 3x3 box.
+    pub max: [f32; 3],
+    /// Mean over the 3x3 box.
+    pub mean: [f32; 3],
+    /// Mean of the squares over the 3x3 box (for the variance box).
+    pub mean_sq: [f32; 3],
+    /// Minimum over the cross (+).
+    pub min_cross: [f32; 3],
+    /// Maximum over the cross (+).
+    pub max_cross: [f32; 3],
+    /// Mean over the cross (+).
+    pub mean_cross: [f32; 3],
+}
+
+/// Statistics of the 3x3 box and of its cross from nine taps (row-major, centre 4).
+#[inline]
+pub fn cross_and_box_stats(taps: &[[f32; 3]; 9]) -> NeighborhoodStats {
+    let mut s = NeighborhoodStats {
+        min: [f32::INFINITY; 3],
+        max: [f32::NEG_INFINITY; 3],
+        mean: [0.0; 3],
+        mean_sq: [0.0; 3],
+        min_cross: [f32::INFINITY; 3],
+        max_cross: [f32::NEG_INFINITY; 3],
+        mean_cross: [0.0; 3],
+    };
+    for (i, t) in taps.iter().enumerate() {
+        let in_cross = i % 2 == 1 || i == 4;
+        for k in 0..3 {
+            s.min[k] = s.min[k].min(t[k]);
+            s.max[k] = s.max[k].max(t[k]);
+            s.mean[k] += t[k];
+            s.mean_sq[k] += t[k] * t[k];
+            if in_cross {
+                s.min_cross[k] = s.min_cross[k].min(t[k]);
+                s.max_cross[k] = s.max_cross[k].max(t[k]);
+                s.mean_cross[k] += t[k];
+            }
+        }
+    }
+    for k in 0..3 {
+        s.mean[k] /= 9.0;
+        s.mean_sq[k] /= 9.0;
+        s.mean_cross[k] /= 5.0;
+    }
+    s
+}
+
+/// The variance box `mean +- gamma * sigma` per component (Salvi 2016), intersected with the
+/// min/max box so it never reaches outside the values actually seen.
+#[inline]
+pub fn variance_box(s: &NeighborhoodStats, gamma: f32) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [0.0; 3];
+    let mut hi = [0.0; 3];
+    for k in 0..3 {
+        let sigma = (s.mean_sq[k] - s.mean[k] * s.mean[k]).max(0.0).sqrt();
+        lo[k] = (s.mean[k] - gamma * sigma).max(s.min[k]);
+        hi[k] = (s.mean[k] + gamma * sigma).min(s.max[k]);
+    }
+    (lo, hi)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
+
+    #[test]
+    fn stats_and_variance_box_match_f64() {
+        let mut rng = SplitMix64::new(31);
+        for i in 0..5_000 {
+            let scale = [1.0, 1e3, 1e-4][i % 3];
+            let taps: [[f32; 3]; 9] = std::array::from_fn(|_| [0, 1, 2].map(|_| (rng.next_f64() * scale) as f32));
+            let s = cross_and_box_stats(&taps);
+            let gamma = rng.range(0.5, 1.5) as f32;
+            let (lo, hi) = variance_box(&s, gamma);
+            for k in 0..3 {
+                let v: Vec<f64> = taps.iter().map(|t| t[k] as f64).collect();
+                let cross: Vec<f64> = CROSS.iter().map(|&i| v[i]).collect();
+                let mean = v.iter().sum::<f64>() / 9.0;
+                let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / 9.0;
+                let fold = |xs: &[f64], f: fn(f64, f64) -> f64| xs.iter().copied().reduce(f).unwrap();
+                let t = Tolerance::new(1e-6 * scale, 1e-5);
+                t.check("min", s.min[k] as f64, fold(&v, f64::min)).unwrap();
+                t.check("max", s.max[k] as f64, fold(&v, f64::max)).unwrap();
+                t.check("mean", s.mean[k] as f64, mean).unwrap();
+                t.check("min+", s.min_cross[k] as f64, fold(&cross, f64::min)).unwrap();
+                t.check("max+", s.max_cross[k] as f64, fold(&cross, f64::max)).unwrap();
+                t.check("mean+", s.mean_cross[k] as f64, cross.iter().sum::<f64>() / 5.0).unwrap();
+                let sigma = var.sqrt();
+                // sigma from E[x^2] - E[x]^2 in f32 loses digits when the spread is small
+                // relative to the mean: allow for that cancellation.
+                let tv = Tolerance::new(2e-3 * scale, 1e-3);
+                tv.check("lo", lo[k] as f64, (mean - gamma as f64 * sigma).max(fold(&v, f64::min))).unwrap();
+                tv.check("hi", hi[k] as f64, (mean + gamma as f64 * sigma).min(fold(&v, f64::max))).unwrap();
+                assert!(lo[k] <= hi[k] + 1e-6 * scale as f32);
+            }
+        }
+    }
+
+    #[test]
+    fn gather_clamps_at_edges() {
+        let p: Vec<f32> = (0..12).map(|v| v as f32).collect(); // 4x3
+        assert_eq!(gather3x3(&p, 4, 3, 0, 0), [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 4.0, 4.0, 5.0]);
+        assert_eq!(gather3x3(&p, 4, 3, 3, 2), [6.0, 7.0, 7.0, 10.0, 11.0, 11.0, 10.0, 11.0, 11.0]);
+    }
+}

@@ -1,0 +1,243 @@
+//! The filter interface: requirements, parameters, per-frame records, the stage planner,
+//! and the registry of every filter.
+//!
+//! A filter is created by name with validated parameters ([`create`]), then fed frames in
+//! order ([`Filter::process`]); each frame gives an output image and a [`FrameRecord`].
+//! Filters run on the crate's rayon pool ([`exec::pool`]), split by rows.
+
+pub mod exec;
+pub mod history;
+pub mod input;
+pub mod params;
+pub mod planner;
+pub mod record;
+
+pub use history::DoubleBuffer;
+pub use input::{prepare, Inputs};
+pub use params::{FilterParams, ParamKind, ParamSpec};
+pub use planner::FrameFacts;
+pub use record::{FrameRecord, InputCounts, PixelCounts, Recorder, Skip, StageRecord};
+
+use crate::filters;
+use crate::frame::{ChannelKind, ChannelSet, Frame, FrameError, Rgb};
+use serde::Serialize;
+use serde_json::{Map, Value};
+use thiserror::Error;
+
+/// Errors of filter creation and processing. All are the caller's: a bad name, parameter or
+/// frame. The filter's state is untouched by a frame that fails.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum FilterError {
+    /// No filter of that name.
+    #[error("unknown filter {got:?}; known: {known}")]
+    UnknownFilter {
+        /// The name given.
+        got: String,
+        /// The filters there are.
+        known: String,
+    },
+    /// A parameter the filter does not have.
+    #[error("filter {filter} has no parameter {param:?}; its parameters: {known}")]
+    UnknownParam {
+        /// The filter.
+        filter: &'static str,
+        /// The name given.
+        param: String,
+        /// Its parameters.
+        known: String,
+    },
+    /// A parameter of the wrong type or out of bounds.
+    #[error("filter {filter}, parameter {param}: {message}")]
+    BadParam {
+        /// The filter.
+        filter: &'static str,
+        /// The parameter.
+        param: String,
+        /// What was expected and what was given.
+        message: String,
+    },
+    /// `--set` text without `=`.
+    #[error("expected key=value, got {got:?}")]
+    Assignment {
+        /// The text given.
+        got: String,
+    },
+    /// The frame lacks a channel the filter needs.
+    #[error("filter {filter} needs the {channel} channel, which frame {index} does not have")]
+    MissingChannel {
+        /// The filter.
+        filter: &'static str,
+        /// The channel.
+        channel: ChannelKind,
+        /// The frame's index.
+        index: u64,
+    },
+    /// The frame size differs from the history's without a reset.
+    #[error("frame {index} is {got_w}x{got_h} but the filter's history is {width}x{height}; send a reset frame (or reset the filter) to change size")]
+    SizeChanged {
+        /// The frame's index.
+        index: u64,
+        /// History width.
+        width: usize,
+        /// History height.
+        height: usize,
+        /// Frame width.
+        got_w: usize,
+        /// Frame height.
+        got_h: usize,
+    },
+    /// Device depth whose near/far planes are unknown cannot be linearised.
+    #[error("the depth channel is device depth but the frame gives no near/far planes to linearise it")]
+    DeviceDepthWithoutPlanes,
+    /// An invalid frame.
+    #[error(transparent)]
+    Frame(#[from] FrameError),
+}
+
+/// A filtered frame.
+#[derive(Clone, Debug)]
+pub struct Output {
+    /// The filtered colour, linear RGB, the input's size.
+    pub color: Rgb,
+    /// What happened.
+    pub record: FrameRecord,
+}
+
+/// A filter instance with its state. Frames go in in order; `reset` forgets the history.
+pub trait Filter: Send {
+    /// The registry name.
+    fn name(&self) -> &'static str;
+    /// The parameters in effect, as JSON.
+    fn params(&self) -> Value;
+    /// Filters one frame. On error the state is left as it was.
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError>;
+    /// Forgets the history: the next frame starts afresh.
+    fn reset(&mut self);
+    /// Bytes of state held now.
+    fn state_bytes(&self) -> usize;
+}
+
+/// Static description of a filter kind, implemented by each filter module.
+pub trait FilterKind: Filter + Sized + 'static {
+    /// Registry name.
+    const NAME: &'static str;
+    /// One line on what it is.
+    const SUMMARY: &'static str;
+    /// Stage names in execution order.
+    const STAGES: &'static [&'static str];
+    /// Its parameters.
+    type Params: FilterParams;
+    /// Channels it cannot work without.
+    fn needs() -> ChannelSet;
+    /// Channels it reads when present (a superset of `needs`).
+    fn uses() -> ChannelSet;
+    /// Bytes of state per pixel with these parameters (both history buffers).
+    fn state_bytes_per_pixel(params: &Self::Params) -> usize;
+    /// A fresh instance.
+    fn new(params: Self::Params) -> Self;
+}
+
+/// What `afterimage filters` and the server's list show about one filter.
+#[derive(Clone, Debug, Serialize)]
+pub struct FilterInfo {
+    /// Registry name.
+    pub name: &'static str,
+    /// One line on what it is.
+    pub summary: &'static str,
+    /// Channels it needs.
+    pub needs: Vec<ChannelKind>,
+    /// Channels it reads when present.
+    pub uses: Vec<ChannelKind>,
+    /// Stage names in order.
+    pub stages: &'static [&'static str],
+    /// Parameters with kinds and bounds.
+    pub params: &'static [ParamSpec],
+    /// Default parameter values.
+    pub defaults: Map<String, Value>,
+    /// Bytes of state per pixel with the defaults.
+    pub state_bytes_per_pixel: usize,
+}
+
+/// One registry entry: the description and a constructor.
+pub struct FilterEntry {
+    /// The description.
+    pub info: fn() -> FilterInfo,
+    /// Builds an instance from parameter overrides.
+    pub create: fn(&Map<String, Value>) -> Result<Box<dyn Filter>, FilterError>,
+}
+
+fn info_of<F: FilterKind>() -> FilterInfo {
+    FilterInfo {
+        name: F::NAME,
+        summary: F::SUMMARY,
+        needs: F::needs().iter().collect(),
+        uses: F::uses().iter().collect(),
+        stages: F::STAGES,
+        params: <F::Params as FilterParams>::SPECS,
+        defaults: params::defaults::<F::Params>(),
+        state_bytes_per_pixel: F::state_bytes_per_pixel(&F::Params::default()),
+    }
+}
+
+fn create_of<F: FilterKind>(values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
+    Ok(Box::new(F::new(params::build::<F::Params>(F::NAME, values)?)))
+}
+
+/// The registry entry of filter kind `F`.
+pub fn entry<F: FilterKind>() -> FilterEntry {
+    FilterEntry {
+        info: info_of::<F>,
+        create: create_of::<F>,
+    }
+}
+
+/// Every filter, in the order they are listed.
+pub fn registry() -> Vec<FilterEntry> {
+    filters::all()
+}
+
+/// Descriptions of every filter.
+pub fn list() -> Vec<FilterInfo> {
+    registry().iter().map(|e| (e.info)()).collect()
+}
+
+/// A new instance of filter `name` with `values` overriding its defaults.
+pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
+    let reg = registry();
+    let entry = reg.iter().find(|e| (e.info)().name == name).ok_or_else(|| FilterError::UnknownFilter {
+        got: name.to_string(),
+        known: reg.iter().map(|e| (e.info)().name).collect::<Vec<_>>().join(", "),
+    })?;
+    (entry.create)(values)
+}
+
+/// Checks that `frame` has every channel in `needs`.
+pub fn check_needs(filter: &'static str, needs: ChannelSet, frame: &Frame) -> Result<(), FilterError> {
+    match needs.minus(frame.channels()).iter().next() {
+        Some(channel) => Err(FilterError::MissingChannel {
+            filter,
+            channel,
+            index: frame.meta.index,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// Sizes `state` for `frame`: a new size is accepted on the first frame, after a reset of
+/// the filter, or on a reset frame; otherwise it is an error (and the state is untouched).
+pub fn bind_size(state: &mut DoubleBuffer, frame: &Frame) -> Result<(), FilterError> {
+    let (w, h) = (frame.width(), frame.height());
+    if let Some((sw, sh)) = state.size() {
+        if (sw, sh) != (w, h) && state.valid() && !frame.meta.reset {
+            return Err(FilterError::SizeChanged {
+                index: frame.meta.index,
+                width: sw,
+                height: sh,
+                got_w: w,
+                got_h: h,
+            });
+        }
+    }
+    state.ensure(w, h);
+    Ok(())
+}

@@ -1,0 +1,206 @@
+//! The per-frame record: what ran, what was left out and why, how long each stage took,
+//! and what happened to the history.
+
+use serde::Serialize;
+use std::fmt;
+use std::ops::AddAssign;
+use std::time::Instant;
+
+use crate::frame::ChannelKind;
+
+/// Why a stage was left out for this frame.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "why")]
+pub enum Skip {
+    /// The stage's input channel is absent from the frame.
+    MissingChannel {
+        /// The channel.
+        channel: ChannelKind,
+    },
+    /// Motion is zero everywhere and the frame is no reset: history already lines up.
+    NoMotion,
+    /// Colour never exceeds 1: the reversible tonemap would not change the weighting.
+    LdrInput,
+    /// No non-finite or negative sample in the input: nothing to repair.
+    CleanInput,
+    /// First frame, reset or reset history: there is nothing to reproject.
+    NoHistory,
+    /// Turned off by a parameter.
+    Disabled {
+        /// The parameter.
+        param: &'static str,
+    },
+    /// The stage belongs to another variant of the filter.
+    Variant {
+        /// The variant that is running.
+        variant: &'static str,
+    },
+}
+
+impl fmt::Display for Skip {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Skip::MissingChannel { channel } => write!(f, "no {channel} channel"),
+            Skip::NoMotion => write!(f, "no motion anywhere and no reset"),
+            Skip::LdrInput => write!(f, "LDR input (max <= 1)"),
+            Skip::CleanInput => write!(f, "no non-finite or negative input"),
+            Skip::NoHistory => write!(f, "no history (first frame or reset)"),
+            Skip::Disabled { param } => write!(f, "disabled by {param}"),
+            Skip::Variant { variant } => write!(f, "not part of variant {variant}"),
+        }
+    }
+}
+
+/// One stage of one frame.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StageRecord {
+    /// Stage name (stable, listed by `afterimage filters`).
+    pub name: &'static str,
+    /// Wall time in milliseconds; `None` when left out.
+    pub ms: Option<f64>,
+    /// Why it was left out; `None` when it ran.
+    pub skipped: Option<Skip>,
+}
+
+/// What happened to the history, counted in pixels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct PixelCounts {
+    /// History restarted from the input: first frame, reset, off screen, disocclusion.
+    pub history_reset: u64,
+    /// History rejected by a test (depth) and restarted from the input.
+    pub history_rejected: u64,
+    /// History moved by rectification (clipped or clamped into the neighbourhood box).
+    pub history_clipped: u64,
+}
+
+impl AddAssign for PixelCounts {
+    fn add_assign(&mut self, o: PixelCounts) {
+        self.history_reset += o.history_reset;
+        self.history_rejected += o.history_rejected;
+        self.history_clipped += o.history_clipped;
+    }
+}
+
+/// Input samples that could not be used as they came.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct InputCounts {
+    /// NaN or infinite samples over all channels the filter reads (repaired, never stored).
+    pub non_finite: u64,
+    /// Negative colour samples (set to 0).
+    pub negative: u64,
+}
+
+/// The record of one filtered frame.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FrameRecord {
+    /// Frame index (from the frame's values).
+    pub index: u64,
+    /// The filter.
+    pub filter: &'static str,
+    /// Every stage of the filter in order, run or left out.
+    pub stages: Vec<StageRecord>,
+    /// Wall time of the whole frame, milliseconds.
+    pub total_ms: f64,
+    /// History events.
+    pub pixels: PixelCounts,
+    /// Unusable input samples.
+    pub input: InputCounts,
+    /// Bytes of filter state after this frame.
+    pub state_bytes: usize,
+}
+
+impl FrameRecord {
+    /// The stage called `name`, if the filter has one.
+    pub fn stage(&self, name: &str) -> Option<&StageRecord> {
+        self.stages.iter().find(|s| s.name == name)
+    }
+
+    /// Whether stage `name` ran this frame.
+    pub fn ran(&self, name: &str) -> bool {
+        self.stage(name).is_some_and(|s| s.skipped.is_none())
+    }
+}
+
+/// Builds a [`FrameRecord`] while a filter runs: times stages and notes those left out.
+#[derive(Debug)]
+pub struct Recorder {
+    start: Instant,
+    stages: Vec<StageRecord>,
+}
+
+impl Default for Recorder {
+    fn default() -> Self {
+        Recorder::new()
+    }
+}
+
+impl Recorder {
+    /// Starts the clock of a frame.
+    pub fn new() -> Self {
+        Recorder {
+            start: Instant::now(),
+            stages: Vec::new(),
+        }
+    }
+
+    /// Runs stage `name` and times it.
+    pub fn run<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let out = f();
+        self.stages.push(StageRecord {
+            name,
+            ms: Some(t.elapsed().as_secs_f64() * 1e3),
+            skipped: None,
+        });
+        out
+    }
+
+    /// Runs stage `name` unless `skip` says why not; returns `None` when left out.
+    pub fn stage<T>(&mut self, name: &'static str, skip: Option<Skip>, f: impl FnOnce() -> T) -> Option<T> {
+        match skip {
+            Some(why) => {
+                self.skip(name, why);
+                None
+            }
+            None => Some(self.run(name, f)),
+        }
+    }
+
+    /// Notes that stage `name` was left out.
+    pub fn skip(&mut self, name: &'static str, why: Skip) {
+        self.stages.push(StageRecord {
+            name,
+            ms: None,
+            skipped: Some(why),
+        });
+    }
+
+    /// Notes that stage `name` ran for `ms` milliseconds, timed by the caller.
+    pub fn ran_for(&mut self, name: &'static str, ms: f64) {
+        self.stages.push(StageRecord {
+            name,
+            ms: Some(ms),
+            skipped: None,
+        });
+    }
+
+    /// The finished record.
+    pub fn finish(
+        self,
+        filter: &'static str,
+        index: u64,
+        pixels: PixelCounts,
+        input: InputCounts,
+        state_bytes: usize,
+    ) -> FrameRecord {
+        FrameRecord {
+            index,
+            filter,
+            stages: self.stages,
+            total_ms: self.start.elapsed().as_secs_f64() * 1e3,
+            pixels,
+            input,
+            state_bytes,
+        }
+    }
+}
