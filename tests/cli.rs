@@ -220,3 +220,114 @@ fn eval_uses_the_reference_channel_and_checks_sizes() {
         "{err}"
     );
 }
+
+#[test]
+fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    let output = dir.path().join("out");
+    let (ok, _, err) = run(&[
+        "scene",
+        "moving-sphere",
+        "--frames",
+        "4",
+        "--size",
+        "40x24",
+        "--spp",
+        "4",
+        "--out",
+        input.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, out, err) = run(&[
+        "filter",
+        "--filter",
+        "traa",
+        "--set",
+        "variant=baseline",
+        "--set",
+        "sharpen=false",
+        "--input",
+        input.to_str().unwrap(),
+        "--output",
+        output.to_str().unwrap(),
+        "--png",
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("vs reference") && out.contains("resolve") && out.contains("left out"),
+        "{out}"
+    );
+    for i in 0..4 {
+        assert!(output.join(format!("frame_{i:04}.exr")).exists());
+        assert!(output.join(format!("frame_{i:04}.png")).exists());
+    }
+    let records: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(output.join("records.json")).unwrap()).unwrap();
+    assert_eq!(records["frames"].as_array().unwrap().len(), 4);
+    assert_eq!(records["params"]["variant"], "baseline");
+    assert_eq!(records["params"]["sharpen"], false);
+    assert_eq!(records["frames"][0]["stages"][3]["name"], "reproject");
+    // The written frames are what the library computes, and the printed PSNR is theirs.
+    let mut f = afterimage::pipeline::create(
+        "traa",
+        &afterimage::pipeline::params::parse_assignments(&["variant=baseline", "sharpen=false"]).unwrap(),
+    )
+    .unwrap();
+    let seq = Sequence::open(input.to_str().unwrap()).unwrap();
+    let mut eval = Evaluator::new(SpaceChoice::Auto);
+    for (i, frame) in seq.frames(&ReadOptions::default()).enumerate() {
+        let frame = frame.unwrap();
+        let expect = f.process(&frame).unwrap().color;
+        let written = read_frame(&output.join(format!("frame_{i:04}.exr")), &ReadOptions::default()).unwrap();
+        assert_eq!(written.color(), &expect);
+        eval.push(i as u64, &expect, frame.reference().unwrap(), false)
+            .unwrap();
+    }
+    let psnr = eval.summary().unwrap().mean_psnr;
+    assert!(
+        out.contains(&format!("mean PSNR {psnr:.3} dB")),
+        "{out} vs {psnr}"
+    );
+}
+
+#[test]
+fn filters_lists_every_filter_with_bounds_and_bad_params_are_refused() {
+    let (ok, out, _) = run(&["filters", "--json"]);
+    assert!(ok);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let names: Vec<&str> = v
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["passthrough", "fxaa", "taa", "traa"]);
+    let taa = &v[2];
+    assert_eq!(taa["defaults"]["alpha"], 0.1);
+    assert_eq!(taa["params"][0]["kind"]["max"], 1.0);
+    assert_eq!(taa["uses"], serde_json::json!(["color", "depth", "motion"]));
+    assert_eq!(taa["needs"], serde_json::json!(["color"]));
+    let (ok, text, _) = run(&["filters"]);
+    assert!(
+        ok && text.contains("--set variant=\"improved\"  [baseline | improved]"),
+        "{text}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "--set",
+        "gamma=9",
+        "--input",
+        "nowhere",
+        "--output",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(!ok);
+    assert!(
+        err.contains("filter taa, parameter gamma: 9 is out of bounds: expected 0.25 <= value <= 4"),
+        "{err}"
+    );
+}

@@ -2,6 +2,7 @@
 //! print.
 
 mod eval;
+mod filter;
 mod info;
 mod read_args;
 mod scene;
@@ -23,6 +24,10 @@ enum Command {
     Info(info::InfoArgs),
     /// Measure a sequence against a reference: PSNR, SSIM, RMSE per frame and tRMSE.
     Eval(eval::EvalArgs),
+    /// Run a filter over a sequence: EXR out, per-frame records, metrics with a reference.
+    Filter(filter::FilterArgs),
+    /// List the filters: parameters with defaults and bounds, channels, stages, state size.
+    Filters(filter::FiltersArgs),
     /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
     Scene(scene::SceneArgs),
 }
@@ -33,5 +38,16 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Scene(a) => scene::run(a),
+        Command::Filter(a) => filter::run(a),
+        Command::Filters(a) => filter::list(a),
+    }
+}
+
+/// Writes `text` to stdout; a reader that closes the pipe early (`| head`) is not an error.
+pub(crate) fn print_stdout(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
     }
 }

@@ -13,7 +13,8 @@ use crate::kernels::{bilinear, luma, tonemap};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts, Recorder,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
+    Recorder,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -73,7 +74,8 @@ pub struct Fxaa {
 
 impl FilterKind for Fxaa {
     const NAME: &'static str = "fxaa";
-    const SUMMARY: &'static str = "FXAA 3.11 quality preset 12 (Lottes 2011): spatial edge anti-aliasing, no history";
+    const SUMMARY: &'static str =
+        "FXAA 3.11 quality preset 12 (Lottes 2011): spatial edge anti-aliasing, no history";
     const STAGES: &'static [&'static str] = &["repair", "luma", "fxaa"];
     type Params = Params;
     fn needs() -> ChannelSet {
@@ -108,6 +110,7 @@ pub struct EdgeEnds {
 /// bilinearly, until the luma minus `luma_avg` reaches `gradient_scaled` in magnitude.
 /// After the last sample the position advances once more without sampling (as the header
 /// does: the last step is a guess).
+#[allow(clippy::too_many_arguments)] // the header's own variables, named as there
 pub fn edge_search(
     luma: &[f32],
     w: usize,
@@ -211,7 +214,16 @@ pub fn fxaa_position(l: &[f32], w: usize, h: usize, x: usize, y: usize, p: &Para
     let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
     let gradient_scaled = gradient * 0.25;
     let luma_mm = luma_m - luma_nn * 0.5;
-    let ends = edge_search(l, w, h, pos_b, off, luma_nn * 0.5, gradient_scaled, &PRESET_12_STEPS);
+    let ends = edge_search(
+        l,
+        w,
+        h,
+        pos_b,
+        off,
+        luma_nn * 0.5,
+        gradient_scaled,
+        &PRESET_12_STEPS,
+    );
     let (dst_n, dst_p) = if horz_span {
         (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
     } else {
@@ -243,7 +255,7 @@ impl Filter for Fxaa {
     }
 
     fn params(&self) -> Value {
-        serde_json::to_value(&self.params).expect("serializes")
+        Value::Object(crate::pipeline::params::to_json(&self.params))
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
@@ -279,7 +291,13 @@ impl Filter for Fxaa {
         });
         Ok(Output {
             color: out,
-            record: rec.finish(Self::NAME, frame.meta.index, PixelCounts::default(), inp.counts, 0),
+            record: rec.finish(
+                Self::NAME,
+                frame.meta.index,
+                PixelCounts::default(),
+                inp.counts,
+                0,
+            ),
         })
     }
 
@@ -287,5 +305,146 @@ impl Filter for Fxaa {
 
     fn state_bytes(&self) -> usize {
         0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::{create, params::parse_assignments};
+    use crate::rng::SplitMix64;
+
+    /// f64 reference of the search: each side walks on its own, sampling after every step
+    /// but the last.
+    #[allow(clippy::too_many_arguments)]
+    fn search_f64(
+        l: &[f64],
+        w: usize,
+        h: usize,
+        b: [f64; 2],
+        off: [f64; 2],
+        avg: f64,
+        g: f64,
+        steps: &[f64],
+    ) -> ([f64; 2], [f64; 2], f64, f64) {
+        let bil = |x: f64, y: f64| {
+            let at = |i: f64, j: f64| {
+                l[(j.clamp(0.0, h as f64 - 1.0) as usize) * w + i.clamp(0.0, w as f64 - 1.0) as usize]
+            };
+            let (fx, fy) = (x - 0.5, y - 0.5);
+            let (i, j) = (fx.floor(), fy.floor());
+            let (tx, ty) = (fx - i, fy - j);
+            at(i, j) * (1.0 - tx) * (1.0 - ty)
+                + at(i + 1.0, j) * tx * (1.0 - ty)
+                + at(i, j + 1.0) * (1.0 - tx) * ty
+                + at(i + 1.0, j + 1.0) * tx * ty
+        };
+        let side = |sign: f64| {
+            let mut pos = [b[0] + sign * off[0] * steps[0], b[1] + sign * off[1] * steps[0]];
+            let mut end = bil(pos[0], pos[1]) - avg;
+            for (k, &s) in steps.iter().enumerate().skip(1) {
+                if end.abs() >= g {
+                    break;
+                }
+                pos = [pos[0] + sign * off[0] * s, pos[1] + sign * off[1] * s];
+                if k + 1 < steps.len() {
+                    end = bil(pos[0], pos[1]) - avg;
+                }
+            }
+            (pos, end)
+        };
+        let (pn, en) = side(-1.0);
+        let (pp, ep) = side(1.0);
+        (pn, pp, en, ep)
+    }
+
+    #[test]
+    fn edge_search_matches_the_f64_reference() {
+        let mut rng = SplitMix64::new(61);
+        let (w, h) = (40, 30);
+        // Luma quantised to 1/64 so bilinear samples at half-pixel offsets are exact in f32
+        // and f64 alike: the two searches must then take the same decisions.
+        let l: Vec<f32> = (0..w * h)
+            .map(|_| (rng.next_f64() * 64.0).floor() as f32 / 64.0)
+            .collect();
+        let l64: Vec<f64> = l.iter().map(|&v| v as f64).collect();
+        let steps64 = PRESET_12_STEPS.map(|s| s as f64);
+        for _ in 0..5000 {
+            let x = (rng.next_f64() * w as f64).floor() + 0.5;
+            let y = (rng.next_f64() * h as f64).floor();
+            let horizontal = rng.next_f64() < 0.5;
+            let (b, off) = if horizontal {
+                ([x, y], [1.0, 0.0])
+            } else {
+                ([y, x.min(h as f64 - 0.5)], [0.0, 1.0])
+            };
+            let avg = (rng.next_f64() * 64.0).floor() / 64.0;
+            let g = (rng.next_f64() * 16.0).floor() / 64.0;
+            let got = edge_search(
+                &l,
+                w,
+                h,
+                b.map(|v| v as f32),
+                off.map(|v| v as f32),
+                avg as f32,
+                g as f32,
+                &PRESET_12_STEPS,
+            );
+            let (pn, pp, en, ep) = search_f64(&l64, w, h, b, off, avg, g, &steps64);
+            assert_eq!(got.pos_n.map(|v| v as f64), pn);
+            assert_eq!(got.pos_p.map(|v| v as f64), pp);
+            assert_eq!(got.end_n as f64, en);
+            assert_eq!(got.end_p as f64, ep);
+        }
+    }
+
+    #[test]
+    fn fxaa_smooths_a_stair_stepped_edge_toward_its_coverage() {
+        // A half-plane y > 8 + x / 8, sampled once per pixel centre (aliased) and by exact
+        // coverage (the reference).
+        let (w, h) = (64, 16);
+        let edge = |x: f64| 8.0 + x / 8.0;
+        let aliased = Plane::from_fn(w, h, |x, y| {
+            if (y as f64 + 0.5) > edge(x as f64 + 0.5) {
+                1.0f32
+            } else {
+                0.0
+            }
+        });
+        let coverage = Plane::from_fn(w, h, |x, y| {
+            let n = 64;
+            let mut c = 0;
+            for j in 0..n {
+                for i in 0..n {
+                    let (px, py) = (
+                        x as f64 + (i as f64 + 0.5) / n as f64,
+                        y as f64 + (j as f64 + 0.5) / n as f64,
+                    );
+                    c += (py > edge(px)) as u32;
+                }
+            }
+            c as f32 / (n * n) as f32
+        });
+        let frame = Frame::new([aliased.clone(), aliased.clone(), aliased.clone()]).unwrap();
+        let out = create("fxaa", &parse_assignments::<&str>(&[]).unwrap())
+            .unwrap()
+            .process(&frame)
+            .unwrap();
+        let mse = |a: &Plane<f32>| {
+            a.data()
+                .iter()
+                .zip(coverage.data())
+                .map(|(x, y)| ((x - y) as f64).powi(2))
+                .sum::<f64>()
+                / (w * h) as f64
+        };
+        let (before, after) = (mse(&aliased), mse(&out.color[0]));
+        assert!(
+            after < 0.6 * before,
+            "MSE against coverage: input {before:.5}, fxaa {after:.5}"
+        );
+        // Flat regions are untouched.
+        assert_eq!(out.color[0].get(2, 1), 0.0);
+        assert_eq!(out.color[0].get(5, 15), 1.0);
     }
 }

@@ -91,7 +91,12 @@ pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool) -> Rgb {
             let p = src[k];
             for x in 0..w {
                 let i = y * w + x;
-                let n = [p[up + x], p[y * w + x.saturating_sub(1)], p[y * w + (x + 1).min(w - 1)], p[down + x]];
+                let n = [
+                    p[up + x],
+                    p[y * w + x.saturating_sub(1)],
+                    p[y * w + (x + 1).min(w - 1)],
+                    p[down + x],
+                ];
                 row[x] = sharpen_cross(p[i], n, s).clamp(0.0, hi);
             }
         }

@@ -3,7 +3,7 @@
 
 use crate::frame::{ChannelKind, ChannelSet, Frame};
 use crate::pipeline::{
-    check_needs, prepare, params::FilterParams, Filter, FilterError, FilterKind, Output, ParamSpec,
+    check_needs, params::FilterParams, prepare, Filter, FilterError, FilterKind, Output, ParamSpec,
     PixelCounts, Recorder,
 };
 use serde::{Deserialize, Serialize};
@@ -46,7 +46,7 @@ impl Filter for Passthrough {
         Self::NAME
     }
     fn params(&self) -> Value {
-        serde_json::to_value(Params {}).expect("serializes")
+        Value::Object(crate::pipeline::params::to_json(&Params {}))
     }
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         check_needs(Self::NAME, Self::needs(), frame)?;
@@ -55,7 +55,13 @@ impl Filter for Passthrough {
         let color = rec.run("copy", || inp.color.into_owned());
         Ok(Output {
             color,
-            record: rec.finish(Self::NAME, frame.meta.index, PixelCounts::default(), inp.counts, 0),
+            record: rec.finish(
+                Self::NAME,
+                frame.meta.index,
+                PixelCounts::default(),
+                inp.counts,
+                0,
+            ),
         })
     }
     fn reset(&mut self) {}

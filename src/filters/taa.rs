@@ -22,8 +22,8 @@
 use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
-    bilinear, catmull_rom, clip_toward_center, cross_and_box_stats, fetch_clamped, rgb_to_ycocg, tonemap,
-    tonemap_inverse, variance_box, ycocg_to_rgb,
+    bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, tonemap, tonemap_inverse,
+    variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
@@ -193,17 +193,21 @@ pub(crate) fn convert_history_space(planes: &mut [Plane<f32>], to_tonemapped: bo
     let w = planes[0].width();
     let (y, rest) = planes.split_at_mut(1);
     let (co, rest) = rest.split_at_mut(1);
-    for_rows([y[0].data_mut(), co[0].data_mut(), rest[0].data_mut()], w, |_, [y, co, cg]| {
-        for x in 0..w {
-            let rgb = ycocg_to_rgb([y[x], co[x], cg[x]]).map(|v| v.max(0.0));
-            let c = if to_tonemapped {
-                tonemap(rgb)
-            } else {
-                tonemap_inverse(rgb)
-            };
-            [y[x], co[x], cg[x]] = rgb_to_ycocg(c);
-        }
-    });
+    for_rows(
+        [y[0].data_mut(), co[0].data_mut(), rest[0].data_mut()],
+        w,
+        |_, [y, co, cg]| {
+            for x in 0..w {
+                let rgb = ycocg_to_rgb([y[x], co[x], cg[x]]).map(|v| v.max(0.0));
+                let c = if to_tonemapped {
+                    tonemap(rgb)
+                } else {
+                    tonemap_inverse(rgb)
+                };
+                [y[x], co[x], cg[x]] = rgb_to_ycocg(c);
+            }
+        },
+    );
 }
 
 impl Filter for Taa {
@@ -212,7 +216,7 @@ impl Filter for Taa {
     }
 
     fn params(&self) -> Value {
-        serde_json::to_value(&self.params).expect("serializes")
+        Value::Object(crate::pipeline::params::to_json(&self.params))
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
@@ -256,12 +260,19 @@ impl Filter for Taa {
                 .clone()
                 .or_else(|| inp.require(ChannelKind::Depth))
                 .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" })),
-            || dilate_motion(inp.motion.as_deref().expect("required"), inp.depth.as_deref().expect("required")),
+            || {
+                dilate_motion(
+                    inp.motion.as_deref().expect("required"),
+                    inp.depth.as_deref().expect("required"),
+                )
+            },
         );
         let n_hist = self.state.read().len();
         let (read, next) = self.state.split();
         let reprojected: Option<Vec<Plane<f32>>> = rec.stage("reproject", reproject_skip, || {
-            let motion = dilated.as_ref().unwrap_or_else(|| inp.motion.as_deref().expect("required"));
+            let motion = dilated
+                .as_ref()
+                .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
             let m = motion.each_ref().map(|p| p.data());
             let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
             let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
@@ -295,7 +306,13 @@ impl Filter for Taa {
                 for_rows([d], w, |y, [row]| {
                     for x in 0..w {
                         let i = y * w + x;
-                        row[x] = bilinear([src[DEPTH]], w, h, x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i])[0];
+                        row[x] = bilinear(
+                            [src[DEPTH]],
+                            w,
+                            h,
+                            x as f32 + 0.5 + m[0][i],
+                            y as f32 + 0.5 + m[1][i],
+                        )[0];
                     }
                 });
             }
@@ -310,7 +327,9 @@ impl Filter for Taa {
         let reject: Option<Vec<bool>> = rec.stage(
             "depth_reject",
             (p.depth_rejection <= 0.0)
-                .then_some(Skip::Disabled { param: "depth_rejection" })
+                .then_some(Skip::Disabled {
+                    param: "depth_rejection",
+                })
                 .or_else(|| no_history.clone())
                 .or_else(|| inp.require(ChannelKind::Depth)),
             || {
@@ -333,47 +352,45 @@ impl Filter for Taa {
             let mut it = next.iter_mut();
             let n4: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
             let [n0, n1, n2, n3] = n4;
-            let counts = par_rows([o0, o1, o2, n0, n1, n2, n3], w, |y, [or, og, ob, ny, nco, ncg, nn]| {
-                let mut c = PixelCounts::default();
-                for x in 0..w {
-                    let i = y * w + x;
-                    let mut taps = [[0.0f32; 3]; 9];
-                    for (t, tap) in taps.iter_mut().enumerate() {
-                        let (dx, dy) = ((t % 3) as isize - 1, (t / 3) as isize - 1);
-                        let (xx, yy) = (x as isize + dx, y as isize + dy);
-                        *tap = cur.map(|pl| fetch_clamped(pl, w, h, xx, yy));
-                    }
-                    let current = taps[4];
-                    let n = if has_history && !reject.as_ref().is_some_and(|r| r[i]) {
-                        hist[COUNT][i]
-                    } else {
-                        0.0
-                    };
-                    let (value, count) = if n < 0.5 {
-                        c.history_reset += 1;
-                        (current, 1.0)
-                    } else {
-                        let stats = cross_and_box_stats(&taps);
-                        let (lo, hi) = variance_box(&stats, p.gamma);
-                        let (h, moved) = clip_toward_center([hist[Y][i], hist[CO][i], hist[CG][i]], lo, hi);
-                        c.history_clipped += moved as u64;
-                        let a = p.alpha.max(1.0 / (n + 1.0));
-                        let (wc, wh) = if p.luminance_weighting {
-                            (a / (1.0 + current[0].max(0.0)), (1.0 - a) / (1.0 + h[0].max(0.0)))
+            let counts = par_rows(
+                [o0, o1, o2, n0, n1, n2, n3],
+                w,
+                |y, [or, og, ob, ny, nco, ncg, nn]| {
+                    let mut c = PixelCounts::default();
+                    for_each_row_stats(cur, w, h, y, |x, stats| {
+                        let i = y * w + x;
+                        let current = [cur[0][i], cur[1][i], cur[2][i]];
+                        let n = if has_history && !reject.as_ref().is_some_and(|r| r[i]) {
+                            hist[COUNT][i]
                         } else {
-                            (a, 1.0 - a)
+                            0.0
                         };
-                        let k = 1.0 / (wc + wh);
-                        let v = [0, 1, 2].map(|j| (wc * current[j] + wh * h[j]) * k);
-                        (v, (n + 1.0).min(MAX_COUNT))
-                    };
-                    [ny[x], nco[x], ncg[x]] = value;
-                    nn[x] = count;
-                    let rgb = ycocg_to_rgb(value);
-                    (or[x], og[x], ob[x]) = (rgb[0].max(0.0), rgb[1].max(0.0), rgb[2].max(0.0));
-                }
-                c
-            });
+                        let (value, count) = if n < 0.5 {
+                            c.history_reset += 1;
+                            (current, 1.0)
+                        } else {
+                            let (lo, hi) = variance_box(stats, p.gamma);
+                            let (h, moved) =
+                                clip_toward_center([hist[Y][i], hist[CO][i], hist[CG][i]], lo, hi);
+                            c.history_clipped += moved as u64;
+                            let a = p.alpha.max(1.0 / (n + 1.0));
+                            let (wc, wh) = if p.luminance_weighting {
+                                (a / (1.0 + current[0].max(0.0)), (1.0 - a) / (1.0 + h[0].max(0.0)))
+                            } else {
+                                (a, 1.0 - a)
+                            };
+                            let k = 1.0 / (wc + wh);
+                            let v = [0, 1, 2].map(|j| (wc * current[j] + wh * h[j]) * k);
+                            (v, (n + 1.0).min(MAX_COUNT))
+                        };
+                        [ny[x], nco[x], ncg[x]] = value;
+                        nn[x] = count;
+                        let rgb = ycocg_to_rgb(value);
+                        (or[x], og[x], ob[x]) = (rgb[0].max(0.0), rgb[1].max(0.0), rgb[2].max(0.0));
+                    });
+                    c
+                },
+            );
             if let (Some(d), Some(nd)) = (inp.depth.as_deref(), next.get_mut(DEPTH)) {
                 nd.data_mut().copy_from_slice(d.data());
             }

@@ -40,8 +40,7 @@
 use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
-    bilinear, clamp_to_box, clip_toward_center, cross_and_box_stats, fetch_clamped, gather3x3, luma,
-    sobel_plane, CROSS,
+    bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
@@ -260,7 +259,7 @@ impl Filter for Traa {
     }
 
     fn params(&self) -> Value {
-        serde_json::to_value(&self.params).expect("serializes")
+        Value::Object(crate::pipeline::params::to_json(&self.params))
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
@@ -302,33 +301,54 @@ impl Filter for Traa {
         let dilated = rec.stage(
             "dilate",
             reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth)),
-            || dilate_motion(inp.motion.as_deref().expect("required"), inp.depth.as_deref().expect("required")),
+            || {
+                dilate_motion(
+                    inp.motion.as_deref().expect("required"),
+                    inp.depth.as_deref().expect("required"),
+                )
+            },
         );
         let n_hist = self.state.read().len();
         let (read, next) = self.state.split();
         // Reprojected history (bilinear, as INSIDE samples its history buffer) and whether
         // each pixel's previous position was on screen.
-        let reprojected: Option<(Vec<Plane<f32>>, Vec<bool>)> = rec.stage("reproject", reproject_skip, || {
-            let motion = dilated.as_ref().unwrap_or_else(|| inp.motion.as_deref().expect("required"));
-            let m = motion.each_ref().map(|p| p.data());
-            let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
-            let mut valid = vec![false; w * h];
-            for (k, plane) in out.iter_mut().enumerate() {
-                let src = read[k].data();
-                for_rows([plane.data_mut()], w, |y, [row]| {
+        let reprojected: Option<(Vec<Plane<f32>>, Vec<bool>)> =
+            rec.stage("reproject", reproject_skip, || {
+                let motion = dilated
+                    .as_ref()
+                    .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
+                let m = motion.each_ref().map(|p| p.data());
+                let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
+                let mut valid = vec![false; w * h];
+                // One position per pixel; the colour planes, then (improved) Sobel and depth.
+                let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
+                let (rgb_out, extra_out) = out.split_at_mut(3);
+                let [r, g, b] = rgb_out else {
+                    unreachable!("three colour planes")
+                };
+                for_rows([r.data_mut(), g.data_mut(), b.data_mut()], w, |y, [r, g, b]| {
                     for x in 0..w {
                         let i = y * w + x;
-                        row[x] = bilinear([src], w, h, x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i])[0];
+                        let (px, py) = (x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i]);
+                        [r[x], g[x], b[x]] = bilinear([src[0], src[1], src[2]], w, h, px, py);
                     }
                 });
-            }
-            for (i, v) in valid.iter_mut().enumerate() {
-                let px = (i % w) as f32 + 0.5 + m[0][i];
-                let py = (i / w) as f32 + 0.5 + m[1][i];
-                *v = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
-            }
-            (out, valid)
-        });
+                if let [sob, dep] = extra_out {
+                    for_rows([sob.data_mut(), dep.data_mut()], w, |y, [s, d]| {
+                        for x in 0..w {
+                            let i = y * w + x;
+                            let (px, py) = (x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i]);
+                            [s[x], d[x]] = bilinear([src[SOBEL], src[DEPTH01]], w, h, px, py);
+                        }
+                    });
+                }
+                for (i, v) in valid.iter_mut().enumerate() {
+                    let px = (i % w) as f32 + 0.5 + m[0][i];
+                    let py = (i / w) as f32 + 0.5 + m[1][i];
+                    *v = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
+                }
+                (out, valid)
+            });
         let (hist, valid): (Vec<&[f32]>, Option<&[bool]>) = match &reprojected {
             Some((planes, valid)) => (planes.iter().map(|p| p.data()).collect(), Some(valid)),
             None => (read.iter().map(|p| p.data()).collect(), None),
@@ -364,7 +384,8 @@ impl Filter for Traa {
                                     hi_x = hi_x.max(v);
                                 }
                             }
-                            let (hv, _) = clamp_to_box(hist[SOBEL][i], 0.5 * (lo3 + lo_x), 0.5 * (hi3 + hi_x));
+                            let (hv, _) =
+                                clamp_to_box(hist[SOBEL][i], 0.5 * (lo3 + lo_x), 0.5 * (hi3 + hi_x));
                             let k = feedback(r[i], hv, p.feedback_min, p.feedback_max);
                             row[x] = mix(r[i], hv, k);
                         }
@@ -378,7 +399,9 @@ impl Filter for Traa {
         // Eq. 4.1: modelAverage.
         let model_average = rec.stage(
             "model_average",
-            variant_skip.clone().or_else(|| inp.require(ChannelKind::ObjectId)),
+            variant_skip
+                .clone()
+                .or_else(|| inp.require(ChannelKind::ObjectId)),
             || model_average(inp.object_id.expect("required")),
         );
         // Eq. 4.4-4.6: depth pseudo-variance plus temporal pseudo-variance.
@@ -411,15 +434,9 @@ impl Filter for Traa {
             let [n0, n1, n2] = n3;
             par_rows([o0, o1, o2, n0, n1, n2], w, |y, [or, og, ob, nr, ng, nb]| {
                 let mut c = PixelCounts::default();
-                for x in 0..w {
+                for_each_row_stats(cur, w, h, y, |x, s| {
                     let i = y * w + x;
-                    let mut taps = [[0.0f32; 3]; 9];
-                    for (t, tap) in taps.iter_mut().enumerate() {
-                        let (xx, yy) = (x as isize + (t % 3) as isize - 1, y as isize + (t / 3) as isize - 1);
-                        *tap = cur.map(|pl| fetch_clamped(pl, w, h, xx, yy));
-                    }
-                    let current = taps[4];
-                    let s = cross_and_box_stats(&taps);
+                    let current = [cur[0][i], cur[1][i], cur[2][i]];
                     let (lo, hi) = if improved && history_at(i) {
                         let a = al.map_or(0.0, |al| al[i]);
                         let mut lo = [0.0; 3];
@@ -449,7 +466,7 @@ impl Filter for Traa {
                     };
                     (nr[x], ng[x], nb[x]) = (value[0], value[1], value[2]);
                     (or[x], og[x], ob[x]) = (value[0], value[1], value[2]);
-                }
+                });
                 c
             })
         });
@@ -461,7 +478,11 @@ impl Filter for Traa {
                 next[DEPTH01].data_mut().copy_from_slice(d.data());
             }
         }
-        let strength = if improved { SHARPEN_IMPROVED } else { SHARPEN_BASELINE };
+        let strength = if improved {
+            SHARPEN_IMPROVED
+        } else {
+            SHARPEN_BASELINE
+        };
         if let Some(s) = rec.stage(
             "sharpen",
             (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
@@ -515,7 +536,11 @@ fn model_average(ids: &Plane<u32>) -> Plane<f32> {
 /// pseudo-variance `(|z_prev - avg| / maxDist)^4`, both zero where `maxDist =
 /// min(|min - avg|, |max - avg|)` is below 0.002. `prev` is the reprojected depth / far of
 /// the previous frame (used where `has_prev(i)`).
-fn depth_variance(d: &Plane<f32>, prev: Option<&[f32]>, has_prev: &(dyn Fn(usize) -> bool + Sync)) -> Plane<f32> {
+fn depth_variance(
+    d: &Plane<f32>,
+    prev: Option<&[f32]>,
+    has_prev: &(dyn Fn(usize) -> bool + Sync),
+) -> Plane<f32> {
     let (w, h) = d.size();
     let dd = d.data();
     let mut out = Plane::new(w, h);
@@ -581,11 +606,19 @@ fn convert_rgb_history(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     let w = planes[0].width();
     let (r, rest) = planes.split_at_mut(1);
     let (g, rest) = rest.split_at_mut(1);
-    for_rows([r[0].data_mut(), g[0].data_mut(), rest[0].data_mut()], w, |_, [r, g, b]| {
-        for x in 0..w {
-            let c = [r[x], g[x], b[x]];
-            let t = if to_tonemapped { tonemap(c) } else { tonemap_inverse(c) };
-            (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
-        }
-    });
+    for_rows(
+        [r[0].data_mut(), g[0].data_mut(), rest[0].data_mut()],
+        w,
+        |_, [r, g, b]| {
+            for x in 0..w {
+                let c = [r[x], g[x], b[x]];
+                let t = if to_tonemapped {
+                    tonemap(c)
+                } else {
+                    tonemap_inverse(c)
+                };
+                (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
+            }
+        },
+    );
 }

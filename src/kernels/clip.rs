@@ -22,7 +22,10 @@ pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3
     }
     if worst > 1.0 {
         let s = 1.0 / worst;
-        ([center[0] + v[0] * s, center[1] + v[1] * s, center[2] + v[2] * s], true)
+        (
+            [center[0] + v[0] * s, center[1] + v[1] * s, center[2] + v[2] * s],
+            true,
+        )
     } else {
         (q, false)
     }
@@ -73,7 +76,9 @@ mod tests {
             moved += m as u32;
             let expect = clip_f64(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             for k in 0..3 {
-                Tolerance::new(1e-6 * scale, 1e-5).check("clip", got[k] as f64, expect[k]).unwrap();
+                Tolerance::new(1e-6 * scale, 1e-5)
+                    .check("clip", got[k] as f64, expect[k])
+                    .unwrap();
                 // The result is inside the box (up to rounding).
                 let slack = 1e-5 * scale as f32 + 2.0 * CLIP_EPS;
                 assert!(got[k] >= min[k] - slack && got[k] <= max[k] + slack);
@@ -90,7 +95,9 @@ mod tests {
         let (got, moved) = clip_toward_center([5.0, -2.0, 0.0], p, p);
         assert!(moved);
         for k in 0..3 {
-            Tolerance::abs(1e-6).check("flat", got[k] as f64, p[k] as f64).unwrap();
+            Tolerance::abs(1e-6)
+                .check("flat", got[k] as f64, p[k] as f64)
+                .unwrap();
         }
     }
 

@@ -15,7 +15,11 @@ pub fn luma(c: [f32; 3]) -> f32 {
 #[inline(always)]
 pub fn rgb_to_ycocg(c: [f32; 3]) -> [f32; 3] {
     let [r, g, b] = c;
-    [0.25 * r + 0.5 * g + 0.25 * b, 0.5 * r - 0.5 * b, -0.25 * r + 0.5 * g - 0.25 * b]
+    [
+        0.25 * r + 0.5 * g + 0.25 * b,
+        0.5 * r - 0.5 * b,
+        -0.25 * r + 0.5 * g - 0.25 * b,
+    ]
 }
 
 /// Inverse of [`rgb_to_ycocg`].
@@ -116,6 +120,8 @@ mod tests {
 
     #[test]
     fn luma_weights_sum_to_one() {
-        Tolerance::abs(1e-7).check("sum", luma([1.0, 1.0, 1.0]) as f64, 1.0).unwrap();
+        Tolerance::abs(1e-7)
+            .check("sum", luma([1.0, 1.0, 1.0]) as f64, 1.0)
+            .unwrap();
     }
 }

@@ -15,7 +15,9 @@ pub mod sobel;
 
 pub use clip::{clamp_to_box, clip_toward_center};
 pub use color::{luma, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
-pub use neighborhood::{cross_and_box_stats, gather3x3, variance_box, NeighborhoodStats, CROSS};
+pub use neighborhood::{
+    cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box, NeighborhoodStats, CROSS,
+};
 pub use sample::{bilinear, catmull_rom};
 pub use sharpen::sharpen_cross;
 pub use sobel::{sobel_magnitude, sobel_plane};

@@ -2,6 +2,7 @@
 //! cross (+), and the variance box.
 
 use super::fetch_clamped;
+use std::cell::RefCell;
 
 /// Indices of the cross (+) taps within a row-major 3x3 gather (centre = 4).
 pub const CROSS: [usize; 5] = [1, 3, 4, 5, 7];
@@ -85,6 +86,90 @@ pub fn variance_box(s: &NeighborhoodStats, gamma: f32) -> ([f32; 3], [f32; 3]) {
     (lo, hi)
 }
 
+/// `min` for finite values: a single instruction, without `f32::min`'s NaN handling (inputs
+/// to the filters are repaired to be finite).
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` for finite values (see [`fmin`]).
+#[inline(always)]
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+thread_local! {
+    /// Per-thread column sums of one row (12 x width floats), reused across rows and frames.
+    static COLUMNS: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The statistics of [`cross_and_box_stats`] for every pixel of row `y` of three planes,
+/// computed separably: 3-tap vertical min/max/sum/sum of squares per column (a pass the
+/// compiler vectorises), then 3-tap horizontal per pixel. Calls `f(x, &stats)` for each
+/// pixel of the row in order. Edges are clamped as in [`gather3x3`]. Expects finite input.
+pub fn for_each_row_stats(
+    planes: [&[f32]; 3],
+    width: usize,
+    height: usize,
+    y: usize,
+    mut f: impl FnMut(usize, &NeighborhoodStats),
+) {
+    let w = width;
+    let (ya, yb, yc) = (y.saturating_sub(1) * w, y * w, (y + 1).min(height - 1) * w);
+    COLUMNS.with(|cell| {
+        let mut cols = cell.borrow_mut();
+        cols.resize(12 * w, 0.0);
+        for (k, p) in planes.iter().enumerate() {
+            let (a, b, c) = (&p[ya..ya + w], &p[yb..yb + w], &p[yc..yc + w]);
+            let chunk = &mut cols[k * 4 * w..(k + 1) * 4 * w];
+            let (vmin, rest) = chunk.split_at_mut(w);
+            let (vmax, rest) = rest.split_at_mut(w);
+            let (vsum, vsq) = rest.split_at_mut(w);
+            for x in 0..w {
+                let (u, v, t) = (a[x], b[x], c[x]);
+                vmin[x] = fmin(fmin(u, v), t);
+                vmax[x] = fmax(fmax(u, v), t);
+                vsum[x] = u + v + t;
+                vsq[x] = u * u + v * v + t * t;
+            }
+        }
+        let mut s = NeighborhoodStats {
+            min: [0.0; 3],
+            max: [0.0; 3],
+            mean: [0.0; 3],
+            mean_sq: [0.0; 3],
+            min_cross: [0.0; 3],
+            max_cross: [0.0; 3],
+            mean_cross: [0.0; 3],
+        };
+        for x in 0..w {
+            let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
+            for (k, p) in planes.iter().enumerate() {
+                let col = &cols[k * 4 * w..(k + 1) * 4 * w];
+                let (vmin, vmax, vsum, vsq) = (&col[..w], &col[w..2 * w], &col[2 * w..3 * w], &col[3 * w..]);
+                s.min[k] = fmin(fmin(vmin[xl], vmin[x]), vmin[xr]);
+                s.max[k] = fmax(fmax(vmax[xl], vmax[x]), vmax[xr]);
+                s.mean[k] = (vsum[xl] + vsum[x] + vsum[xr]) * (1.0 / 9.0);
+                s.mean_sq[k] = (vsq[xl] + vsq[x] + vsq[xr]) * (1.0 / 9.0);
+                let (l, m, r, up, down) = (p[yb + xl], p[yb + x], p[yb + xr], p[ya + x], p[yc + x]);
+                s.min_cross[k] = fmin(fmin(fmin(l, m), r), fmin(up, down));
+                s.max_cross[k] = fmax(fmax(fmax(l, m), r), fmax(up, down));
+                s.mean_cross[k] = (l + m + r + up + down) * 0.2;
+            }
+            f(x, &s);
+        }
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -96,7 +181,8 @@ mod tests {
         let mut rng = SplitMix64::new(31);
         for i in 0..5_000 {
             let scale = [1.0, 1e3, 1e-4][i % 3];
-            let taps: [[f32; 3]; 9] = std::array::from_fn(|_| [0, 1, 2].map(|_| (rng.next_f64() * scale) as f32));
+            let taps: [[f32; 3]; 9] =
+                std::array::from_fn(|_| [0, 1, 2].map(|_| (rng.next_f64() * scale) as f32));
             let s = cross_and_box_stats(&taps);
             let gamma = rng.range(0.5, 1.5) as f32;
             let (lo, hi) = variance_box(&s, gamma);
@@ -110,15 +196,28 @@ mod tests {
                 t.check("min", s.min[k] as f64, fold(&v, f64::min)).unwrap();
                 t.check("max", s.max[k] as f64, fold(&v, f64::max)).unwrap();
                 t.check("mean", s.mean[k] as f64, mean).unwrap();
-                t.check("min+", s.min_cross[k] as f64, fold(&cross, f64::min)).unwrap();
-                t.check("max+", s.max_cross[k] as f64, fold(&cross, f64::max)).unwrap();
-                t.check("mean+", s.mean_cross[k] as f64, cross.iter().sum::<f64>() / 5.0).unwrap();
+                t.check("min+", s.min_cross[k] as f64, fold(&cross, f64::min))
+                    .unwrap();
+                t.check("max+", s.max_cross[k] as f64, fold(&cross, f64::max))
+                    .unwrap();
+                t.check("mean+", s.mean_cross[k] as f64, cross.iter().sum::<f64>() / 5.0)
+                    .unwrap();
                 let sigma = var.sqrt();
                 // sigma from E[x^2] - E[x]^2 in f32 loses digits when the spread is small
                 // relative to the mean: allow for that cancellation.
                 let tv = Tolerance::new(2e-3 * scale, 1e-3);
-                tv.check("lo", lo[k] as f64, (mean - gamma as f64 * sigma).max(fold(&v, f64::min))).unwrap();
-                tv.check("hi", hi[k] as f64, (mean + gamma as f64 * sigma).min(fold(&v, f64::max))).unwrap();
+                tv.check(
+                    "lo",
+                    lo[k] as f64,
+                    (mean - gamma as f64 * sigma).max(fold(&v, f64::min)),
+                )
+                .unwrap();
+                tv.check(
+                    "hi",
+                    hi[k] as f64,
+                    (mean + gamma as f64 * sigma).min(fold(&v, f64::max)),
+                )
+                .unwrap();
                 assert!(lo[k] <= hi[k] + 1e-6 * scale as f32);
             }
         }
@@ -127,7 +226,53 @@ mod tests {
     #[test]
     fn gather_clamps_at_edges() {
         let p: Vec<f32> = (0..12).map(|v| v as f32).collect(); // 4x3
-        assert_eq!(gather3x3(&p, 4, 3, 0, 0), [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 4.0, 4.0, 5.0]);
-        assert_eq!(gather3x3(&p, 4, 3, 3, 2), [6.0, 7.0, 7.0, 10.0, 11.0, 11.0, 10.0, 11.0, 11.0]);
+        assert_eq!(
+            gather3x3(&p, 4, 3, 0, 0),
+            [0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 4.0, 4.0, 5.0]
+        );
+        assert_eq!(
+            gather3x3(&p, 4, 3, 3, 2),
+            [6.0, 7.0, 7.0, 10.0, 11.0, 11.0, 10.0, 11.0, 11.0]
+        );
+    }
+
+    #[test]
+    fn row_stats_match_the_per_pixel_gather() {
+        let mut rng = SplitMix64::new(33);
+        for (w, h) in [(1, 1), (2, 3), (17, 5)] {
+            let planes: Vec<Vec<f32>> = (0..3)
+                .map(|_| (0..w * h).map(|_| rng.next_f64() as f32 * 10.0).collect())
+                .collect();
+            let p = [&planes[0][..], &planes[1][..], &planes[2][..]];
+            for y in 0..h {
+                let mut seen = 0;
+                for_each_row_stats(p, w, h, y, |x, s| {
+                    let taps: [[f32; 3]; 9] = std::array::from_fn(|i| {
+                        let (xx, yy) = (
+                            x as isize + (i % 3) as isize - 1,
+                            y as isize + (i / 3) as isize - 1,
+                        );
+                        [0, 1, 2].map(|k| fetch_clamped(p[k], w, h, xx, yy))
+                    });
+                    let r = cross_and_box_stats(&taps);
+                    let t = Tolerance::new(1e-5, 1e-6);
+                    for k in 0..3 {
+                        for (a, b) in [
+                            (s.min[k], r.min[k]),
+                            (s.max[k], r.max[k]),
+                            (s.mean[k], r.mean[k]),
+                            (s.mean_sq[k], r.mean_sq[k]),
+                            (s.min_cross[k], r.min_cross[k]),
+                            (s.max_cross[k], r.max_cross[k]),
+                            (s.mean_cross[k], r.mean_cross[k]),
+                        ] {
+                            t.check("row stats", a as f64, b as f64).unwrap();
+                        }
+                    }
+                    seen += 1;
+                });
+                assert_eq!(seen, w);
+            }
+        }
     }
 }

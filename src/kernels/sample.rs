@@ -2,7 +2,13 @@
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
 #[inline]
-pub fn bilinear<const N: usize>(planes: [&[f32]; N], width: usize, height: usize, x: f32, y: f32) -> [f32; N] {
+pub fn bilinear<const N: usize>(
+    planes: [&[f32]; N],
+    width: usize,
+    height: usize,
+    x: f32,
+    y: f32,
+) -> [f32; N] {
     let fx = x - 0.5;
     let fy = y - 0.5;
     let x0 = fx.floor();
@@ -59,6 +65,24 @@ pub fn catmull_rom<const N: usize>(
     let y1 = fy.floor();
     let wx = catmull_rom_weights(fx - x1);
     let wy = catmull_rom_weights(fy - y1);
+    if x1 >= 1.0 && y1 >= 1.0 && x1 + 2.0 < width as f32 && y1 + 2.0 < height as f32 {
+        // The whole 4x4 footprint is inside: no clamping, one base index.
+        let base = (y1 as usize - 1) * width + x1 as usize - 1;
+        let mut acc = [0.0f32; N];
+        let mut wsum = 0.0f32;
+        for (j, wyj) in wy.iter().enumerate() {
+            let (lo, hi) = if j == 0 || j == 3 { (1, 3) } else { (0, 4) };
+            let row = base + j * width;
+            for (i, wxi) in wx.iter().enumerate().take(hi).skip(lo) {
+                let wgt = wxi * wyj;
+                wsum += wgt;
+                for (a, p) in acc.iter_mut().zip(planes.iter()) {
+                    *a += wgt * p[row + i];
+                }
+            }
+        }
+        return acc.map(|a| a / wsum);
+    }
     let xs = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(x1 + d, width));
     let ys = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(y1 + d, height) * width);
     let mut acc = [0.0f32; N];
@@ -175,15 +199,21 @@ mod tests {
         }
         // Bilinear reproduces a linear ramp inside the image; Catmull-Rom without its
         // corner taps is renormalised, so it reproduces a constant exactly.
-        let ramp: Vec<f32> = (0..w * h).map(|i| (i % w) as f32 * 0.5 + (i / w) as f32 * 0.25).collect();
+        let ramp: Vec<f32> = (0..w * h)
+            .map(|i| (i % w) as f32 * 0.5 + (i / w) as f32 * 0.25)
+            .collect();
         let flat = vec![0.375f32; w * h];
         for _ in 0..1000 {
             let x = rng.range(0.5, w as f64 - 0.5) as f32;
             let y = rng.range(0.5, h as f64 - 0.5) as f32;
             let expect = ((x - 0.5) * 0.5 + (y - 0.5) * 0.25) as f64;
-            Tolerance::abs(1e-5).check("bl", bilinear([&ramp], w, h, x, y)[0] as f64, expect).unwrap();
+            Tolerance::abs(1e-5)
+                .check("bl", bilinear([&ramp], w, h, x, y)[0] as f64, expect)
+                .unwrap();
             let x = rng.range(-2.0, w as f64 + 2.0) as f32;
-            Tolerance::abs(1e-6).check("cr", catmull_rom([&flat], w, h, x, y)[0] as f64, 0.375).unwrap();
+            Tolerance::abs(1e-6)
+                .check("cr", catmull_rom([&flat], w, h, x, y)[0] as f64, 0.375)
+                .unwrap();
         }
     }
 

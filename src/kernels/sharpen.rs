@@ -25,8 +25,12 @@ mod tests {
             let conv = |k: [[f64; 3]; 3]| (0..9).map(|i| k[i / 3][i % 3] * t[i / 3][i % 3]).sum::<f64>();
             let n = [t[0][1], t[1][0], t[1][2], t[2][1]].map(|v| v as f32);
             let c = t[1][1] as f32;
-            Tolerance::abs(1e-5).check("3.1", sharpen_cross(c, n, 4.0) as f64, conv(k31)).unwrap();
-            Tolerance::abs(1e-5).check("4.17", sharpen_cross(c, n, 1.0) as f64, conv(k417)).unwrap();
+            Tolerance::abs(1e-5)
+                .check("3.1", sharpen_cross(c, n, 4.0) as f64, conv(k31))
+                .unwrap();
+            Tolerance::abs(1e-5)
+                .check("4.17", sharpen_cross(c, n, 1.0) as f64, conv(k417))
+                .unwrap();
         }
     }
 }

@@ -52,7 +52,9 @@ mod tests {
             for y in 0..h {
                 sobel_plane(&p, w, h, y, &mut row);
                 for (x, &v) in row.iter().enumerate() {
-                    Tolerance::new(1e-6 * scale, 1e-5).check("sobel", v as f64, sobel_f64(&p64, w, h, x, y)).unwrap();
+                    Tolerance::new(1e-6 * scale, 1e-5)
+                        .check("sobel", v as f64, sobel_f64(&p64, w, h, x, y))
+                        .unwrap();
                 }
             }
         }

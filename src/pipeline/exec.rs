@@ -31,7 +31,11 @@ pub fn rows_mut<const N: usize>(planes: [&mut [f32]; N], width: usize) -> Vec<[&
     let height = planes.first().map_or(0, |p| p.len() / width.max(1));
     let mut iters = planes.map(|p| p.chunks_mut(width.max(1)));
     (0..height)
-        .map(|_| iters.each_mut().map(|it| it.next().expect("all planes have the same size")))
+        .map(|_| {
+            iters
+                .each_mut()
+                .map(|it| it.next().expect("all planes have the same size"))
+        })
         .collect()
 }
 

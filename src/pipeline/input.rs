@@ -117,7 +117,11 @@ fn repair_channel<'a, const N: usize>(
 }
 
 /// Prepares the channels of `frame` that a filter `uses`, recording the repair stage.
-pub fn prepare<'a>(frame: &'a Frame, uses: ChannelSet, rec: &mut Recorder) -> Result<Inputs<'a>, FilterError> {
+pub fn prepare<'a>(
+    frame: &'a Frame,
+    uses: ChannelSet,
+    rec: &mut Recorder,
+) -> Result<Inputs<'a>, FilterError> {
     let t = std::time::Instant::now();
     let mut counts = InputCounts::default();
     let mut max_color = 0.0f32;
@@ -208,14 +212,22 @@ mod tests {
         let frame = Frame::new([r, g, b]).unwrap();
         let mut rec = Recorder::new();
         let inp = prepare(&frame, ChannelSet::of(&[ChannelKind::Color]), &mut rec).unwrap();
-        assert_eq!(inp.counts, InputCounts { non_finite: 2, negative: 1 });
+        assert_eq!(
+            inp.counts,
+            InputCounts {
+                non_finite: 2,
+                negative: 1
+            }
+        );
         // NaN at (1,1): mean of its 8 neighbours, one of which (-3) counts as itself (-3
         // is finite) but the result is floored at 0; here 7 x 0.5 and -3 -> (3.5-3)/8.
         assert_eq!(inp.color[0].get(1, 1), (3.5f32 - 3.0) / 8.0);
         assert_eq!(inp.color[0].get(2, 2), 0.0);
         assert_eq!(inp.color[1].get(0, 0), 0.25);
         assert!(matches!(inp.color, Cow::Owned(_)));
-        assert!(rec.finish("t", 0, Default::default(), inp.counts, 0).ran(REPAIR_STAGE));
+        assert!(rec
+            .finish("t", 0, Default::default(), inp.counts, 0)
+            .ran(REPAIR_STAGE));
         assert_eq!(inp.facts.max_color, 2.0);
         assert!(inp.facts.hdr);
     }

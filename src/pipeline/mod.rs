@@ -158,12 +158,15 @@ pub struct FilterInfo {
     pub state_bytes_per_pixel: usize,
 }
 
+/// Builds a filter instance from parameter overrides.
+pub type CreateFn = fn(&Map<String, Value>) -> Result<Box<dyn Filter>, FilterError>;
+
 /// One registry entry: the description and a constructor.
 pub struct FilterEntry {
     /// The description.
     pub info: fn() -> FilterInfo,
     /// Builds an instance from parameter overrides.
-    pub create: fn(&Map<String, Value>) -> Result<Box<dyn Filter>, FilterError>,
+    pub create: CreateFn,
 }
 
 fn info_of<F: FilterKind>() -> FilterInfo {
@@ -204,10 +207,13 @@ pub fn list() -> Vec<FilterInfo> {
 /// A new instance of filter `name` with `values` overriding its defaults.
 pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
     let reg = registry();
-    let entry = reg.iter().find(|e| (e.info)().name == name).ok_or_else(|| FilterError::UnknownFilter {
-        got: name.to_string(),
-        known: reg.iter().map(|e| (e.info)().name).collect::<Vec<_>>().join(", "),
-    })?;
+    let entry = reg
+        .iter()
+        .find(|e| (e.info)().name == name)
+        .ok_or_else(|| FilterError::UnknownFilter {
+            got: name.to_string(),
+            known: reg.iter().map(|e| (e.info)().name).collect::<Vec<_>>().join(", "),
+        })?;
     (entry.create)(values)
 }
 

@@ -57,10 +57,11 @@ pub fn parse_assignments<S: AsRef<str>>(pairs: &[S]) -> Result<Map<String, Value
     let mut map = Map::new();
     for pair in pairs {
         let pair = pair.as_ref();
-        let (k, v) = pair
-            .split_once('=')
-            .ok_or_else(|| FilterError::Assignment { got: pair.to_string() })?;
-        let value = serde_json::from_str::<Value>(v.trim()).unwrap_or_else(|_| Value::String(v.trim().into()));
+        let (k, v) = pair.split_once('=').ok_or_else(|| FilterError::Assignment {
+            got: pair.to_string(),
+        })?;
+        let value =
+            serde_json::from_str::<Value>(v.trim()).unwrap_or_else(|_| Value::String(v.trim().into()));
         map.insert(k.trim().to_string(), value);
     }
     Ok(map)
@@ -103,24 +104,35 @@ fn check(filter: &'static str, spec: &ParamSpec, v: &Value) -> Result<(), Filter
     };
     match spec.kind {
         ParamKind::Float { min, max } => {
-            let x = v.as_f64().ok_or_else(|| bad(format!("expected a number, got {v}")))?;
+            let x = v
+                .as_f64()
+                .ok_or_else(|| bad(format!("expected a number, got {v}")))?;
             // Float parameters are f32 fields: compare at f32 precision, so a default such
             // as 0.0833f32 (0.083300002 as f64) is within a bound written 0.0833.
             if !(min as f32..=max as f32).contains(&(x as f32)) {
-                return Err(bad(format!("{x} is out of bounds: expected {min} <= value <= {max}")));
+                return Err(bad(format!(
+                    "{x} is out of bounds: expected {min} <= value <= {max}"
+                )));
             }
         }
         ParamKind::Int { min, max } => {
-            let x = v.as_i64().ok_or_else(|| bad(format!("expected an integer, got {v}")))?;
+            let x = v
+                .as_i64()
+                .ok_or_else(|| bad(format!("expected an integer, got {v}")))?;
             if !(min..=max).contains(&x) {
-                return Err(bad(format!("{x} is out of bounds: expected {min} <= value <= {max}")));
+                return Err(bad(format!(
+                    "{x} is out of bounds: expected {min} <= value <= {max}"
+                )));
             }
         }
         ParamKind::Bool => {
-            v.as_bool().ok_or_else(|| bad(format!("expected true or false, got {v}")))?;
+            v.as_bool()
+                .ok_or_else(|| bad(format!("expected true or false, got {v}")))?;
         }
         ParamKind::Choice { options } => {
-            let s = v.as_str().ok_or_else(|| bad(format!("expected one of {}, got {v}", options.join(", "))))?;
+            let s = v
+                .as_str()
+                .ok_or_else(|| bad(format!("expected one of {}, got {v}", options.join(", "))))?;
             if !options.contains(&s) {
                 return Err(bad(format!("expected one of {}, got {s:?}", options.join(", "))));
             }
@@ -138,10 +150,27 @@ pub fn validate<P: FilterParams>(filter: &'static str, p: &P) -> Result<(), Filt
     Ok(())
 }
 
-/// The defaults of `P` as JSON (listed by `afterimage filters`).
-pub fn defaults<P: FilterParams>() -> Map<String, Value> {
-    match serde_json::to_value(P::default()).expect("params serialize") {
+/// `p` as a JSON object, with f32 fields written in their shortest form (`0.1`, not the
+/// `0.10000000149011612` of their f64 widening).
+pub fn to_json<P: FilterParams>(p: &P) -> Map<String, Value> {
+    let mut m = match serde_json::to_value(p).expect("params serialize") {
         Value::Object(m) => m,
         _ => unreachable!("params are a struct"),
+    };
+    for spec in P::SPECS {
+        if let (ParamKind::Float { .. }, Some(v)) = (spec.kind, m.get_mut(spec.name)) {
+            if let Some(x) = v.as_f64() {
+                let short: f64 = (x as f32).to_string().parse().expect("a float prints as a float");
+                if let Some(n) = serde_json::Number::from_f64(short) {
+                    *v = Value::Number(n);
+                }
+            }
+        }
     }
+    m
+}
+
+/// The defaults of `P` as JSON (listed by `afterimage filters`).
+pub fn defaults<P: FilterParams>() -> Map<String, Value> {
+    to_json(&P::default())
 }

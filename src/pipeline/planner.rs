@@ -29,10 +29,8 @@ pub struct FrameFacts {
 impl FrameFacts {
     /// Facts of `frame` with its (repaired) motion and largest colour sample.
     pub fn new(frame: &Frame, motion: Option<&[Plane<f32>; 2]>, max_color: f32) -> Self {
-        let any_motion = motion.is_some_and(|m| {
-            m.iter()
-                .any(|p| p.data().iter().any(|v| v.abs() > MOTION_EPS_PX))
-        });
+        let any_motion =
+            motion.is_some_and(|m| m.iter().any(|p| p.data().iter().any(|v| v.abs() > MOTION_EPS_PX)));
         FrameFacts {
             reset: frame.meta.reset,
             any_motion,

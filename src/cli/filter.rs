@@ -1,0 +1,248 @@
+//! `afterimage filter` (run a filter over a sequence) and `afterimage filters` (list them).
+
+use super::read_args::ReadArgs;
+use afterimage::frame::{Frame, Rgb};
+use afterimage::io::{
+    write_exr, write_png, Compression, ExrLayout, Precision, PresetChoice, ReadOptions, Sequence,
+    WriteOptions,
+};
+use afterimage::metrics::{Evaluator, SpaceChoice};
+use afterimage::pipeline::{self, params::parse_assignments, FrameRecord, ParamKind};
+use anyhow::{bail, Context};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Arguments of `filter`.
+#[derive(Args, Debug)]
+pub struct FilterArgs {
+    /// The filter (see `afterimage filters`).
+    #[arg(long)]
+    filter: String,
+    /// Set a parameter: --set alpha=0.05 --set variant=baseline. Repeatable.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
+    #[arg(long)]
+    input: String,
+    /// Output directory: frame_NNNN.exr (afterimage preset, colour only) and records.json.
+    #[arg(long)]
+    output: PathBuf,
+    /// Ground truth, frame for frame: PSNR, SSIM and tRMSE are printed and recorded
+    /// (default: the input frames' own reference channel, when they have one).
+    #[arg(long)]
+    reference: Option<String>,
+    /// Channel-name preset of the reference files.
+    #[arg(long, default_value = "auto", value_name = "PRESET")]
+    reference_preset: String,
+    /// Also write PNG previews (tonemapped c/(1+c) when the input is HDR).
+    #[arg(long)]
+    png: bool,
+    /// Write half floats.
+    #[arg(long)]
+    f16: bool,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+/// Arguments of `filters`.
+#[derive(Args, Debug)]
+pub struct FiltersArgs {
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn list(args: FiltersArgs) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    let infos = pipeline::list();
+    let mut text = String::new();
+    if args.json {
+        text = serde_json::to_string_pretty(&infos)? + "\n";
+    }
+    for info in infos.iter().filter(|_| !args.json) {
+        let names =
+            |v: &[afterimage::frame::ChannelKind]| v.iter().map(|c| c.name()).collect::<Vec<_>>().join(", ");
+        writeln!(text, "{}: {}", info.name, info.summary)?;
+        writeln!(text, "  needs: {}", names(&info.needs))?;
+        let optional: Vec<_> = info
+            .uses
+            .iter()
+            .copied()
+            .filter(|c| !info.needs.contains(c))
+            .collect();
+        writeln!(
+            text,
+            "  uses if present: {}",
+            if optional.is_empty() {
+                "-".into()
+            } else {
+                names(&optional)
+            }
+        )?;
+        writeln!(text, "  stages: {}", info.stages.join(" -> "))?;
+        writeln!(text, "  state: {} bytes/pixel", info.state_bytes_per_pixel)?;
+        for p in info.params {
+            let bounds = match p.kind {
+                ParamKind::Float { min, max } => format!("{min} ..= {max}"),
+                ParamKind::Int { min, max } => format!("{min} ..= {max}"),
+                ParamKind::Bool => "true | false".into(),
+                ParamKind::Choice { options } => options.join(" | "),
+            };
+            writeln!(text, "  --set {}={}  [{bounds}]", p.name, info.defaults[p.name])?;
+            writeln!(text, "      {}", p.doc)?;
+        }
+        writeln!(text)?;
+    }
+    super::print_stdout(&text)
+}
+
+pub fn run(args: FilterArgs) -> anyhow::Result<()> {
+    let values = parse_assignments(&args.set)?;
+    let mut filter = pipeline::create(&args.filter, &values)?;
+    let in_opts = args.read.options()?;
+    let input = Sequence::open(&args.input)?;
+    let reference = args.reference.as_deref().map(Sequence::open).transpose()?;
+    if let Some(r) = &reference {
+        if r.len() != input.len() {
+            bail!(
+                "{} has {} frames but the reference {} has {}",
+                input.spec,
+                input.len(),
+                r.spec,
+                r.len()
+            );
+        }
+    }
+    let ref_opts = ReadOptions {
+        preset: args.reference_preset.parse::<PresetChoice>()?,
+        ..ReadOptions::default()
+    };
+    std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
+    let write = WriteOptions {
+        precision: if args.f16 { Precision::F16 } else { Precision::F32 },
+        compression: Compression::Zip,
+        layout: ExrLayout::Afterimage,
+    };
+    let bar = ProgressBar::new(input.len() as u64).with_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
+            .progress_chars("=> "),
+    );
+    bar.set_message(args.filter.clone());
+    let mut eval = Evaluator::new(SpaceChoice::Auto);
+    let mut records: Vec<FrameRecord> = Vec::new();
+    let mut ref_frames = reference.as_ref().map(|r| r.frames(&ref_opts));
+    for (i, frame) in input.frames(&in_opts).enumerate() {
+        let entry = &input.entries[i];
+        let frame = frame?;
+        let out = filter
+            .process(&frame)
+            .with_context(|| format!("filtering {}", entry.path.display()))?;
+        let ref_rgb: Option<Rgb> = match ref_frames.as_mut() {
+            Some(it) => Some(it.next().expect("same length")?.color().clone()),
+            None => frame.reference().cloned(),
+        };
+        if let Some(r) = &ref_rgb {
+            eval.push(entry.number, &out.color, r, frame.meta.reset)
+                .with_context(|| format!("measuring {} against its reference", entry.path.display()))?;
+        }
+        let mut result = Frame::new(out.color)?;
+        result.meta = frame.meta.clone();
+        write_exr(
+            &args.output.join(format!("frame_{:04}.exr", entry.number)),
+            &result,
+            &write,
+        )?;
+        if args.png {
+            let hdr = frame_is_hdr(&frame);
+            write_png(
+                &args.output.join(format!("frame_{:04}.png", entry.number)),
+                result.color(),
+                hdr,
+            )?;
+        }
+        records.push(out.record);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+
+    let summary = eval.summary();
+    let doc = json!({
+        "filter": args.filter,
+        "params": filter.params(),
+        "input": args.input,
+        "frames": records,
+        "metrics": eval.frames,
+        "summary": summary,
+    });
+    let path = args.output.join("records.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&doc)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+
+    // Per-stage medians, then quality.
+    let mut per_stage: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
+    let mut skipped: BTreeMap<&str, String> = BTreeMap::new();
+    for r in &records {
+        for s in &r.stages {
+            match (&s.ms, &s.skipped) {
+                (Some(ms), _) => per_stage.entry(s.name).or_default().push(*ms),
+                (None, Some(why)) => {
+                    skipped.entry(s.name).or_insert_with(|| why.to_string());
+                }
+                _ => {}
+            }
+        }
+    }
+    let mut totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
+    println!(
+        "{}: {} frames -> {} (median {:.2} ms/frame)",
+        args.filter,
+        records.len(),
+        args.output.display(),
+        median(&mut totals)
+    );
+    for name in filter_stages(&records) {
+        match per_stage.get_mut(name) {
+            Some(v) => println!("  {name:<16} ran {:>3}x, median {:.3} ms", v.len(), median(v)),
+            None => println!(
+                "  {name:<16} left out: {}",
+                skipped.get(name).map_or("-", |s| s.as_str())
+            ),
+        }
+    }
+    let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
+    let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();
+    let non_finite: u64 = records.iter().map(|r| r.input.non_finite).sum();
+    println!("  history: {reset} pixel restarts, {clipped} clipped; non-finite input samples: {non_finite}");
+    if let Some(s) = summary {
+        println!(
+            "  vs reference ({:?} space): mean PSNR {:.3} dB, mean SSIM {:.4}, tRMSE {}",
+            s.space,
+            s.mean_psnr,
+            s.mean_ssim,
+            s.trmse.map_or("- (one frame)".into(), |t| format!("{t:.6}"))
+        );
+    }
+    Ok(())
+}
+
+fn frame_is_hdr(f: &Frame) -> bool {
+    f.color().iter().any(|p| p.data().iter().any(|&v| v > 1.0))
+}
+
+/// Stage names in the order the filter runs them.
+fn filter_stages(records: &[FrameRecord]) -> Vec<&'static str> {
+    records
+        .first()
+        .map_or(Vec::new(), |r| r.stages.iter().map(|s| s.name).collect())
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
