@@ -368,6 +368,9 @@ impl Filter for Taa {
                         let (value, count) = if n < 0.5 {
                             c.history_reset += 1;
                             (current, 1.0)
+                        } else if inp.is_invalid(i) {
+                            // No usable sample here this frame: keep the history as it is.
+                            ([hist[Y][i], hist[CO][i], hist[CG][i]], n)
                         } else {
                             let (lo, hi) = variance_box(stats, p.gamma);
                             let (h, moved) =

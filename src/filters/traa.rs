@@ -14,10 +14,10 @@
 //!   (eq. 4.10);
 //! - `sobel_history`: the Sobel image's own one-channel TRAA (clamp instead of clip, no
 //!   sharpen; sec. 4.3.3) kept in the state, so the edge mask is stable over time;
-//! - modelAverage: share of the 3x3 with another object id (eq. 4.1);
-//! - depth pseudo-variance and temporal pseudo-variance (eq. 4.4-4.6), zero when the
+//! - `model_average`: share of the 3x3 with another object id (eq. 4.1);
+//! - `depth_variance`: depth pseudo-variance and temporal pseudo-variance (eq. 4.4-4.6), zero when the
 //!   normalising distance is below 0.002;
-//! - aliasedValue = clamp01(sobelAvg + depthPV + depthTPV + modelAverage) (eq. 4.12-4.14)
+//! - `aliased`: aliasedValue = clamp01(sobelAvg + depthPV + depthTPV + modelAverage) (eq. 4.12-4.14)
 //!   mixes the cross and 3x3 boxes (eq. 4.15) and shrinks the box toward the current colour
 //!   (eq. 4.16);
 //! - the normalised sharpen of eq. 4.17.
@@ -373,6 +373,11 @@ impl Filter for Traa {
                                 row[x] = r[i];
                                 continue;
                             }
+                            if inp.is_invalid(i) {
+                                // No usable colour here this frame: keep the edge history.
+                                row[x] = hist[SOBEL][i];
+                                continue;
+                            }
                             let t = gather3x3(r, w, h, x, y);
                             let (mut lo3, mut hi3) = (f32::INFINITY, f32::NEG_INFINITY);
                             let (mut lo_x, mut hi_x) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -455,7 +460,10 @@ impl Filter for Traa {
                             [0, 1, 2].map(|k| 0.5 * (s.max[k] + s.max_cross[k])),
                         )
                     };
-                    let value = if history_at(i) {
+                    let value = if history_at(i) && inp.is_invalid(i) {
+                        // No usable sample here this frame: keep the history as it is.
+                        [hist[0][i], hist[1][i], hist[2][i]]
+                    } else if history_at(i) {
                         let (hc, moved) = clip_toward_center([hist[0][i], hist[1][i], hist[2][i]], lo, hi);
                         c.history_clipped += moved as u64;
                         let k = feedback(luma(current), luma(hc), p.feedback_min, p.feedback_max);

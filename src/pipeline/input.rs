@@ -33,6 +33,10 @@ pub struct Inputs<'a> {
     pub object_id: Option<&'a Plane<u32>>,
     /// Samples repaired.
     pub counts: InputCounts,
+    /// Pixels whose colour had a non-finite component (`None` when there were none). Their
+    /// repaired value is a guess from the neighbours, so temporal filters keep the pixel's
+    /// history instead of blending the guess in.
+    pub invalid: Option<Vec<bool>>,
     /// What the planner knows about this frame.
     pub facts: FrameFacts,
 }
@@ -127,6 +131,12 @@ pub fn prepare<'a>(
     let mut max_color = 0.0f32;
     let mut unused = 0.0f32;
     let color = repair_channel(frame.color(), true, &mut counts, &mut max_color);
+    let invalid = (counts.non_finite > 0).then(|| {
+        let [r, g, b] = frame.color().each_ref().map(|p| p.data());
+        (0..frame.pixels())
+            .map(|i| !(r[i].is_finite() && g[i].is_finite() && b[i].is_finite()))
+            .collect::<Vec<bool>>()
+    });
     let depth = match frame.depth().filter(|_| uses.contains(ChannelKind::Depth)) {
         None => None,
         Some(d) => {
@@ -169,6 +179,7 @@ pub fn prepare<'a>(
         albedo,
         object_id,
         counts,
+        invalid,
         facts,
     })
 }
@@ -189,6 +200,11 @@ impl Inputs<'_> {
             ChannelKind::ObjectId => self.object_id.is_some(),
             ChannelKind::Normal | ChannelKind::Reference => false,
         }
+    }
+
+    /// Whether pixel `i`'s colour was non-finite (see [`Inputs::invalid`]).
+    pub fn is_invalid(&self, i: usize) -> bool {
+        self.invalid.as_ref().is_some_and(|v| v[i])
     }
 
     /// `None` when `kind` is present, else the reason a stage that needs it is left out.
