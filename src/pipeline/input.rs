@@ -50,18 +50,31 @@ struct Scan {
 }
 
 fn scan(p: &Plane<f32>, clamp_negative: bool) -> Scan {
-    let mut s = Scan::default();
-    for &v in p.data() {
-        if !v.is_finite() {
-            s.non_finite += 1;
-        } else {
-            s.max = s.max.max(v);
-            if clamp_negative && v < 0.0 {
-                s.negative += 1;
+    use rayon::prelude::*;
+    let chunk = |data: &[f32]| {
+        let mut s = Scan::default();
+        for &v in data {
+            if !v.is_finite() {
+                s.non_finite += 1;
+            } else {
+                s.max = s.max.max(v);
+                if clamp_negative && v < 0.0 {
+                    s.negative += 1;
+                }
             }
         }
-    }
-    s
+        s
+    };
+    super::exec::pool().install(|| {
+        p.data()
+            .par_chunks(1 << 16)
+            .map(chunk)
+            .reduce(Scan::default, |a, b| Scan {
+                non_finite: a.non_finite + b.non_finite,
+                negative: a.negative + b.negative,
+                max: a.max.max(b.max),
+            })
+    })
 }
 
 /// A copy of `p` with non-finite samples replaced by their finite neighbours' mean (0 if
