@@ -249,3 +249,23 @@ fn skipping_reprojection_when_nothing_moves_changes_nothing() {
         }
     }
 }
+
+#[test]
+fn recycled_buffers_never_leak_into_results() {
+    // Outputs handed back are poisoned with NaN first: a stage that read a reused plane
+    // before writing all of it would show it.
+    let frames = small_scene("moving-sphere", 6);
+    for info in list() {
+        let mut a = create(info.name, &Default::default()).unwrap();
+        let mut b = create(info.name, &Default::default()).unwrap();
+        for f in &frames {
+            let out = a.process(f).unwrap().color;
+            let mut poisoned = out.clone();
+            for p in &mut poisoned {
+                p.data_mut().fill(f32::NAN);
+            }
+            a.recycle(poisoned);
+            assert_eq!(out, b.process(f).unwrap().color, "{}", info.name);
+        }
+    }
+}

@@ -164,6 +164,7 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
             )?;
         }
         records.push(out.record);
+        filter.recycle(result.into_color());
         bar.inc(1);
     }
     bar.finish_and_clear();

@@ -4,6 +4,7 @@
 use crate::frame::{Plane, Rgb};
 use crate::kernels::{sharpen_cross, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
+use crate::pipeline::Scratch;
 use std::borrow::Cow;
 
 /// Empty planes of the given size.
@@ -18,13 +19,13 @@ pub fn slices_mut<const N: usize>(p: &mut [Plane<f32>; N]) -> [&mut [f32]; N] {
 
 /// The colour in the working space: tonemapped `c / (1 + max c)` when `tonemap` is on,
 /// else the colour itself (borrowed).
-pub fn to_working<'a>(color: &'a Rgb, on: bool) -> Cow<'a, Rgb> {
+pub fn to_working<'a>(color: &'a Rgb, on: bool, scratch: &mut Scratch) -> Cow<'a, Rgb> {
     if !on {
         return Cow::Borrowed(color);
     }
     let (w, h) = color[0].size();
     let src = color.each_ref().map(|p| p.data());
-    let mut out: Rgb = planes(w, h);
+    let mut out: Rgb = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, [r, g, b]| {
         for x in 0..w {
             let i = y * w + x;
@@ -52,11 +53,11 @@ pub fn from_working(rgb: &mut Rgb, on: bool) {
 /// Velocity dilation: each pixel takes the motion of the nearest (smallest depth) pixel of
 /// its 3x3 neighbourhood, so edges of moving foreground objects reproject with the object
 /// (Karis 2014; thesis 004 sec. 3.6.3).
-pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>) -> [Plane<f32>; 2] {
+pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>, scratch: &mut Scratch) -> [Plane<f32>; 2] {
     let (w, h) = depth.size();
     let d = depth.data();
     let m = motion.each_ref().map(|p| p.data());
-    let mut out = planes(w, h);
+    let mut out = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, [mx, my]| {
         for x in 0..w {
             let mut best = y * w + x;
@@ -79,11 +80,11 @@ pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>) -> [Plane<f32
 
 /// Sharpens every channel with [`sharpen_cross`] of strength `s`, keeping values >= 0 (and
 /// below 1 when `bounded`, i.e. in the tonemapped working space).
-pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool) -> Rgb {
+pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool, scratch: &mut Scratch) -> Rgb {
     let (w, h) = rgb[0].size();
     let src = rgb.each_ref().map(|p| p.data());
     let hi = if bounded { 1.0 - 1e-7 } else { f32::MAX };
-    let mut out: Rgb = planes(w, h);
+    let mut out: Rgb = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, rows| {
         let up = y.saturating_sub(1) * w;
         let down = (y + 1).min(h - 1) * w;

@@ -19,7 +19,7 @@
 //!
 //! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
 
-use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
+use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, tonemap, tonemap_inverse,
@@ -29,7 +29,7 @@ use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
     bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    ParamSpec, PixelCounts, Recorder, Skip,
+    ParamSpec, PixelCounts, Recorder, Scratch, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -142,6 +142,8 @@ pub struct Taa {
     state: DoubleBuffer,
     /// Whether the history holds tonemapped colour.
     tonemapped: bool,
+    /// Reused temporaries.
+    scratch: Scratch,
 }
 
 impl FilterKind for Taa {
@@ -174,6 +176,7 @@ impl FilterKind for Taa {
             state: DoubleBuffer::new(Self::history_planes(&params)),
             params,
             tonemapped: false,
+            scratch: Scratch::default(),
         }
     }
 }
@@ -225,6 +228,7 @@ impl Filter for Taa {
         let mut rec = Recorder::new();
         let inp = prepare(frame, Self::uses(), &mut rec)?;
         bind_size(&mut self.state, frame)?;
+        let scratch = &mut self.scratch;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
@@ -234,12 +238,14 @@ impl Filter for Taa {
         }
 
         let working = rec
-            .stage("tonemap", facts.tonemap(), || to_working(&inp.color, true))
+            .stage("tonemap", facts.tonemap(), || {
+                to_working(&inp.color, true, scratch)
+            })
             .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
 
         let ycocg: Rgb = rec.run("ycocg", || {
             let src = working.each_ref().map(|p| p.data());
-            let mut out: Rgb = planes(w, h);
+            let mut out: Rgb = scratch.planes(w, h);
             for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
                 for x in 0..w {
                     let i = y * w + x;
@@ -264,6 +270,7 @@ impl Filter for Taa {
                 dilate_motion(
                     inp.motion.as_deref().expect("required"),
                     inp.depth.as_deref().expect("required"),
+                    scratch,
                 )
             },
         );
@@ -275,7 +282,7 @@ impl Filter for Taa {
                 .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
             let m = motion.each_ref().map(|p| p.data());
             let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
-            let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
+            let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| scratch.plane(w, h)).collect();
             let filter = p.history_filter;
             let rows = {
                 let mut it = out.iter_mut();
@@ -345,7 +352,7 @@ impl Filter for Taa {
             pixels.history_rejected = r.iter().filter(|&&b| b).count() as u64;
         }
 
-        let mut out: Rgb = planes(w, h);
+        let mut out: Rgb = scratch.planes(w, h);
         let counts = rec.run("resolve", || {
             let cur = ycocg.each_ref().map(|p| p.data());
             let [o0, o1, o2] = slices_mut(&mut out);
@@ -405,12 +412,18 @@ impl Filter for Taa {
         if let Some(s) = rec.stage(
             "sharpen",
             (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" }),
-            || sharpen(&out, p.sharpen, hdr),
+            || sharpen(&out, p.sharpen, hdr, scratch),
         ) {
-            out = s;
+            scratch.recycle(std::mem::replace(&mut out, s));
         }
         rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
 
+        scratch.recycle(ycocg);
+        scratch.recycle(dilated.into_iter().flatten());
+        scratch.recycle(reprojected.into_iter().flatten());
+        if let std::borrow::Cow::Owned(w) = working {
+            scratch.recycle(w);
+        }
         self.state.swap();
         self.tonemapped = hdr;
         let bytes = self.state.bytes();
@@ -422,6 +435,10 @@ impl Filter for Taa {
 
     fn reset(&mut self) {
         self.state.reset();
+    }
+
+    fn recycle(&mut self, planes: Rgb) {
+        self.scratch.recycle(planes);
     }
 
     fn state_bytes(&self) -> usize {

@@ -37,7 +37,7 @@
 //! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
 //!   3.1's "colour peak" cannot reach extreme values.
 
-use super::passes::{dilate_motion, from_working, planes, sharpen, slices_mut, to_working};
+use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
@@ -46,7 +46,7 @@ use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
     bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    ParamSpec, PixelCounts, Recorder, Skip,
+    ParamSpec, PixelCounts, Recorder, Scratch, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -149,7 +149,10 @@ const DEPTH01: usize = 4;
 pub struct Traa {
     params: Params,
     state: DoubleBuffer,
+    /// Whether the history holds tonemapped colour.
     tonemapped: bool,
+    /// Reused temporaries.
+    scratch: Scratch,
 }
 
 impl Traa {
@@ -200,6 +203,7 @@ impl FilterKind for Traa {
             state: DoubleBuffer::new(Self::history_planes(&params)),
             params,
             tonemapped: false,
+            scratch: Scratch::default(),
         }
     }
 }
@@ -269,6 +273,7 @@ impl Filter for Traa {
         let mut rec = Recorder::new();
         let inp = prepare(frame, Self::uses(), &mut rec)?;
         bind_size(&mut self.state, frame)?;
+        let scratch = &mut self.scratch;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
@@ -277,7 +282,9 @@ impl Filter for Traa {
             convert_rgb_history(self.state.read_mut(), hdr);
         }
         let working = rec
-            .stage("tonemap", facts.tonemap(), || to_working(&inp.color, true))
+            .stage("tonemap", facts.tonemap(), || {
+                to_working(&inp.color, true, scratch)
+            })
             .unwrap_or(Cow::Borrowed(&*inp.color));
         let variant_skip = (!improved).then_some(Skip::Variant {
             variant: p.variant.name(),
@@ -305,6 +312,7 @@ impl Filter for Traa {
                 dilate_motion(
                     inp.motion.as_deref().expect("required"),
                     inp.depth.as_deref().expect("required"),
+                    scratch,
                 )
             },
         );
@@ -318,7 +326,7 @@ impl Filter for Traa {
                     .as_ref()
                     .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
                 let m = motion.each_ref().map(|p| p.data());
-                let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| Plane::new(w, h)).collect();
+                let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| scratch.plane(w, h)).collect();
                 let mut valid = vec![false; w * h];
                 // One position per pixel; the colour planes, then (improved) Sobel and depth.
                 let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
@@ -429,7 +437,7 @@ impl Filter for Traa {
             )
         });
 
-        let mut out: Rgb = planes(w, h);
+        let mut out: Rgb = scratch.planes(w, h);
         let al = aliased.as_ref().map(|p| p.data());
         let counts = rec.run("resolve", || {
             let cur = working.each_ref().map(|p| p.data());
@@ -494,11 +502,16 @@ impl Filter for Traa {
         if let Some(s) = rec.stage(
             "sharpen",
             (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
-            || sharpen(&out, strength, hdr),
+            || sharpen(&out, strength, hdr, scratch),
         ) {
-            out = s;
+            scratch.recycle(std::mem::replace(&mut out, s));
         }
         rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
+        scratch.recycle(dilated.into_iter().flatten());
+        scratch.recycle(reprojected.into_iter().flat_map(|(planes, _)| planes));
+        if let Cow::Owned(w) = working {
+            scratch.recycle(w);
+        }
         self.state.swap();
         self.tonemapped = hdr;
         let bytes = self.state.bytes();
@@ -510,6 +523,10 @@ impl Filter for Traa {
 
     fn reset(&mut self) {
         self.state.reset();
+    }
+
+    fn recycle(&mut self, planes: Rgb) {
+        self.scratch.recycle(planes);
     }
 
     fn state_bytes(&self) -> usize {

@@ -407,6 +407,11 @@ impl Frame {
         [r.data_mut(), g.data_mut(), b.data_mut()]
     }
 
+    /// The colour planes, taking the frame apart.
+    pub fn into_color(self) -> Rgb {
+        self.color
+    }
+
     /// Motion planes, mutable.
     pub fn motion_mut(&mut self) -> Option<&mut [Plane<f32>; 2]> {
         self.motion.as_mut()

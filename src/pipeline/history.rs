@@ -81,3 +81,49 @@ impl DoubleBuffer {
         (self.read.len() + self.write.len()) * self.size().map_or(0, |(w, h)| w * h) * 4
     }
 }
+
+/// Planes a filter reuses from frame to frame for its temporaries (and, when the caller
+/// hands them back with [`super::Filter::recycle`], for its outputs): a fresh multi-MiB
+/// buffer costs a page fault per 4 KiB on first touch, which at 1080p is more than some
+/// whole stages. Planes taken from here hold stale samples: every user overwrites them.
+#[derive(Debug, Default)]
+pub struct Scratch {
+    free: Vec<Plane<f32>>,
+}
+
+/// At most this many planes are kept (enough for every temporary of every filter here).
+const SCRATCH_MAX_PLANES: usize = 24;
+
+impl Scratch {
+    /// A `width` x `height` plane with unspecified contents.
+    pub fn plane(&mut self, width: usize, height: usize) -> Plane<f32> {
+        match self.free.iter().position(|p| p.size() == (width, height)) {
+            Some(i) => self.free.swap_remove(i),
+            None => Plane::new(width, height),
+        }
+    }
+
+    /// `N` planes with unspecified contents.
+    pub fn planes<const N: usize>(&mut self, width: usize, height: usize) -> [Plane<f32>; N] {
+        std::array::from_fn(|_| self.plane(width, height))
+    }
+
+    /// Takes planes back for reuse.
+    pub fn recycle(&mut self, planes: impl IntoIterator<Item = Plane<f32>>) {
+        let start = self.free.len();
+        self.free.extend(planes);
+        // Debug builds (the tests) poison what comes back, so a stage that reads a reused
+        // plane before writing all of it shows NaN instead of passing by luck.
+        if cfg!(debug_assertions) {
+            for p in &mut self.free[start..] {
+                p.data_mut().fill(f32::NAN);
+            }
+        }
+        self.free.truncate(SCRATCH_MAX_PLANES);
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.free.iter().map(|p| p.data().len() * 4).sum()
+    }
+}

@@ -12,7 +12,7 @@ pub mod params;
 pub mod planner;
 pub mod record;
 
-pub use history::DoubleBuffer;
+pub use history::{DoubleBuffer, Scratch};
 pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
@@ -115,6 +115,9 @@ pub trait Filter: Send {
     fn reset(&mut self);
     /// Bytes of state held now.
     fn state_bytes(&self) -> usize;
+    /// Hands an output's planes back for reuse by the next frame (optional: callers that
+    /// keep their outputs simply do not call it).
+    fn recycle(&mut self, _planes: Rgb) {}
 }
 
 /// Static description of a filter kind, implemented by each filter module.
