@@ -269,3 +269,43 @@ fn recycled_buffers_never_leak_into_results() {
         }
     }
 }
+
+#[test]
+fn history_follows_a_stream_between_ldr_and_hdr_frames() {
+    // A still scene whose frame 4 has one HDR pixel: the working space of the whole frame
+    // becomes tonemapped, so the history is converted; without that, the history would be
+    // read in the wrong space and the image would jump in brightness.
+    let frames = small_scene("static", 7);
+    // traa's output sharpen works in the working space too, which legitimately changes the
+    // output when that space changes: compare without it.
+    for (name, set) in [("taa", &[][..]), ("traa", &["sharpen=false"][..])] {
+        let mut f = create(name, &parse_assignments(set).unwrap()).unwrap();
+        let mut means = Vec::new();
+        for (t, frame) in frames.iter().enumerate() {
+            let mut frame = frame.clone();
+            if t == 4 {
+                for p in frame.color_mut() {
+                    p[0] = 50.0;
+                }
+            }
+            let out = f.process(&frame).unwrap();
+            assert_eq!(out.record.ran("tonemap"), t == 4, "{name} frame {t}");
+            // Mean away from the corner pixel.
+            let mean: f64 = out.color[1].data()[48 * 4..]
+                .iter()
+                .map(|&v| v as f64)
+                .sum::<f64>()
+                / (48 * 28) as f64;
+            means.push(mean);
+        }
+        for t in 4..7 {
+            let change = (means[t] / means[3] - 1.0).abs();
+            assert!(
+                change < 0.02,
+                "{name}: frame {t} mean {} vs {} before the HDR frame",
+                means[t],
+                means[3]
+            );
+        }
+    }
+}

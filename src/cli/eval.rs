@@ -1,7 +1,7 @@
 //! `afterimage eval --input SEQ --reference SEQ`.
 
 use super::read_args::ReadArgs;
-use afterimage::io::{inferno, write_png_rgb8, PresetChoice, ReadOptions, Sequence};
+use afterimage::io::{inferno, write_png_rgb8};
 use afterimage::metrics::{luma, ssim, Evaluator, FrameMetrics, SpaceChoice, Summary};
 use anyhow::{bail, Context};
 use clap::{Args, ValueEnum};
@@ -60,23 +60,11 @@ struct Report<'a> {
 
 pub fn run(args: EvalArgs) -> anyhow::Result<()> {
     let in_opts = args.read.options()?;
-    let input = Sequence::open(&args.input)?;
-    let reference = args.reference.as_deref().map(Sequence::open).transpose()?;
-    if let Some(r) = &reference {
-        if r.len() != input.len() {
-            bail!(
-                "{} has {} frames but the reference {} has {}",
-                input.spec,
-                input.len(),
-                r.spec,
-                r.len()
-            );
-        }
-    }
-    let ref_opts = ReadOptions {
-        preset: args.reference_preset.parse::<PresetChoice>()?,
-        ..ReadOptions::default()
-    };
+    let (input, reference, ref_opts) = super::read_args::open_with_reference(
+        &args.input,
+        args.reference.as_deref(),
+        &args.reference_preset,
+    )?;
     let choice = match args.space {
         Space::Auto => SpaceChoice::Auto,
         Space::Linear => SpaceChoice::Linear,

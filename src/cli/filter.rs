@@ -2,13 +2,10 @@
 
 use super::read_args::ReadArgs;
 use afterimage::frame::{Frame, Rgb};
-use afterimage::io::{
-    write_exr, write_png, Compression, ExrLayout, Precision, PresetChoice, ReadOptions, Sequence,
-    WriteOptions,
-};
+use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice};
 use afterimage::pipeline::{self, params::parse_assignments, FrameRecord, ParamKind};
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
@@ -103,23 +100,11 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let values = parse_assignments(&args.set)?;
     let mut filter = pipeline::create(&args.filter, &values)?;
     let in_opts = args.read.options()?;
-    let input = Sequence::open(&args.input)?;
-    let reference = args.reference.as_deref().map(Sequence::open).transpose()?;
-    if let Some(r) = &reference {
-        if r.len() != input.len() {
-            bail!(
-                "{} has {} frames but the reference {} has {}",
-                input.spec,
-                input.len(),
-                r.spec,
-                r.len()
-            );
-        }
-    }
-    let ref_opts = ReadOptions {
-        preset: args.reference_preset.parse::<PresetChoice>()?,
-        ..ReadOptions::default()
-    };
+    let (input, reference, ref_opts) = super::read_args::open_with_reference(
+        &args.input,
+        args.reference.as_deref(),
+        &args.reference_preset,
+    )?;
     std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
     let write = WriteOptions {
         precision: if args.f16 { Precision::F16 } else { Precision::F32 },

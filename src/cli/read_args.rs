@@ -1,7 +1,7 @@
 //! Flags shared by every command that reads frames.
 
 use afterimage::frame::MotionConvention;
-use afterimage::io::{ChannelSpec, PresetChoice, ReadOptions};
+use afterimage::io::{ChannelSpec, PresetChoice, ReadOptions, Sequence};
 use clap::Args;
 
 /// How to map file channels onto frame channels.
@@ -38,4 +38,31 @@ impl ReadArgs {
                 .transpose()?,
         })
     }
+}
+
+/// Opens an input sequence and, when given, a reference sequence of the same length, with
+/// the read options of the reference's preset.
+pub fn open_with_reference(
+    input: &str,
+    reference: Option<&str>,
+    reference_preset: &str,
+) -> anyhow::Result<(Sequence, Option<Sequence>, ReadOptions)> {
+    let input = Sequence::open(input)?;
+    let reference = reference.map(Sequence::open).transpose()?;
+    if let Some(r) = &reference {
+        if r.len() != input.len() {
+            anyhow::bail!(
+                "{} has {} frames but the reference {} has {}",
+                input.spec,
+                input.len(),
+                r.spec,
+                r.len()
+            );
+        }
+    }
+    let opts = ReadOptions {
+        preset: reference_preset.parse::<PresetChoice>()?,
+        ..ReadOptions::default()
+    };
+    Ok((input, reference, opts))
 }

@@ -1,10 +1,10 @@
 //! Whole-plane passes shared by the temporal filters, built on [`crate::kernels`] and run
 //! on the crate's pool by rows.
 
-use crate::frame::{Plane, Rgb};
-use crate::kernels::{sharpen_cross, tonemap, tonemap_inverse};
+use crate::frame::{Frame, Plane, Rgb};
+use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::Scratch;
+use crate::pipeline::{bind_size, DoubleBuffer, FilterError, Scratch};
 use std::borrow::Cow;
 
 /// Empty planes of the given size.
@@ -103,4 +103,77 @@ pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool, scratch: &mut Scratch) -> Rgb {
         }
     });
     out
+}
+
+/// The state every temporal filter keeps: double-buffered history planes (the first three
+/// hold colour in the working space), which space that is (tonemapped or linear), and the
+/// reused temporaries.
+#[derive(Debug)]
+pub struct TemporalState {
+    /// The history planes.
+    pub buffer: DoubleBuffer,
+    /// Reused temporaries.
+    pub scratch: Scratch,
+    /// Whether the colour history is tonemapped.
+    tonemapped: bool,
+    /// Whether the colour history is YCoCg (else RGB).
+    ycocg: bool,
+}
+
+impl TemporalState {
+    /// History of `planes` planes, colour in YCoCg when `ycocg`.
+    pub fn new(planes: usize, ycocg: bool) -> Self {
+        TemporalState {
+            buffer: DoubleBuffer::new(planes),
+            scratch: Scratch::default(),
+            tonemapped: false,
+            ycocg,
+        }
+    }
+
+    /// Sizes the history for `frame` and stores its colour in this frame's working space
+    /// (tonemapped when `hdr`); returns whether there is history to use (none on the first
+    /// frame, after a reset, and on a reset frame).
+    pub fn begin(&mut self, frame: &Frame, hdr: bool) -> Result<bool, FilterError> {
+        bind_size(&mut self.buffer, frame)?;
+        let has_history = self.buffer.valid() && !frame.meta.reset;
+        if has_history && self.tonemapped != hdr {
+            convert_history(&mut self.buffer.read_mut()[..3], hdr, self.ycocg);
+        }
+        Ok(has_history)
+    }
+
+    /// After a frame: the written planes become the history; returns the bytes held.
+    pub fn finish(&mut self, hdr: bool) -> usize {
+        self.buffer.swap();
+        self.tonemapped = hdr;
+        self.buffer.bytes()
+    }
+}
+
+/// Converts colour history planes between linear and tonemapped working space.
+fn convert_history(planes: &mut [Plane<f32>], to_tonemapped: bool, ycocg: bool) {
+    let w = planes[0].width();
+    let (a, rest) = planes.split_at_mut(1);
+    let (b, c) = rest.split_at_mut(1);
+    for_rows(
+        [a[0].data_mut(), b[0].data_mut(), c[0].data_mut()],
+        w,
+        |_, [a, b, c]| {
+            for x in 0..w {
+                let v = [a[x], b[x], c[x]];
+                let rgb = if ycocg {
+                    ycocg_to_rgb(v).map(|v| v.max(0.0))
+                } else {
+                    v
+                };
+                let t = if to_tonemapped {
+                    tonemap(rgb)
+                } else {
+                    tonemap_inverse(rgb)
+                };
+                [a[x], b[x], c[x]] = if ycocg { rgb_to_ycocg(t) } else { t };
+            }
+        },
+    );
 }

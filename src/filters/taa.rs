@@ -19,17 +19,16 @@
 //!
 //! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
 
-use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working};
+use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working, TemporalState};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
-    bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, tonemap, tonemap_inverse,
-    variance_box, ycocg_to_rgb,
+    bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    ParamSpec, PixelCounts, Recorder, Scratch, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
+    Recorder, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -139,11 +138,7 @@ const DEPTH: usize = 4;
 #[derive(Debug)]
 pub struct Taa {
     params: Params,
-    state: DoubleBuffer,
-    /// Whether the history holds tonemapped colour.
-    tonemapped: bool,
-    /// Reused temporaries.
-    scratch: Scratch,
+    hist: TemporalState,
 }
 
 impl FilterKind for Taa {
@@ -173,10 +168,8 @@ impl FilterKind for Taa {
     }
     fn new(params: Params) -> Self {
         Taa {
-            state: DoubleBuffer::new(Self::history_planes(&params)),
+            hist: TemporalState::new(Self::history_planes(&params), true),
             params,
-            tonemapped: false,
-            scratch: Scratch::default(),
         }
     }
 }
@@ -189,28 +182,6 @@ impl Taa {
             4
         }
     }
-}
-
-/// Converts YCoCg history planes between linear and tonemapped working space.
-pub(crate) fn convert_history_space(planes: &mut [Plane<f32>], to_tonemapped: bool) {
-    let w = planes[0].width();
-    let (y, rest) = planes.split_at_mut(1);
-    let (co, rest) = rest.split_at_mut(1);
-    for_rows(
-        [y[0].data_mut(), co[0].data_mut(), rest[0].data_mut()],
-        w,
-        |_, [y, co, cg]| {
-            for x in 0..w {
-                let rgb = ycocg_to_rgb([y[x], co[x], cg[x]]).map(|v| v.max(0.0));
-                let c = if to_tonemapped {
-                    tonemap(rgb)
-                } else {
-                    tonemap_inverse(rgb)
-                };
-                [y[x], co[x], cg[x]] = rgb_to_ycocg(c);
-            }
-        },
-    );
 }
 
 impl Filter for Taa {
@@ -227,15 +198,11 @@ impl Filter for Taa {
         let p = self.params.clone();
         let mut rec = Recorder::new();
         let inp = prepare(frame, Self::uses(), &mut rec)?;
-        bind_size(&mut self.state, frame)?;
-        let scratch = &mut self.scratch;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
-        let has_history = self.state.valid() && !frame.meta.reset;
-        if has_history && self.tonemapped != hdr {
-            convert_history_space(self.state.read_mut(), hdr);
-        }
+        let has_history = self.hist.begin(frame, hdr)?;
+        let scratch = &mut self.hist.scratch;
 
         let working = rec
             .stage("tonemap", facts.tonemap(), || {
@@ -274,8 +241,8 @@ impl Filter for Taa {
                 )
             },
         );
-        let n_hist = self.state.read().len();
-        let (read, next) = self.state.split();
+        let n_hist = self.hist.buffer.read().len();
+        let (read, next) = self.hist.buffer.split();
         let reprojected: Option<Vec<Plane<f32>>> = rec.stage("reproject", reproject_skip, || {
             let motion = dilated
                 .as_ref()
@@ -424,9 +391,7 @@ impl Filter for Taa {
         if let std::borrow::Cow::Owned(w) = working {
             scratch.recycle(w);
         }
-        self.state.swap();
-        self.tonemapped = hdr;
-        let bytes = self.state.bytes();
+        let bytes = self.hist.finish(hdr);
         Ok(Output {
             color: out,
             record: rec.finish(Self::NAME, frame.meta.index, pixels, inp.counts, bytes),
@@ -434,14 +399,14 @@ impl Filter for Taa {
     }
 
     fn reset(&mut self) {
-        self.state.reset();
+        self.hist.buffer.reset();
     }
 
     fn recycle(&mut self, planes: Rgb) {
-        self.scratch.recycle(planes);
+        self.hist.scratch.recycle(planes);
     }
 
     fn state_bytes(&self) -> usize {
-        self.state.bytes()
+        self.hist.buffer.bytes()
     }
 }

@@ -37,7 +37,7 @@
 //! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
 //!   3.1's "colour peak" cannot reach extreme values.
 
-use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working};
+use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working, TemporalState};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
@@ -45,8 +45,8 @@ use crate::kernels::{
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    bind_size, check_needs, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    ParamSpec, PixelCounts, Recorder, Scratch, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
+    Recorder, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -148,11 +148,7 @@ const DEPTH01: usize = 4;
 #[derive(Debug)]
 pub struct Traa {
     params: Params,
-    state: DoubleBuffer,
-    /// Whether the history holds tonemapped colour.
-    tonemapped: bool,
-    /// Reused temporaries.
-    scratch: Scratch,
+    hist: TemporalState,
 }
 
 impl Traa {
@@ -200,10 +196,8 @@ impl FilterKind for Traa {
     }
     fn new(params: Params) -> Self {
         Traa {
-            state: DoubleBuffer::new(Self::history_planes(&params)),
+            hist: TemporalState::new(Self::history_planes(&params), false),
             params,
-            tonemapped: false,
-            scratch: Scratch::default(),
         }
     }
 }
@@ -272,15 +266,11 @@ impl Filter for Traa {
         let improved = p.variant == Variant::Improved;
         let mut rec = Recorder::new();
         let inp = prepare(frame, Self::uses(), &mut rec)?;
-        bind_size(&mut self.state, frame)?;
-        let scratch = &mut self.scratch;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
-        let has_history = self.state.valid() && !frame.meta.reset;
-        if has_history && self.tonemapped != hdr {
-            convert_rgb_history(self.state.read_mut(), hdr);
-        }
+        let has_history = self.hist.begin(frame, hdr)?;
+        let scratch = &mut self.hist.scratch;
         let working = rec
             .stage("tonemap", facts.tonemap(), || {
                 to_working(&inp.color, true, scratch)
@@ -316,8 +306,8 @@ impl Filter for Traa {
                 )
             },
         );
-        let n_hist = self.state.read().len();
-        let (read, next) = self.state.split();
+        let n_hist = self.hist.buffer.read().len();
+        let (read, next) = self.hist.buffer.split();
         // Reprojected history (bilinear, as INSIDE samples its history buffer) and whether
         // each pixel's previous position was on screen.
         let reprojected: Option<(Vec<Plane<f32>>, Vec<bool>)> =
@@ -512,9 +502,7 @@ impl Filter for Traa {
         if let Cow::Owned(w) = working {
             scratch.recycle(w);
         }
-        self.state.swap();
-        self.tonemapped = hdr;
-        let bytes = self.state.bytes();
+        let bytes = self.hist.finish(hdr);
         Ok(Output {
             color: out,
             record: rec.finish(Self::NAME, frame.meta.index, counts, inp.counts, bytes),
@@ -522,15 +510,15 @@ impl Filter for Traa {
     }
 
     fn reset(&mut self) {
-        self.state.reset();
+        self.hist.buffer.reset();
     }
 
     fn recycle(&mut self, planes: Rgb) {
-        self.scratch.recycle(planes);
+        self.hist.scratch.recycle(planes);
     }
 
     fn state_bytes(&self) -> usize {
-        self.state.bytes()
+        self.hist.buffer.bytes()
     }
 }
 
@@ -623,27 +611,4 @@ fn aliased(
         }
     });
     out
-}
-
-/// Converts RGB history planes between linear and tonemapped working space.
-fn convert_rgb_history(planes: &mut [Plane<f32>], to_tonemapped: bool) {
-    use crate::kernels::{tonemap, tonemap_inverse};
-    let w = planes[0].width();
-    let (r, rest) = planes.split_at_mut(1);
-    let (g, rest) = rest.split_at_mut(1);
-    for_rows(
-        [r[0].data_mut(), g[0].data_mut(), rest[0].data_mut()],
-        w,
-        |_, [r, g, b]| {
-            for x in 0..w {
-                let c = [r[x], g[x], b[x]];
-                let t = if to_tonemapped {
-                    tonemap(c)
-                } else {
-                    tonemap_inverse(c)
-                };
-                (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
-            }
-        },
-    );
 }
