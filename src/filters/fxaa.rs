@@ -327,18 +327,7 @@ mod tests {
         g: f64,
         steps: &[f64],
     ) -> ([f64; 2], [f64; 2], f64, f64) {
-        let bil = |x: f64, y: f64| {
-            let at = |i: f64, j: f64| {
-                l[(j.clamp(0.0, h as f64 - 1.0) as usize) * w + i.clamp(0.0, w as f64 - 1.0) as usize]
-            };
-            let (fx, fy) = (x - 0.5, y - 0.5);
-            let (i, j) = (fx.floor(), fy.floor());
-            let (tx, ty) = (fx - i, fy - j);
-            at(i, j) * (1.0 - tx) * (1.0 - ty)
-                + at(i + 1.0, j) * tx * (1.0 - ty)
-                + at(i, j + 1.0) * (1.0 - tx) * ty
-                + at(i + 1.0, j + 1.0) * tx * ty
-        };
+        let bil = |x: f64, y: f64| crate::kernels::sample::tests::bilinear_f64(l, w, h, x, y);
         let side = |sign: f64| {
             let mut pos = [b[0] + sign * off[0] * steps[0], b[1] + sign * off[1] * steps[0]];
             let mut end = bil(pos[0], pos[1]) - avg;

@@ -102,13 +102,14 @@ pub fn catmull_rom<const N: usize>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
 
-    /// f64 bilinear with clamped edges, written from the definition.
-    fn bilinear_f64(p: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
+    /// f64 bilinear with clamped edges, written from the definition (the reference other
+    /// kernels' tests sample with, too).
+    pub(crate) fn bilinear_f64(p: &[f64], w: usize, h: usize, x: f64, y: f64) -> f64 {
         let at = |i: f64, j: f64| {
             let i = i.clamp(0.0, w as f64 - 1.0) as usize;
             let j = j.clamp(0.0, h as f64 - 1.0) as usize;
