@@ -1,10 +1,11 @@
 //! Whole-plane passes shared by the temporal filters, built on [`crate::kernels`] and run
 //! on the crate's pool by rows.
 
+use crate::frame::ChannelKind;
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{bind_size, DoubleBuffer, FilterError, Scratch};
+use crate::pipeline::{bind_size, DoubleBuffer, FilterError, Inputs, Recorder, Scratch, Skip};
 use std::borrow::Cow;
 
 /// Empty planes of the given size.
@@ -176,4 +177,58 @@ fn convert_history(planes: &mut [Plane<f32>], to_tonemapped: bool, ycocg: bool) 
             }
         },
     );
+}
+
+/// Where this frame's history comes from: whether reprojection runs (and why not), and the
+/// motion it uses (dilated when the `dilate` stage ran).
+pub struct Reprojection {
+    /// Why the `reproject` stage is left out; `None` when it runs.
+    pub skip: Option<Skip>,
+    /// The dilated motion, when the `dilate` stage ran.
+    pub dilated: Option<[Plane<f32>; 2]>,
+}
+
+impl Reprojection {
+    /// Plans reprojection for a frame and runs the `dilate` stage: reprojection needs
+    /// history, motion and some motion; dilation also needs depth and `dilation` on.
+    pub fn plan(
+        rec: &mut Recorder,
+        inp: &Inputs,
+        has_history: bool,
+        dilation: bool,
+        scratch: &mut Scratch,
+    ) -> Reprojection {
+        let skip = (!has_history)
+            .then_some(Skip::NoHistory)
+            .or_else(|| inp.require(ChannelKind::Motion))
+            .or_else(|| inp.facts.reprojection());
+        let dilate_skip = skip
+            .clone()
+            .or_else(|| inp.require(ChannelKind::Depth))
+            .or_else(|| (!dilation).then_some(Skip::Disabled { param: "dilation" }));
+        let dilated = rec.stage("dilate", dilate_skip, || {
+            dilate_motion(
+                inp.motion.as_deref().expect("required"),
+                inp.depth.as_deref().expect("required"),
+                scratch,
+            )
+        });
+        Reprojection { skip, dilated }
+    }
+
+    /// The motion planes to reproject with (call only when reprojection runs).
+    pub fn motion<'a>(&'a self, inp: &'a Inputs) -> [&'a [f32]; 2] {
+        let m = self
+            .dilated
+            .as_ref()
+            .unwrap_or_else(|| inp.motion.as_deref().expect("reprojection needs motion"));
+        m.each_ref().map(|p| p.data())
+    }
+}
+
+/// Whether a previous position `(px, py)` (pixel units) lies on a `w` x `h` screen; false
+/// for NaN.
+#[inline(always)]
+pub fn on_screen(px: f32, py: f32, w: usize, h: usize) -> bool {
+    px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32
 }

@@ -19,7 +19,7 @@
 //!
 //! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
 
-use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working, TemporalState};
+use super::passes::{from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb,
@@ -223,31 +223,11 @@ impl Filter for Taa {
         });
 
         let no_history = (!has_history).then_some(Skip::NoHistory);
-        let reproject_skip = no_history
-            .clone()
-            .or_else(|| inp.require(ChannelKind::Motion))
-            .or_else(|| facts.reprojection());
-        let dilated = rec.stage(
-            "dilate",
-            reproject_skip
-                .clone()
-                .or_else(|| inp.require(ChannelKind::Depth))
-                .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" })),
-            || {
-                dilate_motion(
-                    inp.motion.as_deref().expect("required"),
-                    inp.depth.as_deref().expect("required"),
-                    scratch,
-                )
-            },
-        );
+        let reprojection = Reprojection::plan(&mut rec, &inp, has_history, p.dilation, scratch);
         let n_hist = self.hist.buffer.read().len();
         let (read, next) = self.hist.buffer.split();
-        let reprojected: Option<Vec<Plane<f32>>> = rec.stage("reproject", reproject_skip, || {
-            let motion = dilated
-                .as_ref()
-                .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
-            let m = motion.each_ref().map(|p| p.data());
+        let reprojected: Option<Vec<Plane<f32>>> = rec.stage("reproject", reprojection.skip.clone(), || {
+            let m = reprojection.motion(&inp);
             let src: Vec<&[f32]> = read.iter().map(|p| p.data()).collect();
             let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| scratch.plane(w, h)).collect();
             let filter = p.history_filter;
@@ -263,8 +243,7 @@ impl Filter for Taa {
                     let i = y * w + x;
                     let px = x as f32 + 0.5 + m[0][i];
                     let py = y as f32 + 0.5 + m[1][i];
-                    let on_screen = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
-                    if !on_screen {
+                    if !on_screen(px, py, w, h) {
                         hn[x] = 0.0;
                         continue;
                     }
@@ -386,7 +365,7 @@ impl Filter for Taa {
         rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
 
         scratch.recycle(ycocg);
-        scratch.recycle(dilated.into_iter().flatten());
+        scratch.recycle(reprojection.dilated.into_iter().flatten());
         scratch.recycle(reprojected.into_iter().flatten());
         if let std::borrow::Cow::Owned(w) = working {
             scratch.recycle(w);

@@ -37,7 +37,7 @@
 //! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
 //!   3.1's "colour peak" cannot reach extreme values.
 
-use super::passes::{dilate_motion, from_working, sharpen, slices_mut, to_working, TemporalState};
+use super::passes::{from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
@@ -291,31 +291,14 @@ impl Filter for Traa {
         });
 
         let no_history = (!has_history).then_some(Skip::NoHistory);
-        let reproject_skip = no_history
-            .clone()
-            .or_else(|| inp.require(ChannelKind::Motion))
-            .or_else(|| facts.reprojection());
-        let dilated = rec.stage(
-            "dilate",
-            reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth)),
-            || {
-                dilate_motion(
-                    inp.motion.as_deref().expect("required"),
-                    inp.depth.as_deref().expect("required"),
-                    scratch,
-                )
-            },
-        );
+        let reprojection = Reprojection::plan(&mut rec, &inp, has_history, true, scratch);
         let n_hist = self.hist.buffer.read().len();
         let (read, next) = self.hist.buffer.split();
         // Reprojected history (bilinear, as INSIDE samples its history buffer) and whether
         // each pixel's previous position was on screen.
         let reprojected: Option<(Vec<Plane<f32>>, Vec<bool>)> =
-            rec.stage("reproject", reproject_skip, || {
-                let motion = dilated
-                    .as_ref()
-                    .unwrap_or_else(|| inp.motion.as_deref().expect("required"));
-                let m = motion.each_ref().map(|p| p.data());
+            rec.stage("reproject", reprojection.skip.clone(), || {
+                let m = reprojection.motion(&inp);
                 let mut out: Vec<Plane<f32>> = (0..n_hist).map(|_| scratch.plane(w, h)).collect();
                 let mut valid = vec![false; w * h];
                 // One position per pixel; the colour planes, then (improved) Sobel and depth.
@@ -340,11 +323,15 @@ impl Filter for Traa {
                         }
                     });
                 }
-                for (i, v) in valid.iter_mut().enumerate() {
-                    let px = (i % w) as f32 + 0.5 + m[0][i];
-                    let py = (i / w) as f32 + 0.5 + m[1][i];
-                    *v = px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32;
-                }
+                crate::pipeline::exec::pool().install(|| {
+                    use rayon::prelude::*;
+                    valid.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                        for (x, v) in row.iter_mut().enumerate() {
+                            let i = y * w + x;
+                            *v = on_screen(x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i], w, h);
+                        }
+                    })
+                });
                 (out, valid)
             });
         let (hist, valid): (Vec<&[f32]>, Option<&[bool]>) = match &reprojected {
@@ -497,7 +484,7 @@ impl Filter for Traa {
             scratch.recycle(std::mem::replace(&mut out, s));
         }
         rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
-        scratch.recycle(dilated.into_iter().flatten());
+        scratch.recycle(reprojection.dilated.into_iter().flatten());
         scratch.recycle(reprojected.into_iter().flat_map(|(planes, _)| planes));
         if let Cow::Owned(w) = working {
             scratch.recycle(w);

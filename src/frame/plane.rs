@@ -127,20 +127,7 @@ impl Plane<f32> {
     /// Bilinear sample at continuous position `(x, y)` in pixel units, where pixel
     /// `(i, j)` has its centre at `(i + 0.5, j + 0.5)`; edges are extended.
     pub fn sample_bilinear(&self, x: f32, y: f32) -> f32 {
-        let fx = x - 0.5;
-        let fy = y - 0.5;
-        let x0 = fx.floor();
-        let y0 = fy.floor();
-        let tx = fx - x0;
-        let ty = fy - y0;
-        let (x0, y0) = (x0 as isize, y0 as isize);
-        let a = self.get_clamped(x0, y0);
-        let b = self.get_clamped(x0 + 1, y0);
-        let c = self.get_clamped(x0, y0 + 1);
-        let d = self.get_clamped(x0 + 1, y0 + 1);
-        let top = a + (b - a) * tx;
-        let bottom = c + (d - c) * tx;
-        top + (bottom - top) * ty
+        crate::kernels::bilinear([self.data()], self.width, self.height, x, y)[0]
     }
 
     /// Number of samples that are NaN or infinite.
