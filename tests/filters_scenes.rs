@@ -290,3 +290,46 @@ fn improved_traa_uses_the_channels_it_has_and_says_which_it_lacks() {
     }
     assert!(rec.ran("sobel") && rec.ran("reproject"));
 }
+
+/// PHLM's comparison with the paper (PSNR, SSIM, tRMSE of `phlm`, `taa`, `passthrough` per
+/// scene and on average). Other configurations: `AFTERIMAGE_COMPARE="phlm clip_p=1;taa"`.
+/// `cargo test --release --test filters_scenes print_phlm_comparison -- --ignored --nocapture`
+#[test]
+#[ignore = "prints the table for the issue note"]
+fn print_phlm_comparison() {
+    let configs = std::env::var("AFTERIMAGE_COMPARE").unwrap_or_else(|_| "passthrough;taa;phlm".into());
+    let configs: Vec<Vec<&str>> = configs
+        .split(';')
+        .map(|c| c.split_whitespace().collect())
+        .collect();
+    let mut totals = vec![(0.0, 0.0, 0.0); configs.len()];
+    let scenes: Vec<&str> = ["static"].into_iter().chain(MOVING).collect();
+    println!("| scene | filter | PSNR dB | SSIM | tRMSE |\n|---|---|---|---|---|");
+    for scene in &scenes {
+        let fr = frames(scene);
+        for (k, c) in configs.iter().enumerate() {
+            let s = summary(&run(c[0], &c[1..], &fr));
+            let t = s.trmse.unwrap_or(f64::NAN);
+            println!(
+                "| {scene} | {} | {:.2} | {:.4} | {:.5} |",
+                c.join(" "),
+                s.mean_psnr,
+                s.mean_ssim,
+                t
+            );
+            totals[k].0 += s.mean_psnr;
+            totals[k].1 += s.mean_ssim;
+            totals[k].2 += t;
+        }
+    }
+    let n = scenes.len() as f64;
+    for (c, t) in configs.iter().zip(totals) {
+        println!(
+            "| **mean** | {} | {:.2} | {:.4} | {:.5} |",
+            c.join(" "),
+            t.0 / n,
+            t.1 / n,
+            t.2 / n
+        );
+    }
+}

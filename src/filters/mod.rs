@@ -7,10 +7,12 @@
 //! | `fxaa` | FXAA 3.11, quality preset 12 (Lottes 2011): spatial only |
 //! | `taa` | industry TAA (Karis 2014, Salvi 2016): dilation, Catmull-Rom, YCoCg variance clip |
 //! | `traa` | the thesis's TRAA (004): INSIDE/Uncharted 4 baseline or the improved variant |
+//! | `phlm` | Pixel History Linear Models (000): per-pixel RLS models, bounded forgetting |
 
 pub mod fxaa;
 pub mod passes;
 pub mod passthrough;
+pub mod phlm;
 pub mod taa;
 pub mod traa;
 
@@ -23,5 +25,6 @@ pub fn all() -> Vec<FilterEntry> {
         entry::<fxaa::Fxaa>(),
         entry::<taa::Taa>(),
         entry::<traa::Traa>(),
+        entry::<phlm::Phlm>(),
     ]
 }

@@ -117,18 +117,36 @@ pub struct TemporalState {
     pub scratch: Scratch,
     /// Whether the colour history is tonemapped.
     tonemapped: bool,
-    /// Whether the colour history is YCoCg (else RGB).
-    ycocg: bool,
+    /// How the history moves between linear and tonemapped space.
+    conversion: Conversion,
+}
+
+/// How a filter's history is converted between linear and tonemapped working space when a
+/// stream switches between LDR and HDR frames.
+#[derive(Clone, Copy, Debug)]
+pub enum Conversion {
+    /// The first three planes hold colour (YCoCg when `ycocg`, else RGB).
+    Color {
+        /// Whether the colour is stored as YCoCg.
+        ycocg: bool,
+    },
+    /// A filter-specific conversion of all history planes, `to_tonemapped` as the flag.
+    Custom(fn(&mut [Plane<f32>], bool)),
 }
 
 impl TemporalState {
     /// History of `planes` planes, colour in YCoCg when `ycocg`.
     pub fn new(planes: usize, ycocg: bool) -> Self {
+        Self::with_conversion(planes, Conversion::Color { ycocg })
+    }
+
+    /// History of `planes` planes converted between spaces by `conversion`.
+    pub fn with_conversion(planes: usize, conversion: Conversion) -> Self {
         TemporalState {
             buffer: DoubleBuffer::new(planes),
             scratch: Scratch::default(),
             tonemapped: false,
-            ycocg,
+            conversion,
         }
     }
 
@@ -139,7 +157,10 @@ impl TemporalState {
         bind_size(&mut self.buffer, frame)?;
         let has_history = self.buffer.valid() && !frame.meta.reset;
         if has_history && self.tonemapped != hdr {
-            convert_history(&mut self.buffer.read_mut()[..3], hdr, self.ycocg);
+            match self.conversion {
+                Conversion::Color { ycocg } => convert_history(&mut self.buffer.read_mut()[..3], hdr, ycocg),
+                Conversion::Custom(f) => f(self.buffer.read_mut(), hdr),
+            }
         }
         Ok(has_history)
     }

@@ -31,6 +31,39 @@ pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3
     }
 }
 
+/// Clips `q` along the ray toward `target` (a point inside the box, e.g. the current input
+/// colour): if `q` lies outside `[min, max]`, returns the first point of the segment from
+/// `q` to `target` inside the box, else `q` unchanged (PHLM 000, Algorithm 1 lines 14-17:
+/// `ray_ori = f, ray_dir = y - f`, `f = ray_ori + ray_hit * ray_dir`). A `target` outside
+/// the box is clamped into it first, so the result is always inside. Returns the point and
+/// whether it moved.
+#[inline]
+pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {
+    let mut t = 0.0f32;
+    let mut outside = false;
+    let mut tgt = [0.0f32; 3];
+    for k in 0..3 {
+        tgt[k] = target[k].max(min[k]).min(max[k]);
+        // Entering the slab of axis k: the bound q violates, reached at fraction t_k.
+        let bound = if q[k] < min[k] {
+            min[k]
+        } else if q[k] > max[k] {
+            max[k]
+        } else {
+            continue;
+        };
+        outside = true;
+        let d = tgt[k] - q[k];
+        // d is non-zero here (q is outside the slab, tgt inside), and |bound - q| <= |d|.
+        t = t.max(((bound - q[k]) / d).min(1.0));
+    }
+    if !outside {
+        return (q, false);
+    }
+    let p = [0, 1, 2].map(|k| (q[k] + t * (tgt[k] - q[k])).max(min[k]).min(max[k]));
+    (p, true)
+}
+
 /// Clamps each component of `q` into `[min, max]` (the thesis's one-channel Sobel history
 /// uses clamping, 004 sec. 4.3.3). Returns the value and whether it moved.
 #[inline]
@@ -87,6 +120,70 @@ mod tests {
             assert_eq!(!inside, m, "moved flag for {q:?} in {min:?}..{max:?}");
         }
         assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+    }
+
+    /// f64 reference of [`clip_toward_point`]: bisection on the segment for the first point
+    /// inside the box (independent of the slab formula).
+    fn clip_point_f64(q: [f64; 3], t: [f64; 3], min: [f64; 3], max: [f64; 3]) -> [f64; 3] {
+        let inside = |p: [f64; 3]| (0..3).all(|k| p[k] >= min[k] && p[k] <= max[k]);
+        if inside(q) {
+            return q;
+        }
+        let at = |s: f64| [0, 1, 2].map(|k| q[k] + s * (t[k] - q[k]));
+        let (mut lo, mut hi) = (0.0f64, 1.0f64);
+        for _ in 0..200 {
+            let mid = 0.5 * (lo + hi);
+            if inside(at(mid)) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        at(hi)
+    }
+
+    #[test]
+    fn clip_toward_point_matches_bisection() {
+        let mut rng = SplitMix64::new(23);
+        let mut moved = 0;
+        for i in 0..20_000 {
+            let scale = [1.0, 1e3, 1e-3][i % 3];
+            let a = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+            let b = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+            let min = [0, 1, 2].map(|k| a[k].min(b[k]) as f32);
+            let max = [0, 1, 2].map(|k| a[k].max(b[k]) as f32);
+            // The target inside the box (the pixel's own input is part of its 3x3).
+            let target = [0, 1, 2].map(|k| min[k] + (max[k] - min[k]) * rng.next_f64() as f32);
+            let q = [0, 1, 2].map(|_| (rng.range(-3.0, 3.0) * scale) as f32);
+            let (got, m) = clip_toward_point(q, target, min, max);
+            moved += m as u32;
+            let expect = clip_point_f64(
+                q.map(f64::from),
+                target.map(f64::from),
+                min.map(f64::from),
+                max.map(f64::from),
+            );
+            for k in 0..3 {
+                Tolerance::new(1e-5 * scale, 1e-4)
+                    .check("clip toward point", got[k] as f64, expect[k])
+                    .unwrap();
+                assert!(got[k] >= min[k] && got[k] <= max[k]);
+            }
+            let inside = (0..3).all(|k| q[k] >= min[k] && q[k] <= max[k]);
+            assert_eq!(!inside, m);
+        }
+        assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+    }
+
+    #[test]
+    fn clip_toward_point_handles_flat_boxes_and_outside_targets() {
+        let p = [0.3, 0.2, 0.1];
+        let (got, moved) = clip_toward_point([5.0, -2.0, 0.0], p, p, p);
+        assert!(moved);
+        assert_eq!(got, p);
+        // A target outside the box is clamped into it: the result is still inside.
+        let (got, _) = clip_toward_point([2.0, 2.0, 2.0], [-5.0, 0.5, 9.0], [0.0; 3], [1.0; 3]);
+        assert!(got.iter().all(|v| (0.0..=1.0).contains(v)), "{got:?}");
     }
 
     #[test]

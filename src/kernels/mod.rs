@@ -13,7 +13,7 @@ pub mod sample;
 pub mod sharpen;
 pub mod sobel;
 
-pub use clip::{clamp_to_box, clip_toward_center};
+pub use clip::{clamp_to_box, clip_toward_center, clip_toward_point};
 pub use color::{luma, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
 pub use neighborhood::{
     cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box, NeighborhoodStats, CROSS,

@@ -33,9 +33,9 @@ pub struct Inputs<'a> {
     pub object_id: Option<&'a Plane<u32>>,
     /// Samples repaired.
     pub counts: InputCounts,
-    /// Pixels whose colour had a non-finite component (`None` when there were none). Their
-    /// repaired value is a guess from the neighbours, so temporal filters keep the pixel's
-    /// history instead of blending the guess in.
+    /// Pixels whose colour had a non-finite or negative component (`None` when there were
+    /// none). Their repaired value is a guess (the neighbours' mean, or 0), so temporal
+    /// filters keep the pixel's history instead of blending the guess in.
     pub invalid: Option<Vec<bool>>,
     /// What the planner knows about this frame.
     pub facts: FrameFacts,
@@ -144,10 +144,11 @@ pub fn prepare<'a>(
     let mut max_color = 0.0f32;
     let mut unused = 0.0f32;
     let color = repair_channel(frame.color(), true, &mut counts, &mut max_color);
-    let invalid = (counts.non_finite > 0).then(|| {
+    let invalid = (counts.non_finite + counts.negative > 0).then(|| {
         let [r, g, b] = frame.color().each_ref().map(|p| p.data());
+        let ok = |v: f32| v.is_finite() && v >= 0.0;
         (0..frame.pixels())
-            .map(|i| !(r[i].is_finite() && g[i].is_finite() && b[i].is_finite()))
+            .map(|i| !(ok(r[i]) && ok(g[i]) && ok(b[i])))
             .collect::<Vec<bool>>()
     });
     let depth = match frame.depth().filter(|_| uses.contains(ChannelKind::Depth)) {
@@ -215,7 +216,7 @@ impl Inputs<'_> {
         }
     }
 
-    /// Whether pixel `i`'s colour was non-finite (see [`Inputs::invalid`]).
+    /// Whether pixel `i`'s colour was non-finite or negative (see [`Inputs::invalid`]).
     pub fn is_invalid(&self, i: usize) -> bool {
         self.invalid.as_ref().is_some_and(|v| v[i])
     }

@@ -16,7 +16,7 @@ pub use history::{DoubleBuffer, Scratch};
 pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
-pub use record::{FrameRecord, InputCounts, PixelCounts, Recorder, Skip, StageRecord};
+pub use record::{FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord};
 
 use crate::filters;
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameError, Rgb};

@@ -90,6 +90,22 @@ pub struct InputCounts {
     pub negative: u64,
 }
 
+/// Health of per-pixel linear models (filters that keep them, e.g. `phlm`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ModelHealth {
+    /// Share of pixels whose model was reset because its prediction left the neighbourhood
+    /// box (clipped and reset, PHLM Algorithm 1 line 18).
+    pub reset_by_clip: f64,
+    /// Share of pixels whose model was reset because their previous position was off screen
+    /// (disocclusion at the border, Algorithm 1 line 9).
+    pub reset_by_disocclusion: f64,
+    /// Largest trace of an inverse covariance P over the frame.
+    pub max_trace_p: f64,
+    /// Matrices that failed the health check (non-finite, non-positive diagonal, trace over
+    /// the bound) and were re-initialised.
+    pub p_repaired: u64,
+}
+
 /// The record of one filtered frame.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FrameRecord {
@@ -107,6 +123,9 @@ pub struct FrameRecord {
     pub input: InputCounts,
     /// Bytes of filter state after this frame.
     pub state_bytes: usize,
+    /// Health of per-pixel models, for filters that keep them.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub model: Option<ModelHealth>,
 }
 
 impl FrameRecord {
@@ -201,6 +220,7 @@ impl Recorder {
             pixels,
             input,
             state_bytes,
+            model: None,
         }
     }
 }
