@@ -28,7 +28,9 @@
 //!   memory, and thus we can exploit texture cache and hardware bilinear interpolation",
 //!   sec. 6); `model_fetch = nearest` is the cheaper alternative. A convex blend of
 //!   positive-definite matrices is positive definite (and of matrices `>= R0` is `>= R0`),
-//!   so bilinear R stays valid and the bound `P <= p0 I` holds.
+//!   so bilinear R stays valid and the bound `P <= p0 I` holds. We blend the information
+//!   `R = P^-1` (what we store) where the paper's texture fetch blends P: blending R pools
+//!   the neighbours' evidence, and both are convex blends of SPD matrices.
 //! - the hull test runs in YCoCg ("the convex hull in a given colorspace (e.g. RGB or
 //!   YCgCo)", sec. 5.2): the same 3x3 pass then gives the luma range the feature needs; the
 //!   clip follows the paper's ray from the prediction toward the input (lines 14-17).
