@@ -2,6 +2,8 @@
 //! written independently from the paper's Algorithm 1 (full 4x4 matrices, Gauss-Jordan
 //! inverse, per-pixel loops), over 10,000 frames of a moving, noisy scene.
 
+#![allow(clippy::needless_range_loop)] // index loops mirror the equations
+
 use afterimage::filters::phlm::{Params, Phlm};
 use afterimage::frame::{ChannelKind, Frame, Plane, Rgb};
 use afterimage::pipeline::{Filter, FilterKind};

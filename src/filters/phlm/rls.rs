@@ -282,7 +282,7 @@ pub fn positive_definite(p: &[f32; P_LEN]) -> (bool, f64) {
                 s -= l[i][k] * l[j][k];
             }
             if i == j {
-                if !(s > 0.0) {
+                if s.is_nan() || s <= 0.0 {
                     return (false, s);
                 }
                 min_pivot = min_pivot.min(s);
