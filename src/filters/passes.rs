@@ -37,6 +37,21 @@ pub fn to_working<'a>(color: &'a Rgb, on: bool, scratch: &mut Scratch) -> Cow<'a
     Cow::Owned(out)
 }
 
+/// The colour converted to YCoCg planes (Malvar and Sullivan 2003; see
+/// [`rgb_to_ycocg`]), in reused planes.
+pub fn to_ycocg(rgb: &Rgb, scratch: &mut Scratch) -> Rgb {
+    let (w, h) = rgb[0].size();
+    let src = rgb.each_ref().map(|p| p.data());
+    let mut out: Rgb = scratch.planes(w, h);
+    for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
+        for x in 0..w {
+            let i = y * w + x;
+            [a[x], b[x], c[x]] = rgb_to_ycocg([src[0][i], src[1][i], src[2][i]]);
+        }
+    });
+    out
+}
+
 /// Back from the working space to linear colour (in place); a no-op when `tonemap` is off.
 pub fn from_working(rgb: &mut Rgb, on: bool) {
     if !on {

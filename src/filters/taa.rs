@@ -19,10 +19,12 @@
 //!
 //! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
 
-use super::passes::{from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState};
+use super::passes::{
+    from_working, on_screen, sharpen, slices_mut, to_working, to_ycocg, Reprojection, TemporalState,
+};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
-    bilinear, catmull_rom, clip_toward_center, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb,
+    bilinear, catmull_rom, clip_toward_center, for_each_row_stats, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::params::FilterParams;
@@ -210,17 +212,7 @@ impl Filter for Taa {
             })
             .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
 
-        let ycocg: Rgb = rec.run("ycocg", || {
-            let src = working.each_ref().map(|p| p.data());
-            let mut out: Rgb = scratch.planes(w, h);
-            for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
-                for x in 0..w {
-                    let i = y * w + x;
-                    [a[x], b[x], c[x]] = rgb_to_ycocg([src[0][i], src[1][i], src[2][i]]);
-                }
-            });
-            out
-        });
+        let ycocg: Rgb = rec.run("ycocg", || to_ycocg(&working, scratch));
 
         let no_history = (!has_history).then_some(Skip::NoHistory);
         let reprojection = Reprojection::plan(&mut rec, &inp, has_history, p.dilation, scratch);

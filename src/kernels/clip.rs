@@ -94,16 +94,23 @@ mod tests {
         [0, 1, 2].map(|k| c[k] + s * (q[k] - c[k]))
     }
 
+    /// A random box in `[-scale, scale]^3`.
+    fn random_box(rng: &mut SplitMix64, scale: f64) -> ([f32; 3], [f32; 3]) {
+        let a = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+        let b = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
+        (
+            [0, 1, 2].map(|k| a[k].min(b[k]) as f32),
+            [0, 1, 2].map(|k| a[k].max(b[k]) as f32),
+        )
+    }
+
     #[test]
     fn clip_matches_the_slab_reference() {
         let mut rng = SplitMix64::new(21);
         let mut moved = 0;
         for i in 0..20_000 {
             let scale = [1.0, 1e3, 1e-3][i % 3];
-            let a = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
-            let b = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
-            let min = [0, 1, 2].map(|k| a[k].min(b[k]) as f32);
-            let max = [0, 1, 2].map(|k| a[k].max(b[k]) as f32);
+            let (min, max) = random_box(&mut rng, scale);
             let q = [0, 1, 2].map(|_| (rng.range(-2.0, 2.0) * scale) as f32);
             let (got, m) = clip_toward_center(q, min, max);
             moved += m as u32;
@@ -148,10 +155,7 @@ mod tests {
         let mut moved = 0;
         for i in 0..20_000 {
             let scale = [1.0, 1e3, 1e-3][i % 3];
-            let a = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
-            let b = [0, 1, 2].map(|_| rng.range(-1.0, 1.0) * scale);
-            let min = [0, 1, 2].map(|k| a[k].min(b[k]) as f32);
-            let max = [0, 1, 2].map(|k| a[k].max(b[k]) as f32);
+            let (min, max) = random_box(&mut rng, scale);
             // The target inside the box (the pixel's own input is part of its 3x3).
             let target = [0, 1, 2].map(|k| min[k] + (max[k] - min[k]) * rng.next_f64() as f32);
             let q = [0, 1, 2].map(|_| (rng.range(-3.0, 3.0) * scale) as f32);

@@ -41,7 +41,7 @@
 pub mod feature;
 pub mod rls;
 
-use super::passes::{from_working, on_screen, slices_mut, to_working, Conversion, TemporalState};
+use super::passes::{from_working, on_screen, slices_mut, to_working, to_ycocg, Conversion, TemporalState};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, clip_toward_point, for_each_row_stats, rgb_to_ycocg, tonemap, ycocg_to_rgb};
 use crate::pipeline::exec::{for_rows, par_rows};
@@ -184,12 +184,14 @@ impl Model {
         }
     }
 
+    /// The model held in state values `s` (beta and R at their plane offsets) with
+    /// feature `z`.
     #[inline(always)]
-    fn from_state(s: &[f32; STATE_PLANES]) -> Model {
+    fn from_state(s: &[f32], z: [f32; 3]) -> Model {
         Model {
             beta: std::array::from_fn(|c| std::array::from_fn(|j| s[BETA + c * D + j])),
             r: std::array::from_fn(|k| s[R + k]),
-            z: [s[Z], s[Z + 1], s[Z + 2]],
+            z,
         }
     }
 
@@ -295,7 +297,7 @@ fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     for_rows(rows, w, |_, r| {
         for x in 0..w {
             let s: [f32; STATE_PLANES] = std::array::from_fn(|k| r[k][x]);
-            let m = Model::from_state(&s);
+            let m = Model::from_state(&s, [s[Z], s[Z + 1], s[Z + 2]]);
             let f = rls::predict(&m.beta, &m.x()).map(|v| v.max(0.0));
             let conv = |c: [f32; 3]| {
                 if to_tonemapped {
@@ -359,16 +361,7 @@ impl Filter for Phlm {
             .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
         let rgb = working.each_ref().map(|p| p.data());
 
-        let ycocg: Rgb = rec.run("ycocg", || {
-            let mut out: Rgb = scratch.planes(w, h);
-            for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
-                for x in 0..w {
-                    let i = y * w + x;
-                    [a[x], b[x], c[x]] = rgb_to_ycocg([rgb[0][i], rgb[1][i], rgb[2][i]]);
-                }
-            });
-            out
-        });
+        let ycocg: Rgb = rec.run("ycocg", || to_ycocg(&working, scratch));
         let cur = ycocg.each_ref().map(|p| p.data());
 
         // Previous positions (pixel units); NaN marks off screen.
@@ -482,14 +475,7 @@ impl Filter for Phlm {
                             }
                             Model::reset(input, z, p.p0)
                         }
-                        _ => {
-                            let s = fetch(src_model, w, h, f, p.model_fetch);
-                            Model {
-                                beta: std::array::from_fn(|ch| std::array::from_fn(|j| s[BETA + ch * D + j])),
-                                r: std::array::from_fn(|k| s[R + k]),
-                                z,
-                            }
-                        }
+                        _ => Model::from_state(&fetch(src_model, w, h, f, p.model_fetch), z),
                     };
                     let x_feat = m.x();
                     if !inp.is_invalid(i) {

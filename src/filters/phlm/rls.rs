@@ -260,8 +260,7 @@ fn trace_of_inverse(l: &[[f64; D]; D]) -> f32 {
 
 /// `trace(R^-1)` of a packed symmetric R, `None` unless R is positive definite.
 pub fn trace_of_inverse_packed(r: &[f32; P_LEN]) -> Option<f32> {
-    let a: [[f64; D]; D] = std::array::from_fn(|i| std::array::from_fn(|j| r[SYM[i][j]] as f64));
-    cholesky(&a).map(|l| trace_of_inverse(&l))
+    cholesky(&unpack(r)).map(|l| trace_of_inverse(&l))
 }
 
 /// `R = I / p` packed: the information form of `P = p I`.
@@ -271,28 +270,21 @@ pub fn init_information(p: f32) -> [f32; P_LEN] {
 }
 
 /// Whether symmetric `P` (packed) is positive definite, by Cholesky factorisation in f64;
-/// also returns its smallest pivot (a lower bound indicator of the smallest eigenvalue).
+/// also returns its smallest pivot (NaN when it is not).
 pub fn positive_definite(p: &[f32; P_LEN]) -> (bool, f64) {
-    let mut l = [[0.0f64; D]; D];
-    let mut min_pivot = f64::INFINITY;
-    for i in 0..D {
-        for j in 0..=i {
-            let mut s = p[SYM[i][j]] as f64;
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
-            if i == j {
-                if s.is_nan() || s <= 0.0 {
-                    return (false, s);
-                }
-                min_pivot = min_pivot.min(s);
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
+    match cholesky(&unpack(p)) {
+        Some(l) => (
+            true,
+            (0..D).map(|i| l[i][i] * l[i][i]).fold(f64::INFINITY, f64::min),
+        ),
+        None => (false, f64::NAN),
     }
-    (true, min_pivot)
+}
+
+/// The full f64 matrix of a packed symmetric one.
+#[inline(always)]
+fn unpack(p: &[f32; P_LEN]) -> [[f64; D]; D] {
+    std::array::from_fn(|i| std::array::from_fn(|j| p[SYM[i][j]] as f64))
 }
 
 #[cfg(test)]
