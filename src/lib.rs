@@ -18,6 +18,7 @@ pub mod io;
 pub mod kernels;
 pub mod metrics;
 pub mod pipeline;
+pub mod report;
 pub mod rng;
 pub mod scene;
 pub mod tolerance;

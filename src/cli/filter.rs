@@ -3,13 +3,12 @@
 use super::read_args::ReadArgs;
 use afterimage::frame::{Frame, Rgb};
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
-use afterimage::metrics::{Evaluator, SpaceChoice};
-use afterimage::pipeline::{self, params::parse_assignments, FrameRecord, ParamKind};
+use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
+use afterimage::pipeline::{self, params::parse_assignments, summarize_stages, FrameRecord, ParamKind};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 /// Arguments of `filter`.
@@ -168,33 +167,21 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", path.display()))?;
 
     // Per-stage medians, then quality.
-    let mut per_stage: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
-    let mut skipped: BTreeMap<&str, String> = BTreeMap::new();
-    for r in &records {
-        for s in &r.stages {
-            match (&s.ms, &s.skipped) {
-                (Some(ms), _) => per_stage.entry(s.name).or_default().push(*ms),
-                (None, Some(why)) => {
-                    skipped.entry(s.name).or_insert_with(|| why.to_string());
-                }
-                _ => {}
-            }
-        }
-    }
-    let mut totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
+    let totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
     println!(
         "{}: {} frames -> {} (median {:.2} ms/frame)",
         args.filter,
         records.len(),
         args.output.display(),
-        median(&mut totals)
+        Timing::of(&totals).median_ms
     );
-    for name in filter_stages(&records) {
-        match per_stage.get_mut(name) {
-            Some(v) => println!("  {name:<16} ran {:>3}x, median {:.3} ms", v.len(), median(v)),
+    for s in summarize_stages(&records) {
+        match s.timing {
+            Some(t) => println!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
             None => println!(
-                "  {name:<16} left out: {}",
-                skipped.get(name).map_or("-", |s| s.as_str())
+                "  {:<16} left out: {}",
+                s.name,
+                s.first_skip.as_deref().unwrap_or("-")
             ),
         }
     }
@@ -216,19 +203,4 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
 
 fn frame_is_hdr(f: &Frame) -> bool {
     f.color().iter().any(|p| p.data().iter().any(|&v| v > 1.0))
-}
-
-/// Stage names in the order the filter runs them.
-fn filter_stages(records: &[FrameRecord]) -> Vec<&'static str> {
-    records
-        .first()
-        .map_or(Vec::new(), |r| r.stages.iter().map(|s| s.name).collect())
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }

@@ -5,6 +5,7 @@ mod eval;
 mod filter;
 mod info;
 mod read_args;
+mod report;
 mod scene;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +29,9 @@ enum Command {
     Filter(filter::FilterArgs),
     /// List the filters: parameters with defaults and bounds, channels, stages, state size.
     Filters(filter::FiltersArgs),
+    /// Error against run time: every filter on every scene, with tables, JSON, CSV and
+    /// plots.
+    Report(report::ReportArgs),
     /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
     Scene(scene::SceneArgs),
 }
@@ -38,6 +42,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Scene(a) => scene::run(a),
+        Command::Report(a) => report::run(a),
         Command::Filter(a) => filter::run(a),
         Command::Filters(a) => filter::list(a),
     }

@@ -1,6 +1,7 @@
 //! `afterimage scene NAME --out DIR`: render a catalogue scene to EXR.
 
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
+use afterimage::metrics::Timing;
 use afterimage::scene::{Jitter, Scene, Settings, BEHIND_CAMERA_MOTION, CATALOGUE, SKY_DEPTH};
 use anyhow::Context;
 use clap::Args;
@@ -49,7 +50,7 @@ pub struct SceneArgs {
     out: Option<PathBuf>,
 }
 
-fn parse_size(s: &str) -> Result<(usize, usize), String> {
+pub(crate) fn parse_size(s: &str) -> Result<(usize, usize), String> {
     let (w, h) = s
         .split_once(['x', 'X'])
         .ok_or_else(|| format!("size {s:?} is not WxH"))?;
@@ -127,9 +128,7 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let mut sorted = ms.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
+    let median = Timing::of(&ms).median_ms;
     let meta = json!({
         "scene": name,
         "description": scene.def.description,

@@ -68,10 +68,11 @@ pub fn write_png_rgb8(path: &Path, width: usize, height: usize, pixels: Vec<u8>)
         .map_err(|e| image_error(path, "PNG", e))
 }
 
-/// Writes linear RGB as an 8-bit sRGB PNG preview. With `tonemap`, HDR values are first
-/// mapped by `c / (1 + c)` (the reversible tonemap also used by the metrics); without it
-/// they are clamped to [0, 1]. Non-finite samples are written as magenta so they show.
-pub fn write_png(path: &Path, rgb: &Rgb, tonemap: bool) -> Result<(), IoError> {
+/// Linear RGB as interleaved 8-bit sRGB (`w * h * 3` bytes), the way previews show it.
+/// With `tonemap`, HDR values are first mapped by `c / (1 + c)` (the reversible tonemap
+/// also used by the metrics); without it they are clamped to [0, 1]. Non-finite samples
+/// become magenta so they show.
+pub fn rgb_to_srgb8(rgb: &Rgb, tonemap: bool) -> Vec<u8> {
     let (w, h) = rgb[0].size();
     let mut bytes = Vec::with_capacity(w * h * 3);
     for i in 0..w * h {
@@ -86,7 +87,13 @@ pub fn write_png(path: &Path, rgb: &Rgb, tonemap: bool) -> Result<(), IoError> {
             bytes.push((linear_to_srgb(v) * 255.0 + 0.5) as u8);
         }
     }
-    write_png_rgb8(path, w, h, bytes)
+    bytes
+}
+
+/// Writes linear RGB as an 8-bit sRGB PNG preview (see [`rgb_to_srgb8`]).
+pub fn write_png(path: &Path, rgb: &Rgb, tonemap: bool) -> Result<(), IoError> {
+    let (w, h) = rgb[0].size();
+    write_png_rgb8(path, w, h, rgb_to_srgb8(rgb, tonemap))
 }
 
 #[cfg(test)]

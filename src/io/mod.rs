@@ -12,7 +12,7 @@ mod sequence;
 
 pub use colormap::inferno;
 pub use exr_file::{read_raw_exr, write_exr, Compression, ExrLayout, Precision, WriteOptions};
-pub use ldr::{linear_to_srgb, read_ldr, srgb_to_linear, write_png, write_png_rgb8};
+pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
 pub use sequence::{Sequence, SequenceEntry};

@@ -1,9 +1,12 @@
 //! Quality metrics: MSE, RMSE, PSNR, SSIM (with a map) and the temporal error tRMSE, all
-//! computed in a stated space (see [`MetricSpace`]).
+//! computed in a stated space (see [`MetricSpace`]); and the summary of measured times
+//! ([`Timing`]).
 
 mod ssim;
+mod timing;
 
 pub use ssim::{ssim, SsimResult, SSIM_C1_K, SSIM_C2_K, SSIM_RADIUS, SSIM_SIGMA};
+pub use timing::{quantile, Timing};
 
 use crate::frame::{Plane, Rgb};
 use serde::{Deserialize, Serialize};

@@ -16,7 +16,10 @@ pub use history::{DoubleBuffer, Scratch};
 pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
-pub use record::{FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord};
+pub use record::{
+    summarize_stages, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord,
+    StageSummary,
+};
 
 use crate::filters;
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameError, Rgb};

@@ -7,6 +7,7 @@ use std::ops::AddAssign;
 use std::time::Instant;
 
 use crate::frame::ChannelKind;
+use crate::metrics::Timing;
 
 /// Why a stage was left out for this frame.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -222,5 +223,95 @@ impl Recorder {
             state_bytes,
             model: None,
         }
+    }
+}
+
+/// One stage over a run of frames: how often it ran and how long it took, or why it was
+/// left out.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StageSummary {
+    /// Stage name.
+    pub name: &'static str,
+    /// Frames on which it ran.
+    pub ran: usize,
+    /// Frames on which it was left out.
+    pub left_out: usize,
+    /// Median and p95 of its time over the frames it ran (None when it never ran).
+    pub timing: Option<Timing>,
+    /// Why it was left out the first time it was (None when it always ran).
+    pub first_skip: Option<String>,
+}
+
+/// Per-stage summaries of `records`, in the order the filter runs its stages.
+pub fn summarize_stages(records: &[FrameRecord]) -> Vec<StageSummary> {
+    let mut out: Vec<(StageSummary, Vec<f64>)> = Vec::new();
+    for r in records {
+        for s in &r.stages {
+            let i = match out.iter().position(|(o, _)| o.name == s.name) {
+                Some(i) => i,
+                None => {
+                    out.push((
+                        StageSummary {
+                            name: s.name,
+                            ran: 0,
+                            left_out: 0,
+                            timing: None,
+                            first_skip: None,
+                        },
+                        Vec::new(),
+                    ));
+                    out.len() - 1
+                }
+            };
+            let (o, times) = &mut out[i];
+            match (&s.ms, &s.skipped) {
+                (Some(ms), _) => {
+                    o.ran += 1;
+                    times.push(*ms);
+                }
+                (None, why) => {
+                    o.left_out += 1;
+                    if o.first_skip.is_none() {
+                        o.first_skip = Some(why.as_ref().map_or("-".into(), |w| w.to_string()));
+                    }
+                }
+            }
+        }
+    }
+    out.into_iter()
+        .map(|(mut o, times)| {
+            o.timing = (!times.is_empty()).then(|| Timing::of(&times));
+            o
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stage_summary_counts_runs_and_skips_in_stage_order() {
+        let frame = |i: u64, skip_b: bool| {
+            let mut r = Recorder::new();
+            r.ran_for("a", 1.0 + i as f64);
+            if skip_b {
+                r.skip("b", Skip::NoHistory);
+            } else {
+                r.ran_for("b", 10.0);
+            }
+            r.finish("t", i, PixelCounts::default(), InputCounts::default(), 0)
+        };
+        let records = [frame(0, true), frame(1, false), frame(2, false)];
+        let s = summarize_stages(&records);
+        assert_eq!(s.iter().map(|s| s.name).collect::<Vec<_>>(), ["a", "b"]);
+        assert_eq!((s[0].ran, s[0].left_out), (3, 0));
+        assert_eq!(s[0].timing.unwrap().median_ms, 2.0);
+        assert_eq!((s[1].ran, s[1].left_out), (2, 1));
+        assert_eq!(
+            s[1].first_skip.as_deref(),
+            Some("no history (first frame or reset)")
+        );
+        assert!(s[0].first_skip.is_none());
     }
 }

@@ -1,0 +1,123 @@
+//! The memory floor of a filter: the bytes it must read and write per frame over the
+//! bandwidth of a plain copy measured on the same machine in the same run (DESIGN.md,
+//! "Performance model"). A filter at 1x its floor could only go faster by moving fewer
+//! bytes.
+
+use crate::frame::{ChannelKind, ChannelSet};
+use crate::metrics::Timing;
+use crate::pipeline::exec::pool;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::hint::black_box;
+use std::time::Instant;
+
+/// Bytes of one sample: every channel is f32 or u32.
+const SAMPLE_BYTES: usize = 4;
+/// Bytes of the output: linear RGB in f32.
+const OUTPUT_BYTES: usize = 3 * SAMPLE_BYTES;
+/// Size of each of the two copy buffers: larger than the last-level cache of the machines
+/// we run on, so the copy streams from memory as a full-size frame does.
+pub const COPY_BYTES: usize = 64 << 20;
+/// Rows of the copy handed to one rayon task (in f32 samples).
+const COPY_CHUNK: usize = 1 << 16;
+
+/// The measured bandwidth of a plain copy.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Bandwidth {
+    /// Bytes read plus bytes written per second.
+    pub bytes_per_s: f64,
+    /// Bytes in each buffer.
+    pub copy_bytes: usize,
+    /// Times of one whole copy.
+    pub copy: Timing,
+    /// Threads of the pool that copied (the filters' pool).
+    pub threads: usize,
+}
+
+impl Bandwidth {
+    /// Milliseconds a plain copy needs to move `bytes` (read plus written).
+    pub fn floor_ms(&self, bytes: usize) -> f64 {
+        bytes as f64 / self.bytes_per_s * 1e3
+    }
+}
+
+/// Copies `src` into `dst` (same length) on the filters' rayon pool: the plain copy whose
+/// bandwidth is the floor.
+pub fn parallel_copy(dst: &mut [f32], src: &[f32]) {
+    pool().install(|| {
+        dst.par_chunks_mut(COPY_CHUNK)
+            .zip(src.par_chunks(COPY_CHUNK))
+            .for_each(|(d, s)| d.copy_from_slice(s))
+    });
+}
+
+/// Times `reps` copies of [`COPY_BYTES`] on the filters' rayon pool (after one untimed
+/// copy that faults the pages in) and returns the median bandwidth.
+pub fn measure_copy_bandwidth(reps: usize) -> Bandwidth {
+    let n = COPY_BYTES / SAMPLE_BYTES;
+    let src: Vec<f32> = (0..n).map(|i| i as f32).collect();
+    let mut dst = vec![1.0f32; n];
+    let mut ms = Vec::with_capacity(reps);
+    for rep in 0..=reps.max(1) {
+        let t = Instant::now();
+        parallel_copy(&mut dst, &src);
+        black_box(&mut dst);
+        if rep > 0 {
+            ms.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let copy = Timing::of(&ms);
+    Bandwidth {
+        bytes_per_s: 2.0 * COPY_BYTES as f64 / (copy.median_ms / 1e3),
+        copy_bytes: COPY_BYTES,
+        copy,
+        threads: pool().current_num_threads(),
+    }
+}
+
+/// Bytes a filter must move per pixel: each channel it reads that the frame has (colour
+/// always), its history read and written (`state_bytes_per_pixel` counts both buffers),
+/// and the RGB output written.
+pub fn bytes_per_pixel(uses: ChannelSet, present: ChannelSet, state_bytes_per_pixel: usize) -> usize {
+    let input: usize = uses
+        .with(ChannelKind::Color)
+        .iter()
+        .filter(|&k| present.contains(k))
+        .map(|k| k.components() * SAMPLE_BYTES)
+        .sum();
+    input + state_bytes_per_pixel + OUTPUT_BYTES
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn phlm_moves_about_500_mb_at_1080p() {
+        // DESIGN.md: PHLM at 1920x1080 with f32 state moves about 500 MB a frame.
+        let uses = ChannelSet::of(&[ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion]);
+        let present = uses.with(ChannelKind::Normal);
+        let b = bytes_per_pixel(uses, present, 200);
+        assert_eq!(b, 12 + 4 + 8 + 200 + 12);
+        let mb = (b * 1920 * 1080) as f64 / 1e6;
+        assert!((450.0..550.0).contains(&mb), "{mb} MB");
+        // A channel the filter would use but the frame lacks is not counted.
+        assert_eq!(
+            bytes_per_pixel(uses, ChannelSet::of(&[ChannelKind::Color]), 0),
+            24
+        );
+    }
+
+    #[test]
+    fn floor_is_bytes_over_bandwidth() {
+        let bw = Bandwidth {
+            bytes_per_s: 1e10,
+            copy_bytes: 0,
+            copy: Timing::of(&[1.0]),
+            threads: 1,
+        };
+        crate::tolerance::Tolerance::rel(1e-12)
+            .check("floor", bw.floor_ms(1_000_000_000), 100.0)
+            .unwrap();
+    }
+}

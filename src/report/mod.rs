@@ -1,0 +1,600 @@
+//! `afterimage report`: every filter on every scene, quality next to run time.
+//!
+//! [`run`] renders the catalogue scenes in process, runs each filter over each scene and
+//! measures, per filter and scene, mean PSNR and SSIM against the supersampled reference,
+//! tRMSE, ms/frame (median and p95, total and per stage), state bytes per megapixel and
+//! the ratio of ms/frame to the filter's memory floor ([`floor`]). An optional timing
+//! section runs every filter on a synthetic full-size G-buffer ([`synthetic_frame`]),
+//! since rendering 1080p scenes would take far longer than filtering them.
+//! [`markdown`], [`csv`] and [`write_plots`] turn the result into a table, a CSV and
+//! plots; the JSON is the [`Report`] itself.
+//!
+//! Everything but the times is deterministic: scenes are seeded, filters are pure
+//! functions of their input and state.
+
+mod floor;
+mod plot;
+mod synthetic;
+mod table;
+
+pub use floor::{bytes_per_pixel, measure_copy_bandwidth, parallel_copy, Bandwidth, COPY_BYTES};
+pub use plot::write_plots;
+pub use synthetic::synthetic_frame;
+pub use table::{csv, markdown};
+
+use crate::frame::{ChannelSet, Frame, Rgb};
+use crate::io::IoError;
+use crate::metrics::{Evaluator, MetricSpace, MetricsError, SpaceChoice, Timing};
+use crate::pipeline::{
+    self, params::parse_assignments, summarize_stages, FilterError, FrameRecord, StageSummary,
+};
+use crate::scene::{Jitter, Scene, SceneError, Settings, CATALOGUE};
+use serde::Serialize;
+use serde_json::{Map, Value};
+use std::path::PathBuf;
+use std::time::Instant;
+use thiserror::Error;
+
+/// Why a report could not be made.
+#[derive(Debug, Error)]
+pub enum ReportError {
+    /// A filter spec names no filter, or a parameter it does not have or out of bounds.
+    #[error("filter spec {spec:?}: {source}")]
+    Spec {
+        /// The spec as given.
+        spec: String,
+        /// What is wrong with it.
+        #[source]
+        source: Box<FilterError>,
+    },
+    /// A scene name or a scene setting is wrong.
+    #[error("scene {scene:?}: {source}")]
+    Scene {
+        /// The scene.
+        scene: String,
+        /// What is wrong.
+        #[source]
+        source: SceneError,
+    },
+    /// A filter refused a frame (a bug: scene frames are well formed).
+    #[error("filter {filter} on scene {scene}, frame {index}: {source}")]
+    Run {
+        /// The filter's label.
+        filter: String,
+        /// The scene.
+        scene: String,
+        /// The frame.
+        index: u64,
+        /// What the filter said.
+        #[source]
+        source: Box<FilterError>,
+    },
+    /// A setting out of range (empty lists, zero frames, a strip frame past the end).
+    #[error("{0}")]
+    Config(String),
+    /// Metrics could not compare output and reference.
+    #[error(transparent)]
+    Metrics(#[from] MetricsError),
+    /// Writing a file failed.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// Drawing a plot failed.
+    #[error("plot {path}: {message}")]
+    Plot {
+        /// The file being drawn.
+        path: PathBuf,
+        /// What the plotting backend said.
+        message: String,
+    },
+}
+
+/// One filter as the report runs it: a registry name, parameter overrides, and the label
+/// it goes by in tables and plots.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FilterSpec {
+    /// Shown in tables and plots: the spec as written (`traa:variant=baseline`).
+    pub label: String,
+    /// Registry name.
+    pub name: &'static str,
+    /// Overrides of the defaults.
+    pub params: Map<String, Value>,
+}
+
+impl FilterSpec {
+    /// Parses `NAME` or `NAME:key=value[:key=value...]` and checks it against the registry
+    /// (unknown filter, unknown parameter and out-of-bound values are refused here).
+    pub fn parse(spec: &str) -> Result<FilterSpec, ReportError> {
+        let spec = spec.trim();
+        let mut parts = spec.split(':');
+        let name = parts.next().unwrap_or_default().trim();
+        let assignments: Vec<&str> = parts.map(str::trim).filter(|p| !p.is_empty()).collect();
+        let err = |source| ReportError::Spec {
+            spec: spec.to_string(),
+            source: Box::new(source),
+        };
+        let params = parse_assignments(&assignments).map_err(err)?;
+        let filter = pipeline::create(name, &params).map_err(err)?;
+        Ok(FilterSpec {
+            label: spec.to_string(),
+            name: filter.name(),
+            params,
+        })
+    }
+
+    /// Every registered filter at its defaults, in registry order.
+    pub fn every() -> Vec<FilterSpec> {
+        pipeline::list()
+            .into_iter()
+            .map(|info| FilterSpec {
+                label: info.name.to_string(),
+                name: info.name,
+                params: Map::new(),
+            })
+            .collect()
+    }
+
+    fn uses(&self) -> ChannelSet {
+        pipeline::list()
+            .into_iter()
+            .find(|i| i.name == self.name)
+            .map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
+    }
+}
+
+/// Size and length of the timing section's synthetic sequence.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct TimingSize {
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Timed frames per filter (after one untimed frame that allocates the state).
+    pub frames: usize,
+}
+
+/// What to run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Config {
+    /// Catalogue scenes, in order.
+    pub scenes: Vec<String>,
+    /// Filters, in order.
+    pub filters: Vec<FilterSpec>,
+    /// How every scene is rendered (size, frames, reference samples, jitter, seed).
+    pub render: Settings,
+    /// Frame shown in the image strips (default: the last).
+    pub strip_frame: Option<u64>,
+    /// The full-size timing section (None: left out).
+    pub timing: Option<TimingSize>,
+    /// Timed copies for the bandwidth floor.
+    pub copy_reps: usize,
+}
+
+impl Config {
+    /// The run we quote: every scene and filter at 256x144, 32 frames, 16x16 reference
+    /// samples (the `scene` command's defaults), plus timing at 1920x1080 over 10 frames.
+    pub fn standard() -> Config {
+        Config {
+            scenes: CATALOGUE.iter().map(|e| e.name.to_string()).collect(),
+            filters: FilterSpec::every(),
+            render: Settings::default(),
+            strip_frame: None,
+            timing: Some(TimingSize {
+                width: 1920,
+                height: 1080,
+                frames: 10,
+            }),
+            copy_reps: 9,
+        }
+    }
+
+    /// A run of well under a minute on 2 cores, for tests and a first look: 64x36, 8
+    /// frames, 4x4 reference samples, timing at 320x180 over 3 frames.
+    pub fn quick() -> Config {
+        Config {
+            render: Settings {
+                width: 64,
+                height: 36,
+                frames: 8,
+                spp: 16,
+                jitter: Jitter::Halton(8),
+                noise: false,
+                seed: 1,
+            },
+            timing: Some(TimingSize {
+                width: 320,
+                height: 180,
+                frames: 3,
+            }),
+            copy_reps: 5,
+            ..Config::standard()
+        }
+    }
+
+    fn validate(&self) -> Result<(), ReportError> {
+        if self.scenes.is_empty() {
+            return Err(ReportError::Config("no scenes to run".into()));
+        }
+        if self.filters.is_empty() {
+            return Err(ReportError::Config("no filters to run".into()));
+        }
+        if let Some(f) = self.strip_frame.filter(|&f| f >= self.render.frames) {
+            return Err(ReportError::Config(format!(
+                "strip frame {f} is past the end: the scenes have {} frames (0..={})",
+                self.render.frames,
+                self.render.frames.saturating_sub(1)
+            )));
+        }
+        if let Some(t) = self.timing {
+            if t.width == 0 || t.height == 0 || t.frames == 0 {
+                return Err(ReportError::Config(format!(
+                    "timing size {}x{} over {} frames: all three must be at least 1",
+                    t.width, t.height, t.frames
+                )));
+            }
+        }
+        for s in &self.scenes {
+            Scene::new(s, self.render).map_err(|source| ReportError::Scene {
+                scene: s.clone(),
+                source,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Progress steps of a run: one per rendered frame and one per filtered frame.
+    pub fn steps(&self) -> u64 {
+        let n = self.render.frames;
+        let filters = self.filters.len() as u64;
+        let scenes = self.scenes.len() as u64 * (n + filters * n);
+        let timing = self.timing.map_or(0, |t| filters * (t.frames as u64 + 1));
+        scenes + timing
+    }
+}
+
+/// Where a run is, for a progress bar.
+#[derive(Clone, Debug)]
+pub struct Progress {
+    /// Steps done (see [`Config::steps`]).
+    pub done: u64,
+    /// What is running: `scene: filter`.
+    pub what: String,
+}
+
+/// Figures of one filter over one sequence, shared by the scene cells and the timing rows.
+#[derive(Clone, Debug, Serialize)]
+pub struct Cost {
+    /// Wall time of `process` per frame.
+    pub time: Timing,
+    /// Per-stage times and skips.
+    pub stages: Vec<StageSummary>,
+    /// Bytes of filter state per megapixel (both history buffers).
+    pub state_bytes_per_megapixel: f64,
+    /// Bytes the filter must move per frame (see [`bytes_per_pixel`]).
+    pub bytes_per_frame: usize,
+    /// Time a plain copy needs to move those bytes.
+    pub floor_ms: f64,
+    /// `time.median_ms / floor_ms`.
+    pub floor_ratio: f64,
+}
+
+impl Cost {
+    fn of(
+        spec: &FilterSpec,
+        frame: &Frame,
+        wall_ms: &[f64],
+        records: &[FrameRecord],
+        bw: &Bandwidth,
+    ) -> Cost {
+        let pixels = frame.width() * frame.height();
+        let state = records.iter().map(|r| r.state_bytes).max().unwrap_or(0);
+        let state_per_pixel = state.div_ceil(pixels.max(1));
+        let bytes_per_frame = bytes_per_pixel(spec.uses(), frame.channels(), state_per_pixel) * pixels;
+        let time = Timing::of(wall_ms);
+        let floor_ms = bw.floor_ms(bytes_per_frame);
+        Cost {
+            time,
+            stages: summarize_stages(records),
+            state_bytes_per_megapixel: state as f64 / pixels.max(1) as f64 * 1e6,
+            bytes_per_frame,
+            floor_ms,
+            floor_ratio: time.median_ms / floor_ms,
+        }
+    }
+}
+
+/// One filter on one scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct Cell {
+    /// The filter's label.
+    pub filter: String,
+    /// Mean of per-frame PSNR, dB.
+    pub mean_psnr: f64,
+    /// Mean of per-frame SSIM on luma.
+    pub mean_ssim: f64,
+    /// Temporal RMSE (None with a single frame).
+    pub trmse: Option<f64>,
+    /// Run time and memory.
+    pub cost: Cost,
+    /// PSNR of every frame, in order.
+    pub psnr_per_frame: Vec<f64>,
+}
+
+/// One scene.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneReport {
+    /// Catalogue name.
+    pub scene: String,
+    /// What it tests.
+    pub description: String,
+    /// Space the metrics were computed in (tonemapped for HDR references).
+    pub space: MetricSpace,
+    /// Time to render one frame (input, G-buffer and reference).
+    pub render: Timing,
+    /// One cell per filter, in the config's order.
+    pub cells: Vec<Cell>,
+}
+
+/// One filter over all scenes.
+#[derive(Clone, Debug, Serialize)]
+pub struct FilterSummary {
+    /// The filter's label.
+    pub filter: String,
+    /// Mean over scenes of the mean PSNR.
+    pub mean_psnr: f64,
+    /// Mean over scenes of the mean SSIM.
+    pub mean_ssim: f64,
+    /// Mean over scenes of tRMSE (over the scenes that have one).
+    pub mean_trmse: Option<f64>,
+    /// Wall time per frame over every frame of every scene.
+    pub time: Timing,
+    /// Median over scenes of the ratio to the floor.
+    pub floor_ratio: f64,
+    /// Bytes of state per megapixel.
+    pub state_bytes_per_megapixel: f64,
+}
+
+/// One filter on the synthetic full-size sequence.
+#[derive(Clone, Debug, Serialize)]
+pub struct TimingRow {
+    /// The filter's label.
+    pub filter: String,
+    /// Run time and memory.
+    pub cost: Cost,
+}
+
+/// The frame shown side by side for one scene.
+#[derive(Clone, Debug)]
+pub struct Strip {
+    /// The scene.
+    pub scene: String,
+    /// The frame's index.
+    pub frame: u64,
+    /// Metric space (HDR scenes are shown tonemapped).
+    pub space: MetricSpace,
+    /// The unfiltered input.
+    pub input: Rgb,
+    /// Each filter's output, labelled.
+    pub outputs: Vec<(String, Rgb)>,
+    /// The supersampled reference.
+    pub reference: Rgb,
+}
+
+/// The whole report. Serialises to `report.json` (the strips are written as images).
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// What was run.
+    pub config: Config,
+    /// Copy bandwidth of this machine in this run.
+    pub bandwidth: Bandwidth,
+    /// Per scene, per filter.
+    pub scenes: Vec<SceneReport>,
+    /// Per filter over all scenes.
+    pub summary: Vec<FilterSummary>,
+    /// Per filter on the full-size synthetic sequence (empty when left out).
+    pub timing: Vec<TimingRow>,
+    /// Image strips, one per scene.
+    #[serde(skip)]
+    pub strips: Vec<Strip>,
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
+    let (sum, n) = values.fold((0.0, 0usize), |(s, n), v| (s + v, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+/// Runs the report. `progress` is called after every rendered and every filtered frame.
+pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Report, ReportError> {
+    config.validate()?;
+    let mut done = 0u64;
+    let mut tick = |what: &str| {
+        done += 1;
+        progress(&Progress {
+            done,
+            what: what.to_string(),
+        });
+    };
+    let bandwidth = measure_copy_bandwidth(config.copy_reps);
+    let n = config.render.frames as usize;
+    let strip_index = config.strip_frame.map_or(n - 1, |f| f as usize);
+    let mut scenes = Vec::new();
+    let mut strips = Vec::new();
+    let mut wall_by_filter: Vec<Vec<f64>> = vec![Vec::new(); config.filters.len()];
+    for name in &config.scenes {
+        let scene = Scene::new(name, config.render).map_err(|source| ReportError::Scene {
+            scene: name.clone(),
+            source,
+        })?;
+        let mut render_ms = Vec::with_capacity(n);
+        let frames: Vec<Frame> = (0..n as u64)
+            .map(|i| {
+                let t = Instant::now();
+                let f = scene.frame(i);
+                render_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                tick(&format!("{name}: render"));
+                f
+            })
+            .collect();
+        let reference = |f: &Frame| -> Rgb { f.reference().expect("scenes render a reference").clone() };
+        let mut strip = Strip {
+            scene: name.clone(),
+            frame: strip_index as u64,
+            space: SpaceChoice::Auto.resolve(&reference(&frames[0])),
+            input: frames[strip_index].color().clone(),
+            outputs: Vec::new(),
+            reference: reference(&frames[strip_index]),
+        };
+        let mut cells = Vec::new();
+        for (k, spec) in config.filters.iter().enumerate() {
+            let mut filter =
+                pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
+                    spec: spec.label.clone(),
+                    source: Box::new(source),
+                })?;
+            let mut eval = Evaluator::new(SpaceChoice::Auto);
+            let mut records = Vec::with_capacity(n);
+            let mut wall = Vec::with_capacity(n);
+            for (i, frame) in frames.iter().enumerate() {
+                let t = Instant::now();
+                let out = filter.process(frame).map_err(|source| ReportError::Run {
+                    filter: spec.label.clone(),
+                    scene: name.clone(),
+                    index: frame.meta.index,
+                    source: Box::new(source),
+                })?;
+                wall.push(t.elapsed().as_secs_f64() * 1e3);
+                let r = frame.reference().expect("scenes render a reference");
+                eval.push(frame.meta.index, &out.color, r, frame.meta.reset)?;
+                records.push(out.record);
+                if i == strip_index {
+                    strip.outputs.push((spec.label.clone(), out.color));
+                } else {
+                    filter.recycle(out.color);
+                }
+                tick(&format!("{name}: {}", spec.label));
+            }
+            let s = eval.summary().expect("at least one frame");
+            wall_by_filter[k].extend_from_slice(&wall);
+            cells.push(Cell {
+                filter: spec.label.clone(),
+                mean_psnr: s.mean_psnr,
+                mean_ssim: s.mean_ssim,
+                trmse: s.trmse,
+                cost: Cost::of(spec, &frames[0], &wall, &records, &bandwidth),
+                psnr_per_frame: eval.frames.iter().map(|f| f.psnr).collect(),
+            });
+        }
+        scenes.push(SceneReport {
+            scene: name.clone(),
+            description: scene.def.description.to_string(),
+            space: strip.space,
+            render: Timing::of(&render_ms),
+            cells,
+        });
+        strips.push(strip);
+    }
+
+    let summary = config
+        .filters
+        .iter()
+        .enumerate()
+        .map(|(k, spec)| {
+            let cells: Vec<&Cell> = scenes.iter().map(|s| &s.cells[k]).collect();
+            let ratios: Vec<f64> = cells.iter().map(|c| c.cost.floor_ratio).collect();
+            FilterSummary {
+                filter: spec.label.clone(),
+                mean_psnr: mean(cells.iter().map(|c| c.mean_psnr)).unwrap_or(f64::NAN),
+                mean_ssim: mean(cells.iter().map(|c| c.mean_ssim)).unwrap_or(f64::NAN),
+                mean_trmse: mean(cells.iter().filter_map(|c| c.trmse)),
+                time: Timing::of(&wall_by_filter[k]),
+                floor_ratio: Timing::of(&ratios).median_ms,
+                state_bytes_per_megapixel: cells
+                    .iter()
+                    .map(|c| c.cost.state_bytes_per_megapixel)
+                    .fold(0.0, f64::max),
+            }
+        })
+        .collect();
+
+    let mut timing = Vec::new();
+    if let Some(size) = config.timing {
+        let frames = [0, 1].map(|i| synthetic_frame(size.width, size.height, i));
+        for spec in &config.filters {
+            let label = format!("{}x{}: {}", size.width, size.height, spec.label);
+            let mut filter =
+                pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
+                    spec: spec.label.clone(),
+                    source: Box::new(source),
+                })?;
+            let run_err = |index: u64, source| ReportError::Run {
+                filter: spec.label.clone(),
+                scene: format!("synthetic {}x{}", size.width, size.height),
+                index,
+                source: Box::new(source),
+            };
+            // One untimed frame allocates the state and faults its pages in.
+            let warm = filter.process(&frames[0]).map_err(|e| run_err(0, e))?;
+            filter.recycle(warm.color);
+            tick(&label);
+            let mut records = Vec::with_capacity(size.frames);
+            let mut wall = Vec::with_capacity(size.frames);
+            for i in 1..=size.frames {
+                let frame = &frames[i % 2];
+                let t = Instant::now();
+                let out = filter.process(frame).map_err(|e| run_err(frame.meta.index, e))?;
+                wall.push(t.elapsed().as_secs_f64() * 1e3);
+                records.push(out.record);
+                filter.recycle(out.color);
+                tick(&label);
+            }
+            timing.push(TimingRow {
+                filter: spec.label.clone(),
+                cost: Cost::of(spec, &frames[0], &wall, &records, &bandwidth),
+            });
+        }
+    }
+
+    Ok(Report {
+        config: config.clone(),
+        bandwidth,
+        scenes,
+        summary,
+        timing,
+        strips,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn filter_specs_parse_and_refuse_precisely() {
+        let s = FilterSpec::parse("traa:variant=baseline").unwrap();
+        assert_eq!((s.name, s.label.as_str()), ("traa", "traa:variant=baseline"));
+        assert_eq!(s.params["variant"], "baseline");
+        let e = FilterSpec::parse("nope").unwrap_err().to_string();
+        assert!(e.contains("\"nope\"") && e.contains("taa"), "{e}");
+        let e = FilterSpec::parse("taa:no_such=1").unwrap_err().to_string();
+        assert!(e.contains("no_such"), "{e}");
+        assert_eq!(
+            FilterSpec::every().len(),
+            pipeline::list().len(),
+            "every registered filter, no hand-kept list"
+        );
+    }
+
+    #[test]
+    fn config_refuses_empty_lists_and_a_strip_past_the_end() {
+        let mut c = Config::quick();
+        c.strip_frame = Some(8);
+        let e = run(&c, &mut |_| {}).unwrap_err().to_string();
+        assert!(e.contains("strip frame 8") && e.contains("8 frames"), "{e}");
+        c.strip_frame = None;
+        c.scenes.clear();
+        assert!(run(&c, &mut |_| {}).is_err());
+        let mut c = Config::quick();
+        c.scenes = vec!["no-such-scene".into()];
+        let e = run(&c, &mut |_| {}).unwrap_err().to_string();
+        assert!(e.contains("no-such-scene") && e.contains("thin-line"), "{e}");
+    }
+}

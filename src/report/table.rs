@@ -1,0 +1,246 @@
+//! The report as text: a markdown table for people, a CSV for spreadsheets.
+
+use super::{Cell, Cost, Report};
+use crate::pipeline::StageSummary;
+use std::fmt::Write;
+
+const MB: f64 = 1e6;
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".into(), |v| format!("{v:.digits$}"))
+}
+
+/// `name median` for a stage that ran every frame, `name median (ran k/n)` for one left
+/// out on some, `name -` for one never run.
+fn stages_text(stages: &[StageSummary]) -> String {
+    stages
+        .iter()
+        .map(|s| match s.timing {
+            None => format!("{} -", s.name),
+            Some(t) if s.left_out == 0 => format!("{} {:.3}", s.name, t.median_ms),
+            Some(t) => format!(
+                "{} {:.3} (ran {}/{})",
+                s.name,
+                t.median_ms,
+                s.ran,
+                s.ran + s.left_out
+            ),
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// `name=median/p95` per stage (`name=left_out` for one never run), `;`-separated.
+fn stages_csv(stages: &[StageSummary]) -> String {
+    stages
+        .iter()
+        .map(|s| match s.timing {
+            None => format!("{}=left_out", s.name),
+            Some(t) => format!("{}={:.4}/{:.4}", s.name, t.median_ms, t.p95_ms),
+        })
+        .collect::<Vec<_>>()
+        .join(";")
+}
+
+fn cost_cells(c: &Cost) -> String {
+    format!(
+        "{:.3} | {:.3} | {:.1} | {:.3} | {:.1} | {:.1}",
+        c.time.median_ms,
+        c.time.p95_ms,
+        c.bytes_per_frame as f64 / MB,
+        c.floor_ms,
+        c.floor_ratio,
+        c.state_bytes_per_megapixel / MB
+    )
+}
+
+/// The report as markdown: the settings, the all-scenes summary, the full-size timing,
+/// then one block per scene.
+pub fn markdown(r: &Report) -> String {
+    let c = &r.config;
+    let s = &c.render;
+    let mut o = String::new();
+    let _ = writeln!(o, "# afterimage report\n");
+    let _ = writeln!(
+        o,
+        "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, seed {}. \
+         Copy bandwidth {:.1} GB/s ({} threads, {} MiB buffers, median of {}). \
+         ms/frame is the wall time of one `process` call; the floor is the bytes a filter must \
+         move per frame over that bandwidth. PSNR and SSIM are means over frames against the \
+         reference; tRMSE charges flicker and lag.\n",
+        r.scenes.len(),
+        s.width,
+        s.height,
+        s.frames,
+        s.spp,
+        s.jitter,
+        s.seed,
+        r.bandwidth.bytes_per_s / 1e9,
+        r.bandwidth.threads,
+        r.bandwidth.copy_bytes >> 20,
+        r.bandwidth.copy.count
+    );
+    let _ = writeln!(o, "## All scenes (mean over {} scenes)\n", r.scenes.len());
+    let _ = writeln!(
+        o,
+        "| filter | PSNR dB | SSIM | tRMSE | ms/frame median | p95 | x floor | state MB/MP |"
+    );
+    let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|");
+    for f in &r.summary {
+        let _ = writeln!(
+            o,
+            "| {} | {:.2} | {:.4} | {} | {:.3} | {:.3} | {:.1} | {:.1} |",
+            f.filter,
+            f.mean_psnr,
+            f.mean_ssim,
+            opt(f.mean_trmse, 4),
+            f.time.median_ms,
+            f.time.p95_ms,
+            f.floor_ratio,
+            f.state_bytes_per_megapixel / MB
+        );
+    }
+    if let (Some(t), false) = (c.timing, r.timing.is_empty()) {
+        let _ = writeln!(
+            o,
+            "\n## Timing at {}x{} (synthetic G-buffer with every channel, {} frames after one untimed)\n",
+            t.width, t.height, t.frames
+        );
+        let _ = writeln!(
+            o,
+            "| filter | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | stages (median ms) |"
+        );
+        let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---|");
+        for row in &r.timing {
+            let _ = writeln!(
+                o,
+                "| {} | {} | {} |",
+                row.filter,
+                cost_cells(&row.cost),
+                stages_text(&row.cost.stages)
+            );
+        }
+    }
+    for sc in &r.scenes {
+        let _ = writeln!(
+            o,
+            "\n## {} ({:?} space, render {:.0} ms/frame)\n\n{}\n",
+            sc.scene, sc.space, sc.render.median_ms, sc.description
+        );
+        let _ = writeln!(
+            o,
+            "| filter | PSNR dB | SSIM | tRMSE | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | stages (median ms) |"
+        );
+        let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+        for cell in &sc.cells {
+            let _ = writeln!(
+                o,
+                "| {} | {:.2} | {:.4} | {} | {} | {} |",
+                cell.filter,
+                cell.mean_psnr,
+                cell.mean_ssim,
+                opt(cell.trmse, 4),
+                cost_cells(&cell.cost),
+                stages_text(&cell.cost.stages)
+            );
+        }
+    }
+    o
+}
+
+/// Quotes a CSV field when it holds a comma, quote or newline.
+fn field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+const CSV_HEADER: &str = "section,scene,filter,width,height,frames,mean_psnr,mean_ssim,trmse,ms_median,ms_p95,bytes_per_frame,floor_ms,floor_ratio,state_bytes_per_megapixel,stages";
+
+/// The report as CSV: one row per filter and scene (`section` = `scene`), one per filter
+/// over all scenes (`summary`, scene `all`), and one per filter in the timing section
+/// (`timing`, scene `synthetic`). Empty cells where a figure does not apply.
+pub fn csv(r: &Report) -> String {
+    let s = &r.config.render;
+    let mut o = String::from(CSV_HEADER);
+    o.push('\n');
+    let cell_row = |o: &mut String, scene: &str, c: &Cell| {
+        let _ = writeln!(
+            o,
+            "scene,{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            field(scene),
+            field(&c.filter),
+            s.width,
+            s.height,
+            s.frames,
+            c.mean_psnr,
+            c.mean_ssim,
+            c.trmse.map_or(String::new(), |t| t.to_string()),
+            c.cost.time.median_ms,
+            c.cost.time.p95_ms,
+            c.cost.bytes_per_frame,
+            c.cost.floor_ms,
+            c.cost.floor_ratio,
+            c.cost.state_bytes_per_megapixel,
+            field(&stages_csv(&c.cost.stages))
+        );
+    };
+    for sc in &r.scenes {
+        for c in &sc.cells {
+            cell_row(&mut o, &sc.scene, c);
+        }
+    }
+    for f in &r.summary {
+        let _ = writeln!(
+            o,
+            "summary,all,{},{},{},{},{},{},{},{},{},,,{},{},",
+            field(&f.filter),
+            s.width,
+            s.height,
+            s.frames,
+            f.mean_psnr,
+            f.mean_ssim,
+            f.mean_trmse.map_or(String::new(), |t| t.to_string()),
+            f.time.median_ms,
+            f.time.p95_ms,
+            f.floor_ratio,
+            f.state_bytes_per_megapixel
+        );
+    }
+    if let Some(t) = r.config.timing {
+        for row in &r.timing {
+            let c = &row.cost;
+            let _ = writeln!(
+                o,
+                "timing,synthetic,{},{},{},{},,,,{},{},{},{},{},{},{}",
+                field(&row.filter),
+                t.width,
+                t.height,
+                t.frames,
+                c.time.median_ms,
+                c.time.p95_ms,
+                c.bytes_per_frame,
+                c.floor_ms,
+                c.floor_ratio,
+                c.state_bytes_per_megapixel,
+                field(&stages_csv(&c.stages))
+            );
+        }
+    }
+    o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_fields_are_quoted_only_when_needed() {
+        assert_eq!(field("taa"), "taa");
+        assert_eq!(field("a,b"), "\"a,b\"");
+        assert_eq!(field("say \"x\""), "\"say \"\"x\"\"\"");
+        assert_eq!(CSV_HEADER.split(',').count(), 16);
+    }
+}

@@ -1,0 +1,221 @@
+//! `afterimage report --quick`: every filter on every scene, finite figures, plots that
+//! decode, and passthrough's PSNR equal to `afterimage eval` on the same frames.
+
+mod common;
+
+use afterimage::pipeline::list;
+use afterimage::scene::CATALOGUE;
+use afterimage::tolerance::Tolerance;
+use serde_json::Value;
+use std::path::Path;
+
+fn run(args: &[&str]) -> (bool, String, String) {
+    let out = common::bin().args(args).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn finite(v: &Value, what: &str) -> f64 {
+    let x = v.as_f64().unwrap_or_else(|| panic!("{what}: not a number: {v}"));
+    assert!(x.is_finite(), "{what}: {x}");
+    x
+}
+
+/// Runs the quick report once into `dir` and returns the parsed JSON and stdout.
+fn quick_report(dir: &Path) -> (Value, String) {
+    let (ok, out, err) = run(&["report", "--quick", "--out", dir.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let json = std::fs::read_to_string(dir.join("report.json")).unwrap();
+    (serde_json::from_str(&json).unwrap(), out)
+}
+
+#[test]
+fn quick_report_covers_every_filter_on_every_scene_with_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let (r, stdout) = quick_report(dir.path());
+    let filters: Vec<&str> = list().iter().map(|i| i.name).collect();
+    let scenes = r["scenes"].as_array().unwrap();
+    assert_eq!(scenes.len(), CATALOGUE.len());
+    for (sc, entry) in scenes.iter().zip(CATALOGUE) {
+        assert_eq!(sc["scene"], entry.name);
+        let cells = sc["cells"].as_array().unwrap();
+        let names: Vec<&str> = cells.iter().map(|c| c["filter"].as_str().unwrap()).collect();
+        assert_eq!(names, filters, "scene {}", entry.name);
+        for c in cells {
+            let what = format!("{} / {}", entry.name, c["filter"]);
+            let psnr = finite(&c["mean_psnr"], &what);
+            assert!((5.0..80.0).contains(&psnr), "{what}: PSNR {psnr}");
+            let ssim = finite(&c["mean_ssim"], &what);
+            assert!((0.0..=1.0).contains(&ssim), "{what}: SSIM {ssim}");
+            assert!(finite(&c["trmse"], &what) >= 0.0);
+            let cost = &c["cost"];
+            assert!(finite(&cost["time"]["median_ms"], &what) > 0.0);
+            assert!(finite(&cost["time"]["p95_ms"], &what) >= finite(&cost["time"]["median_ms"], &what));
+            assert!(finite(&cost["floor_ms"], &what) > 0.0);
+            assert!(finite(&cost["floor_ratio"], &what) > 0.0);
+            assert!(finite(&cost["state_bytes_per_megapixel"], &what) >= 0.0);
+            assert!(!cost["stages"].as_array().unwrap().is_empty(), "{what}");
+            assert_eq!(c["psnr_per_frame"].as_array().unwrap().len(), 8, "{what}");
+        }
+    }
+    // The summary and the timing section have every filter too.
+    for key in ["summary", "timing"] {
+        let rows: Vec<&str> = r[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["filter"].as_str().unwrap())
+            .collect();
+        assert_eq!(rows, filters, "{key}");
+    }
+    // State per megapixel matches each filter's declared bytes per pixel.
+    for (info, row) in list().iter().zip(r["timing"].as_array().unwrap()) {
+        let got = finite(&row["cost"]["state_bytes_per_megapixel"], info.name);
+        Tolerance::rel(1e-9)
+            .check(info.name, got, info.state_bytes_per_pixel as f64 * 1e6)
+            .unwrap();
+    }
+    assert!(finite(&r["bandwidth"]["bytes_per_s"], "bandwidth") > 1e8);
+
+    // The CSV: a header, one row per filter and scene, per filter summary, per filter timing.
+    let csv = std::fs::read_to_string(dir.path().join("report.csv")).unwrap();
+    let n = filters.len();
+    assert_eq!(csv.lines().count(), 1 + n * CATALOGUE.len() + 2 * n);
+    assert!(csv.starts_with("section,scene,filter,"));
+    // The markdown on stdout is the one written to report.md.
+    assert_eq!(
+        std::fs::read_to_string(dir.path().join("report.md")).unwrap(),
+        stdout
+    );
+    assert!(stdout.contains("## All scenes") && stdout.contains("## Timing at 320x180"));
+
+    // Plots exist and decode.
+    for name in ["error_vs_time.png", "psnr_per_frame.png"] {
+        let img = image::open(dir.path().join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(img.width() >= 640 && img.height() >= 400, "{name}");
+    }
+    for name in ["error_vs_time.svg", "psnr_per_frame.svg"] {
+        let svg = std::fs::read_to_string(dir.path().join(name)).unwrap();
+        assert!(
+            svg.trim_start().starts_with("<svg") && svg.trim_end().ends_with("</svg>"),
+            "{name}"
+        );
+        for f in &filters {
+            assert!(
+                svg.contains(&format!("\n{f}\n</text>")),
+                "{name} has no label {f}"
+            );
+        }
+    }
+    for entry in CATALOGUE {
+        let path = dir.path().join(format!("strip_{}.png", entry.name));
+        let img = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        // Input, each filter, reference; a row of pictures and a row of error maps.
+        assert_eq!(img.width() as usize % (filters.len() + 2), 0);
+        assert!(img.height() > 2 * 36);
+    }
+
+    // Passthrough's PSNR is `afterimage eval` of the same frames rendered by `scene`.
+    let pass = filters.iter().position(|&f| f == "passthrough").unwrap();
+    for scene in ["thin-line", "hdr"] {
+        let seq = dir.path().join(scene);
+        let (ok, _, err) = run(&[
+            "scene",
+            scene,
+            "--size",
+            "64x36",
+            "--frames",
+            "8",
+            "--spp",
+            "16",
+            "--out",
+            seq.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let (ok, out, err) = run(&["eval", "--input", seq.to_str().unwrap(), "--json"]);
+        assert!(ok, "{err}");
+        let eval: Value = serde_json::from_str(&out).unwrap();
+        let cell = &scenes.iter().find(|s| s["scene"] == scene).unwrap()["cells"][pass];
+        for (a, b) in [
+            ("mean_psnr", "mean_psnr"),
+            ("mean_ssim", "mean_ssim"),
+            ("trmse", "trmse"),
+        ] {
+            Tolerance::rel(1e-12)
+                .check(
+                    &format!("{scene} {a}"),
+                    finite(&cell[a], a),
+                    finite(&eval["summary"][b], b),
+                )
+                .unwrap();
+        }
+    }
+}
+
+#[test]
+fn report_refuses_bad_specs_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let (ok, _, err) = run(&["report", "--quick", "--filters", "taa,nope", "--out", out]);
+    assert!(!ok && err.contains("\"nope\"") && err.contains("phlm"), "{err}");
+    let (ok, _, err) = run(&["report", "--quick", "--filters", "taa:alpha=7", "--out", out]);
+    assert!(!ok && err.contains("alpha"), "{err}");
+    let (ok, _, err) = run(&[
+        "report",
+        "--quick",
+        "--scenes",
+        "thin-line",
+        "--strip-frame",
+        "9",
+        "--out",
+        out,
+    ]);
+    assert!(!ok && err.contains("strip frame 9"), "{err}");
+    // A variant label and a subset run.
+    let (ok, md, err) = run(&[
+        "report",
+        "--quick",
+        "--scenes",
+        "thin-line",
+        "--filters",
+        "traa:variant=baseline,taa",
+        "--timing-size",
+        "none",
+        "--out",
+        out,
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        md.contains("| traa:variant=baseline |") && !md.contains("## Timing"),
+        "{md}"
+    );
+}
+
+#[test]
+fn report_is_deterministic_apart_from_timings() {
+    use afterimage::report::{run, Config};
+    let mut c = Config::quick();
+    c.scenes = vec!["foliage".into(), "hdr".into()];
+    c.timing = None;
+    let a = run(&c, &mut |_| {}).unwrap();
+    let b = run(&c, &mut |_| {}).unwrap();
+    for (sa, sb) in a.scenes.iter().zip(&b.scenes) {
+        for (ca, cb) in sa.cells.iter().zip(&sb.cells) {
+            assert_eq!(ca.psnr_per_frame, cb.psnr_per_frame, "{} {}", sa.scene, ca.filter);
+            assert_eq!(
+                (ca.mean_ssim, ca.trmse, ca.cost.bytes_per_frame),
+                (cb.mean_ssim, cb.trmse, cb.cost.bytes_per_frame)
+            );
+        }
+    }
+    for (sa, sb) in a.strips.iter().zip(&b.strips) {
+        for ((la, oa), (_, ob)) in sa.outputs.iter().zip(&sb.outputs) {
+            for c in 0..3 {
+                assert_eq!(oa[c].data(), ob[c].data(), "{} {la}", sa.scene);
+            }
+        }
+    }
+}
