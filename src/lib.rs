@@ -21,4 +21,6 @@ pub mod pipeline;
 pub mod report;
 pub mod rng;
 pub mod scene;
+pub mod server;
+pub mod session;
 pub mod tolerance;

@@ -7,6 +7,7 @@ mod info;
 mod read_args;
 mod report;
 mod scene;
+mod serve;
 
 use clap::{Parser, Subcommand};
 
@@ -32,6 +33,8 @@ enum Command {
     /// Error against run time: every filter on every scene, with tables, JSON, CSV and
     /// plots.
     Report(report::ReportArgs),
+    /// Serve filter sessions over gRPC and HTTP (the main job): `afterimage serve`.
+    Serve(serve::ServeArgs),
     /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
     Scene(scene::SceneArgs),
 }
@@ -42,6 +45,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Scene(a) => scene::run(a),
+        Command::Serve(a) => serve::run(a),
         Command::Report(a) => report::run(a),
         Command::Filter(a) => filter::run(a),
         Command::Filters(a) => filter::list(a),

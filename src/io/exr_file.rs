@@ -90,6 +90,25 @@ pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
         .all_attributes()
         .from_file(path)
         .map_err(|e| exr_error(path, e))?;
+    raw_from_exr(image, path)
+}
+
+/// Reads an EXR held in memory (an HTTP body); `label` names it in errors.
+pub fn read_raw_exr_bytes(bytes: &[u8], label: &Path) -> Result<RawImage, IoError> {
+    let image = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| exr_error(label, e))?;
+    raw_from_exr(image, label)
+}
+
+type AnyImage = x::Image<x::Layers<x::AnyChannels<x::FlatSamples>>>;
+
+fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
     let mut size = None;
     let mut channels = Vec::new();
     let mut meta = FrameMeta::default();
@@ -223,6 +242,17 @@ fn float_samples(p: &Plane<f32>, precision: Precision) -> x::FlatSamples {
 
 /// Writes a frame as OpenEXR.
 pub fn write_exr(path: &Path, frame: &Frame, opts: &WriteOptions) -> Result<(), IoError> {
+    let layer = exr_layer(frame, opts);
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
+    }
+    x::Image::from_layer(layer)
+        .write()
+        .to_file(path)
+        .map_err(|e| exr_error(path, e))
+}
+
+fn exr_layer(frame: &Frame, opts: &WriteOptions) -> x::Layer<x::AnyChannels<x::FlatSamples>> {
     let mut list: Vec<x::AnyChannel<x::FlatSamples>> = Vec::new();
     match opts.layout {
         ExrLayout::Plain => {
@@ -263,17 +293,20 @@ pub fn write_exr(path: &Path, frame: &Frame, opts: &WriteOptions) -> Result<(), 
         blocks: x::Blocks::ScanLines,
         line_order: x::LineOrder::Increasing,
     };
-    let layer = x::Layer::new(
+    x::Layer::new(
         (frame.width(), frame.height()),
         attributes,
         encoding,
         x::AnyChannels::sort(list.into()),
-    );
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
-    }
-    x::Image::from_layer(layer)
+    )
+}
+
+/// Encodes a frame as OpenEXR in memory (an HTTP reply).
+pub fn write_exr_bytes(frame: &Frame, opts: &WriteOptions) -> Result<Vec<u8>, IoError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    x::Image::from_layer(exr_layer(frame, opts))
         .write()
-        .to_file(path)
-        .map_err(|e| exr_error(path, e))
+        .to_buffered(&mut out)
+        .map_err(|e| exr_error(Path::new("(reply)"), e))?;
+    Ok(out.into_inner())
 }

@@ -11,7 +11,10 @@ mod raw;
 mod sequence;
 
 pub use colormap::inferno;
-pub use exr_file::{read_raw_exr, write_exr, Compression, ExrLayout, Precision, WriteOptions};
+pub use exr_file::{
+    read_raw_exr, read_raw_exr_bytes, write_exr, write_exr_bytes, Compression, ExrLayout, Precision,
+    WriteOptions,
+};
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};

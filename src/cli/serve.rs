@@ -1,0 +1,32 @@
+//! `afterimage serve`: the gRPC and HTTP servers (see `afterimage::server`).
+
+use afterimage::server::{self, Config};
+use anyhow::Context;
+use clap::Args;
+use std::path::PathBuf;
+
+/// Arguments of `serve`.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// TOML config file (optional; every field has a default, and `AFTERIMAGE_<FIELD>`
+    /// environment variables override both, e.g. AFTERIMAGE_HTTP_ADDR=0.0.0.0:8080).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Print the effective config as TOML and exit.
+    #[arg(long)]
+    print_config: bool,
+}
+
+pub fn run(args: ServeArgs) -> anyhow::Result<()> {
+    let config = Config::load(args.config.as_deref(), std::env::vars())?;
+    if args.print_config {
+        print!("{}", toml::to_string(&config)?);
+        return Ok(());
+    }
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    rt.block_on(server::serve(config, server::shutdown_signal()))?;
+    Ok(())
+}

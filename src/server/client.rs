@@ -1,0 +1,133 @@
+//! A gRPC client for the service: what `afterimage stream` and the end-to-end tests use.
+
+use super::proto::afterimage_client::AfterimageClient;
+use super::proto::{self as pb, filtered_chunk, frame_chunk};
+use super::wire;
+use crate::frame::{ChannelSet, Frame, Rgb};
+use std::time::Instant;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::StreamExt;
+use tonic::transport::Channel;
+use tonic::Status;
+
+/// A filtered frame as the client receives it.
+#[derive(Clone, Debug)]
+pub struct Reply {
+    /// Frame index.
+    pub index: u64,
+    /// Filtered colour.
+    pub color: Rgb,
+    /// The server's report.
+    pub report: pb::FrameReport,
+    /// From sending the frame's header to holding its whole reply, ms.
+    pub round_trip_ms: f64,
+    /// Bytes sent for the frame plus bytes received for its reply.
+    pub payload_bytes: u64,
+}
+
+/// A connected client.
+#[derive(Clone)]
+pub struct Client {
+    /// The generated client, for calls not wrapped here.
+    pub inner: AfterimageClient<Channel>,
+}
+
+/// How frames are sent.
+#[derive(Clone, Copy, Debug)]
+pub struct SendOptions {
+    /// Sample type of colour and other float channels, and of the reply.
+    pub sample: pb::SampleType,
+    /// Compression of every channel and of the reply.
+    pub compression: pb::Compression,
+}
+
+impl Client {
+    /// Connects to `url` (`http://host:port`).
+    pub async fn connect(url: String) -> Result<Client, tonic::transport::Error> {
+        let inner = AfterimageClient::connect(url)
+            .await?
+            .max_decoding_message_size(64 << 20)
+            .max_encoding_message_size(64 << 20);
+        Ok(Client { inner })
+    }
+
+    /// Streams `frames` to session `session` one at a time (the next frame is sent when the
+    /// previous reply is in, so `round_trip_ms` is a per-frame latency) and calls `on_reply`
+    /// with each reply in order.
+    pub async fn stream(
+        &mut self,
+        session: &pb::Session,
+        frames: impl IntoIterator<Item = Frame>,
+        opts: SendOptions,
+        mut on_reply: impl FnMut(Reply),
+    ) -> Result<(), Status> {
+        let channels = ChannelSet::of(
+            &session
+                .channels
+                .iter()
+                .filter_map(|c| crate::frame::ChannelKind::from_name(c))
+                .collect::<Vec<_>>(),
+        );
+        let max_chunk = session.max_chunk_bytes.max(1) as usize;
+        let (tx, rx) = mpsc::channel::<pb::FrameChunk>(4);
+        let mut replies = self.inner.stream(ReceiverStream::new(rx)).await?.into_inner();
+        for frame in frames {
+            // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
+            let send = if frame.reference().is_some() {
+                channels.with(crate::frame::ChannelKind::Reference)
+            } else {
+                channels
+            };
+            let (header, chunks) = wire::encode_frame(
+                &frame,
+                &session.id,
+                send,
+                opts.sample,
+                opts.compression,
+                max_chunk,
+            );
+            let sent: u64 = chunks.iter().map(|c| c.data.len() as u64).sum();
+            let t = Instant::now();
+            let parts = std::iter::once(frame_chunk::Part::Header(header))
+                .chain(chunks.into_iter().map(frame_chunk::Part::Data));
+            for part in parts {
+                tx.send(pb::FrameChunk { part: Some(part) })
+                    .await
+                    .map_err(|_| Status::unavailable("the server closed the stream"))?;
+            }
+            let head = match replies.next().await {
+                Some(Ok(pb::FilteredChunk {
+                    part: Some(filtered_chunk::Part::Header(h)),
+                })) => h,
+                Some(Ok(_)) => return Err(Status::internal("reply data before its header")),
+                Some(Err(s)) => return Err(s),
+                None => return Err(Status::unavailable("the server ended the stream")),
+            };
+            let color_h = head
+                .color
+                .clone()
+                .ok_or_else(|| Status::internal("reply without colour"))?;
+            let mut bytes = Vec::with_capacity(color_h.byte_length as usize);
+            while (bytes.len() as u64) < color_h.byte_length {
+                match replies.next().await {
+                    Some(Ok(pb::FilteredChunk {
+                        part: Some(filtered_chunk::Part::Data(d)),
+                    })) => bytes.extend_from_slice(&d.data),
+                    Some(Err(s)) => return Err(s),
+                    _ => return Err(Status::internal("reply ended before its colour")),
+                }
+            }
+            let color = wire::decode_color(&color_h, &bytes, head.width, head.height)
+                .map_err(|e| Status::internal(e.to_string()))?;
+            on_reply(Reply {
+                index: head.index,
+                color,
+                report: head.report.unwrap_or_default(),
+                round_trip_ms: t.elapsed().as_secs_f64() * 1e3,
+                payload_bytes: sent + bytes.len() as u64,
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,334 @@
+//! Frames on the wire: a header naming the channels, then chunks whose bytes are the
+//! channels' planar little-endian samples (f32, f16, or u32 for object ids), each
+//! optionally zstd-compressed. Decoding checks everything against the session (size,
+//! channels, lengths) and says precisely what is wrong.
+
+use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::session::SessionError;
+
+/// Default largest chunk: 1 MiB.
+pub const DEFAULT_MAX_CHUNK_BYTES: usize = 1 << 20;
+
+fn invalid(field: impl Into<String>, message: impl Into<String>) -> SessionError {
+    SessionError::invalid(field, message)
+}
+
+fn sample_bytes(s: SampleType) -> usize {
+    match s {
+        SampleType::F16 => 2,
+        SampleType::F32 | SampleType::U32 => 4,
+    }
+}
+
+/// Collects one frame's chunks after its header.
+#[derive(Debug)]
+pub struct Assembly {
+    /// The header.
+    pub header: FrameHeader,
+    expected: u64,
+    /// Bytes received so far.
+    pub bytes: Vec<u8>,
+}
+
+impl Assembly {
+    /// Starts a frame; refuses a header whose encoded size is over `max_frame_bytes`.
+    pub fn start(header: FrameHeader, max_frame_bytes: u64) -> Result<Assembly, SessionError> {
+        let expected: u64 = header.channels.iter().map(|c| c.byte_length).sum();
+        if expected > max_frame_bytes {
+            return Err(invalid(
+                "channels.byte_length",
+                format!(
+                    "frame {} would be {expected} bytes on the wire, the limit is {max_frame_bytes}",
+                    header.index
+                ),
+            ));
+        }
+        Ok(Assembly {
+            header,
+            expected,
+            bytes: Vec::with_capacity(expected as usize),
+        })
+    }
+
+    /// Adds a chunk; refuses one over `max_chunk` bytes or past the announced length.
+    pub fn push(&mut self, chunk: &[u8], max_chunk: usize) -> Result<(), SessionError> {
+        if chunk.len() > max_chunk {
+            return Err(invalid(
+                "data",
+                format!("chunk of {} bytes, the limit is {max_chunk}", chunk.len()),
+            ));
+        }
+        if self.bytes.len() as u64 + chunk.len() as u64 > self.expected {
+            return Err(invalid(
+                "data",
+                format!(
+                    "frame {}: chunks add up to more than the {} bytes the header announced",
+                    self.header.index, self.expected
+                ),
+            ));
+        }
+        self.bytes.extend_from_slice(chunk);
+        Ok(())
+    }
+
+    /// Whether every announced byte has arrived.
+    pub fn complete(&self) -> bool {
+        self.bytes.len() as u64 == self.expected
+    }
+
+    /// Bytes still missing.
+    pub fn missing(&self) -> u64 {
+        self.expected - self.bytes.len() as u64
+    }
+}
+
+fn decode_samples(
+    name: &str,
+    ch: &ChannelHeader,
+    raw: &[u8],
+    count: usize,
+) -> Result<Vec<f32>, SessionError> {
+    let sample = SampleType::try_from(ch.sample).map_err(|_| {
+        invalid(
+            format!("channels[{name}].sample"),
+            format!("unknown sample type {}", ch.sample),
+        )
+    })?;
+    let want = count * sample_bytes(sample);
+    if raw.len() != want {
+        return Err(invalid(
+            format!("channels[{name}]"),
+            format!(
+                "expected {want} bytes ({count} {sample:?} samples), got {}",
+                raw.len()
+            ),
+        ));
+    }
+    Ok(match sample {
+        SampleType::F32 => raw
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect(),
+        SampleType::F16 => raw
+            .chunks_exact(2)
+            .map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32())
+            .collect(),
+        SampleType::U32 => {
+            return Err(invalid(
+                format!("channels[{name}].sample"),
+                "u32 is for object_id only; expected f32 or f16",
+            ))
+        }
+    })
+}
+
+fn decompress(name: &str, ch: &ChannelHeader, bytes: &[u8], limit: usize) -> Result<Vec<u8>, SessionError> {
+    match Compression::try_from(ch.compression) {
+        Ok(Compression::None) => Ok(bytes.to_vec()),
+        Ok(Compression::Zstd) => {
+            use std::io::Read;
+            let mut dec = ruzstd::decoding::StreamingDecoder::new(bytes)
+                .map_err(|e| invalid(format!("channels[{name}]"), format!("not a zstd frame: {e}")))?;
+            let mut out = Vec::new();
+            // Read at most one byte past the limit, so a bomb is refused without inflating.
+            (&mut dec)
+                .take(limit as u64 + 1)
+                .read_to_end(&mut out)
+                .map_err(|e| invalid(format!("channels[{name}]"), format!("corrupt zstd data: {e}")))?;
+            Ok(out)
+        }
+        Err(_) => Err(invalid(
+            format!("channels[{name}].compression"),
+            format!("unknown compression {}", ch.compression),
+        )),
+    }
+}
+
+/// Decodes an assembled frame for a session of `width x height` that declared `allowed`
+/// channels.
+pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Result<Frame, SessionError> {
+    let (w, h) = (width as usize, height as usize);
+    let n = w * h;
+    let mut at = 0usize;
+    let mut seen = ChannelSet::EMPTY;
+    let mut color: Option<Rgb> = None;
+    let mut rest: Vec<(ChannelKind, Vec<Plane<f32>>)> = Vec::new();
+    let mut ids: Option<Plane<u32>> = None;
+    for ch in &a.header.channels {
+        let name = ch.name.as_str();
+        let kind = ChannelKind::from_name(name).ok_or_else(|| {
+            invalid(
+                "channels.name",
+                format!(
+                    "unknown channel {name:?}; expected any of {}",
+                    ChannelKind::ALL.map(|k| k.name()).join(", ")
+                ),
+            )
+        })?;
+        if seen.contains(kind) {
+            return Err(invalid("channels.name", format!("channel {name} is sent twice")));
+        }
+        seen = seen.with(kind);
+        if kind != ChannelKind::Reference && !allowed.contains(kind) {
+            return Err(invalid(
+                "channels.name",
+                format!("channel {name} was not declared when the session was created"),
+            ));
+        }
+        let len = ch.byte_length as usize;
+        let bytes = &a.bytes[at..at + len];
+        at += len;
+        let comps = kind.components();
+        let raw = decompress(name, ch, bytes, comps * n * 4)?;
+        if kind == ChannelKind::ObjectId {
+            if ch.sample != SampleType::U32 as i32 {
+                return Err(invalid("channels[object_id].sample", "expected u32"));
+            }
+            if raw.len() != n * 4 {
+                return Err(invalid(
+                    "channels[object_id]",
+                    format!("expected {} bytes ({n} u32 samples), got {}", n * 4, raw.len()),
+                ));
+            }
+            let v = raw
+                .chunks_exact(4)
+                .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            ids = Some(Plane::from_vec(w, h, v).expect("length checked"));
+            continue;
+        }
+        let samples = decode_samples(name, ch, &raw, comps * n)?;
+        let planes: Vec<Plane<f32>> = samples
+            .chunks_exact(n)
+            .map(|p| Plane::from_vec(w, h, p.to_vec()).expect("length checked"))
+            .collect();
+        if kind == ChannelKind::Color {
+            let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
+            color = Some([r, g, b]);
+        } else {
+            rest.push((kind, planes));
+        }
+    }
+    let color = color.ok_or_else(|| invalid("channels", "no color channel; every frame needs one"))?;
+    let mut frame = Frame::new(color).map_err(|e| invalid("color", e.to_string()))?;
+    for (kind, planes) in rest {
+        frame
+            .set_f32(kind, planes)
+            .map_err(|e| invalid(kind.name(), e.to_string()))?;
+    }
+    if let Some(ids) = ids {
+        frame
+            .set_object_id(ids)
+            .map_err(|e| invalid("object_id", e.to_string()))?;
+    }
+    frame.meta.index = a.header.index;
+    frame.meta.reset = a.header.reset;
+    frame.meta.jitter = [a.header.jitter_x, a.header.jitter_y];
+    Ok(frame)
+}
+
+/// Encodes planes as one channel's wire bytes.
+pub fn encode_planes(planes: &[Plane<f32>], sample: SampleType, compression: Compression) -> Vec<u8> {
+    let n: usize = planes.iter().map(|p| p.data().len()).sum();
+    let mut raw = Vec::with_capacity(n * sample_bytes(sample));
+    for p in planes {
+        match sample {
+            SampleType::F16 => {
+                for &v in p.data() {
+                    raw.extend_from_slice(&half::f16::from_f32(v).to_le_bytes());
+                }
+            }
+            _ => {
+                for &v in p.data() {
+                    raw.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+    }
+    match compression {
+        Compression::None => raw,
+        Compression::Zstd => {
+            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
+        }
+    }
+}
+
+/// Encodes object ids as wire bytes.
+pub fn encode_ids(ids: &Plane<u32>, compression: Compression) -> Vec<u8> {
+    let raw: Vec<u8> = ids.data().iter().flat_map(|v| v.to_le_bytes()).collect();
+    match compression {
+        Compression::None => raw,
+        Compression::Zstd => {
+            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
+        }
+    }
+}
+
+/// A frame as a header plus data chunks of at most `max_chunk` bytes, sending the
+/// channels in `channels` that the frame has (for clients and tests).
+pub fn encode_frame(
+    frame: &Frame,
+    session_id: &str,
+    channels: ChannelSet,
+    sample: SampleType,
+    compression: Compression,
+    max_chunk: usize,
+) -> (FrameHeader, Vec<DataChunk>) {
+    let mut headers = Vec::new();
+    let mut bytes = Vec::new();
+    for kind in channels
+        .with(ChannelKind::Color)
+        .iter()
+        .filter(|&k| frame.channels().contains(k))
+    {
+        let (data, s) = if kind == ChannelKind::ObjectId {
+            (
+                encode_ids(frame.object_id().expect("listed"), compression),
+                SampleType::U32,
+            )
+        } else {
+            (
+                encode_planes(frame.planes(kind).expect("listed"), sample, compression),
+                sample,
+            )
+        };
+        headers.push(ChannelHeader {
+            name: kind.name().to_string(),
+            sample: s as i32,
+            compression: compression as i32,
+            byte_length: data.len() as u64,
+        });
+        bytes.extend_from_slice(&data);
+    }
+    let header = FrameHeader {
+        session_id: session_id.to_string(),
+        index: frame.meta.index,
+        reset: frame.meta.reset,
+        jitter_x: frame.meta.jitter[0],
+        jitter_y: frame.meta.jitter[1],
+        channels: headers,
+        reply_sample: sample as i32,
+        reply_compression: compression as i32,
+    };
+    (header, chunks(bytes, max_chunk))
+}
+
+/// Splits bytes into chunks of at most `max_chunk`.
+pub fn chunks(bytes: Vec<u8>, max_chunk: usize) -> Vec<DataChunk> {
+    bytes
+        .chunks(max_chunk.max(1))
+        .map(|c| DataChunk { data: c.to_vec() })
+        .collect()
+}
+
+/// Decodes a reply's colour bytes into planes.
+pub fn decode_color(ch: &ChannelHeader, bytes: &[u8], width: u32, height: u32) -> Result<Rgb, SessionError> {
+    let n = width as usize * height as usize;
+    let raw = decompress("color", ch, bytes, 3 * n * 4)?;
+    let samples = decode_samples("color", ch, &raw, 3 * n)?;
+    let mut it = samples
+        .chunks_exact(n)
+        .map(|p| Plane::from_vec(width as usize, height as usize, p.to_vec()).expect("length checked"));
+    Ok([0, 1, 2].map(|_| it.next().expect("three planes")))
+}

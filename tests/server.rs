@@ -1,0 +1,619 @@
+//! The service end to end on loopback: gRPC streams and HTTP frames give bit for bit what
+//! filtering in process gives; 8 sessions at once do not mix; bad input gets the right
+//! status with a message naming the problem and leaves the session working; the memory
+//! budget, idle eviction and reconnect-by-id hold.
+
+use afterimage::frame::{Frame, Plane, Rgb};
+use afterimage::io::{write_exr_bytes, Compression, ExrLayout, Precision, WriteOptions};
+use afterimage::pipeline::create;
+use afterimage::scene::{Jitter, Scene, Settings};
+use afterimage::server::client::{Client, SendOptions};
+use afterimage::server::proto::{self as pb, frame_chunk};
+use afterimage::server::{start, Config, Running};
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tonic::Code;
+
+fn frames(scene: &str, n: u64, seed: u64) -> Vec<Frame> {
+    let s = Settings {
+        width: 64,
+        height: 36,
+        frames: n,
+        spp: 4,
+        jitter: Jitter::Halton(8),
+        noise: false,
+        seed,
+    };
+    let sc = Scene::new(scene, s).unwrap();
+    (0..n).map(|i| sc.frame(i)).collect()
+}
+
+fn in_process(filter: &str, frames: &[Frame]) -> Vec<Rgb> {
+    let mut f = create(filter, &Default::default()).unwrap();
+    frames.iter().map(|fr| f.process(fr).unwrap().color).collect()
+}
+
+fn f16_round(frames: &[Frame]) -> Vec<Frame> {
+    let q = |p: &Plane<f32>| {
+        Plane::from_fn(p.width(), p.height(), |x, y| {
+            half::f16::from_f32(p.get(x, y)).to_f32()
+        })
+    };
+    frames
+        .iter()
+        .map(|f| {
+            let mut g = Frame::new(f.color().clone().map(|p| q(&p))).unwrap();
+            g.meta = f.meta.clone();
+            for kind in [
+                afterimage::frame::ChannelKind::Depth,
+                afterimage::frame::ChannelKind::Motion,
+            ] {
+                if let Some(planes) = f.planes(kind) {
+                    g.set_f32(kind, planes.iter().map(q).collect()).unwrap();
+                }
+            }
+            g
+        })
+        .collect()
+}
+
+async fn server(tweak: impl FnOnce(&mut Config)) -> Running {
+    let mut c = Config {
+        grpc_addr: "127.0.0.1:0".into(),
+        http_addr: "127.0.0.1:0".into(),
+        ..Config::default()
+    };
+    tweak(&mut c);
+    start(c).await.unwrap()
+}
+
+async fn client(r: &Running) -> Client {
+    Client::connect(format!("http://{}", r.grpc_addr)).await.unwrap()
+}
+
+fn session_req(filter: &str) -> pb::CreateSessionRequest {
+    pb::CreateSessionRequest {
+        filter: filter.into(),
+        width: 64,
+        height: 36,
+        ..Default::default()
+    }
+}
+
+const F32: SendOptions = SendOptions {
+    sample: pb::SampleType::F32,
+    compression: pb::Compression::None,
+};
+
+async fn stream_all(
+    c: &mut Client,
+    s: &pb::Session,
+    frames: &[Frame],
+    opts: SendOptions,
+) -> Result<Vec<Rgb>, tonic::Status> {
+    let mut out = Vec::new();
+    c.stream(s, frames.to_vec(), opts, |r| out.push(r.color)).await?;
+    Ok(out)
+}
+
+fn same(a: &[Rgb], b: &[Rgb], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: frame count");
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        for c in 0..3 {
+            let (xd, yd) = (x[c].data(), y[c].data());
+            let bits = |d: &[f32]| d.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert!(bits(xd) == bits(yd), "{what}: frame {i} channel {c} differs");
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
+    let r = server(|_| {}).await;
+    let mut c = client(&r).await;
+    let fr = frames("moving-sphere", 6, 1);
+    for filter in ["taa", "phlm"] {
+        let s = c
+            .inner
+            .create_session(session_req(filter))
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(s.id.len(), 32);
+        let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
+        same(&got, &in_process(filter, &fr), filter);
+        // zstd on the wire changes nothing.
+        let s = c
+            .inner
+            .create_session(session_req(filter))
+            .await
+            .unwrap()
+            .into_inner();
+        let opts = SendOptions {
+            compression: pb::Compression::Zstd,
+            ..F32
+        };
+        same(
+            &stream_all(&mut c, &s, &fr, opts).await.unwrap(),
+            &in_process(filter, &fr),
+            "zstd",
+        );
+        // f16 on the wire: the same as filtering f16-rounded frames, rounded to f16.
+        let s = c
+            .inner
+            .create_session(session_req(filter))
+            .await
+            .unwrap()
+            .into_inner();
+        let opts = SendOptions {
+            sample: pb::SampleType::F16,
+            compression: pb::Compression::None,
+        };
+        let want: Vec<Rgb> = in_process(filter, &f16_round(&fr))
+            .into_iter()
+            .map(|rgb| {
+                let mut f = Frame::new(rgb).unwrap();
+                f = f16_round(std::slice::from_ref(&f)).remove(0);
+                f.into_color()
+            })
+            .collect();
+        same(&stream_all(&mut c, &s, &fr, opts).await.unwrap(), &want, "f16");
+        let info = c
+            .inner
+            .get_session(pb::GetSessionRequest { id: s.id.clone() })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(info.frames, 6);
+    }
+    // The reference travels with scene frames: the report has PSNR and SSIM.
+    let s = c
+        .inner
+        .create_session(session_req("taa"))
+        .await
+        .unwrap()
+        .into_inner();
+    let mut reports = Vec::new();
+    c.stream(&s, fr.clone(), F32, |r| reports.push(r.report))
+        .await
+        .unwrap();
+    assert!(reports
+        .iter()
+        .all(|r| r.psnr.is_some_and(|p| p > 10.0) && r.ssim.is_some()));
+    assert!(reports[1]
+        .stages
+        .iter()
+        .any(|st| st.name == "reproject" && st.ms.is_some()));
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn eight_sessions_at_once_do_not_mix() {
+    let r = server(|_| {}).await;
+    let mut tasks = Vec::new();
+    for k in 0..8u64 {
+        let mut c = client(&r).await;
+        tasks.push(tokio::spawn(async move {
+            let filter = if k % 2 == 0 { "taa" } else { "phlm" };
+            let scene = ["flyover", "foliage", "fence", "spokes"][(k / 2) as usize];
+            let fr = frames(scene, 4, k);
+            let s = c
+                .inner
+                .create_session(session_req(filter))
+                .await
+                .unwrap()
+                .into_inner();
+            let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
+            same(
+                &got,
+                &in_process(filter, &fr),
+                &format!("session {k} ({filter} on {scene})"),
+            );
+        }));
+    }
+    for t in tasks {
+        t.await.unwrap();
+    }
+    assert_eq!(r.service.sessions.totals().sessions, 8);
+    r.shutdown().await.unwrap();
+}
+
+/// Sends raw chunks on a new stream and returns the first error status.
+async fn raw_stream(c: &mut Client, parts: Vec<frame_chunk::Part>) -> tonic::Status {
+    let msgs: Vec<pb::FrameChunk> = parts
+        .into_iter()
+        .map(|p| pb::FrameChunk { part: Some(p) })
+        .collect();
+    let mut replies = c
+        .inner
+        .stream(tokio_stream::iter(msgs))
+        .await
+        .unwrap()
+        .into_inner();
+    loop {
+        match replies.message().await {
+            Err(s) => return s,
+            Ok(Some(_)) => continue,
+            Ok(None) => return tonic::Status::ok("the stream ended without an error"),
+        }
+    }
+}
+
+fn frame_parts(
+    frame: &Frame,
+    id: &str,
+    channels: &[afterimage::frame::ChannelKind],
+) -> Vec<frame_chunk::Part> {
+    let (h, chunks) = afterimage::server::wire::encode_frame(
+        frame,
+        id,
+        afterimage::frame::ChannelSet::of(channels),
+        pb::SampleType::F32,
+        pb::Compression::None,
+        1 << 20,
+    );
+    std::iter::once(frame_chunk::Part::Header(h))
+        .chain(chunks.into_iter().map(frame_chunk::Part::Data))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
+    use afterimage::frame::ChannelKind::{Color, Depth};
+    let r = server(|_| {}).await;
+    let mut c = client(&r).await;
+    let fr = frames("flyover", 3, 1);
+    let s = c
+        .inner
+        .create_session(session_req("taa"))
+        .await
+        .unwrap()
+        .into_inner();
+    let with = |f: &mut pb::CreateSessionRequest, k: &str, v: &str| {
+        f.params.insert(k.into(), v.into());
+    };
+    // Session creation.
+    let mut unknown_param = session_req("taa");
+    with(&mut unknown_param, "alhpa", "0.2");
+    let mut out_of_bounds = session_req("taa");
+    with(&mut out_of_bounds, "alpha", "7");
+    let creates: Vec<(&str, pb::CreateSessionRequest, Code, &[&str])> = vec![
+        (
+            "unknown filter",
+            session_req("nope"),
+            Code::InvalidArgument,
+            &["filter", "nope", "phlm"],
+        ),
+        (
+            "unknown param",
+            unknown_param,
+            Code::InvalidArgument,
+            &["alhpa", "alpha"],
+        ),
+        (
+            "param out of bounds",
+            out_of_bounds,
+            Code::InvalidArgument,
+            &["alpha", "7"],
+        ),
+        (
+            "zero width",
+            pb::CreateSessionRequest {
+                width: 0,
+                ..session_req("taa")
+            },
+            Code::InvalidArgument,
+            &["width", "got 0"],
+        ),
+        (
+            "unknown motion",
+            pb::CreateSessionRequest {
+                motion: "maya".into(),
+                ..session_req("taa")
+            },
+            Code::InvalidArgument,
+            &["motion", "maya", "blender"],
+        ),
+        (
+            "needed channel not declared",
+            pb::CreateSessionRequest {
+                channels: vec!["depth".into()],
+                ..session_req("taa")
+            },
+            Code::InvalidArgument,
+            &["channels", "color"],
+        ),
+    ];
+    for (what, req, code, words) in creates {
+        let e = c.inner.create_session(req).await.unwrap_err();
+        assert_eq!(e.code(), code, "{what}: {}", e.message());
+        for w in words {
+            assert!(e.message().contains(w), "{what}: {:?} lacks {w:?}", e.message());
+        }
+    }
+    // Frames.
+    let small = frames("flyover", 1, 1).remove(0);
+    let small = {
+        let cut = |p: &Plane<f32>| Plane::from_fn(32, 18, |x, y| p.get(x, y));
+        let mut f = Frame::new(small.color().clone().map(|p| cut(&p))).unwrap();
+        f.meta = small.meta.clone();
+        f
+    };
+    let mut nan = fr[0].clone();
+    for p in nan.color_mut() {
+        p.fill(f32::NAN);
+    }
+    let closed = c
+        .inner
+        .create_session(session_req("taa"))
+        .await
+        .unwrap()
+        .into_inner();
+    c.inner
+        .close_session(pb::CloseSessionRequest {
+            id: closed.id.clone(),
+        })
+        .await
+        .unwrap();
+    let data = frame_chunk::Part::Data(pb::DataChunk { data: vec![0; 16] });
+    let closed_words = [closed.id.as_str()];
+    let streams: Vec<(&str, Vec<frame_chunk::Part>, Code, &[&str])> = vec![
+        (
+            "size mismatch",
+            frame_parts(&small, &s.id, &[Color]),
+            Code::InvalidArgument,
+            &["color", "expected 27648 bytes", "got 6912"],
+        ),
+        (
+            "missing colour",
+            {
+                let depth = afterimage::server::wire::encode_planes(
+                    fr[0].planes(Depth).unwrap(),
+                    pb::SampleType::F32,
+                    pb::Compression::None,
+                );
+                let h = pb::FrameHeader {
+                    session_id: s.id.clone(),
+                    channels: vec![pb::ChannelHeader {
+                        name: "depth".into(),
+                        sample: pb::SampleType::F32 as i32,
+                        compression: 0,
+                        byte_length: depth.len() as u64,
+                    }],
+                    ..Default::default()
+                };
+                vec![
+                    frame_chunk::Part::Header(h),
+                    frame_chunk::Part::Data(pb::DataChunk { data: depth }),
+                ]
+            },
+            Code::InvalidArgument,
+            &["no color channel"],
+        ),
+        (
+            "data before header",
+            vec![data.clone()],
+            Code::InvalidArgument,
+            &["out of order", "data before"],
+        ),
+        (
+            "header while a frame is incomplete",
+            {
+                let mut p = frame_parts(&fr[0], &s.id, &[Color]);
+                p.truncate(1);
+                p.extend(frame_parts(&fr[1], &s.id, &[Color]));
+                p
+            },
+            Code::InvalidArgument,
+            &["out of order", "frame 1", "frame 0"],
+        ),
+        (
+            "closed session",
+            frame_parts(&fr[0], &closed.id, &[Color]),
+            Code::NotFound,
+            &closed_words,
+        ),
+        (
+            "NaN flood",
+            frame_parts(&nan, &s.id, &[Color]),
+            Code::InvalidArgument,
+            &["color", "NaN", "100.0%"],
+        ),
+        (
+            "undeclared channel",
+            frame_parts(&fr[0], &s.id, &[Color, afterimage::frame::ChannelKind::Albedo]),
+            Code::InvalidArgument,
+            &["albedo", "not declared"],
+        ),
+    ];
+    for (what, parts, code, words) in streams {
+        let e = raw_stream(&mut c, parts).await;
+        assert_eq!(e.code(), code, "{what}: {}", e.message());
+        for w in words {
+            assert!(e.message().contains(w), "{what}: {:?} lacks {w:?}", e.message());
+        }
+        // The session still works and its history is untouched by the refused frame.
+        let info = c
+            .inner
+            .get_session(pb::GetSessionRequest { id: s.id.clone() })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(info.frames, 0, "{what}");
+    }
+    let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
+    same(&got, &in_process("taa", &fr), "after the bad input");
+    let metrics = r.service.metrics.render(r.service.sessions.totals());
+    assert!(
+        metrics.contains("afterimage_errors_total{reason=\"invalid_argument\"}"),
+        "{metrics}"
+    );
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn memory_budget_idle_eviction_and_reconnect() {
+    // phlm at 64x36 holds 200 B/px = 460,800 bytes; a 1 MiB budget fits two.
+    let r = server(|c| {
+        c.memory_budget_mib = 1;
+        c.idle_timeout_s = 2;
+    })
+    .await;
+    let mut c = client(&r).await;
+    let a = c
+        .inner
+        .create_session(session_req("phlm"))
+        .await
+        .unwrap()
+        .into_inner();
+    let _b = c
+        .inner
+        .create_session(session_req("phlm"))
+        .await
+        .unwrap()
+        .into_inner();
+    let e = c.inner.create_session(session_req("phlm")).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted);
+    assert!(
+        e.message().contains("460800") && e.message().contains("126976 of the 1048576"),
+        "{}",
+        e.message()
+    );
+    // Reconnect by id: two frames on one stream, the third on a new connection.
+    let fr = frames("flyover", 3, 1);
+    stream_all(&mut c, &a, &fr[..2], F32).await.unwrap();
+    let mut c2 = client(&r).await;
+    let third = stream_all(&mut c2, &a, &fr[2..], F32).await.unwrap();
+    same(&third, &in_process("phlm", &fr)[2..], "after reconnecting");
+    // Idle sessions are evicted; their budget is free again.
+    tokio::time::sleep(std::time::Duration::from_millis(3500)).await;
+    let e = c
+        .inner
+        .get_session(pb::GetSessionRequest { id: a.id.clone() })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    assert!(e.message().contains("evicted"), "{}", e.message());
+    assert_eq!(r.service.sessions.totals().sessions, 0);
+    c.inner.create_session(session_req("phlm")).await.unwrap();
+    r.shutdown().await.unwrap();
+}
+
+/// A minimal HTTP/1.1 exchange over a real socket.
+async fn http(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    body: &[u8],
+    ctype: &str,
+) -> (u16, String, Vec<u8>) {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    s.write_all(body).await.unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).await.unwrap();
+    let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let headers = String::from_utf8_lossy(&buf[..split]).to_string();
+    let status = headers[9..12].parse().unwrap();
+    (status, headers, buf[split + 4..].to_vec())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn http_frames_are_bit_identical_too() {
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        br#"{"filter":"taa","width":64,"height":36}"#,
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 201, "{}", String::from_utf8_lossy(&body));
+    let s: Value = serde_json::from_slice(&body).unwrap();
+    let id = s["id"].as_str().unwrap().to_string();
+    let fr = frames("fence", 4, 1);
+    let want = in_process("taa", &fr);
+    let opts = WriteOptions {
+        precision: Precision::F32,
+        compression: Compression::Zip,
+        layout: ExrLayout::Afterimage,
+    };
+    for (i, f) in fr.iter().enumerate() {
+        let exr = write_exr_bytes(f, &opts).unwrap();
+        let (st, headers, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{id}/frames"),
+            &exr,
+            "image/x-exr",
+        )
+        .await;
+        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+        assert!(
+            headers.to_ascii_lowercase().contains("x-afterimage-record: {"),
+            "{headers}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.exr");
+        std::fs::write(&p, &body).unwrap();
+        let out = afterimage::io::read_frame(&p, &Default::default()).unwrap();
+        same(
+            &[out.color().clone()],
+            &[want[i].clone()],
+            &format!("http frame {i}"),
+        );
+    }
+    // Errors: status and a JSON body naming the problem.
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        br#"{"filter":"taa","width":64,"height":36,"params":{"alpha":7}}"#,
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 400);
+    assert!(String::from_utf8_lossy(&body).contains("alpha"));
+    let (st, _, _) = http(addr, "POST", "/v1/sessions/nope/frames", b"x", "image/x-exr").await;
+    assert_eq!(st, 404);
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames"),
+        b"not an exr",
+        "image/x-exr",
+    )
+    .await;
+    assert_eq!(st, 400, "{}", String::from_utf8_lossy(&body));
+    let (st, _, body) = http(addr, "GET", "/v1/filters", b"", "text/plain").await;
+    assert_eq!(st, 200);
+    assert!(String::from_utf8_lossy(&body).contains("\"phlm\""));
+    for p in ["/healthz", "/readyz"] {
+        assert_eq!(http(addr, "GET", p, b"", "text/plain").await.0, 200, "{p}");
+    }
+    let (_, _, m) = http(addr, "GET", "/metrics", b"", "text/plain").await;
+    let m = String::from_utf8_lossy(&m);
+    assert!(
+        m.contains("afterimage_sessions 1") && m.contains("afterimage_frames_total{filter=\"taa\"} 4"),
+        "{m}"
+    );
+    assert!(
+        m.contains("afterimage_stage_seconds_bucket{filter=\"taa\",stage=\"resolve\""),
+        "{m}"
+    );
+    let (st, _, _) = http(addr, "DELETE", &format!("/v1/sessions/{id}"), b"", "text/plain").await;
+    assert_eq!(st, 200);
+    assert_eq!(
+        http(addr, "GET", &format!("/v1/sessions/{id}"), b"", "text/plain")
+            .await
+            .0,
+        404
+    );
+    r.shutdown().await.unwrap();
+}
