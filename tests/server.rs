@@ -83,6 +83,7 @@ fn session_req(filter: &str) -> pb::CreateSessionRequest {
 const F32: SendOptions = SendOptions {
     sample: pb::SampleType::F32,
     compression: pb::Compression::None,
+    reference: true,
 };
 
 async fn stream_all(
@@ -147,7 +148,7 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
             .into_inner();
         let opts = SendOptions {
             sample: pb::SampleType::F16,
-            compression: pb::Compression::None,
+            ..F32
         };
         let want: Vec<Rgb> = in_process(filter, &f16_round(&fr))
             .into_iter()
@@ -615,5 +616,50 @@ async fn http_frames_are_bit_identical_too() {
             .0,
         404
     );
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stream_command_filters_a_scene_remotely() {
+    let r = server(|_| {}).await;
+    let url = format!("http://{}", r.grpc_addr);
+    let dir = tempfile::tempdir().unwrap();
+    let out_dir = dir.path().to_path_buf();
+    let out = tokio::task::spawn_blocking(move || {
+        std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
+            .args([
+                "stream", "--server", &url, "--filter", "taa", "--scene", "fence", "--size", "64x36",
+            ])
+            .args([
+                "--frames",
+                "3",
+                "--spp",
+                "4",
+                "--reference",
+                "--compare",
+                "--output",
+            ])
+            .arg(&out_dir)
+            .output()
+            .unwrap()
+    })
+    .await
+    .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        stdout.contains("3 frames of 64x36") && stdout.contains("mean PSNR") && stdout.contains("in process"),
+        "{stdout}"
+    );
+    // What it wrote is what filtering in process gives.
+    let want = in_process("taa", &frames("fence", 3, 1));
+    for (i, w) in want.iter().enumerate() {
+        let f =
+            afterimage::io::read_frame(&dir.path().join(format!("frame_{i:04}.exr")), &Default::default())
+                .unwrap();
+        same(&[f.color().clone()], std::slice::from_ref(w), "stream output");
+    }
+    // It closed its session.
+    assert_eq!(r.service.sessions.totals().sessions, 0);
     r.shutdown().await.unwrap();
 }

@@ -8,6 +8,7 @@ mod read_args;
 mod report;
 mod scene;
 mod serve;
+mod stream;
 
 use clap::{Parser, Subcommand};
 
@@ -35,6 +36,9 @@ enum Command {
     Report(report::ReportArgs),
     /// Serve filter sessions over gRPC and HTTP (the main job): `afterimage serve`.
     Serve(serve::ServeArgs),
+    /// Stream a sequence or a scene to a running server over gRPC (the remote-renderer
+    /// side): filtered frames out, round-trip figures.
+    Stream(stream::StreamArgs),
     /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
     Scene(scene::SceneArgs),
 }
@@ -46,6 +50,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => eval::run(a),
         Command::Scene(a) => scene::run(a),
         Command::Serve(a) => serve::run(a),
+        Command::Stream(a) => stream::run(a),
         Command::Report(a) => report::run(a),
         Command::Filter(a) => filter::run(a),
         Command::Filters(a) => filter::list(a),

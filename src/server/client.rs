@@ -40,6 +40,8 @@ pub struct SendOptions {
     pub sample: pb::SampleType,
     /// Compression of every channel and of the reply.
     pub compression: pb::Compression,
+    /// Send the frame's reference channel when it has one (the reply then has PSNR/SSIM).
+    pub reference: bool,
 }
 
 impl Client {
@@ -74,7 +76,7 @@ impl Client {
         let mut replies = self.inner.stream(ReceiverStream::new(rx)).await?.into_inner();
         for frame in frames {
             // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
-            let send = if frame.reference().is_some() {
+            let send = if opts.reference && frame.reference().is_some() {
                 channels.with(crate::frame::ChannelKind::Reference)
             } else {
                 channels

@@ -1,0 +1,198 @@
+//! `afterimage stream`: the remote-renderer side. Opens a session on a running server,
+//! streams a sequence or a rendered scene to it over gRPC, writes the filtered frames, and
+//! reports round-trip time next to the in-process filter time.
+
+use super::read_args::ReadArgs;
+use afterimage::frame::{Frame, Rgb};
+use afterimage::io::{write_exr, Compression, ExrLayout, Precision, Sequence, WriteOptions};
+use afterimage::metrics::Timing;
+use afterimage::pipeline::{create, params::parse_assignments};
+use afterimage::scene::{Jitter, Scene, Settings};
+use afterimage::server::client::{Client, SendOptions};
+use afterimage::server::proto as pb;
+use anyhow::Context;
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `stream`.
+#[derive(Args, Debug)]
+pub struct StreamArgs {
+    /// gRPC address of the server.
+    #[arg(long, default_value = "http://127.0.0.1:50051")]
+    server: String,
+    /// Filter name (see `afterimage filters`).
+    #[arg(long)]
+    filter: String,
+    /// Parameter override, key=value (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Frames to send: a directory, pattern, glob or file.
+    #[arg(long, conflicts_with = "scene", required_unless_present = "scene")]
+    input: Option<String>,
+    /// Or a catalogue scene rendered here.
+    #[arg(long)]
+    scene: Option<String>,
+    /// Scene size, WxH.
+    #[arg(long, default_value = "256x144", value_parser = super::scene::parse_size)]
+    size: (usize, usize),
+    /// Scene frames.
+    #[arg(long, default_value_t = 32)]
+    frames: u64,
+    /// Scene reference samples per pixel (a square number).
+    #[arg(long, default_value_t = 16)]
+    spp: u32,
+    /// Send half floats (the reply comes back in f16 too).
+    #[arg(long)]
+    f16: bool,
+    /// zstd-compress every channel and the reply.
+    #[arg(long)]
+    zstd: bool,
+    /// Send the frames' reference channel, so each reply carries PSNR and SSIM.
+    #[arg(long)]
+    reference: bool,
+    /// Also run the filter in this process on the same frames and compare the times.
+    #[arg(long)]
+    compare: bool,
+    /// Where to write the filtered frames (frame_NNNN.exr); none: not written.
+    #[arg(long)]
+    output: Option<PathBuf>,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+fn load(args: &StreamArgs) -> anyhow::Result<Vec<Frame>> {
+    if let Some(name) = &args.scene {
+        let s = Settings {
+            width: args.size.0,
+            height: args.size.1,
+            frames: args.frames,
+            spp: args.spp,
+            jitter: Jitter::Halton(8),
+            noise: false,
+            seed: 1,
+        };
+        let scene = Scene::new(name, s)?;
+        return Ok((0..args.frames).map(|i| scene.frame(i)).collect());
+    }
+    let seq = Sequence::open(args.input.as_deref().expect("clap requires input or scene"))?;
+    let opts = args.read.options()?;
+    seq.frames(&opts).map(|f| Ok(f?)).collect()
+}
+
+pub fn run(args: StreamArgs) -> anyhow::Result<()> {
+    let frames = load(&args)?;
+    let first = frames.first().context("no frames to send")?;
+    let (w, h) = (first.width() as u32, first.height() as u32);
+    let params: Vec<(String, String)> = parse_assignments(&args.set)?
+        .into_iter()
+        .map(|(k, v)| (k, v.as_str().map_or(v.to_string(), str::to_string)))
+        .collect();
+    let opts = SendOptions {
+        sample: if args.f16 {
+            pb::SampleType::F16
+        } else {
+            pb::SampleType::F32
+        },
+        compression: if args.zstd {
+            pb::Compression::Zstd
+        } else {
+            pb::Compression::None
+        },
+        reference: args.reference,
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
+    let bar = ProgressBar::new(frames.len() as u64).with_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
+            .progress_chars("=> "),
+    );
+    bar.set_message(args.filter.clone());
+    let mut replies = Vec::new();
+    let wall = Instant::now();
+    rt.block_on(async {
+        let mut client = Client::connect(args.server.clone())
+            .await
+            .with_context(|| format!("connecting to {}", args.server))?;
+        let session = client
+            .inner
+            .create_session(pb::CreateSessionRequest {
+                filter: args.filter.clone(),
+                params: params.into_iter().collect(),
+                width: w,
+                height: h,
+                motion: "internal".into(),
+                channels: vec![],
+            })
+            .await
+            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?
+            .into_inner();
+        client
+            .stream(&session, frames.clone(), opts, |r| {
+                bar.inc(1);
+                replies.push(r);
+            })
+            .await
+            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?;
+        client
+            .inner
+            .close_session(pb::CloseSessionRequest { id: session.id })
+            .await
+            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?;
+        anyhow::Ok(())
+    })?;
+    let wall_s = wall.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    if let Some(dir) = &args.output {
+        let wopts = WriteOptions {
+            precision: if args.f16 { Precision::F16 } else { Precision::F32 },
+            compression: Compression::Zip,
+            layout: ExrLayout::Plain,
+        };
+        for r in &replies {
+            let f = Frame::new(r.color.clone() as Rgb)?;
+            write_exr(&dir.join(format!("frame_{:04}.exr", r.index)), &f, &wopts)?;
+        }
+    }
+    let rtt: Vec<f64> = replies.iter().map(|r| r.round_trip_ms).collect();
+    let server: Vec<f64> = replies.iter().map(|r| r.report.server_ms).collect();
+    let bytes: u64 = replies.iter().map(|r| r.payload_bytes).sum();
+    let rtt_total_s: f64 = rtt.iter().sum::<f64>() / 1e3;
+    println!(
+        "{} frames of {w}x{h} ({}{}) through {}: round trip median {:.2} ms (p95 {:.2}), server filter+decode median {:.2} ms; payload {:.1} MB, {:.0} MB/s over the round trips; wall {:.2} s",
+        replies.len(),
+        if args.f16 { "f16" } else { "f32" },
+        if args.zstd { ", zstd" } else { "" },
+        args.filter,
+        Timing::of(&rtt).median_ms,
+        Timing::of(&rtt).p95_ms,
+        Timing::of(&server).median_ms,
+        bytes as f64 / 1e6,
+        bytes as f64 / 1e6 / rtt_total_s,
+        wall_s
+    );
+    let psnr: Vec<f64> = replies.iter().filter_map(|r| r.report.psnr).collect();
+    if !psnr.is_empty() {
+        println!(
+            "mean PSNR against the sent reference: {:.2} dB",
+            psnr.iter().sum::<f64>() / psnr.len() as f64
+        );
+    }
+    if args.compare {
+        let mut f = create(&args.filter, &parse_assignments(&args.set)?)?;
+        let mut ms = Vec::new();
+        for fr in &frames {
+            let t = Instant::now();
+            let out = f.process(fr)?;
+            ms.push(t.elapsed().as_secs_f64() * 1e3);
+            f.recycle(out.color);
+        }
+        let local = Timing::of(&ms).median_ms;
+        println!(
+            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",
+            Timing::of(&rtt).median_ms - local,
+            Timing::of(&rtt).median_ms / local
+        );
+    }
+    Ok(())
+}
