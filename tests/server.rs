@@ -71,6 +71,14 @@ async fn client(r: &Running) -> Client {
     Client::connect(format!("http://{}", r.grpc_addr)).await.unwrap()
 }
 
+async fn open(c: &mut Client, filter: &str) -> pb::Session {
+    c.inner
+        .create_session(session_req(filter))
+        .await
+        .unwrap()
+        .into_inner()
+}
+
 fn session_req(filter: &str) -> pb::CreateSessionRequest {
     pb::CreateSessionRequest {
         filter: filter.into(),
@@ -114,22 +122,12 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
     let mut c = client(&r).await;
     let fr = frames("moving-sphere", 6, 1);
     for filter in ["taa", "phlm"] {
-        let s = c
-            .inner
-            .create_session(session_req(filter))
-            .await
-            .unwrap()
-            .into_inner();
+        let s = open(&mut c, filter).await;
         assert_eq!(s.id.len(), 32);
         let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
         same(&got, &in_process(filter, &fr), filter);
         // zstd on the wire changes nothing.
-        let s = c
-            .inner
-            .create_session(session_req(filter))
-            .await
-            .unwrap()
-            .into_inner();
+        let s = open(&mut c, filter).await;
         let opts = SendOptions {
             compression: pb::Compression::Zstd,
             ..F32
@@ -140,12 +138,7 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
             "zstd",
         );
         // f16 on the wire: the same as filtering f16-rounded frames, rounded to f16.
-        let s = c
-            .inner
-            .create_session(session_req(filter))
-            .await
-            .unwrap()
-            .into_inner();
+        let s = open(&mut c, filter).await;
         let opts = SendOptions {
             sample: pb::SampleType::F16,
             ..F32
@@ -168,12 +161,7 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
         assert_eq!(info.frames, 6);
     }
     // The reference travels with scene frames: the report has PSNR and SSIM.
-    let s = c
-        .inner
-        .create_session(session_req("taa"))
-        .await
-        .unwrap()
-        .into_inner();
+    let s = open(&mut c, "taa").await;
     let mut reports = Vec::new();
     c.stream(&s, fr.clone(), F32, |r| reports.push(r.report))
         .await
@@ -198,12 +186,7 @@ async fn eight_sessions_at_once_do_not_mix() {
             let filter = if k % 2 == 0 { "taa" } else { "phlm" };
             let scene = ["flyover", "foliage", "fence", "spokes"][(k / 2) as usize];
             let fr = frames(scene, 4, k);
-            let s = c
-                .inner
-                .create_session(session_req(filter))
-                .await
-                .unwrap()
-                .into_inner();
+            let s = open(&mut c, filter).await;
             let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
             same(
                 &got,
@@ -264,12 +247,7 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
     let r = server(|_| {}).await;
     let mut c = client(&r).await;
     let fr = frames("flyover", 3, 1);
-    let s = c
-        .inner
-        .create_session(session_req("taa"))
-        .await
-        .unwrap()
-        .into_inner();
+    let s = open(&mut c, "taa").await;
     let with = |f: &mut pb::CreateSessionRequest, k: &str, v: &str| {
         f.params.insert(k.into(), v.into());
     };
@@ -344,12 +322,7 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
     for p in nan.color_mut() {
         p.fill(f32::NAN);
     }
-    let closed = c
-        .inner
-        .create_session(session_req("taa"))
-        .await
-        .unwrap()
-        .into_inner();
+    let closed = open(&mut c, "taa").await;
     c.inner
         .close_session(pb::CloseSessionRequest {
             id: closed.id.clone(),
@@ -461,18 +434,8 @@ async fn memory_budget_idle_eviction_and_reconnect() {
     })
     .await;
     let mut c = client(&r).await;
-    let a = c
-        .inner
-        .create_session(session_req("phlm"))
-        .await
-        .unwrap()
-        .into_inner();
-    let _b = c
-        .inner
-        .create_session(session_req("phlm"))
-        .await
-        .unwrap()
-        .into_inner();
+    let a = open(&mut c, "phlm").await;
+    let _b = open(&mut c, "phlm").await;
     let e = c.inner.create_session(session_req("phlm")).await.unwrap_err();
     assert_eq!(e.code(), Code::ResourceExhausted);
     assert!(

@@ -10,6 +10,7 @@ use afterimage::pipeline::{create, params::parse_assignments};
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, SendOptions};
 use afterimage::server::proto as pb;
+use afterimage::session::params_from_json;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -85,10 +86,8 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let frames = load(&args)?;
     let first = frames.first().context("no frames to send")?;
     let (w, h) = (first.width() as u32, first.height() as u32);
-    let params: Vec<(String, String)> = parse_assignments(&args.set)?
-        .into_iter()
-        .map(|(k, v)| (k, v.as_str().map_or(v.to_string(), str::to_string)))
-        .collect();
+    let values = parse_assignments(&args.set)?;
+    let params = params_from_json(&values);
     let opts = SendOptions {
         sample: if args.f16 {
             pb::SampleType::F16
@@ -179,7 +178,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         );
     }
     if args.compare {
-        let mut f = create(&args.filter, &parse_assignments(&args.set)?)?;
+        let mut f = create(&args.filter, &values)?;
         let mut ms = Vec::new();
         for fr in &frames {
             let t = Instant::now();

@@ -82,15 +82,8 @@ pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
             std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
         ));
     }
-    let image = x::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .all_layers()
-        .all_attributes()
-        .from_file(path)
-        .map_err(|e| exr_error(path, e))?;
-    raw_from_exr(image, path)
+    let bytes = std::fs::read(path).map_err(|e| IoError::os(path, e))?;
+    read_raw_exr_bytes(&bytes, path)
 }
 
 /// Reads an EXR held in memory (an HTTP body); `label` names it in errors.

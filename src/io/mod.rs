@@ -175,7 +175,18 @@ pub fn read_frame_after(
     opts: &ReadOptions,
     jitter_prev: Option<[f32; 2]>,
 ) -> Result<Frame, IoError> {
-    let raw = read_raw(path)?;
+    frame_of(&read_raw(path)?, opts, jitter_prev)
+}
+
+/// Reads one frame from an EXR held in memory (an HTTP body), motion converted as by
+/// [`read_frame`]; `label` names it in errors.
+pub fn read_exr_frame_bytes(bytes: &[u8], label: &Path, opts: &ReadOptions) -> Result<Frame, IoError> {
+    frame_of(&read_raw_exr_bytes(bytes, label)?, opts, None)
+}
+
+/// The frame in `raw`, with its motion converted from the file's convention to the
+/// internal one using `jitter_prev` (None: this frame's jitter).
+fn frame_of(raw: &RawImage, opts: &ReadOptions, jitter_prev: Option<[f32; 2]>) -> Result<Frame, IoError> {
     let mut frame = raw.to_frame(opts)?;
     let conv = raw.motion_convention(opts)?;
     let prev = jitter_prev.unwrap_or(frame.meta.jitter);

@@ -210,6 +210,11 @@ pub fn list() -> Vec<FilterInfo> {
     registry().iter().map(|e| (e.info)()).collect()
 }
 
+/// The description of filter `name`, if there is one.
+pub fn info(name: &str) -> Option<FilterInfo> {
+    registry().iter().map(|e| (e.info)()).find(|i| i.name == name)
+}
+
 /// A new instance of filter `name` with `values` overriding its defaults.
 pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
     let reg = registry();

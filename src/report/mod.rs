@@ -134,10 +134,7 @@ impl FilterSpec {
     }
 
     fn uses(&self) -> ChannelSet {
-        pipeline::list()
-            .into_iter()
-            .find(|i| i.name == self.name)
-            .map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
+        pipeline::info(self.name).map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
     }
 }
 

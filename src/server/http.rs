@@ -5,7 +5,7 @@
 use super::service::Service;
 use crate::frame::Frame;
 use crate::io::{
-    read_raw_exr_bytes, write_exr_bytes, Compression, ExrLayout, Precision, ReadOptions, WriteOptions,
+    read_exr_frame_bytes, write_exr_bytes, Compression, ExrLayout, Precision, ReadOptions, WriteOptions,
 };
 use crate::pipeline;
 use crate::session::{params_from_json, ErrorKind, SessionError, SessionRequest};
@@ -99,15 +99,12 @@ async fn delete_session(State(svc): State<Service>, Path(id): Path<String>) -> H
 }
 
 fn frame_from_exr(body: &[u8]) -> Result<Frame, SessionError> {
-    let label = std::path::Path::new("request body");
-    let bad = |e: crate::io::IoError| SessionError::invalid("body", e.to_string());
-    let raw = read_raw_exr_bytes(body, label).map_err(bad)?;
-    let opts = ReadOptions::default();
-    let mut frame = raw.to_frame(&opts).map_err(bad)?;
-    let conv = raw.motion_convention(&opts).map_err(bad)?;
-    let jitter = frame.meta.jitter;
-    conv.frame_to_internal(&mut frame, jitter);
-    Ok(frame)
+    read_exr_frame_bytes(
+        body,
+        std::path::Path::new("request body"),
+        &ReadOptions::default(),
+    )
+    .map_err(|e| SessionError::invalid("body", e.to_string()))
 }
 
 async fn post_frame(State(svc): State<Service>, Path(id): Path<String>, body: Bytes) -> HttpResult<Response> {

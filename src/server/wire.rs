@@ -228,6 +228,15 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
     Ok(frame)
 }
 
+fn compress(raw: Vec<u8>, compression: Compression) -> Vec<u8> {
+    match compression {
+        Compression::None => raw,
+        Compression::Zstd => {
+            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
+        }
+    }
+}
+
 /// Encodes planes as one channel's wire bytes.
 pub fn encode_planes(planes: &[Plane<f32>], sample: SampleType, compression: Compression) -> Vec<u8> {
     let n: usize = planes.iter().map(|p| p.data().len()).sum();
@@ -246,23 +255,13 @@ pub fn encode_planes(planes: &[Plane<f32>], sample: SampleType, compression: Com
             }
         }
     }
-    match compression {
-        Compression::None => raw,
-        Compression::Zstd => {
-            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
-        }
-    }
+    compress(raw, compression)
 }
 
 /// Encodes object ids as wire bytes.
 pub fn encode_ids(ids: &Plane<u32>, compression: Compression) -> Vec<u8> {
     let raw: Vec<u8> = ids.data().iter().flat_map(|v| v.to_le_bytes()).collect();
-    match compression {
-        Compression::None => raw,
-        Compression::Zstd => {
-            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
-        }
-    }
+    compress(raw, compression)
 }
 
 /// A frame as a header plus data chunks of at most `max_chunk` bytes, sending the

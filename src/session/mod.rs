@@ -6,7 +6,7 @@
 
 use crate::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, Rgb};
 use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
-use crate::pipeline::{self, Filter, FilterError, FilterInfo, FrameRecord};
+use crate::pipeline::{self, Filter, FilterError, FrameRecord};
 use serde::Serialize;
 use serde_json::{Map, Value};
 use std::collections::HashMap;
@@ -273,10 +273,6 @@ fn channel_names(set: ChannelSet) -> Vec<String> {
     set.iter().map(|k| k.name().to_string()).collect()
 }
 
-fn info_of(name: &str) -> Option<FilterInfo> {
-    pipeline::list().into_iter().find(|i| i.name == name)
-}
-
 impl Sessions {
     /// No sessions yet, under `limits`.
     pub fn new(limits: Limits) -> Self {
@@ -315,7 +311,7 @@ impl Sessions {
     pub fn create(&self, req: &SessionRequest) -> Result<SessionInfo, SessionError> {
         self.check_open()?;
         self.evict_idle();
-        let info = info_of(&req.filter).ok_or_else(|| {
+        let info = pipeline::info(&req.filter).ok_or_else(|| {
             let known: Vec<&str> = pipeline::list().iter().map(|i| i.name).collect();
             SessionError::invalid(
                 "filter",
