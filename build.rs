@@ -5,6 +5,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let proto = "proto/afterimage/v1/afterimage.proto";
     println!("cargo:rerun-if-changed={proto}");
     let fds = protox::compile([proto], ["proto"])?;
-    tonic_prost_build::configure().compile_fds(fds)?;
+    // `bytes` fields as `bytes::Bytes`: a chunk is a view into the buffer it arrived in, and
+    // chunking a frame for sending slices one buffer instead of copying it.
+    tonic_prost_build::configure()
+        .bytes(".afterimage.v1")
+        .compile_fds(fds)?;
     Ok(())
 }

@@ -329,7 +329,9 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
         })
         .await
         .unwrap();
-    let data = frame_chunk::Part::Data(pb::DataChunk { data: vec![0; 16] });
+    let data = frame_chunk::Part::Data(pb::DataChunk {
+        data: vec![0; 16].into(),
+    });
     let closed_words = [closed.id.as_str()];
     let streams: Vec<(&str, Vec<frame_chunk::Part>, Code, &[&str])> = vec![
         (
@@ -358,7 +360,7 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
                 };
                 vec![
                     frame_chunk::Part::Header(h),
-                    frame_chunk::Part::Data(pb::DataChunk { data: depth }),
+                    frame_chunk::Part::Data(pb::DataChunk { data: depth.into() }),
                 ]
             },
             Code::InvalidArgument,

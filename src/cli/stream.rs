@@ -157,8 +157,12 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let server: Vec<f64> = replies.iter().map(|r| r.report.server_ms).collect();
     let bytes: u64 = replies.iter().map(|r| r.payload_bytes).sum();
     let rtt_total_s: f64 = rtt.iter().sum::<f64>() / 1e3;
+    // Time on the wire and in the codecs: the round trip less the server's decode+filter.
+    let transport: Vec<f64> = rtt.iter().zip(&server).map(|(r, s)| (r - s).max(1e-3)).collect();
+    let transport_ms = Timing::of(&transport).median_ms;
+    let per_frame_mb = bytes as f64 / 1e6 / replies.len().max(1) as f64;
     println!(
-        "{} frames of {w}x{h} ({}{}) through {}: round trip median {:.2} ms (p95 {:.2}), server filter+decode median {:.2} ms; payload {:.1} MB, {:.0} MB/s over the round trips; wall {:.2} s",
+        "{} frames of {w}x{h} ({}{}) through {}: round trip median {:.2} ms (p95 {:.2}), server filter+decode median {:.2} ms; payload {:.1} MB, {:.0} MB/s over the round trips; transport (round trip less server time) median {transport_ms:.2} ms/frame for {per_frame_mb:.1} MB = {:.0} MB/s; wall {:.2} s",
         replies.len(),
         if args.f16 { "f16" } else { "f32" },
         if args.zstd { ", zstd" } else { "" },
@@ -168,6 +172,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         Timing::of(&server).median_ms,
         bytes as f64 / 1e6,
         bytes as f64 / 1e6 / rtt_total_s,
+        per_frame_mb / (transport_ms / 1e3),
         wall_s
     );
     let psnr: Vec<f64> = replies.iter().filter_map(|r| r.report.psnr).collect();

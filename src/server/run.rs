@@ -88,6 +88,9 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         })
     };
     let grpc = tonic::transport::Server::builder()
+        .initial_stream_window_size(super::client::STREAM_WINDOW_BYTES)
+        .initial_connection_window_size(super::client::CONNECTION_WINDOW_BYTES)
+        .tcp_nodelay(true)
         .add_service(Grpc(service.clone()).server())
         .serve_with_incoming_shutdown(
             tokio_stream::wrappers::TcpListenerStream::new(grpc_l),

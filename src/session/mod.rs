@@ -603,3 +603,106 @@ pub fn params_from_json(map: &Map<String, Value>) -> Vec<(String, String)> {
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::Output;
+    use crate::report::synthetic_frame;
+
+    /// Delegates to a real filter but panics on one frame index: the only way to exercise
+    /// the isolation path, since no shipped filter panics on purpose.
+    struct PanicsOn {
+        inner: Box<dyn Filter>,
+        index: u64,
+    }
+
+    impl Filter for PanicsOn {
+        fn name(&self) -> &'static str {
+            self.inner.name()
+        }
+        fn params(&self) -> Value {
+            self.inner.params()
+        }
+        fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+            if frame.meta.index == self.index {
+                panic!("injected fault at frame {}", self.index);
+            }
+            self.inner.process(frame)
+        }
+        fn reset(&mut self) {
+            self.inner.reset()
+        }
+        fn state_bytes(&self) -> usize {
+            self.inner.state_bytes()
+        }
+    }
+
+    fn open(sessions: &Sessions, filter: &str) -> String {
+        let req = SessionRequest {
+            filter: filter.into(),
+            width: 24,
+            height: 16,
+            ..Default::default()
+        };
+        sessions.create(&req).expect("valid session").id
+    }
+
+    fn frame(index: u64) -> Frame {
+        let mut f = synthetic_frame(24, 16, index);
+        f.meta.index = index;
+        f
+    }
+
+    #[test]
+    fn a_panicking_filter_fails_only_its_session() {
+        let sessions = Sessions::new(Limits::default());
+        let sick = open(&sessions, "taa");
+        let healthy = open(&sessions, "taa");
+        {
+            let s = sessions.get_arc(&sick).unwrap();
+            let mut inner = lock(&s.inner);
+            let real = std::mem::replace(
+                &mut inner.filter,
+                pipeline::create("passthrough", &Map::new()).unwrap(),
+            );
+            inner.filter = Box::new(PanicsOn {
+                inner: real,
+                index: 2,
+            });
+        }
+        let mut reference = pipeline::create("taa", &Map::new()).unwrap();
+        for i in 0..5 {
+            let want = reference.process(&frame(i)).unwrap().color;
+            // The healthy session is filtered between the sick one's frames, on the same
+            // thread, before and after the panic: it must match in-process filtering exactly.
+            let got = sessions
+                .process(&healthy, frame(i), MotionInput::Internal)
+                .unwrap();
+            assert_eq!(got.color, want, "healthy session, frame {i}");
+            let sick_result = sessions.process(&sick, frame(i), MotionInput::Internal);
+            match (i, sick_result) {
+                (0 | 1, Ok(_)) => {}
+                (2, Err(SessionError::Internal(m))) => {
+                    assert!(m.contains("injected fault at frame 2"), "{m}");
+                    assert!(m.contains("filter taa panicked on frame 2"), "{m}");
+                }
+                (3 | 4, Err(e @ SessionError::Failed { .. })) => {
+                    assert_eq!(e.kind(), ErrorKind::FailedPrecondition);
+                    assert!(e.to_string().contains("injected fault"), "{e}");
+                }
+                (i, other) => panic!("sick session, frame {i}: unexpected {other:?}"),
+            }
+        }
+        // The failed session can still be inspected and closed, which frees its budget.
+        assert_eq!(sessions.get(&sick).unwrap().frames, 2);
+        let before = sessions.totals();
+        sessions.close(&sick).unwrap();
+        let after = sessions.totals();
+        assert_eq!(after.sessions, before.sessions - 1);
+        assert!(after.state_bytes < before.state_bytes);
+        // And a new session works.
+        let fresh = open(&sessions, "phlm");
+        sessions.process(&fresh, frame(0), MotionInput::Internal).unwrap();
+    }
+}
