@@ -80,6 +80,14 @@ impl RayGen {
     }
 }
 
+impl RayGen {
+    /// Whether every ray starts at the camera position (perspective) rather than on the
+    /// image plane (orthographic).
+    pub fn perspective(&self) -> bool {
+        self.perspective
+    }
+}
+
 impl Camera {
     /// A camera at `position` looking at `target`, with `up_hint` roughly up.
     pub fn look_at(position: DVec3, target: DVec3, up_hint: DVec3, projection: Projection) -> Camera {

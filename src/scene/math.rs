@@ -66,7 +66,23 @@ impl Rigid {
     #[inline]
     pub fn ray_to_local(&self, r: &Ray) -> Ray {
         Ray {
-            origin: self.inverse * (r.origin - self.translation),
+            origin: self.point_to_local(r.origin),
+            dir: self.inverse * r.dir,
+        }
+    }
+
+    /// World point to local.
+    #[inline]
+    pub fn point_to_local(&self, p: DVec3) -> DVec3 {
+        self.inverse * (p - self.translation)
+    }
+
+    /// World ray to local when its origin's local position is known already (rays that
+    /// share an origin: a perspective camera's). Equal to [`Rigid::ray_to_local`].
+    #[inline]
+    pub fn ray_to_local_from(&self, local_origin: DVec3, r: &Ray) -> Ray {
+        Ray {
+            origin: local_origin,
             dir: self.inverse * r.dir,
         }
     }
