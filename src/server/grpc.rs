@@ -87,7 +87,7 @@ pub fn filters_pb() -> Vec<pb::FilterInfo> {
 
 /// The reply to one filtered frame: a header, then the colour in chunks.
 pub fn reply(
-    f: Filtered,
+    f: &Filtered,
     session_id: &str,
     req: &pb::FrameHeader,
     server_ms: f64,
@@ -241,9 +241,10 @@ async fn handle_stream(
         if current.as_ref().is_some_and(Assembly::complete) {
             let a = current.take().expect("checked");
             let req = a.header.clone();
-            match svc.wire_frame(a).await {
-                Ok((f, ms)) => {
-                    for c in reply(f, &req.session_id, &req, ms, max_chunk) {
+            let finish = move |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
+            match svc.wire_frame(a, finish).await {
+                Ok(chunks) => {
+                    for c in chunks {
                         // A full queue waits here: a client that does not read its replies
                         // stops us reading its frames (flow control, bounded memory).
                         if tx.send(Ok(c)).await.is_err() {

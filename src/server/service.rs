@@ -54,21 +54,27 @@ impl Service {
         self.count(r)
     }
 
-    /// Decodes an assembled wire frame and filters it; returns the result and the server
-    /// time in ms.
-    pub async fn wire_frame(&self, a: Assembly) -> Result<(Filtered, f64), SessionError> {
+    /// Decodes an assembled wire frame, filters it and builds the reply with `finish`
+    /// (given the result and the server time in ms), all on the rayon pool; the output's
+    /// planes then go back to the session's filter for the next frame.
+    pub async fn wire_frame<R: Send + 'static>(
+        &self,
+        a: Assembly,
+        finish: impl FnOnce(&Filtered, f64) -> R + Send + 'static,
+    ) -> Result<R, SessionError> {
         let id = a.header.session_id.clone();
-        let (f, ms) = self
-            .on_pool(move |s| {
-                let t = Instant::now();
-                let (w, h, allowed) = s.frame_shape(&id)?;
-                let frame = wire::decode(&a, w, h, allowed)?;
-                let out = s.process(&id, frame, MotionInput::Session)?;
-                Ok((out, t.elapsed().as_secs_f64() * 1e3))
-            })
-            .await?;
-        self.metrics.frame(&f.record);
-        Ok((f, ms))
+        let metrics = self.metrics.clone();
+        self.on_pool(move |s| {
+            let t = Instant::now();
+            let (w, h, allowed) = s.frame_shape(&id)?;
+            let frame = wire::decode(&a, w, h, allowed)?;
+            let out = s.process(&id, frame, MotionInput::Session)?;
+            let reply = finish(&out, t.elapsed().as_secs_f64() * 1e3);
+            metrics.frame(&out.record);
+            s.recycle(&id, out.color);
+            Ok(reply)
+        })
+        .await
     }
 
     /// Filters a decoded frame whose motion is already internal.

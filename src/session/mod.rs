@@ -591,6 +591,16 @@ impl Sessions {
     }
 }
 
+impl Sessions {
+    /// Hands an output's planes back to session `id`'s filter for reuse (see
+    /// [`Filter::recycle`]); nothing happens when the session is gone.
+    pub fn recycle(&self, id: &str, planes: Rgb) {
+        if let Ok(s) = self.get_arc(id) {
+            lock(&s.inner).filter.recycle(planes);
+        }
+    }
+}
+
 /// Parameter overrides from a JSON object (the HTTP API's form), as text pairs.
 pub fn params_from_json(map: &Map<String, Value>) -> Vec<(String, String)> {
     map.iter()
