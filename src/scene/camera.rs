@@ -62,6 +62,12 @@ pub struct RayGen {
 }
 
 impl RayGen {
+    /// Whether every ray starts at the camera position (perspective) rather than on the
+    /// image plane (orthographic).
+    pub fn perspective(&self) -> bool {
+        self.perspective
+    }
+
     /// The ray through image position `(x, y)`.
     #[inline]
     pub fn ray(&self, x: f64, y: f64) -> Ray {
@@ -77,14 +83,6 @@ impl RayGen {
                 dir: self.forward,
             }
         }
-    }
-}
-
-impl RayGen {
-    /// Whether every ray starts at the camera position (perspective) rather than on the
-    /// image plane (orthographic).
-    pub fn perspective(&self) -> bool {
-        self.perspective
     }
 }
 

@@ -2,7 +2,7 @@
 //! assembly (G-buffer from one jittered sample, reference from N x N samples).
 
 use super::bvh::Bvh;
-use super::camera::{Camera, Projected};
+use super::camera::{Camera, Projected, RayGen};
 use super::math::{radical_inverse, Ray, Rigid};
 use super::shapes::LocalHit;
 use super::{SceneDef, Settings};
@@ -405,6 +405,12 @@ struct Pixel {
     reference: [f32; 3],
 }
 
+/// The corner rays of the pixel whose top-left corner is `(x0, y0)`, in order around it
+/// (the beam for [`Instant::beam_candidates`]).
+fn pixel_beam(rays: &RayGen, x0: f64, y0: f64) -> [Ray; 4] {
+    [(x0, y0), (x0 + 1.0, y0), (x0 + 1.0, y0 + 1.0), (x0, y0 + 1.0)].map(|(x, y)| rays.ray(x, y))
+}
+
 fn f3(v: DVec3) -> [f32; 3] {
     [v.x as f32, v.y as f32, v.z as f32]
 }
@@ -444,9 +450,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                     let mut still = SplitMix64::new(pixel_seed(settings.seed, u64::MAX, px, py));
                     let (ru, rv) = (still.next_f64(), still.next_f64());
                     let (x0, y0) = (px as f64, py as f64);
-                    let corners = [(x0, y0), (x0 + 1.0, y0), (x0 + 1.0, y0 + 1.0), (x0, y0 + 1.0)]
-                        .map(|(x, y)| rays.ray(x, y));
-                    now.beam_candidates(&corners, &mut candidates);
+                    now.beam_candidates(&pixel_beam(&rays, x0, y0), &mut candidates);
                     // A perspective camera's rays share its position: transform it into
                     // each object's frame once per pixel, not once per sample.
                     if perspective {
@@ -572,9 +576,7 @@ mod tests {
                 for py in 0..h {
                     for px in 0..w {
                         let (x0, y0) = (px as f64, py as f64);
-                        let corners = [(x0, y0), (x0 + 1.0, y0), (x0 + 1.0, y0 + 1.0), (x0, y0 + 1.0)]
-                            .map(|(x, y)| rays.ray(x, y));
-                        now.beam_candidates(&corners, &mut candidates);
+                        now.beam_candidates(&pixel_beam(&rays, x0, y0), &mut candidates);
                         now.local_origins(rays.ray(x0, y0).origin, &candidates, &mut origins);
                         let mut samples = Vec::new();
                         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));

@@ -26,12 +26,6 @@ pub struct Reply {
     pub payload_bytes: u64,
 }
 
-/// HTTP/2 flow-control window per stream. h2's default (64 KiB) makes a 1 MiB chunk wait
-/// for 16 window updates; a few chunks' worth keeps the pipe full on any link.
-pub const STREAM_WINDOW_BYTES: u32 = 8 << 20;
-/// HTTP/2 flow-control window per connection (several streams share it).
-pub const CONNECTION_WINDOW_BYTES: u32 = 32 << 20;
-
 /// A connected client.
 #[derive(Clone)]
 pub struct Client {
@@ -54,8 +48,8 @@ impl Client {
     /// Connects to `url` (`http://host:port`).
     pub async fn connect(url: String) -> Result<Client, tonic::transport::Error> {
         let channel = tonic::transport::Endpoint::from_shared(url)?
-            .initial_stream_window_size(STREAM_WINDOW_BYTES)
-            .initial_connection_window_size(CONNECTION_WINDOW_BYTES)
+            .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
+            .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
             .tcp_nodelay(true)
             .connect()
             .await?;

@@ -88,8 +88,8 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         })
     };
     let grpc = tonic::transport::Server::builder()
-        .initial_stream_window_size(super::client::STREAM_WINDOW_BYTES)
-        .initial_connection_window_size(super::client::CONNECTION_WINDOW_BYTES)
+        .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
+        .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
         .tcp_nodelay(true)
         .add_service(Grpc(service.clone()).server())
         .serve_with_incoming_shutdown(

@@ -11,6 +11,12 @@ use std::borrow::Cow;
 /// Default largest chunk: 1 MiB.
 pub const DEFAULT_MAX_CHUNK_BYTES: usize = 1 << 20;
 
+/// HTTP/2 flow-control window per stream. h2's default (64 KiB) makes a 1 MiB chunk wait
+/// for 16 window updates; a few chunks' worth keeps the pipe full on any link.
+pub const STREAM_WINDOW_BYTES: u32 = 8 << 20;
+/// HTTP/2 flow-control window per connection (several streams share it).
+pub const CONNECTION_WINDOW_BYTES: u32 = 32 << 20;
+
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> SessionError {
     SessionError::invalid(field, message)
 }

@@ -488,6 +488,14 @@ impl Sessions {
         }
     }
 
+    /// Hands an output's planes back to session `id`'s filter for reuse (see
+    /// [`Filter::recycle`]); nothing happens when the session is gone.
+    pub fn recycle(&self, id: &str, planes: Rgb) {
+        if let Ok(s) = self.get_arc(id) {
+            lock(&s.inner).filter.recycle(planes);
+        }
+    }
+
     /// The size and channels a frame for session `id` must have (for decoding).
     pub fn frame_shape(&self, id: &str) -> Result<(u32, u32, ChannelSet), SessionError> {
         let s = self.get_arc(id)?;
@@ -588,16 +596,6 @@ impl Sessions {
             psnr,
             ssim: ssim_v,
         })
-    }
-}
-
-impl Sessions {
-    /// Hands an output's planes back to session `id`'s filter for reuse (see
-    /// [`Filter::recycle`]); nothing happens when the session is gone.
-    pub fn recycle(&self, id: &str, planes: Rgb) {
-        if let Ok(s) = self.get_arc(id) {
-            lock(&s.inner).filter.recycle(planes);
-        }
     }
 }
 
