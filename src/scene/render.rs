@@ -4,7 +4,7 @@
 use super::bvh::Bvh;
 use super::camera::{Camera, Projected, RayGen};
 use super::math::{radical_inverse, Ray, Rigid};
-use super::shapes::LocalHit;
+use super::shapes::{Face, LocalHit};
 use super::{SceneDef, Settings};
 use crate::frame::{ChannelKind, Frame, FrameMeta, Plane};
 use crate::rng::SplitMix64;
@@ -111,12 +111,12 @@ impl<'a> Instant<'a> {
     /// The nearest hit along `ray` among the planes and the finite primitives
     /// `candidates` (from [`Instant::beam_candidates`] of a beam holding the ray).
     pub fn intersect_among(&self, ray: &Ray, candidates: &[usize]) -> Option<Hit> {
-        self.finish_hit(self.nearest_among(ray, candidates))
+        self.finish_hit(ray, self.nearest_among(ray, candidates))
     }
 
-    /// [`Instant::intersect_among`] without the surface details: the object, its local
-    /// hit and the ray in its local frame (for [`Instant::finish_hit`] later).
-    fn nearest_among(&self, ray: &Ray, candidates: &[usize]) -> Option<(usize, LocalHit, Ray)> {
+    /// [`Instant::intersect_among`] without the surface details: the object, the ray
+    /// parameter and the face (for [`Instant::finish_hit`] later).
+    fn nearest_among(&self, ray: &Ray, candidates: &[usize]) -> Option<Nearest> {
         self.nearest_in(ray, self.planes.iter().chain(candidates).map(|&i| (i, None)))
     }
 
@@ -127,17 +127,21 @@ impl<'a> Instant<'a> {
         &self,
         ray: &Ray,
         objects: impl Iterator<Item = (usize, Option<DVec3>)>,
-    ) -> Option<(usize, LocalHit, Ray)> {
-        let mut best: Option<(usize, LocalHit, Ray)> = None;
+    ) -> Option<Nearest> {
+        let mut best: Option<Nearest> = None;
         let mut t = f64::INFINITY;
         for (i, origin) in objects {
             let local = match origin {
                 Some(o) => self.xf[i].ray_to_local_from(o, ray),
                 None => self.xf[i].ray_to_local(ray),
             };
-            if let Some(h) = self.def.objects[i].shape.intersect(&local, 0.0, t) {
-                t = h.t;
-                best = Some((i, h, local));
+            if let Some((ht, face)) = self.def.objects[i].shape.hit(&local, 0.0, t) {
+                t = ht;
+                best = Some(Nearest {
+                    object: i as u32,
+                    t: ht,
+                    face,
+                });
             }
         }
         best
@@ -155,28 +159,36 @@ impl<'a> Instant<'a> {
         );
     }
 
-    fn finish_hit(&self, best: Option<(usize, LocalHit, Ray)>) -> Option<Hit> {
-        best.map(|(object, local, lray)| {
-            let local_point = lray.at(local.t);
+    /// The surface details of the nearest hit `best` of `ray`.
+    fn finish_hit(&self, ray: &Ray, best: Option<Nearest>) -> Option<Hit> {
+        best.map(|Nearest { object, t, face }| {
+            let object = object as usize;
+            let shape = &self.def.objects[object].shape;
+            let local_point = self.xf[object].ray_to_local(ray).at(t);
+            let normal = shape.normal(face, local_point);
             Hit {
                 object,
-                local,
+                local: LocalHit { t, normal },
                 local_point,
-                uv: self.def.objects[object].shape.uv(local_point, local.normal),
-                normal: self.xf[object].vector(local.normal),
+                uv: shape.uv(local_point, normal),
+                normal: self.xf[object].vector(normal),
             }
         })
     }
 
     /// The nearest hit along `ray` before `t_max`.
     pub fn intersect(&self, ray: &Ray, t_max: f64) -> Option<Hit> {
-        let mut best: Option<(usize, LocalHit, Ray)> = None;
+        let mut best: Option<Nearest> = None;
         let mut test = |i: usize, t_max: f64| -> f64 {
             let local = self.xf[i].ray_to_local(ray);
-            match self.def.objects[i].shape.intersect(&local, 0.0, t_max) {
-                Some(h) => {
-                    best = Some((i, h, local));
-                    h.t
+            match self.def.objects[i].shape.hit(&local, 0.0, t_max) {
+                Some((t, face)) => {
+                    best = Some(Nearest {
+                        object: i as u32,
+                        t,
+                        face,
+                    });
+                    t
                 }
                 None => t_max,
             }
@@ -186,7 +198,7 @@ impl<'a> Instant<'a> {
             t = test(i, t);
         }
         self.bvh.walk(ray, t, &mut test);
-        self.finish_hit(best)
+        self.finish_hit(ray, best)
     }
 
     /// The primitives (planes included) that may shadow any point of the box `lo..hi`
@@ -231,7 +243,7 @@ impl<'a> Instant<'a> {
                 let local = self.xf[i].ray_to_local(ray);
                 self.def.objects[i]
                     .shape
-                    .intersect(&local, 0.0, f64::INFINITY)
+                    .hit(&local, 0.0, f64::INFINITY)
                     .is_some()
             }
         })
@@ -247,7 +259,7 @@ impl<'a> Instant<'a> {
                 return t_max;
             }
             let local = self.xf[i].ray_to_local(ray);
-            if self.def.objects[i].shape.intersect(&local, 0.0, t_max).is_some() {
+            if self.def.objects[i].shape.hit(&local, 0.0, t_max).is_some() {
                 blocked = true;
                 -1.0
             } else {
@@ -405,6 +417,14 @@ struct Pixel {
     reference: [f32; 3],
 }
 
+/// The nearest hit of a ray before its surface details (see [`Instant::finish_hit`]).
+#[derive(Clone, Copy, Debug)]
+struct Nearest {
+    object: u32,
+    t: f64,
+    face: Face,
+}
+
 /// The corner rays of the pixel whose top-left corner is `(x0, y0)`, in order around it
 /// (the beam for [`Instant::beam_candidates`]).
 fn pixel_beam(rays: &RayGen, x0: f64, y0: f64) -> [Ray; 4] {
@@ -473,7 +493,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                             } else {
                                 now.nearest_among(&ray, &candidates)
                             };
-                            if let Some((_, h, _)) = &hit {
+                            if let Some(h) = &hit {
                                 let p = ray.at(h.t);
                                 lo = lo.min(p);
                                 hi = hi.max(p);
@@ -499,7 +519,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                                 (radical_inverse(k, 3) + rv).fract(),
                             )
                         });
-                        let hit = now.finish_hit(*hit);
+                        let hit = now.finish_hit(ray, *hit);
                         sum += now.shade_with(ray, hit.as_ref(), light, shadow);
                     }
                     Pixel {
@@ -591,15 +611,15 @@ mod tests {
                             let key = |o: Option<(usize, f64)>| o.map(|(i, t)| (i, t.to_bits()));
                             assert_eq!(
                                 key(full.map(|h| (h.object, h.local.t))),
-                                key(culled.map(|(i, h, _)| (i, h.t))),
+                                key(culled.map(|h| (h.object as usize, h.t))),
                                 "{} t={t} pixel ({px},{py}) sample {k}: beam culling",
                                 entry.name
                             );
                             if rays.perspective() {
                                 let cached = now.nearest_in(&ray, origins.iter().copied());
                                 assert_eq!(
-                                    key(culled.map(|(i, h, _)| (i, h.t))),
-                                    key(cached.map(|(i, h, _)| (i, h.t))),
+                                    key(culled.map(|h| (h.object as usize, h.t))),
+                                    key(cached.map(|h| (h.object as usize, h.t))),
                                     "{} pixel ({px},{py}): cached origins",
                                     entry.name
                                 );

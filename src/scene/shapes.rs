@@ -27,6 +27,12 @@ pub enum Shape {
     },
 }
 
+/// Which part of a shape a ray met: enough, with the local hit point, to give the normal
+/// (see [`Shape::normal`]). Visibility queries carry this instead of the normal, so that
+/// only the nearest hit of a ray pays for one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Face(u8);
+
 /// A hit in local coordinates.
 #[derive(Clone, Copy, Debug)]
 pub struct LocalHit {
@@ -93,6 +99,35 @@ impl Shape {
 
     /// The nearest hit with `t_min < t < t_max` of a local ray.
     pub fn intersect(&self, r: &Ray, t_min: f64, t_max: f64) -> Option<LocalHit> {
+        self.hit(r, t_min, t_max).map(|(t, face)| LocalHit {
+            t,
+            normal: self.normal(face, r.at(t)),
+        })
+    }
+
+    /// The outward unit normal of `face` at the local surface point `p` (a point of
+    /// that face, as [`Shape::hit`] found it).
+    #[inline]
+    pub fn normal(&self, face: Face, p: DVec3) -> DVec3 {
+        match *self {
+            Shape::Plane => DVec3::Y,
+            Shape::Sphere { radius } => p / radius,
+            Shape::Cuboid { .. } => {
+                let axis = face.0 as usize;
+                let mut normal = DVec3::ZERO;
+                normal[axis] = p[axis].signum();
+                normal
+            }
+            Shape::Cylinder { radius, .. } => match face.0 {
+                CYLINDER_SIDE => DVec3::new(p.x / radius, 0.0, p.z / radius),
+                CYLINDER_BOTTOM => DVec3::NEG_Y,
+                _ => DVec3::Y,
+            },
+        }
+    }
+
+    /// [`Shape::intersect`] without the normal: the ray parameter and the face.
+    pub fn hit(&self, r: &Ray, t_min: f64, t_max: f64) -> Option<(f64, Face)> {
         let ok = |t: f64| t > t_min && t < t_max;
         match *self {
             Shape::Plane => {
@@ -100,7 +135,7 @@ impl Shape {
                     return None;
                 }
                 let t = -r.origin.y / r.dir.y;
-                ok(t).then_some(LocalHit { t, normal: DVec3::Y })
+                ok(t).then_some((t, Face(0)))
             }
             Shape::Sphere { radius } => {
                 let b = 2.0 * r.origin.dot(r.dir);
@@ -113,10 +148,7 @@ impl Shape {
                 } else {
                     return None;
                 };
-                Some(LocalHit {
-                    t,
-                    normal: r.at(t) / radius,
-                })
+                Some((t, Face(0)))
             }
             Shape::Cuboid { half } => {
                 let inv = r.dir.recip();
@@ -129,29 +161,30 @@ impl Shape {
                 if near > far {
                     return None;
                 }
-                let (t, inside) = if ok(near) {
-                    (near, false)
+                // The face: the axis whose slab boundary this is.
+                let (t, bounds) = if ok(near) {
+                    (near, tn)
                 } else if ok(far) {
-                    (far, true)
+                    (far, tf)
                 } else {
                     return None;
                 };
-                let p = r.at(t);
-                // The face: the axis whose slab boundary this is.
-                let axis = if inside {
-                    tf.to_array().iter().position(|&v| v == far).unwrap_or(0)
+                let axis = if bounds.x == t {
+                    0
+                } else if bounds.y == t {
+                    1
+                } else if bounds.z == t {
+                    2
                 } else {
-                    tn.to_array().iter().position(|&v| v == near).unwrap_or(0)
+                    0
                 };
-                let mut normal = DVec3::ZERO;
-                normal[axis] = p[axis].signum();
-                Some(LocalHit { t, normal })
+                Some((t, Face(axis)))
             }
             Shape::Cylinder { radius, half_height } => {
-                let mut best: Option<LocalHit> = None;
-                let mut consider = |h: LocalHit| {
-                    if ok(h.t) && best.is_none_or(|b| h.t < b.t) {
-                        best = Some(h);
+                let mut best: Option<(f64, Face)> = None;
+                let mut consider = |t: f64, face: u8| {
+                    if ok(t) && best.is_none_or(|b| t < b.0) {
+                        best = Some((t, Face(face)));
                     }
                 };
                 let a = r.dir.x * r.dir.x + r.dir.z * r.dir.z;
@@ -160,25 +193,18 @@ impl Shape {
                     let c = r.origin.x * r.origin.x + r.origin.z * r.origin.z - radius * radius;
                     if let Some((t0, t1)) = solve_quadratic(a, b, c) {
                         for t in [t0, t1] {
-                            let p = r.at(t);
-                            if p.y.abs() <= half_height {
-                                consider(LocalHit {
-                                    t,
-                                    normal: DVec3::new(p.x / radius, 0.0, p.z / radius),
-                                });
+                            if r.at(t).y.abs() <= half_height {
+                                consider(t, CYLINDER_SIDE);
                             }
                         }
                     }
                 }
                 if r.dir.y.abs() > 1e-15 {
-                    for s in [-1.0, 1.0] {
+                    for (s, face) in [(-1.0, CYLINDER_BOTTOM), (1.0, CYLINDER_TOP)] {
                         let t = (s * half_height - r.origin.y) / r.dir.y;
                         let p = r.at(t);
                         if p.x * p.x + p.z * p.z <= radius * radius {
-                            consider(LocalHit {
-                                t,
-                                normal: DVec3::new(0.0, s, 0.0),
-                            });
+                            consider(t, face);
                         }
                     }
                 }
@@ -187,6 +213,11 @@ impl Shape {
         }
     }
 }
+
+/// [`Face`]s of a cylinder.
+const CYLINDER_SIDE: u8 = 0;
+const CYLINDER_BOTTOM: u8 = 1;
+const CYLINDER_TOP: u8 = 2;
 
 #[cfg(test)]
 mod tests {
