@@ -25,6 +25,7 @@ fn fixtures_load_with_every_channel() {
         ChannelKind::Color,
         ChannelKind::Depth,
         ChannelKind::Motion,
+        ChannelKind::MotionNext,
         ChannelKind::Normal,
         ChannelKind::ObjectId,
         ChannelKind::Albedo,
@@ -102,6 +103,40 @@ fn moving_square_motion_is_converted_and_reprojects() {
         .unwrap();
     t.check("centre y", (y as f32 + my.get(x, y)) as f64, 93.0)
         .unwrap();
+}
+
+/// `Vector.ZW` is read as motion to the next frame, `next = p + v`: the square moves 5 px
+/// right and 3 px up per frame, so (+5, -3), and following it lands on the square in the
+/// next frame. (Blender writes the next-motion of the last frame too: zero past the end.)
+#[test]
+fn motion_to_next_is_converted_and_lands_on_the_next_frame() {
+    let frames = load("blender-motion");
+    for k in 0..frames.len() - 1 {
+        let (cur, next) = (&frames[k], &frames[k + 1]);
+        let ids = cur.object_id().unwrap();
+        let [nx, ny] = cur.motion_next().expect("Vector.ZW is read as motion_next");
+        let mut square = 0;
+        for y in 0..cur.height() {
+            for x in 0..cur.width() {
+                let (vx, vy) = (nx.get(x, y), ny.get(x, y));
+                if ids.get(x, y) == 2 {
+                    square += 1;
+                    let t = Tolerance::abs(1e-4);
+                    t.check("square next x", vx as f64, 5.0).unwrap();
+                    t.check("square next y", vy as f64, -3.0).unwrap();
+                    let (px, py) = ((x as f32 + vx) as usize, (y as f32 + vy) as usize);
+                    assert_eq!(
+                        next.object_id().unwrap().get(px, py),
+                        2,
+                        "({x},{y}) -> ({px},{py})"
+                    );
+                } else {
+                    assert_eq!((vx, vy), (0.0, 0.0));
+                }
+            }
+        }
+        assert_eq!(square, 400);
+    }
 }
 
 /// Blender camera: matrix_world (camera to world, looking down -Z, y up), 28 mm lens on a

@@ -30,6 +30,16 @@ fn small(frames: u64) -> Settings {
 /// is a motion error.
 #[test]
 fn motion_is_exact_in_every_scene() {
+    motion_lands_on_the_same_point(ChannelKind::Motion, -1);
+}
+
+/// The same for `motion_next` into the next frame.
+#[test]
+fn motion_next_is_exact_in_every_scene() {
+    motion_lands_on_the_same_point(ChannelKind::MotionNext, 1);
+}
+
+fn motion_lands_on_the_same_point(channel: ChannelKind, step: i64) {
     for entry in CATALOGUE {
         let settings = small(6);
         let scene = Scene::new(entry.name, settings).unwrap();
@@ -37,11 +47,19 @@ fn motion_is_exact_in_every_scene() {
         let (mut checked, mut occluded, mut offscreen, mut total) = (0usize, 0usize, 0usize, 0usize);
         let mut max_depth_err = 0.0f64;
         let mut max_px_err = 0.0f64;
-        for t in 1..settings.frames {
+        let frames = if step < 0 {
+            1..settings.frames
+        } else {
+            0..settings.frames - 1
+        };
+        for t in frames {
             let frame = scene.frame(t);
-            let prev = scene.instant(t as f64 - 1.0);
+            // "prev" is the other instant: the previous or the next one.
+            let prev = scene.instant((t as i64 + step) as f64);
             let rays = prev.camera.rays(w, h);
-            let [mx, my] = frame.motion().unwrap();
+            let [mx, my] = frame.planes(channel).unwrap() else {
+                panic!("two motion planes")
+            };
             let ids = frame.object_id().unwrap();
             let depth = frame.depth().unwrap();
             let j = frame.meta.jitter;
@@ -121,7 +139,7 @@ fn motion_is_exact_in_every_scene() {
             }
         }
         println!(
-            "{:<14} checked {:5.1}% of pixels (occluded before {:4.1}%, off screen {:4.1}%): \
+            "{channel}: {:<14} checked {:5.1}% of pixels (occluded before {:4.1}%, off screen {:4.1}%): \
              max position error {max_px_err:.1e} px, max depth error {max_depth_err:.1e} (relative)",
             entry.name,
             100.0 * checked as f64 / total as f64,

@@ -134,8 +134,9 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         "description": scene.def.description,
         "settings": settings,
         "conventions": {
-            "channels": "afterimage preset: color.RGB, depth.Z, motion.XY, normal.XYZ, object_id.id (u32), albedo.RGB, reference.RGB",
+            "channels": "afterimage preset: color.RGB, depth.Z, motion.XY, motion_next.XY, normal.XYZ, object_id.id (u32), albedo.RGB, reference.RGB",
             "motion": "internal: pixels, from the current pixel centre to the point's position in the previous frame, x right, y down, jitter excluded (prev = p + mv)",
+            "motion_next": "internal: pixels, from the current pixel centre to the point's position in the next frame, x right, y down, jitter excluded (next = p + mv)",
             "motion_behind_camera": BEHIND_CAMERA_MOTION,
             "depth": "planar view-space depth along the camera's forward axis, larger = farther",
             "sky_depth": SKY_DEPTH,

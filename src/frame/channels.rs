@@ -13,6 +13,9 @@ pub enum ChannelKind {
     Depth,
     /// Motion to the previous frame in pixels (internal convention, see `motion`).
     Motion,
+    /// Motion to the next frame in pixels: `next = p + v`, x right, y down, jitter
+    /// excluded (Blender's `Vector.ZW`; offline renders have it, real-time ones rarely).
+    MotionNext,
     /// Unit surface normal (world or view space, see `NormalSpace`).
     Normal,
     /// Object / material index, 0 = background.
@@ -34,10 +37,11 @@ pub enum SampleKind {
 
 impl ChannelKind {
     /// Every channel, in a fixed order.
-    pub const ALL: [ChannelKind; 7] = [
+    pub const ALL: [ChannelKind; 8] = [
         ChannelKind::Color,
         ChannelKind::Depth,
         ChannelKind::Motion,
+        ChannelKind::MotionNext,
         ChannelKind::Normal,
         ChannelKind::ObjectId,
         ChannelKind::Albedo,
@@ -49,7 +53,7 @@ impl ChannelKind {
         match self {
             ChannelKind::Color | ChannelKind::Normal | ChannelKind::Albedo => 3,
             ChannelKind::Reference => 3,
-            ChannelKind::Motion => 2,
+            ChannelKind::Motion | ChannelKind::MotionNext => 2,
             ChannelKind::Depth | ChannelKind::ObjectId => 1,
         }
     }
@@ -68,6 +72,7 @@ impl ChannelKind {
             ChannelKind::Color => "color",
             ChannelKind::Depth => "depth",
             ChannelKind::Motion => "motion",
+            ChannelKind::MotionNext => "motion_next",
             ChannelKind::Normal => "normal",
             ChannelKind::ObjectId => "object_id",
             ChannelKind::Albedo => "albedo",

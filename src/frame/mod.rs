@@ -201,6 +201,7 @@ pub struct Frame {
     color: Rgb,
     depth: Option<Plane<f32>>,
     motion: Option<[Plane<f32>; 2]>,
+    motion_next: Option<[Plane<f32>; 2]>,
     normal: Option<Rgb>,
     object_id: Option<Plane<u32>>,
     albedo: Option<Rgb>,
@@ -263,6 +264,7 @@ impl Frame {
             color,
             depth: None,
             motion: None,
+            motion_next: None,
             normal: None,
             object_id: None,
             albedo: None,
@@ -292,6 +294,7 @@ impl Frame {
         let present = [
             (ChannelKind::Depth, self.depth.is_some()),
             (ChannelKind::Motion, self.motion.is_some()),
+            (ChannelKind::MotionNext, self.motion_next.is_some()),
             (ChannelKind::Normal, self.normal.is_some()),
             (ChannelKind::ObjectId, self.object_id.is_some()),
             (ChannelKind::Albedo, self.albedo.is_some()),
@@ -320,6 +323,7 @@ impl Frame {
                 )
             }
             ChannelKind::Motion => self.motion = Some(into_array(channel, planes)?),
+            ChannelKind::MotionNext => self.motion_next = Some(into_array(channel, planes)?),
             ChannelKind::Normal => self.normal = Some(into_array(channel, planes)?),
             ChannelKind::Albedo => self.albedo = Some(into_array(channel, planes)?),
             ChannelKind::Reference => self.reference = Some(into_array(channel, planes)?),
@@ -352,6 +356,7 @@ impl Frame {
             ChannelKind::Color => {}
             ChannelKind::Depth => self.depth = None,
             ChannelKind::Motion => self.motion = None,
+            ChannelKind::MotionNext => self.motion_next = None,
             ChannelKind::Normal => self.normal = None,
             ChannelKind::ObjectId => self.object_id = None,
             ChannelKind::Albedo => self.albedo = None,
@@ -370,6 +375,10 @@ impl Frame {
     /// Motion planes (internal convention once read through `io`).
     pub fn motion(&self) -> Option<&[Plane<f32>; 2]> {
         self.motion.as_ref()
+    }
+    /// Motion-to-next planes (internal convention once read through `io`).
+    pub fn motion_next(&self) -> Option<&[Plane<f32>; 2]> {
+        self.motion_next.as_ref()
     }
     /// Normal planes.
     pub fn normal(&self) -> Option<&Rgb> {
@@ -394,6 +403,7 @@ impl Frame {
             ChannelKind::Color => Some(&self.color[..]),
             ChannelKind::Depth => self.depth.as_ref().map(std::slice::from_ref),
             ChannelKind::Motion => self.motion.as_ref().map(|m| &m[..]),
+            ChannelKind::MotionNext => self.motion_next.as_ref().map(|m| &m[..]),
             ChannelKind::Normal => self.normal.as_ref().map(|m| &m[..]),
             ChannelKind::Albedo => self.albedo.as_ref().map(|m| &m[..]),
             ChannelKind::Reference => self.reference.as_ref().map(|m| &m[..]),
@@ -415,6 +425,11 @@ impl Frame {
     /// Motion planes, mutable.
     pub fn motion_mut(&mut self) -> Option<&mut [Plane<f32>; 2]> {
         self.motion.as_mut()
+    }
+
+    /// Motion-to-next planes, mutable.
+    pub fn motion_next_mut(&mut self) -> Option<&mut [Plane<f32>; 2]> {
+        self.motion_next.as_mut()
     }
 
     /// Non-finite samples counted per float channel.

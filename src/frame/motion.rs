@@ -77,6 +77,17 @@ impl MotionConvention {
         jittered: false,
     };
 
+    /// Blender Cycles' `Vector.ZW` pass, motion to the **next** frame: minus that motion,
+    /// y up: `next = (col - Z, row + W)` (the fixtures' README, checked on
+    /// `tests/fixtures/blender-motion`). Read through this convention, a next-vector comes
+    /// out internal: `next = p + v`, y down.
+    pub const BLENDER_NEXT: MotionConvention = MotionConvention {
+        units: MotionUnits::Pixels,
+        direction: MotionDirection::ToCurrent,
+        y: YAxis::Up,
+        jittered: false,
+    };
+
     /// AMD FidelityFX FSR2 after its `motionVectorScale`: UV units (top-left origin, so
     /// y down), pointing from the current pixel to its previous position (the reproject
     /// pass samples history at `uv + mv`); jitter excluded unless the context is created

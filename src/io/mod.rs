@@ -191,5 +191,10 @@ fn frame_of(raw: &RawImage, opts: &ReadOptions, jitter_prev: Option<[f32; 2]>) -
     let conv = raw.motion_convention(opts)?;
     let prev = jitter_prev.unwrap_or(frame.meta.jitter);
     conv.frame_to_internal(&mut frame, prev);
+    let next = raw.preset(opts)?.motion_next_convention();
+    let jitter = frame.meta.jitter;
+    if let Some(m) = frame.motion_next_mut() {
+        next.planes_to_internal(m, jitter, jitter);
+    }
     Ok(frame)
 }

@@ -10,11 +10,13 @@ use std::str::FromStr;
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Preset {
     /// Ours, written by every writer of this project: `color.{R,G,B}`, `depth.Z`,
-    /// `motion.{X,Y}` (internal convention), `normal.{X,Y,Z}`, `object_id.id` (u32),
+    /// `motion.{X,Y}` and `motion_next.{X,Y}` (internal convention), `normal.{X,Y,Z}`,
+    /// `object_id.id` (u32),
     /// `albedo.{R,G,B}`, `reference.{R,G,B}`.
     Afterimage,
     /// Blender Cycles multilayer: `<layer>.Combined.{R,G,B}`, `<layer>.Depth.Z`,
-    /// `<layer>.Vector.{X,Y}` (Blender motion convention), `<layer>.Normal.{X,Y,Z}` (world
+    /// `<layer>.Vector.{X,Y}` (Blender motion convention; `.{Z,W}` motion to the next
+    /// frame, see [`MotionConvention::BLENDER_NEXT`]), `<layer>.Normal.{X,Y,Z}` (world
     /// space), `<layer>.IndexOB.X`, `<layer>.DiffCol.{R,G,B}`. `layer` is the view layer's
     /// name, `ViewLayer` by default.
     Blender {
@@ -39,7 +41,7 @@ impl Preset {
                         join(&p, &["R", "G", "B"])
                     }
                     ChannelKind::Normal => join(&p, &["X", "Y", "Z"]),
-                    ChannelKind::Motion => join(&p, &["X", "Y"]),
+                    ChannelKind::Motion | ChannelKind::MotionNext => join(&p, &["X", "Y"]),
                     ChannelKind::Depth => join(&p, &["Z"]),
                     ChannelKind::ObjectId => join(&p, &["id"]),
                 })
@@ -50,6 +52,7 @@ impl Preset {
                     ChannelKind::Color => Some(join(&l("Combined"), &["R", "G", "B"])),
                     ChannelKind::Depth => Some(join(&l("Depth"), &["Z"])),
                     ChannelKind::Motion => Some(join(&l("Vector"), &["X", "Y"])),
+                    ChannelKind::MotionNext => Some(join(&l("Vector"), &["Z", "W"])),
                     ChannelKind::Normal => Some(join(&l("Normal"), &["X", "Y", "Z"])),
                     ChannelKind::ObjectId => Some(join(&l("IndexOB"), &["X"])),
                     ChannelKind::Albedo => Some(join(&l("DiffCol"), &["R", "G", "B"])),
@@ -68,6 +71,15 @@ impl Preset {
     pub fn motion_convention(&self) -> MotionConvention {
         match self {
             Preset::Blender { .. } => MotionConvention::BLENDER,
+            Preset::Afterimage | Preset::Plain => MotionConvention::INTERNAL,
+        }
+    }
+
+    /// The convention the preset's motion-to-next channel is written in (its vectors,
+    /// converted, give `next = p + v`).
+    pub fn motion_next_convention(&self) -> MotionConvention {
+        match self {
+            Preset::Blender { .. } => MotionConvention::BLENDER_NEXT,
             Preset::Afterimage | Preset::Plain => MotionConvention::INTERNAL,
         }
     }

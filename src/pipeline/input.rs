@@ -212,7 +212,7 @@ impl Inputs<'_> {
             ChannelKind::Motion => self.motion.is_some(),
             ChannelKind::Albedo => self.albedo.is_some(),
             ChannelKind::ObjectId => self.object_id.is_some(),
-            ChannelKind::Normal | ChannelKind::Reference => false,
+            ChannelKind::Normal | ChannelKind::Reference | ChannelKind::MotionNext => false,
         }
     }
 

@@ -63,6 +63,8 @@ pub struct Sample {
     pub albedo: DVec3,
     /// Where the seen point was in the previous frame (None: behind the camera then).
     pub prev: Option<Projected>,
+    /// Where it will be in the next frame (None: behind the camera then).
+    pub next: Option<Projected>,
 }
 
 impl<'a> Instant<'a> {
@@ -351,10 +353,12 @@ impl<'a> Instant<'a> {
     }
 
     /// The full sample through image position `(x, y)` of a `w x h` image, with motion
-    /// against the instant `prev`.
+    /// against the instants `prev` and `next`.
+    #[allow(clippy::too_many_arguments)]
     pub fn sample(
         &self,
         prev: &Instant,
+        next: &Instant,
         x: f64,
         y: f64,
         w: usize,
@@ -372,12 +376,14 @@ impl<'a> Instant<'a> {
                 object_id: 0,
                 albedo: DVec3::ZERO,
                 prev: prev.camera.project_sky(&ray, SKY_DEPTH, w, h),
+                next: next.camera.project_sky(&ray, SKY_DEPTH, w, h),
             },
             Some(hit) => {
                 let o = &self.def.objects[hit.object];
                 let world = ray.at(hit.local.t);
                 let fwd = DVec3::from_array(self.camera.forward);
                 let was = prev.transform(hit.object).point(hit.local_point);
+                let will = next.transform(hit.object).point(hit.local_point);
                 Sample {
                     color,
                     depth: (world - DVec3::from_array(self.camera.position)).dot(fwd),
@@ -385,6 +391,7 @@ impl<'a> Instant<'a> {
                     object_id: o.id,
                     albedo: o.material.albedo(hit.uv),
                     prev: prev.camera.project(was, w, h),
+                    next: next.camera.project(will, w, h),
                 }
             }
         }
@@ -411,6 +418,7 @@ struct Pixel {
     color: [f32; 3],
     depth: f32,
     motion: [f32; 2],
+    motion_next: [f32; 2],
     normal: [f32; 3],
     id: u32,
     albedo: [f32; 3],
@@ -441,6 +449,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
     let t = index as f64;
     let now = Instant::new(def, t);
     let before = Instant::new(def, t - 1.0);
+    let after = Instant::new(def, t + 1.0);
     let jitter = settings.jitter.offset(index);
     let n = settings.reference_grid() as usize;
     let rays = now.camera.rays(w, h);
@@ -460,11 +469,12 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                         px as f64 + 0.5 + jitter[0] as f64,
                         py as f64 + 0.5 + jitter[1] as f64,
                     );
-                    let s = now.sample(&before, sx, sy, w, h, light);
-                    let motion = match s.prev {
+                    let s = now.sample(&before, &after, sx, sy, w, h, light);
+                    let offset = |p: Option<Projected>| match p {
                         Some(p) => [(p.x - sx) as f32, (p.y - sy) as f32],
                         None => [BEHIND_CAMERA_MOTION; 2],
                     };
+                    let (motion, motion_next) = (offset(s.prev), offset(s.next));
                     // The reference's rotation of the sun-disc samples depends on the pixel
                     // only, so a still scene has the same reference in every frame.
                     let mut still = SplitMix64::new(pixel_seed(settings.seed, u64::MAX, px, py));
@@ -526,6 +536,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                         color: f3(s.color),
                         depth: s.depth as f32,
                         motion,
+                        motion_next,
                         normal: f3(s.normal),
                         id: s.object_id,
                         albedo: f3(s.albedo),
@@ -550,6 +561,11 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
         &mut frame,
         ChannelKind::Motion,
         vec![plane(&|p| p.motion[0]), plane(&|p| p.motion[1])],
+    );
+    set(
+        &mut frame,
+        ChannelKind::MotionNext,
+        vec![plane(&|p| p.motion_next[0]), plane(&|p| p.motion_next[1])],
     );
     set(&mut frame, ChannelKind::Normal, rgb(&|p| p.normal));
     set(&mut frame, ChannelKind::Albedo, rgb(&|p| p.albedo));
