@@ -1,14 +1,15 @@
 //! `afterimage filter` (run a filter over a sequence) and `afterimage filters` (list them).
 
 use super::read_args::ReadArgs;
-use afterimage::frame::{Frame, Rgb};
+use afterimage::frame::{Frame, FrameMeta, Rgb};
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
-use afterimage::pipeline::{self, params::parse_assignments, summarize_stages, FrameRecord, ParamKind};
+use afterimage::pipeline::{self, params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
+use std::collections::VecDeque;
 use std::path::PathBuf;
 
 /// Arguments of `filter`.
@@ -95,6 +96,14 @@ pub fn list(args: FiltersArgs) -> anyhow::Result<()> {
     super::print_stdout(&text)
 }
 
+/// What the output of a pushed frame needs when it comes out.
+struct Pending {
+    number: u64,
+    meta: FrameMeta,
+    reference: Option<Rgb>,
+    hdr: bool,
+}
+
 pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let values = parse_assignments(&args.set)?;
     let mut filter = pipeline::create(&args.filter, &values)?;
@@ -118,38 +127,52 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let mut eval = Evaluator::new(SpaceChoice::Auto);
     let mut records: Vec<FrameRecord> = Vec::new();
     let mut ref_frames = reference.as_ref().map(|r| r.frames(&ref_opts));
-    for (i, frame) in input.frames(&in_opts).enumerate() {
-        let entry = &input.entries[i];
-        let frame = frame?;
-        let out = filter
-            .process(&frame)
-            .with_context(|| format!("filtering {}", entry.path.display()))?;
-        let ref_rgb: Option<Rgb> = match ref_frames.as_mut() {
-            Some(it) => Some(it.next().expect("same length")?.color().clone()),
-            None => frame.reference().cloned(),
-        };
-        if let Some(r) = &ref_rgb {
-            eval.push(entry.number, &out.color, r, frame.meta.reset)
-                .with_context(|| format!("measuring {} against its reference", entry.path.display()))?;
+    // A windowed filter returns frame t after frame t + lookahead arrives: what the output
+    // of each pushed frame needs waits here until it comes out.
+    let mut pending: VecDeque<Pending> = VecDeque::new();
+    let mut emit = |out: Output, pending: &mut VecDeque<Pending>, filter: &mut dyn Filter| -> anyhow::Result<()> {
+        let p = pending.pop_front().expect("one output per frame pushed");
+        if let Some(r) = &p.reference {
+            eval.push(p.number, &out.color, r, p.meta.reset)
+                .with_context(|| format!("measuring frame {} against its reference", p.number))?;
         }
         let mut result = Frame::new(out.color)?;
-        result.meta = frame.meta.clone();
-        write_exr(
-            &args.output.join(format!("frame_{:04}.exr", entry.number)),
-            &result,
-            &write,
-        )?;
+        result.meta = p.meta;
+        write_exr(&args.output.join(format!("frame_{:04}.exr", p.number)), &result, &write)?;
         if args.png {
-            let hdr = frame_is_hdr(&frame);
             write_png(
-                &args.output.join(format!("frame_{:04}.png", entry.number)),
+                &args.output.join(format!("frame_{:04}.png", p.number)),
                 result.color(),
-                hdr,
+                p.hdr,
             )?;
         }
         records.push(out.record);
         filter.recycle(result.into_color());
         bar.inc(1);
+        Ok(())
+    };
+    for (i, frame) in input.frames(&in_opts).enumerate() {
+        let entry = &input.entries[i];
+        let frame = frame?;
+        let reference: Option<Rgb> = match ref_frames.as_mut() {
+            Some(it) => Some(it.next().expect("same length")?.color().clone()),
+            None => frame.reference().cloned(),
+        };
+        pending.push_back(Pending {
+            number: entry.number,
+            meta: frame.meta.clone(),
+            reference,
+            hdr: frame_is_hdr(&frame),
+        });
+        let outs = filter
+            .push(&frame)
+            .with_context(|| format!("filtering {}", entry.path.display()))?;
+        for out in outs {
+            emit(out, &mut pending, filter.as_mut())?;
+        }
+    }
+    for out in filter.finish().context("flushing the filter's window")? {
+        emit(out, &mut pending, filter.as_mut())?;
     }
     bar.finish_and_clear();
 

@@ -8,11 +8,13 @@
 //! | `taa` | industry TAA (Karis 2014, Salvi 2016): dilation, Catmull-Rom, YCoCg variance clip |
 //! | `traa` | the thesis's TRAA (004): INSIDE/Uncharted 4 baseline or the improved variant |
 //! | `phlm` | Pixel History Linear Models (000): per-pixel RLS models, bounded forgetting |
+//! | `pixel_trace` | Shinya's pixel-tracing filter (002): a window of frames along motion paths, offline |
 
 pub mod fxaa;
 pub mod passes;
 pub mod passthrough;
 pub mod phlm;
+pub mod pixel_trace;
 pub mod taa;
 pub mod traa;
 
@@ -26,5 +28,6 @@ pub fn all() -> Vec<FilterEntry> {
         entry::<taa::Taa>(),
         entry::<traa::Traa>(),
         entry::<phlm::Phlm>(),
+        entry::<pixel_trace::PixelTrace>(),
     ]
 }

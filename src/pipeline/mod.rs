@@ -18,7 +18,7 @@ pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
 pub use record::{
     summarize_stages, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord,
-    StageSummary,
+    StageSummary, WindowRecord,
 };
 
 use crate::filters;
@@ -92,6 +92,14 @@ pub enum FilterError {
     /// Device depth whose near/far planes are unknown cannot be linearised.
     #[error("the depth channel is device depth but the frame gives no near/far planes to linearise it")]
     DeviceDepthWithoutPlanes,
+    /// A windowed filter was fed one frame at a time through [`Filter::process`].
+    #[error("filter {filter} looks {lookahead} frames ahead: feed it with push and finish (the `filter` and `report` commands and the server do), not process")]
+    NeedsWindow {
+        /// The filter.
+        filter: &'static str,
+        /// Frames it looks ahead.
+        lookahead: usize,
+    },
     /// An invalid frame.
     #[error(transparent)]
     Frame(#[from] FrameError),
@@ -112,8 +120,25 @@ pub trait Filter: Send {
     fn name(&self) -> &'static str;
     /// The parameters in effect, as JSON.
     fn params(&self) -> Value;
-    /// Filters one frame. On error the state is left as it was.
+    /// Filters one frame. On error the state is left as it was. A windowed filter
+    /// (`lookahead() > 0`) refuses this with [`FilterError::NeedsWindow`].
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError>;
+    /// Frames after frame t that must have arrived before t's output is ready: 0 for a
+    /// causal filter, T/2 for a window of frames t - T/2 ..= t + T/2.
+    fn lookahead(&self) -> usize {
+        0
+    }
+    /// Feeds the next frame; returns the outputs that became ready, oldest first: a causal
+    /// filter's is this frame's own, a windowed filter's the frame `lookahead` back (none
+    /// while its window fills). On error the state is left as it was.
+    fn push(&mut self, frame: &Frame) -> Result<Vec<Output>, FilterError> {
+        Ok(vec![self.process(frame)?])
+    }
+    /// The outputs still held back at the end of a sequence, oldest first; afterwards the
+    /// filter is empty, as after `reset`.
+    fn finish(&mut self) -> Result<Vec<Output>, FilterError> {
+        Ok(Vec::new())
+    }
     /// Forgets the history: the next frame starts afresh.
     fn reset(&mut self);
     /// Bytes of state held now.
@@ -226,6 +251,20 @@ pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>
             known: reg.iter().map(|e| (e.info)().name).collect::<Vec<_>>().join(", "),
         })?;
     (entry.create)(values)
+}
+
+/// Runs `filter` over a whole sequence (push every frame, then finish): one output per
+/// frame, in order, for causal and windowed filters alike.
+pub fn run_sequence<'a>(
+    filter: &mut dyn Filter,
+    frames: impl IntoIterator<Item = &'a Frame>,
+) -> Result<Vec<Output>, FilterError> {
+    let mut out = Vec::new();
+    for frame in frames {
+        out.extend(filter.push(frame)?);
+    }
+    out.extend(filter.finish()?);
+    Ok(out)
 }
 
 /// Checks that `frame` has every channel in `needs`.

@@ -127,6 +127,24 @@ pub struct FrameRecord {
     /// Health of per-pixel models, for filters that keep them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub model: Option<ModelHealth>,
+    /// The window of frames a windowed filter read for this output.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub window: Option<WindowRecord>,
+}
+
+/// The window of frames behind one output of a windowed filter, and its flows.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct WindowRecord {
+    /// Index of the first frame read.
+    pub first: u64,
+    /// Index of the last frame read.
+    pub last: u64,
+    /// Frames that arrived after this one before it came out (its latency).
+    pub latency_frames: u64,
+    /// Pixels whose output blends more than one flow.
+    pub pixels_with_several_flows: u64,
+    /// Flows dropped because a pixel's list was full (their weight is lost).
+    pub flows_dropped: u64,
 }
 
 impl FrameRecord {
@@ -222,6 +240,7 @@ impl Recorder {
             input,
             state_bytes,
             model: None,
+            window: None,
         }
     }
 }
