@@ -5,7 +5,7 @@
 mod common;
 
 use afterimage::frame::{ChannelKind, Frame, Plane};
-use afterimage::pipeline::{create, list, params::parse_assignments, FilterError, Skip};
+use afterimage::pipeline::{create, list, params::parse_assignments, run_sequence, FilterError, Skip};
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn small_scene(name: &str, frames: u64) -> Vec<Frame> {
@@ -32,6 +32,7 @@ fn non_finite_input_never_reaches_history_or_output_and_is_counted() {
     let clean = small_scene("moving-sphere", 8);
     for info in list() {
         let mut f = create(info.name, &Default::default()).unwrap();
+        let mut dirty = Vec::new();
         for (t, frame) in clean.iter().enumerate() {
             let mut frame = frame.clone();
             let mut injected = 0;
@@ -55,7 +56,17 @@ fn non_finite_input_never_reaches_history_or_output_and_is_counted() {
                     injected += 1;
                 }
             }
-            let out = f.process(&frame).unwrap();
+            dirty.push((frame, injected));
+        }
+        // Windowed filters give frame t later: every output, then each with its frame.
+        let outs = run_sequence(f.as_mut(), dirty.iter().map(|(frame, _)| frame)).unwrap();
+        assert_eq!(outs.len(), dirty.len(), "{}", info.name);
+        for (t, (out, &(_, injected))) in outs.iter().zip(&dirty).enumerate() {
+            assert_eq!(
+                out.record.index, clean[t].meta.index,
+                "{}: outputs in order",
+                info.name
+            );
             assert!(
                 all_finite(&out.color),
                 "{} frame {t}: non-finite or negative output",
@@ -213,7 +224,7 @@ fn the_planner_leaves_out_what_a_frame_does_not_need() {
     // Every stage a filter lists appears in its record, in order.
     for info in list() {
         let mut f = create(info.name, &Default::default()).unwrap();
-        let r = f.process(&frames[0]).unwrap().record;
+        let r = run_sequence(f.as_mut(), &frames[..1]).unwrap().remove(0).record;
         let names: Vec<&str> = r.stages.iter().map(|s| s.name).collect();
         assert_eq!(names, info.stages, "{}", info.name);
     }
@@ -258,14 +269,22 @@ fn recycled_buffers_never_leak_into_results() {
     for info in list() {
         let mut a = create(info.name, &Default::default()).unwrap();
         let mut b = create(info.name, &Default::default()).unwrap();
-        for f in &frames {
-            let out = a.process(f).unwrap().color;
-            let mut poisoned = out.clone();
-            for p in &mut poisoned {
-                p.data_mut().fill(f32::NAN);
+        for (i, f) in frames.iter().enumerate() {
+            let last = i + 1 == frames.len();
+            let (mut oa, mut ob) = (a.push(f).unwrap(), b.push(f).unwrap());
+            if last {
+                oa.extend(a.finish().unwrap());
+                ob.extend(b.finish().unwrap());
             }
-            a.recycle(poisoned);
-            assert_eq!(out, b.process(f).unwrap().color, "{}", info.name);
+            assert_eq!(oa.len(), ob.len());
+            for (out, other) in oa.into_iter().zip(ob) {
+                let mut poisoned = out.color.clone();
+                for p in &mut poisoned {
+                    p.data_mut().fill(f32::NAN);
+                }
+                a.recycle(poisoned);
+                assert_eq!(out.color, other.color, "{}", info.name);
+            }
         }
     }
 }

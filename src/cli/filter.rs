@@ -4,7 +4,9 @@ use super::read_args::ReadArgs;
 use afterimage::frame::{Frame, FrameMeta, Rgb};
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
-use afterimage::pipeline::{self, params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind};
+use afterimage::pipeline::{
+    self, params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind,
+};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -130,27 +132,32 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     // A windowed filter returns frame t after frame t + lookahead arrives: what the output
     // of each pushed frame needs waits here until it comes out.
     let mut pending: VecDeque<Pending> = VecDeque::new();
-    let mut emit = |out: Output, pending: &mut VecDeque<Pending>, filter: &mut dyn Filter| -> anyhow::Result<()> {
-        let p = pending.pop_front().expect("one output per frame pushed");
-        if let Some(r) = &p.reference {
-            eval.push(p.number, &out.color, r, p.meta.reset)
-                .with_context(|| format!("measuring frame {} against its reference", p.number))?;
-        }
-        let mut result = Frame::new(out.color)?;
-        result.meta = p.meta;
-        write_exr(&args.output.join(format!("frame_{:04}.exr", p.number)), &result, &write)?;
-        if args.png {
-            write_png(
-                &args.output.join(format!("frame_{:04}.png", p.number)),
-                result.color(),
-                p.hdr,
+    let mut emit =
+        |out: Output, pending: &mut VecDeque<Pending>, filter: &mut dyn Filter| -> anyhow::Result<()> {
+            let p = pending.pop_front().expect("one output per frame pushed");
+            if let Some(r) = &p.reference {
+                eval.push(p.number, &out.color, r, p.meta.reset)
+                    .with_context(|| format!("measuring frame {} against its reference", p.number))?;
+            }
+            let mut result = Frame::new(out.color)?;
+            result.meta = p.meta;
+            write_exr(
+                &args.output.join(format!("frame_{:04}.exr", p.number)),
+                &result,
+                &write,
             )?;
-        }
-        records.push(out.record);
-        filter.recycle(result.into_color());
-        bar.inc(1);
-        Ok(())
-    };
+            if args.png {
+                write_png(
+                    &args.output.join(format!("frame_{:04}.png", p.number)),
+                    result.color(),
+                    p.hdr,
+                )?;
+            }
+            records.push(out.record);
+            filter.recycle(result.into_color());
+            bar.inc(1);
+            Ok(())
+        };
     for (i, frame) in input.frames(&in_opts).enumerate() {
         let entry = &input.entries[i];
         let frame = frame?;

@@ -187,10 +187,13 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         let mut ms = Vec::new();
         for fr in &frames {
             let t = Instant::now();
-            let out = f.process(fr)?;
+            let outs = f.push(fr)?;
             ms.push(t.elapsed().as_secs_f64() * 1e3);
-            f.recycle(out.color);
+            for out in outs {
+                f.recycle(out.color);
+            }
         }
+        f.finish()?;
         let local = Timing::of(&ms).median_ms;
         println!(
             "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",

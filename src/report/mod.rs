@@ -450,24 +450,36 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
             let mut eval = Evaluator::new(SpaceChoice::Auto);
             let mut records = Vec::with_capacity(n);
             let mut wall = Vec::with_capacity(n);
-            for (i, frame) in frames.iter().enumerate() {
+            // A windowed filter gives frame i after frame i + lookahead: outputs are
+            // matched to frames in order, and a call's time is shared by what it gave.
+            let mut done = 0usize;
+            for step in 0..=frames.len() {
                 let t = Instant::now();
-                let out = filter.process(frame).map_err(|source| ReportError::Run {
+                let outs = match frames.get(step) {
+                    Some(frame) => filter.push(frame),
+                    None => filter.finish(),
+                }
+                .map_err(|source| ReportError::Run {
                     filter: spec.label.clone(),
                     scene: name.clone(),
-                    index: frame.meta.index,
+                    index: frames.get(step).map_or(frames.len() as u64, |f| f.meta.index),
                     source: Box::new(source),
                 })?;
-                wall.push(t.elapsed().as_secs_f64() * 1e3);
-                let r = frame.reference().expect("scenes render a reference");
-                eval.push(frame.meta.index, &out.color, r, frame.meta.reset)?;
-                records.push(out.record);
-                if i == strip_index {
-                    strip.outputs.push((spec.label.clone(), out.color));
-                } else {
-                    filter.recycle(out.color);
+                let ms = t.elapsed().as_secs_f64() * 1e3 / outs.len().max(1) as f64;
+                for out in outs {
+                    let (i, frame) = (done, &frames[done]);
+                    done += 1;
+                    wall.push(ms);
+                    let r = frame.reference().expect("scenes render a reference");
+                    eval.push(frame.meta.index, &out.color, r, frame.meta.reset)?;
+                    records.push(out.record);
+                    if i == strip_index {
+                        strip.outputs.push((spec.label.clone(), out.color));
+                    } else {
+                        filter.recycle(out.color);
+                    }
+                    tick(&format!("{name}: {}", spec.label));
                 }
-                tick(&format!("{name}: {}", spec.label));
             }
             let s = eval.summary().expect("at least one frame");
             wall_by_filter[k].extend_from_slice(&wall);
@@ -528,19 +540,25 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
                 index,
                 source: Box::new(source),
             };
-            // One untimed frame allocates the state and faults its pages in.
-            let warm = filter.process(&frames[0]).map_err(|e| run_err(0, e))?;
-            filter.recycle(warm.color);
+            // Untimed frames allocate the state, fault its pages in and fill a windowed
+            // filter's window, so that every timed push gives one output.
+            for i in 0..=filter.lookahead() {
+                for out in filter.push(&frames[i % 2]).map_err(|e| run_err(i as u64, e))? {
+                    filter.recycle(out.color);
+                }
+            }
             tick(&label);
             let mut records = Vec::with_capacity(size.frames);
             let mut wall = Vec::with_capacity(size.frames);
             for i in 1..=size.frames {
                 let frame = &frames[i % 2];
                 let t = Instant::now();
-                let out = filter.process(frame).map_err(|e| run_err(frame.meta.index, e))?;
+                let outs = filter.push(frame).map_err(|e| run_err(frame.meta.index, e))?;
                 wall.push(t.elapsed().as_secs_f64() * 1e3);
-                records.push(out.record);
-                filter.recycle(out.color);
+                for out in outs {
+                    records.push(out.record);
+                    filter.recycle(out.color);
+                }
                 tick(&label);
             }
             timing.push(TimingRow {

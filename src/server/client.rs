@@ -4,6 +4,7 @@ use super::proto::afterimage_client::AfterimageClient;
 use super::proto::{self as pb, filtered_chunk, frame_chunk};
 use super::wire;
 use crate::frame::{ChannelSet, Frame, Rgb};
+use std::collections::VecDeque;
 use std::time::Instant;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
@@ -61,7 +62,10 @@ impl Client {
 
     /// Streams `frames` to session `session` one at a time (the next frame is sent when the
     /// previous reply is in, so `round_trip_ms` is a per-frame latency) and calls `on_reply`
-    /// with each reply in order.
+    /// with each reply in order. With a windowed filter (`session.lookahead` = L > 0) the
+    /// reply to frame t comes after frame t + L is sent: the client keeps L frames in
+    /// flight, closes its side after the last frame and reads the rest (`round_trip_ms`
+    /// then counts from the frame's own sending, so it includes the L frames' wait).
     pub async fn stream(
         &mut self,
         session: &pb::Session,
@@ -77,8 +81,11 @@ impl Client {
                 .collect::<Vec<_>>(),
         );
         let max_chunk = session.max_chunk_bytes.max(1) as usize;
+        let lookahead = session.lookahead as usize;
         let (tx, rx) = mpsc::channel::<pb::FrameChunk>(4);
         let mut replies = self.inner.stream(ReceiverStream::new(rx)).await?.into_inner();
+        // Frames sent whose reply has not come: when, and how many bytes.
+        let mut in_flight: VecDeque<(Instant, u64)> = VecDeque::new();
         for frame in frames {
             // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
             let send = if opts.reference && frame.reference().is_some() {
@@ -95,7 +102,7 @@ impl Client {
                 max_chunk,
             );
             let sent: u64 = chunks.iter().map(|c| c.data.len() as u64).sum();
-            let t = Instant::now();
+            in_flight.push_back((Instant::now(), sent));
             let parts = std::iter::once(frame_chunk::Part::Header(header))
                 .chain(chunks.into_iter().map(frame_chunk::Part::Data));
             for part in parts {
@@ -103,38 +110,66 @@ impl Client {
                     .await
                     .map_err(|_| Status::unavailable("the server closed the stream"))?;
             }
-            let head = match replies.next().await {
-                Some(Ok(pb::FilteredChunk {
-                    part: Some(filtered_chunk::Part::Header(h)),
-                })) => h,
-                Some(Ok(_)) => return Err(Status::internal("reply data before its header")),
-                Some(Err(s)) => return Err(s),
-                None => return Err(Status::unavailable("the server ended the stream")),
-            };
-            let color_h = head
-                .color
-                .clone()
-                .ok_or_else(|| Status::internal("reply without colour"))?;
-            let mut bytes = Vec::with_capacity(color_h.byte_length as usize);
-            while (bytes.len() as u64) < color_h.byte_length {
-                match replies.next().await {
-                    Some(Ok(pb::FilteredChunk {
-                        part: Some(filtered_chunk::Part::Data(d)),
-                    })) => bytes.extend_from_slice(&d.data),
-                    Some(Err(s)) => return Err(s),
-                    _ => return Err(Status::internal("reply ended before its colour")),
+            if in_flight.len() > lookahead {
+                let reply = read_reply(&mut replies, &mut in_flight).await?;
+                on_reply(reply.ok_or_else(|| Status::unavailable("the server ended the stream"))?);
+            }
+        }
+        // Closing our side makes a windowed filter give its last frames.
+        drop(tx);
+        while !in_flight.is_empty() {
+            match read_reply(&mut replies, &mut in_flight).await? {
+                Some(reply) => on_reply(reply),
+                None => {
+                    return Err(Status::unavailable(format!(
+                        "the server ended the stream with {} frames unanswered",
+                        in_flight.len()
+                    )))
                 }
             }
-            let color = wire::decode_color(&color_h, &bytes, head.width, head.height)
-                .map_err(|e| Status::internal(e.to_string()))?;
-            on_reply(Reply {
-                index: head.index,
-                color,
-                report: head.report.unwrap_or_default(),
-                round_trip_ms: t.elapsed().as_secs_f64() * 1e3,
-                payload_bytes: sent + bytes.len() as u64,
-            });
         }
         Ok(())
     }
+}
+
+/// Reads one reply (header, then the colour's chunks), matched to the oldest frame in
+/// flight; None when the stream ended cleanly.
+async fn read_reply(
+    replies: &mut tonic::Streaming<pb::FilteredChunk>,
+    in_flight: &mut VecDeque<(Instant, u64)>,
+) -> Result<Option<Reply>, Status> {
+    let head = match replies.next().await {
+        Some(Ok(pb::FilteredChunk {
+            part: Some(filtered_chunk::Part::Header(h)),
+        })) => h,
+        Some(Ok(_)) => return Err(Status::internal("reply data before its header")),
+        Some(Err(s)) => return Err(s),
+        None => return Ok(None),
+    };
+    let color_h = head
+        .color
+        .clone()
+        .ok_or_else(|| Status::internal("reply without colour"))?;
+    let mut bytes = Vec::with_capacity(color_h.byte_length as usize);
+    while (bytes.len() as u64) < color_h.byte_length {
+        match replies.next().await {
+            Some(Ok(pb::FilteredChunk {
+                part: Some(filtered_chunk::Part::Data(d)),
+            })) => bytes.extend_from_slice(&d.data),
+            Some(Err(s)) => return Err(s),
+            _ => return Err(Status::internal("reply ended before its colour")),
+        }
+    }
+    let color = wire::decode_color(&color_h, &bytes, head.width, head.height)
+        .map_err(|e| Status::internal(e.to_string()))?;
+    let (t, sent) = in_flight
+        .pop_front()
+        .ok_or_else(|| Status::internal("a reply to no frame sent"))?;
+    Ok(Some(Reply {
+        index: head.index,
+        color,
+        report: head.report.unwrap_or_default(),
+        round_trip_ms: t.elapsed().as_secs_f64() * 1e3,
+        payload_bytes: sent + bytes.len() as u64,
+    }))
 }

@@ -39,6 +39,7 @@ fn session_pb(s: SessionInfo, max_chunk: usize) -> pb::Session {
         frames: s.frames,
         idle_seconds: s.idle_seconds,
         max_chunk_bytes: max_chunk as u64,
+        lookahead: s.lookahead,
     }
 }
 
@@ -168,6 +169,31 @@ impl Grpc {
 
 type ReplyStream = Pin<Box<dyn Stream<Item = Result<pb::FilteredChunk, Status>> + Send>>;
 
+/// Sends the replies of one frame (or of a flush) in order, or its error; false when the
+/// stream is over (the error sent, or the client gone).
+async fn send_replies(
+    tx: &mpsc::Sender<Result<pb::FilteredChunk, Status>>,
+    replies: Result<Vec<Vec<pb::FilteredChunk>>, SessionError>,
+) -> bool {
+    match replies {
+        Ok(replies) => {
+            for c in replies.into_iter().flatten() {
+                // A full queue waits here: a client that does not read its replies stops
+                // us reading its frames (flow control, bounded memory).
+                if tx.send(Ok(c)).await.is_err() {
+                    return false;
+                }
+            }
+            true
+        }
+        Err(e) => {
+            tracing::debug!(error = %e, "frame refused");
+            let _ = tx.send(Err(status(&e))).await;
+            false
+        }
+    }
+}
+
 async fn handle_stream(
     svc: Service,
     mut inbound: Streaming<pb::FrameChunk>,
@@ -177,6 +203,8 @@ async fn handle_stream(
     let max_frame = svc.config.max_frame_mib << 20;
     let mut current: Option<Assembly> = None;
     let mut stream_session: Option<String> = None;
+    // The last frame's header: how the replies a flush gives are encoded.
+    let mut last_header: Option<pb::FrameHeader> = None;
     let fail = |e: SessionError| {
         svc.metrics.error(e.reason());
         tracing::debug!(error = %e, "stream refused");
@@ -241,23 +269,19 @@ async fn handle_stream(
         if current.as_ref().is_some_and(Assembly::complete) {
             let a = current.take().expect("checked");
             let req = a.header.clone();
+            last_header = Some(req.clone());
             let finish = move |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-            match svc.wire_frame(a, finish).await {
-                Ok(chunks) => {
-                    for c in chunks {
-                        // A full queue waits here: a client that does not read its replies
-                        // stops us reading its frames (flow control, bounded memory).
-                        if tx.send(Ok(c)).await.is_err() {
-                            return;
-                        }
-                    }
-                }
-                Err(e) => {
-                    tracing::debug!(error = %e, "frame refused");
-                    let _ = tx.send(Err(status(&e))).await;
-                    return;
-                }
+            if !send_replies(&tx, svc.wire_frame(a, finish).await).await {
+                return;
             }
+        }
+    }
+    // The client closed its side: a windowed filter's last frames come out now.
+    if let (None, Some(req)) = (&current, last_header) {
+        let id = req.session_id.clone();
+        let finish = move |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
+        if !send_replies(&tx, svc.wire_flush(id, finish).await).await {
+            return;
         }
     }
     if let Some(a) = current {

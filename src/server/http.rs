@@ -8,7 +8,7 @@ use crate::io::{
     read_exr_frame_bytes, write_exr_bytes, Compression, ExrLayout, Precision, ReadOptions, WriteOptions,
 };
 use crate::pipeline;
-use crate::session::{params_from_json, ErrorKind, SessionError, SessionRequest};
+use crate::session::{params_from_json, ErrorKind, Filtered, SessionError, SessionRequest};
 use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::{header, HeaderValue, StatusCode};
@@ -20,6 +20,9 @@ use serde_json::{json, Map, Value};
 
 /// Header of a frame reply carrying its report as JSON.
 pub const RECORD_HEADER: &str = "x-afterimage-record";
+/// Response header: outputs still queued for later requests (a windowed filter gives a
+/// whole shot at once at a cut, or at a flush).
+pub const READY_HEADER: &str = "x-afterimage-ready";
 
 /// An error as an HTTP response: status from its kind, JSON body naming the problem.
 pub struct HttpError(pub SessionError);
@@ -111,7 +114,41 @@ async fn post_frame(State(svc): State<Service>, Path(id): Path<String>, body: By
     // Unknown sessions are refused before decoding the body.
     counted(&svc, svc.sessions.frame_shape(&id))?;
     let frame = counted(&svc, frame_from_exr(&body))?;
-    let f = svc.frame(id, frame).await.map_err(HttpError)?;
+    let index = frame.meta.index;
+    let outs = svc.frame(id.clone(), frame).await.map_err(HttpError)?;
+    let (f, left) = counted(&svc, svc.sessions.queue_and_take(&id, outs))?;
+    match f {
+        Some(f) => exr_response(f, left),
+        None => {
+            let lookahead = counted(&svc, svc.sessions.get(&id))?.lookahead;
+            Ok((
+                StatusCode::ACCEPTED,
+                Json(json!({
+                    "accepted": index,
+                    "lookahead": lookahead,
+                    "message": format!("frame {index} is in the filter's window: its output comes after frame {index} + {lookahead}; POST /v1/sessions/{id}/flush at the end of the sequence for the rest"),
+                })),
+            )
+                .into_response())
+        }
+    }
+}
+
+/// Ends the sequence of a session whose filter looks ahead: each call returns the oldest
+/// output not handed over yet (200 with the EXR; `x-afterimage-ready` says how many more
+/// are queued), then 204 when none is left.
+async fn post_flush(State(svc): State<Service>, Path(id): Path<String>) -> HttpResult<Response> {
+    let outs = svc.flush(id.clone()).await.map_err(HttpError)?;
+    let (f, left) = counted(&svc, svc.sessions.queue_and_take(&id, outs))?;
+    match f {
+        Some(f) => exr_response(f, left),
+        None => Ok(StatusCode::NO_CONTENT.into_response()),
+    }
+}
+
+/// A filtered frame as an EXR body, its figures in the record header, and how many more
+/// outputs are queued for later requests.
+fn exr_response(f: Filtered, left: usize) -> HttpResult<Response> {
     let out = Frame::new(f.color).map_err(|e| HttpError(SessionError::Internal(e.to_string())))?;
     let opts = WriteOptions {
         precision: Precision::F32,
@@ -126,6 +163,7 @@ async fn post_frame(State(svc): State<Service>, Path(id): Path<String>, body: By
     if let Ok(v) = HeaderValue::from_str(&record) {
         h.insert(RECORD_HEADER, v);
     }
+    h.insert(READY_HEADER, HeaderValue::from(left));
     Ok(resp)
 }
 
@@ -161,6 +199,7 @@ pub fn router(svc: Service) -> Router {
         .route("/v1/sessions", post(create))
         .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
         .route("/v1/sessions/{id}/frames", post(post_frame))
+        .route("/v1/sessions/{id}/flush", post(post_flush))
         .layer(DefaultBodyLimit::max(limit))
         .with_state(svc)
 }

@@ -54,35 +54,80 @@ impl Service {
         self.count(r)
     }
 
-    /// Decodes an assembled wire frame, filters it and builds the reply with `finish`
-    /// (given the result and the server time in ms), all on the rayon pool; the output's
-    /// planes then go back to the session's filter for the next frame.
+    /// Decodes an assembled wire frame, filters it and builds a reply with `finish` for
+    /// every output that came out (given it and the server time in ms, shared by the
+    /// outputs), all on the rayon pool; the outputs' planes then go back to the session's
+    /// filter for the next frame. A windowed filter gives no output while its window
+    /// fills, so the list may be empty.
     pub async fn wire_frame<R: Send + 'static>(
         &self,
         a: Assembly,
-        finish: impl FnOnce(&Filtered, f64) -> R + Send + 'static,
-    ) -> Result<R, SessionError> {
+        finish: impl Fn(&Filtered, f64) -> R + Send + 'static,
+    ) -> Result<Vec<R>, SessionError> {
         let id = a.header.session_id.clone();
         let metrics = self.metrics.clone();
         self.on_pool(move |s| {
             let t = Instant::now();
             let (w, h, allowed) = s.frame_shape(&id)?;
             let frame = wire::decode(&a, w, h, allowed)?;
-            let out = s.process(&id, frame, MotionInput::Session)?;
-            let reply = finish(&out, t.elapsed().as_secs_f64() * 1e3);
-            metrics.frame(&out.record);
-            s.recycle(&id, out.color);
-            Ok(reply)
+            let outs = s.process(&id, frame, MotionInput::Session)?;
+            Ok(Self::replies(s, &id, &metrics, outs, t, finish))
         })
         .await
     }
 
-    /// Filters a decoded frame whose motion is already internal.
-    pub async fn frame(&self, id: String, frame: Frame) -> Result<Filtered, SessionError> {
-        let f = self
+    /// The end of a stream: the outputs session `id`'s windowed filter still holds, each
+    /// made a reply by `finish`, as [`Service::wire_frame`].
+    pub async fn wire_flush<R: Send + 'static>(
+        &self,
+        id: String,
+        finish: impl Fn(&Filtered, f64) -> R + Send + 'static,
+    ) -> Result<Vec<R>, SessionError> {
+        let metrics = self.metrics.clone();
+        self.on_pool(move |s| {
+            let t = Instant::now();
+            let outs = s.flush(&id)?;
+            Ok(Self::replies(s, &id, &metrics, outs, t, finish))
+        })
+        .await
+    }
+
+    fn replies<R>(
+        s: &Sessions,
+        id: &str,
+        metrics: &Metrics,
+        outs: Vec<Filtered>,
+        t: Instant,
+        finish: impl Fn(&Filtered, f64) -> R,
+    ) -> Vec<R> {
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        outs.into_iter()
+            .map(|out| {
+                let reply = finish(&out, ms);
+                metrics.frame(&out.record);
+                s.recycle(id, out.color);
+                reply
+            })
+            .collect()
+    }
+
+    /// Filters a decoded frame whose motion is already internal; the outputs that came out.
+    pub async fn frame(&self, id: String, frame: Frame) -> Result<Vec<Filtered>, SessionError> {
+        let outs = self
             .on_pool(move |s| s.process(&id, frame, MotionInput::Internal))
             .await?;
-        self.metrics.frame(&f.record);
-        Ok(f)
+        for f in &outs {
+            self.metrics.frame(&f.record);
+        }
+        Ok(outs)
+    }
+
+    /// Ends session `id`'s sequence: what its windowed filter still holds.
+    pub async fn flush(&self, id: String) -> Result<Vec<Filtered>, SessionError> {
+        let outs = self.on_pool(move |s| s.flush(&id)).await?;
+        for f in &outs {
+            self.metrics.frame(&f.record);
+        }
+        Ok(outs)
     }
 }

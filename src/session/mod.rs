@@ -9,7 +9,7 @@ use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
 use crate::pipeline::{self, Filter, FilterError, FrameRecord};
 use serde::Serialize;
 use serde_json::{Map, Value};
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -205,6 +205,9 @@ pub struct SessionInfo {
     pub frames: u64,
     /// Seconds since the last use.
     pub idle_seconds: f64,
+    /// Frames of latency: frame t comes out after frame t + lookahead went in (windowed
+    /// filters; 0 for causal ones).
+    pub lookahead: u32,
 }
 
 /// A filtered frame and its figures.
@@ -230,6 +233,12 @@ struct Inner {
     space: Option<MetricSpace>,
     frames: u64,
     failed: Option<String>,
+    /// References of the frames filtered whose output has not come out yet (windowed
+    /// filters hold `lookahead` of them), oldest first.
+    pending: VecDeque<Option<Rgb>>,
+    /// Outputs that came out but were not handed over yet (the HTTP API returns one per
+    /// request), oldest first.
+    ready: VecDeque<Filtered>,
 }
 
 struct Session {
@@ -398,6 +407,7 @@ impl Sessions {
                 state_bytes,
                 frames: 0,
                 idle_seconds: 0.0,
+                lookahead: filter.lookahead() as u32,
             },
             channels,
             needs,
@@ -409,6 +419,8 @@ impl Sessions {
                 space: None,
                 frames: 0,
                 failed: None,
+                pending: VecDeque::new(),
+                ready: VecDeque::new(),
             }),
         });
         let mut map = lock(&self.map);
@@ -502,11 +514,18 @@ impl Sessions {
         Ok((s.info.width, s.info.height, s.channels))
     }
 
-    /// Filters one frame of session `id` (blocking: call it on the rayon pool). The frame
-    /// must have the session's size and the channels the filter needs; its motion is in
-    /// the session's convention (or already internal with [`MotionInput::Internal`]). On
-    /// any error the session's state is as it was.
-    pub fn process(&self, id: &str, mut frame: Frame, motion: MotionInput) -> Result<Filtered, SessionError> {
+    /// Filters one frame of session `id` (blocking: call it on the rayon pool) and returns
+    /// the outputs that came out, oldest first: this frame's own for a causal filter; for
+    /// a windowed one the frame `lookahead` back (none while its window fills; a whole shot
+    /// at a cut). The frame must have the session's size and the channels the filter
+    /// needs; its motion is in the session's convention (or already internal with
+    /// [`MotionInput::Internal`]). On any error the session's state is as it was.
+    pub fn process(
+        &self,
+        id: &str,
+        mut frame: Frame,
+        motion: MotionInput,
+    ) -> Result<Vec<Filtered>, SessionError> {
         self.check_open()?;
         let s = self.get_arc(id)?;
         *lock(&s.last_used) = Instant::now();
@@ -557,27 +576,86 @@ impl Sessions {
             let prev = inner.jitter_prev.unwrap_or(frame.meta.jitter);
             s.motion.frame_to_internal(&mut frame, prev);
         }
-        let reference = frame.reference().cloned();
         let jitter = frame.meta.jitter;
         let index = frame.meta.index;
-        let result = catch_unwind(AssertUnwindSafe(|| inner.filter.process(&frame)));
-        let out = match result {
-            Ok(Ok(out)) => out,
-            Ok(Err(e)) => return Err(filter_error(e)),
+        inner.pending.push_back(frame.reference().cloned());
+        let outs = Self::guarded(&s.info.filter, id, &mut inner, &format!("frame {index}"), |f| {
+            f.push(&frame)
+        });
+        if outs.is_err() {
+            inner.pending.pop_back();
+        }
+        let outs = outs?;
+        inner.jitter_prev = Some(jitter);
+        inner.frames += 1;
+        outs.into_iter().map(|o| Self::measured(&mut inner, o)).collect()
+    }
+
+    /// Ends session `id`'s sequence: the outputs a windowed filter still holds, oldest
+    /// first (none for a causal filter). The session stays open; the next frame starts a
+    /// new sequence.
+    pub fn flush(&self, id: &str) -> Result<Vec<Filtered>, SessionError> {
+        self.check_open()?;
+        let s = self.get_arc(id)?;
+        *lock(&s.last_used) = Instant::now();
+        let mut inner = lock(&s.inner);
+        if let Some(message) = &inner.failed {
+            return Err(SessionError::Failed {
+                id: id.to_string(),
+                message: message.clone(),
+            });
+        }
+        let outs = Self::guarded(&s.info.filter, id, &mut inner, "the flush", |f| f.finish())?;
+        let outs: Result<Vec<Filtered>, SessionError> =
+            outs.into_iter().map(|o| Self::measured(&mut inner, o)).collect();
+        inner.pending.clear();
+        outs
+    }
+
+    /// Queues outputs of session `id` to be handed over one at a time, then takes the
+    /// oldest queued one; also returns how many are left after it.
+    pub fn queue_and_take(
+        &self,
+        id: &str,
+        outs: Vec<Filtered>,
+    ) -> Result<(Option<Filtered>, usize), SessionError> {
+        let s = self.get_arc(id)?;
+        let mut inner = lock(&s.inner);
+        inner.ready.extend(outs);
+        let first = inner.ready.pop_front();
+        Ok((first, inner.ready.len()))
+    }
+
+    /// Runs `call` on the session's filter with a panic kept inside the session: the
+    /// session is marked failed (later frames are refused with the message) and the
+    /// server goes on.
+    fn guarded(
+        filter: &str,
+        id: &str,
+        inner: &mut Inner,
+        what: &str,
+        call: impl FnOnce(&mut dyn Filter) -> Result<Vec<pipeline::Output>, FilterError>,
+    ) -> Result<Vec<pipeline::Output>, SessionError> {
+        match catch_unwind(AssertUnwindSafe(|| call(inner.filter.as_mut()))) {
+            Ok(Ok(outs)) => Ok(outs),
+            Ok(Err(e)) => Err(filter_error(e)),
             Err(panic) => {
-                let what = panic
+                let cause = panic
                     .downcast_ref::<&str>()
                     .map(|s| s.to_string())
                     .or_else(|| panic.downcast_ref::<String>().cloned())
                     .unwrap_or_else(|| "a panic".into());
-                let message = format!("filter {} panicked on frame {index}: {what}", s.info.filter);
+                let message = format!("filter {filter} panicked on {what}: {cause}");
                 tracing::error!(id, %message, "session failed");
                 inner.failed = Some(message.clone());
-                return Err(SessionError::Internal(message));
+                Err(SessionError::Internal(message))
             }
-        };
-        inner.jitter_prev = Some(jitter);
-        inner.frames += 1;
+        }
+    }
+
+    /// An output with its figures against the reference its frame came with.
+    fn measured(inner: &mut Inner, out: pipeline::Output) -> Result<Filtered, SessionError> {
+        let reference = inner.pending.pop_front().flatten();
         let (psnr, ssim_v) = match reference {
             Some(r) => {
                 let space = *inner.space.get_or_insert_with(|| SpaceChoice::Auto.resolve(&r));
@@ -590,7 +668,7 @@ impl Sessions {
             None => (None, None),
         };
         Ok(Filtered {
-            index,
+            index: out.record.index,
             color: out.color,
             record: out.record,
             psnr,
@@ -687,7 +765,8 @@ mod tests {
             let got = sessions
                 .process(&healthy, frame(i), MotionInput::Internal)
                 .unwrap();
-            assert_eq!(got.color, want, "healthy session, frame {i}");
+            assert_eq!(got.len(), 1, "a causal filter gives its frame at once");
+            assert_eq!(got[0].color, want, "healthy session, frame {i}");
             let sick_result = sessions.process(&sick, frame(i), MotionInput::Internal);
             match (i, sick_result) {
                 (0 | 1, Ok(_)) => {}

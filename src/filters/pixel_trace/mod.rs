@@ -25,6 +25,7 @@
 mod trace;
 
 use crate::frame::{ChannelKind, ChannelSet, Frame};
+use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
     check_needs, params::FilterParams, prepare, Filter, FilterError, FilterKind, InputCounts, Output,
     ParamKind, ParamSpec, PixelCounts, Recorder, Skip, WindowRecord,
@@ -134,9 +135,11 @@ impl FilterParams for Params {
     ];
 }
 
-/// Stage names.
-const TRACE: &str = "trace";
+/// Stage names: the paths and maps to t0, the missed flows scattered in, the primary flow
+/// gathered and every flow blended.
+const PATHS: &str = "paths";
 const SEPARATE: &str = "separate_flows";
+const BLEND: &str = "blend";
 
 /// The pixel-tracing filter: a window of frames and the next one to output.
 #[derive(Debug)]
@@ -146,6 +149,8 @@ pub struct PixelTrace {
     /// with the input samples repaired in each.
     frames: VecDeque<Frame>,
     repaired: VecDeque<InputCounts>,
+    /// Time each frame's repair took (None: nothing to repair).
+    repair_ms: VecDeque<Option<f64>>,
     /// Position in the shot of `frames[0]`.
     base: usize,
     /// Position in the shot of the next frame to output.
@@ -156,7 +161,7 @@ impl FilterKind for PixelTrace {
     const NAME: &'static str = "pixel_trace";
     const SUMMARY: &'static str =
         "Shinya's pixel-tracing filter (1993): a window of past and future frames along motion paths, flows separated; offline, T/2 frames of latency";
-    const STAGES: &'static [&'static str] = &[TRACE, SEPARATE];
+    const STAGES: &'static [&'static str] = &[REPAIR_STAGE, PATHS, SEPARATE, BLEND];
     type Params = Params;
     fn needs() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion])
@@ -177,6 +182,7 @@ impl FilterKind for PixelTrace {
             params,
             frames: VecDeque::new(),
             repaired: VecDeque::new(),
+            repair_ms: VecDeque::new(),
             base: 0,
             emitted: 0,
         }
@@ -196,10 +202,12 @@ impl PixelTrace {
             frames,
             centre: pos - first,
         };
-        let (color, counts) = rec.run(TRACE, || trace::trace(&win, &self.params));
-        if !self.params.flow_separation {
-            rec.skip(SEPARATE, Skip::Disabled { param: "flow_separation" });
+        // The output frame's own repair, timed when it arrived.
+        match self.repair_ms[pos - self.base] {
+            Some(ms) => rec.ran_for(REPAIR_STAGE, ms),
+            None => rec.skip(REPAIR_STAGE, Skip::CleanInput),
         }
+        let (color, counts) = trace::trace(&win, &self.params, &mut rec);
         let mut record = rec.finish(
             Self::NAME,
             centre_frame.meta.index,
@@ -230,6 +238,7 @@ impl PixelTrace {
         while self.base + half < self.emitted && !self.frames.is_empty() {
             self.frames.pop_front();
             self.repaired.pop_front();
+            self.repair_ms.pop_front();
             self.base += 1;
         }
         if end_of_shot {
@@ -240,8 +249,13 @@ impl PixelTrace {
 
     /// The frame with its colour, depth and motion repaired (non-finite and negative
     /// samples replaced, as every filter's input is) and only the channels the paths read.
-    fn keep(frame: &Frame) -> Result<(Frame, InputCounts), FilterError> {
-        let inp = prepare(frame, Self::uses(), &mut Recorder::new())?;
+    fn keep(frame: &Frame) -> Result<(Frame, InputCounts, Option<f64>), FilterError> {
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        let repair_ms = rec
+            .finish(Self::NAME, 0, PixelCounts::default(), InputCounts::default(), 0)
+            .stage(REPAIR_STAGE)
+            .and_then(|s| s.ms);
         let mut f = Frame::new(inp.color.into_owned())?;
         f.meta = frame.meta.clone();
         if let Some(d) = inp.depth {
@@ -252,13 +266,15 @@ impl PixelTrace {
         }
         if let Some(m) = frame.motion_next() {
             // Non-finite vectors end a path: the tracer loses them at the image's edge.
-            let m = m.clone().map(|p| p.map(|v| if v.is_finite() { v } else { f32::NAN }));
+            let m = m
+                .clone()
+                .map(|p| p.map(|v| if v.is_finite() { v } else { f32::NAN }));
             f.set_f32(ChannelKind::MotionNext, m.into())?;
         }
         if let Some(ids) = inp.object_id {
             f.set_object_id(ids.clone())?;
         }
-        Ok((f, inp.counts))
+        Ok((f, inp.counts, repair_ms))
     }
 }
 
@@ -280,7 +296,7 @@ impl Filter for PixelTrace {
     }
     fn push(&mut self, frame: &Frame) -> Result<Vec<Output>, FilterError> {
         check_needs(Self::NAME, Self::needs(), frame)?;
-        let (kept, repaired) = Self::keep(frame)?;
+        let (kept, repaired, repair_ms) = Self::keep(frame)?;
         let mut out = Vec::new();
         if let Some(held) = self.frames.back() {
             if frame.meta.reset {
@@ -298,6 +314,7 @@ impl Filter for PixelTrace {
         }
         self.frames.push_back(kept);
         self.repaired.push_back(repaired);
+        self.repair_ms.push_back(repair_ms);
         out.extend(self.drain(false));
         Ok(out)
     }
@@ -311,6 +328,7 @@ impl Filter for PixelTrace {
     fn reset(&mut self) {
         self.frames.clear();
         self.repaired.clear();
+        self.repair_ms.clear();
         self.base = 0;
         self.emitted = 0;
     }

@@ -5,9 +5,10 @@
 //! Positions are continuous pixel coordinates: pixel `(x, y)` covers `[x, x+1) x [y, y+1)`,
 //! its centre is `(x + 0.5, y + 0.5)`, its sample in frame `l` lies at centre + jitter_l.
 
-use super::{Kernel, Params};
+use super::{Kernel, Params, BLEND, PATHS, SEPARATE};
 use crate::frame::{Frame, Plane, Rgb};
 use crate::pipeline::exec::{par_rows, pool};
+use crate::pipeline::{Recorder, Skip};
 use rayon::prelude::*;
 use std::ops::AddAssign;
 
@@ -207,8 +208,9 @@ fn first_forward(frame: &Frame, i: usize) -> Pos {
     }
 }
 
-/// Filters the centre frame of `win`; returns its colour and what happened.
-pub fn trace(win: &Window, params: &Params) -> (Rgb, TraceCounts) {
+/// Filters the centre frame of `win` (stages timed into `rec`); returns its colour and
+/// what happened.
+pub fn trace(win: &Window, params: &Params, rec: &mut Recorder) -> (Rgb, TraceCounts) {
     let frames = &win.frames;
     let c = win.centre;
     let g = Geometry {
@@ -230,83 +232,91 @@ pub fn trace(win: &Window, params: &Params) -> (Rgb, TraceCounts) {
     let mut to_centre: Vec<Vec<Pos>> = vec![Vec::new(); n];
     let home = frames[c];
     let motion_c = home.motion().expect("the filter needs motion");
-    pool().install(|| {
-        paths[c] = (0..px).map(|i| g.centre(i)).collect();
-        to_centre[c] = paths[c].clone();
-        // Backwards from l0.
-        let mut state: Vec<(Pos, Pos)> = (0..px).map(|i| (g.centre(i), at(motion_c, i))).collect();
-        for l in (0..c).rev() {
-            state = state
-                .par_iter()
-                .enumerate()
-                .map(|(i, &(p, v))| step_back(&g, frames, l + 1, p, v, id_of(home, i)))
-                .collect();
-            paths[l] = state.iter().map(|s| s.0).collect();
-        }
-        // Forwards from l0.
-        let mut state: Vec<(Pos, Pos)> = (0..px).map(|i| (g.centre(i), first_forward(home, i))).collect();
-        for l in c + 1..n {
-            state = state
-                .par_iter()
-                .enumerate()
-                .map(|(i, &(p, v))| step_forward(&g, frames, l - 1, p, v, id_of(home, i)))
-                .collect();
-            paths[l] = state.iter().map(|s| s.0).collect();
-        }
-        // Every pixel of frame l to l0: steps towards l0 until a frame shows the object at
-        // the position reached, then that frame's map (already built); where no frame does,
-        // the steps reach l0 themselves.
-        for l in (0..c).rev() {
-            let f = frames[l];
-            let (_, rest) = to_centre.split_at_mut(l + 1);
-            let maps = &*rest;
-            to_centre[l] = (0..px)
-                .into_par_iter()
-                .map(|i| {
-                    let id = id_of(f, i);
-                    let (mut y, mut v) = step_forward(&g, frames, l, g.centre(i), first_forward(f, i), id);
-                    for m in l + 1..=c {
-                        match g.pixel(y) {
-                            None => return LOST,
-                            Some(j) if m == c || shows(frames[m], j, id) => {
-                                return through(&g, &maps[m - l - 1], y)
+    rec.run(PATHS, || {
+        pool().install(|| {
+            paths[c] = (0..px).map(|i| g.centre(i)).collect();
+            to_centre[c] = paths[c].clone();
+            // Backwards from l0.
+            let mut state: Vec<(Pos, Pos)> = (0..px).map(|i| (g.centre(i), at(motion_c, i))).collect();
+            for l in (0..c).rev() {
+                state = state
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, &(p, v))| step_back(&g, frames, l + 1, p, v, id_of(home, i)))
+                    .collect();
+                paths[l] = state.iter().map(|s| s.0).collect();
+            }
+            // Forwards from l0.
+            let mut state: Vec<(Pos, Pos)> = (0..px).map(|i| (g.centre(i), first_forward(home, i))).collect();
+            for l in c + 1..n {
+                state = state
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, &(p, v))| step_forward(&g, frames, l - 1, p, v, id_of(home, i)))
+                    .collect();
+                paths[l] = state.iter().map(|s| s.0).collect();
+            }
+            // Every pixel of frame l to l0: steps towards l0 until a frame shows the object at
+            // the position reached, then that frame's map (already built); where no frame does,
+            // the steps reach l0 themselves.
+            for l in (0..c).rev() {
+                let f = frames[l];
+                let (_, rest) = to_centre.split_at_mut(l + 1);
+                let maps = &*rest;
+                to_centre[l] = (0..px)
+                    .into_par_iter()
+                    .map(|i| {
+                        let id = id_of(f, i);
+                        let (mut y, mut v) =
+                            step_forward(&g, frames, l, g.centre(i), first_forward(f, i), id);
+                        for m in l + 1..=c {
+                            match g.pixel(y) {
+                                None => return LOST,
+                                Some(j) if m == c || shows(frames[m], j, id) => {
+                                    return through(&g, &maps[m - l - 1], y)
+                                }
+                                Some(_) => (y, v) = step_forward(&g, frames, m, y, v, id),
                             }
-                            Some(_) => (y, v) = step_forward(&g, frames, m, y, v, id),
                         }
-                    }
-                    LOST
-                })
-                .collect();
-        }
-        for l in c + 1..n {
-            let f = frames[l];
-            let m0 = f.motion().expect("the filter needs motion");
-            let (maps, _) = to_centre.split_at_mut(l);
-            let maps = &*maps;
-            let mapped: Vec<Pos> = (0..px)
-                .into_par_iter()
-                .map(|i| {
-                    let id = id_of(f, i);
-                    let (mut y, mut v) = step_back(&g, frames, l, g.centre(i), at(m0, i), id);
-                    for m in (c..l).rev() {
-                        match g.pixel(y) {
-                            None => return LOST,
-                            Some(j) if m == c || shows(frames[m], j, id) => return through(&g, &maps[m], y),
-                            Some(_) => (y, v) = step_back(&g, frames, m, y, v, id),
+                        LOST
+                    })
+                    .collect();
+            }
+            for l in c + 1..n {
+                let f = frames[l];
+                let m0 = f.motion().expect("the filter needs motion");
+                let (maps, _) = to_centre.split_at_mut(l);
+                let maps = &*maps;
+                let mapped: Vec<Pos> = (0..px)
+                    .into_par_iter()
+                    .map(|i| {
+                        let id = id_of(f, i);
+                        let (mut y, mut v) = step_back(&g, frames, l, g.centre(i), at(m0, i), id);
+                        for m in (c..l).rev() {
+                            match g.pixel(y) {
+                                None => return LOST,
+                                Some(j) if m == c || shows(frames[m], j, id) => {
+                                    return through(&g, &maps[m], y)
+                                }
+                                Some(_) => (y, v) = step_back(&g, frames, m, y, v, id),
+                            }
                         }
-                    }
-                    LOST
-                })
-                .collect();
-            to_centre[l] = mapped;
-        }
+                        LOST
+                    })
+                    .collect();
+                to_centre[l] = mapped;
+            }
+        })
     });
 
     // Missed objects (eq. 13): samples of other frames that land in a pixel's
     // reconstruction area at l0 but fail the two-way test with its own flow.
     let mut missed: Vec<Flows> = vec![Flows::default(); if params.flow_separation { px } else { 0 }];
     let mut dropped = 0u64;
-    if params.flow_separation {
+    let skip = (!params.flow_separation).then_some(Skip::Disabled {
+        param: "flow_separation",
+    });
+    rec.stage(SEPARATE, skip, || {
         for l in (0..n).filter(|&l| l != c) {
             let f = frames[l];
             let [cr, cg, cb] = f.color().each_ref().map(|p| p.data());
@@ -333,57 +343,60 @@ pub fn trace(win: &Window, params: &Params) -> (Rgb, TraceCounts) {
                 });
             }
         }
-    }
+    });
 
     // Primary flow of every pixel (eq. 11 normalised, eq. 14-16), then the blend (eq. 17).
     let mut out: Rgb = std::array::from_fn(|_| Plane::new(g.w, g.h));
     let [or, og, ob] = out.each_mut().map(|p| p.data_mut());
     let centre_depth = frames[c].depth();
-    let mut counts = par_rows([or, og, ob], g.w, |y, [rr, rg, rb]| {
-        let mut counts = TraceCounts::default();
-        for x in 0..g.w {
-            let k0 = y * g.w + x;
-            let home = g.centre(k0);
-            let (mut sum, mut sum_w, mut total) = ([0.0f32; 3], 0.0f32, 0.0f32);
-            for l in 0..n {
-                let p = paths[l][k0];
-                if p[0].is_nan() {
-                    continue;
-                }
-                let f = frames[l];
-                let col = f.color();
-                // Samples k with w(chi(l; k0, l0) - s_k) != 0.
-                for_footprint(&g, sub(p, jitter[l]), r, |k| {
-                    let s = add(g.centre(k), jitter[l]);
-                    let wgt = params.kernel.weight(sub(p, s), r);
-                    if wgt == 0.0 {
-                        return;
+    let mut counts = rec.run(BLEND, || {
+        par_rows([or, og, ob], g.w, |y, [rr, rg, rb]| {
+            let mut counts = TraceCounts::default();
+            for x in 0..g.w {
+                let k0 = y * g.w + x;
+                let home = g.centre(k0);
+                let (mut sum, mut sum_w, mut total) = ([0.0f32; 3], 0.0f32, 0.0f32);
+                for l in 0..n {
+                    let p = paths[l][k0];
+                    if p[0].is_nan() {
+                        continue;
                     }
-                    total += wgt;
-                    // Eq. 14: the sample's own path reaches l0 near k0 (eq. 15 holds in
-                    // the footprint). Without separation every sample counts.
-                    let same = !params.flow_separation || dist(home, add(to_centre[l][k], jitter[l])) < d_th;
-                    if same {
-                        for (a, ch) in sum.iter_mut().zip(col.iter()) {
-                            *a += wgt * ch.data()[k];
+                    let f = frames[l];
+                    let col = f.color();
+                    // Samples k with w(chi(l; k0, l0) - s_k) != 0.
+                    for_footprint(&g, sub(p, jitter[l]), r, |k| {
+                        let s = add(g.centre(k), jitter[l]);
+                        let wgt = params.kernel.weight(sub(p, s), r);
+                        if wgt == 0.0 {
+                            return;
                         }
-                        sum_w += wgt;
-                    }
-                });
+                        total += wgt;
+                        // Eq. 14: the sample's own path reaches l0 near k0 (eq. 15 holds in
+                        // the footprint). Without separation every sample counts.
+                        let same =
+                            !params.flow_separation || dist(home, add(to_centre[l][k], jitter[l])) < d_th;
+                        if same {
+                            for (a, ch) in sum.iter_mut().zip(col.iter()) {
+                                *a += wgt * ch.data()[k];
+                            }
+                            sum_w += wgt;
+                        }
+                    });
+                }
+                let own = Flow {
+                    key: u32::MAX,
+                    w: sum_w,
+                    rgb: sum,
+                    z: centre_depth.map_or(f32::INFINITY, |d| d.data()[k0]),
+                };
+                let others = missed.get(k0).map_or(&[][..], |f| f.as_slice());
+                let rgb = blend(own, others, total, &mut counts);
+                rr[x] = rgb[0];
+                rg[x] = rgb[1];
+                rb[x] = rgb[2];
             }
-            let own = Flow {
-                key: u32::MAX,
-                w: sum_w,
-                rgb: sum,
-                z: centre_depth.map_or(f32::INFINITY, |d| d.data()[k0]),
-            };
-            let others = missed.get(k0).map_or(&[][..], |f| f.as_slice());
-            let rgb = blend(own, others, total, &mut counts);
-            rr[x] = rgb[0];
-            rg[x] = rgb[1];
-            rb[x] = rgb[2];
-        }
-        counts
+            counts
+        })
     });
     counts.dropped = dropped;
     (out, counts)
