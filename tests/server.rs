@@ -5,7 +5,7 @@
 
 use afterimage::frame::{Frame, Plane, Rgb};
 use afterimage::io::{write_exr_bytes, Compression, ExrLayout, Precision, WriteOptions};
-use afterimage::pipeline::create;
+use afterimage::pipeline::{create, run_sequence};
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, SendOptions};
 use afterimage::server::proto::{self as pb, frame_chunk};
@@ -30,7 +30,11 @@ fn frames(scene: &str, n: u64, seed: u64) -> Vec<Frame> {
 
 fn in_process(filter: &str, frames: &[Frame]) -> Vec<Rgb> {
     let mut f = create(filter, &Default::default()).unwrap();
-    frames.iter().map(|fr| f.process(fr).unwrap().color).collect()
+    run_sequence(f.as_mut(), frames)
+        .unwrap()
+        .into_iter()
+        .map(|o| o.color)
+        .collect()
 }
 
 fn f16_round(frames: &[Frame]) -> Vec<Frame> {
@@ -47,10 +51,14 @@ fn f16_round(frames: &[Frame]) -> Vec<Frame> {
             for kind in [
                 afterimage::frame::ChannelKind::Depth,
                 afterimage::frame::ChannelKind::Motion,
+                afterimage::frame::ChannelKind::MotionNext,
             ] {
                 if let Some(planes) = f.planes(kind) {
                     g.set_f32(kind, planes.iter().map(q).collect()).unwrap();
                 }
+            }
+            if let Some(ids) = f.object_id() {
+                g.set_object_id(ids.clone()).unwrap();
             }
             g
         })
@@ -121,9 +129,11 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
     let r = server(|_| {}).await;
     let mut c = client(&r).await;
     let fr = frames("moving-sphere", 6, 1);
-    for filter in ["taa", "phlm"] {
+    // pixel_trace looks 8 frames ahead: every reply comes when the client closes its side.
+    for filter in ["taa", "phlm", "pixel_trace"] {
         let s = open(&mut c, filter).await;
         assert_eq!(s.id.len(), 32);
+        assert_eq!(s.lookahead, if filter == "pixel_trace" { 8 } else { 0 });
         let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
         same(&got, &in_process(filter, &fr), filter);
         // zstd on the wire changes nothing.
@@ -535,6 +545,82 @@ async fn http_frames_are_bit_identical_too() {
             &format!("http frame {i}"),
         );
     }
+    // A windowed filter: 202 while its window fills, then frame t after frame t + 2; the
+    // flush gives the rest one per request, then 204.
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        br#"{"filter":"pixel_trace","params":{"window":4},"width":64,"height":36}"#,
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 201, "{}", String::from_utf8_lossy(&body));
+    let s: Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(s["lookahead"], 2);
+    let pid = s["id"].as_str().unwrap().to_string();
+    let mut f = create(
+        "pixel_trace",
+        &afterimage::pipeline::params::parse_assignments(&["window=4"]).unwrap(),
+    )
+    .unwrap();
+    let want = run_sequence(f.as_mut(), &fr).unwrap();
+    let mut got = Vec::new();
+    let read = |body: &[u8]| {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("out.exr");
+        std::fs::write(&p, body).unwrap();
+        afterimage::io::read_frame(&p, &Default::default())
+            .unwrap()
+            .color()
+            .clone()
+    };
+    for (i, f) in fr.iter().enumerate() {
+        let exr = write_exr_bytes(f, &opts).unwrap();
+        let (st, _, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{pid}/frames"),
+            &exr,
+            "image/x-exr",
+        )
+        .await;
+        if i < 2 {
+            assert_eq!(st, 202, "{}", String::from_utf8_lossy(&body));
+            let v: Value = serde_json::from_slice(&body).unwrap();
+            assert!(v["message"].as_str().unwrap().contains("flush"), "{v}");
+        } else {
+            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+            got.push(read(&body));
+        }
+    }
+    loop {
+        let (st, headers, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{pid}/flush"),
+            b"",
+            "text/plain",
+        )
+        .await;
+        if st == 204 {
+            break;
+        }
+        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+        assert!(
+            headers.to_ascii_lowercase().contains("x-afterimage-ready: "),
+            "{headers}"
+        );
+        got.push(read(&body));
+    }
+    let want: Vec<Rgb> = want.into_iter().map(|o| o.color).collect();
+    same(&got, &want, "http pixel_trace");
+    assert_eq!(
+        http(addr, "DELETE", &format!("/v1/sessions/{pid}"), b"", "text/plain")
+            .await
+            .0,
+        200
+    );
     // Errors: status and a JSON body naming the problem.
     let (st, _, body) = http(
         addr,
