@@ -302,7 +302,10 @@ fn filters_lists_every_filter_with_bounds_and_bad_params_are_refused() {
         .iter()
         .map(|f| f["name"].as_str().unwrap())
         .collect();
-    assert_eq!(names, ["passthrough", "fxaa", "taa", "traa", "phlm"]);
+    assert_eq!(
+        names,
+        ["passthrough", "fxaa", "taa", "traa", "phlm", "pixel_trace"]
+    );
     let taa = &v[2];
     assert_eq!(taa["defaults"]["alpha"], 0.1);
     assert_eq!(taa["params"][0]["kind"]["max"], 1.0);

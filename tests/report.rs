@@ -71,12 +71,16 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
             .collect();
         assert_eq!(rows, filters, "{key}");
     }
-    // State per megapixel matches each filter's declared bytes per pixel.
+    // State per megapixel matches each filter's declared bytes per pixel; a windowed
+    // filter's is the frames it holds, at most its declared full window of every channel.
     for (info, row) in list().iter().zip(r["timing"].as_array().unwrap()) {
         let got = finite(&row["cost"]["state_bytes_per_megapixel"], info.name);
-        Tolerance::rel(1e-9)
-            .check(info.name, got, info.state_bytes_per_pixel as f64 * 1e6)
-            .unwrap();
+        let declared = info.state_bytes_per_pixel as f64 * 1e6;
+        if info.name == "pixel_trace" {
+            assert!(got > 0.0 && got <= declared, "{}: {got} of {declared}", info.name);
+        } else {
+            Tolerance::rel(1e-9).check(info.name, got, declared).unwrap();
+        }
     }
     assert!(finite(&r["bandwidth"]["bytes_per_s"], "bandwidth") > 1e8);
 
