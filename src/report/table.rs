@@ -65,8 +65,8 @@ pub fn markdown(r: &Report) -> String {
         o,
         "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, seed {}. \
          Copy bandwidth {:.1} GB/s ({} threads, {} MiB buffers, median of {}). \
-         ms/frame is the wall time of one `process` call; the floor is the bytes a filter must \
-         move per frame over that bandwidth. PSNR and SSIM are means over frames against the \
+         ms/frame is the wall time of filtering one frame (one `push`; a windowed filter's gives the \
+         frame T/2 back); the floor is the bytes a filter must move per frame over that bandwidth. PSNR and SSIM are means over frames against the \
          reference; tRMSE charges flicker and lag.\n",
         r.scenes.len(),
         s.width,

@@ -333,8 +333,9 @@ pub fn trace(win: &Window, params: &Params, rec: &mut Recorder) -> (Rgb, TraceCo
                 let rgb = [cr[k], cg[k], cb[k]];
                 for_footprint(&g, q, r, |k0| {
                     let wgt = params.kernel.weight(sub(g.centre(k0), q), r);
-                    // Eq. 14 holds inside the footprint (r <= d_th); eq. 15 decides.
-                    if wgt == 0.0 || dist(s, paths[l][k0]) < d_th {
+                    // In k0's own flow when both eq. 14 and eq. 15 hold: counted there.
+                    let own = dist(g.centre(k0), q) < d_th && dist(s, paths[l][k0]) < d_th;
+                    if wgt == 0.0 || own {
                         return;
                     }
                     if !missed[k0].add(key, wgt, rgb, z, params.max_flows as usize) {
@@ -371,10 +372,10 @@ pub fn trace(win: &Window, params: &Params, rec: &mut Recorder) -> (Rgb, TraceCo
                             return;
                         }
                         total += wgt;
-                        // Eq. 14: the sample's own path reaches l0 near k0 (eq. 15 holds in
-                        // the footprint). Without separation every sample counts.
-                        let same =
-                            !params.flow_separation || dist(home, add(to_centre[l][k], jitter[l])) < d_th;
+                        // Eq. 14: the sample's own path reaches l0 near k0; eq. 15: it lies
+                        // near k0's path. Without separation every sample counts.
+                        let same = !params.flow_separation
+                            || (dist(home, add(to_centre[l][k], jitter[l])) < d_th && dist(s, p) < d_th);
                         if same {
                             for (a, ch) in sum.iter_mut().zip(col.iter()) {
                                 *a += wgt * ch.data()[k];
