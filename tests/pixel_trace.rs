@@ -352,3 +352,66 @@ fn gaussian_kernel_and_flow_list_bound() {
     println!("foliage T=16: flows dropped with a list of 1: {one}, of 3: {three}");
     assert!(one > three, "{one} vs {three}");
 }
+
+/// Extreme input never panics or leaks non-finite values: HDR from 1e-6 to 1e6 with a
+/// 1e30 firefly, motion of 1e9 px (paths leave the image at once), non-finite motion and
+/// motion_next, an all-NaN colour frame, and a window longer than the sequence.
+#[test]
+fn extreme_input_stays_finite() {
+    let (w, h) = (19usize, 13usize);
+    let mut frames = translating(w, h, 12, [0.7, 0.2], 5);
+    let mut rng = afterimage::rng::SplitMix64::new(9);
+    for (t, f) in frames.iter_mut().enumerate() {
+        for p in f.color_mut() {
+            for v in p.iter_mut() {
+                *v = 10f64.powf(rng.range(-6.0, 6.0)) as f32;
+            }
+        }
+        match t {
+            3 => f.color_mut()[0][40] = 1e30,
+            5 => {
+                let huge = afterimage::frame::Plane::from_fn(w, h, |_, _| 1e9f32);
+                f.set_f32(ChannelKind::Motion, vec![huge.clone(), huge]).unwrap();
+            }
+            6 => {
+                let nan = afterimage::frame::Plane::from_fn(w, h, |x, _| {
+                    if x % 2 == 0 {
+                        f32::NAN
+                    } else {
+                        f32::INFINITY
+                    }
+                });
+                f.set_f32(ChannelKind::MotionNext, vec![nan.clone(), nan.clone()])
+                    .unwrap();
+                f.set_f32(ChannelKind::Motion, vec![nan.clone(), nan]).unwrap();
+            }
+            8 => {
+                for p in f.color_mut() {
+                    p.fill(f32::NAN);
+                }
+            }
+            _ => {}
+        }
+    }
+    for set in [
+        &["window=8"][..],
+        &["window=64", "kernel=gaussian", "support=2", "d_th=0.5"],
+    ] {
+        let mut f = pixel_trace(set);
+        let outs = run_sequence(f.as_mut(), &frames).unwrap();
+        assert_eq!(outs.len(), frames.len());
+        for o in &outs {
+            assert!(
+                o.color
+                    .iter()
+                    .all(|p| p.data().iter().all(|v| v.is_finite() && *v >= 0.0)),
+                "{set:?} frame {}",
+                o.record.index
+            );
+        }
+        assert!(
+            outs[8].record.input.non_finite >= (3 * w * h) as u64,
+            "the NaN frame is counted"
+        );
+    }
+}
