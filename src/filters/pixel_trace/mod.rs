@@ -12,7 +12,10 @@
 //!   or the inverse of the next frame's `motion` when a frame has no `motion_next`) instead
 //!   of object transforms (eq. 12): the G-buffer is what a pipeline has. Each step reads the
 //!   vector of the pixel holding the position and keeps the sub-pixel offset (the local
-//!   uniformity of eq. 10), so no motion is blended across a silhouette.
+//!   uniformity of eq. 10), so no motion is blended across a silhouette. A path keeps to
+//!   its object (by id): where that pixel shows another object, the nearest pixel of the
+//!   3x3 that shows its own gives the vector, else it carries on at its last velocity (the
+//!   object is hidden there, or too thin for the sample: Shinya's 1/8-px bar).
 //! - The norm of eq. 14-15 is the max norm, the box kernel's own; `d_th` defaults to the
 //!   support's diameter, as the paper suggests.
 //! - Missed flows (eq. 13) are gathered by scattering every sample of the other frames to
