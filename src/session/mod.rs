@@ -241,6 +241,19 @@ struct Inner {
     ready: VecDeque<Filtered>,
 }
 
+impl Inner {
+    /// Refuses work on a session whose filter panicked earlier, with that message.
+    fn usable(&self, id: &str) -> Result<(), SessionError> {
+        match &self.failed {
+            Some(message) => Err(SessionError::Failed {
+                id: id.to_string(),
+                message: message.clone(),
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 struct Session {
     info: SessionInfo,
     channels: ChannelSet,
@@ -566,12 +579,7 @@ impl Sessions {
             ));
         }
         let mut inner = lock(&s.inner);
-        if let Some(message) = &inner.failed {
-            return Err(SessionError::Failed {
-                id: id.to_string(),
-                message: message.clone(),
-            });
-        }
+        inner.usable(id)?;
         if motion == MotionInput::Session {
             let prev = inner.jitter_prev.unwrap_or(frame.meta.jitter);
             s.motion.frame_to_internal(&mut frame, prev);
@@ -599,12 +607,7 @@ impl Sessions {
         let s = self.get_arc(id)?;
         *lock(&s.last_used) = Instant::now();
         let mut inner = lock(&s.inner);
-        if let Some(message) = &inner.failed {
-            return Err(SessionError::Failed {
-                id: id.to_string(),
-                message: message.clone(),
-            });
-        }
+        inner.usable(id)?;
         let outs = Self::guarded(&s.info.filter, id, &mut inner, "the flush", |f| f.finish())?;
         let outs: Result<Vec<Filtered>, SessionError> =
             outs.into_iter().map(|o| Self::measured(&mut inner, o)).collect();
