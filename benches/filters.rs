@@ -35,27 +35,25 @@ fn bench(c: &mut Criterion) {
             })
         });
         for info in list() {
-            let variants: Vec<(String, serde_json::Map<String, serde_json::Value>)> = if info.name == "traa" {
-                ["baseline", "improved"]
-                    .iter()
-                    .map(|v| {
-                        let mut m = serde_json::Map::new();
-                        m.insert("variant".into(), (*v).into());
-                        (format!("traa_{v}"), m)
-                    })
-                    .collect()
-            } else if info.name == "pixel_trace" {
+            // One benchmark per value of `key`, labelled `label(value)`.
+            let sweep =
+                |key: &str, values: &[serde_json::Value], label: &dyn Fn(&serde_json::Value) -> String| {
+                    values
+                        .iter()
+                        .map(|v| {
+                            let mut m = serde_json::Map::new();
+                            m.insert(key.into(), v.clone());
+                            (label(v), m)
+                        })
+                        .collect::<Vec<_>>()
+                };
+            let variants = match info.name {
+                "traa" => sweep("variant", &["baseline".into(), "improved".into()], &|v| {
+                    format!("traa_{}", v.as_str().unwrap_or_default())
+                }),
                 // Shinya's cost grows as width x height x T: the two windows.
-                [8, 32]
-                    .iter()
-                    .map(|t| {
-                        let mut m = serde_json::Map::new();
-                        m.insert("window".into(), (*t).into());
-                        (format!("pixel_trace_T{t}"), m)
-                    })
-                    .collect()
-            } else {
-                vec![(info.name.to_string(), Default::default())]
+                "pixel_trace" => sweep("window", &[8.into(), 32.into()], &|v| format!("pixel_trace_T{v}")),
+                name => vec![(name.to_string(), Default::default())],
             };
             for (label, params) in variants {
                 let mut f = create(info.name, &params).unwrap();
