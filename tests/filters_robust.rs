@@ -17,6 +17,7 @@ fn small_scene(name: &str, frames: u64) -> Vec<Frame> {
         jitter: Jitter::Halton(8),
         noise: false,
         seed: 3,
+        shading: 1,
     };
     let scene = Scene::new(name, s).unwrap();
     (0..frames).map(|i| scene.frame(i)).collect()

@@ -17,6 +17,7 @@ fn settings() -> Settings {
         jitter: Jitter::Halton(8),
         noise: false,
         seed: 1,
+        shading: 1,
     }
 }
 

@@ -15,6 +15,7 @@ fn settings(width: usize, height: usize, frames: u64, spp: u32) -> Settings {
         jitter: Jitter::None,
         noise: false,
         seed: 7,
+        shading: 1,
     }
 }
 

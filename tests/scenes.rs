@@ -19,6 +19,7 @@ fn small(frames: u64) -> Settings {
         jitter: Jitter::Halton(8),
         noise: false,
         seed: 7,
+        shading: 1,
     }
 }
 

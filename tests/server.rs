@@ -23,6 +23,7 @@ fn frames(scene: &str, n: u64, seed: u64) -> Vec<Frame> {
         jitter: Jitter::Halton(8),
         noise: false,
         seed,
+        shading: 1,
     };
     let sc = Scene::new(scene, s).unwrap();
     (0..n).map(|i| sc.frame(i)).collect()

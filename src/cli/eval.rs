@@ -101,11 +101,14 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 ref_rgb[0].height()
             );
         }
-        eval.push(entry.number, frame.color(), &ref_rgb, frame.meta.reset)?;
+        // A sparsely shaded input is measured as a viewer sees it: each pixel shows the
+        // sample of its block.
+        let color = frame.color_full();
+        eval.push(entry.number, &color, &ref_rgb, frame.meta.reset)?;
         if args.ssim_map == Some(entry.number) {
             let out = args.ssim_map_out.as_ref().expect("clap requires it");
             let space = eval.space().expect("set by push");
-            let map = ssim(&luma(frame.color(), space), &luma(&ref_rgb, space), true)?
+            let map = ssim(&luma(&color, space), &luma(&ref_rgb, space), true)?
                 .map
                 .expect("asked for");
             let bytes = map.data().iter().flat_map(|&v| inferno(v)).collect();

@@ -38,6 +38,11 @@ pub struct SceneArgs {
     /// Seed of every random choice (same seed, same bits).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Sparse shading for the upsample filter: shade one pixel of every NxN block (2 or
+    /// 4) in a rotating order; G-buffer and reference stay at full resolution. 1 shades
+    /// every pixel. Use with --jitter none to sample at pixel centres as Herzog et al. do.
+    #[arg(long, default_value_t = 1)]
+    shading: u32,
     /// Write half floats (object ids stay u32).
     #[arg(long)]
     f16: bool,
@@ -91,6 +96,7 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         jitter: args.jitter,
         noise: args.noise,
         seed: args.seed,
+        shading: args.shading,
     };
     let scene = Scene::new(name, settings)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -115,13 +121,14 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
         if args.png {
             let reference = frame.reference().expect("scenes write a reference");
             let hdr = reference.iter().any(|p| p.data().iter().any(|&v| v > 1.0));
-            write_png(&out.join(format!("frame_{i:04}.png")), frame.color(), hdr)?;
+            write_png(&out.join(format!("frame_{i:04}.png")), &frame.color_full(), hdr)?;
             write_png(&out.join(format!("reference_{i:04}.png")), reference, hdr)?;
         }
         per_frame.push(json!({
             "index": i,
             "file": file,
             "jitter": frame.meta.jitter,
+            "shading": frame.sampling(),
             "reset": frame.meta.reset,
             "camera": (scene.def.camera)(i as f64),
         }));
@@ -142,6 +149,7 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
             "sky_depth": SKY_DEPTH,
             "normal": "world space, unit; zero on sky",
             "object_id": "0 = sky",
+            "shading": "factor: one shaded colour sample per factor x factor block; phase: the shaded pixel of each block this frame. The EXR stores the samples at their pixels and 0 elsewhere, with afterimage.shading = (factor, phase x, phase y)",
             "jitter": "offset of the input sample from the pixel centre in pixels, x right, y down",
             "reference": format!("{0}x{0} stratified samples over the pixel box, no jitter", settings.reference_grid()),
             "time": "scene time = frame index; frame 0's motion points to time -1",

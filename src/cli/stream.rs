@@ -73,6 +73,7 @@ fn load(args: &StreamArgs) -> anyhow::Result<Vec<Frame>> {
             jitter: Jitter::Halton(8),
             noise: false,
             seed: 1,
+            shading: 1,
         };
         let scene = Scene::new(name, s)?;
         return Ok((0..args.frames).map(|i| scene.frame(i)).collect());

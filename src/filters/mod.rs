@@ -9,6 +9,7 @@
 //! | `traa` | the thesis's TRAA (004): INSIDE/Uncharted 4 baseline or the improved variant |
 //! | `phlm` | Pixel History Linear Models (000): per-pixel RLS models, bounded forgetting |
 //! | `pixel_trace` | Shinya's pixel-tracing filter (002): a window of frames along motion paths, offline |
+//! | `upsample` | Herzog et al.'s spatio-temporal upsampling (001) of sparse shading, and its baselines |
 
 pub mod fxaa;
 pub mod passes;
@@ -17,6 +18,7 @@ pub mod phlm;
 pub mod pixel_trace;
 pub mod taa;
 pub mod traa;
+pub mod upsample;
 
 use crate::pipeline::{entry, FilterEntry};
 
@@ -29,5 +31,6 @@ pub fn all() -> Vec<FilterEntry> {
         entry::<traa::Traa>(),
         entry::<phlm::Phlm>(),
         entry::<pixel_trace::PixelTrace>(),
+        entry::<upsample::Upsample>(),
     ]
 }

@@ -4,10 +4,12 @@
 mod channels;
 mod motion;
 mod plane;
+mod sampling;
 
 pub use channels::{ChannelKind, ChannelSet, SampleKind};
 pub use motion::{MotionConvention, MotionDirection, MotionUnits, YAxis};
 pub use plane::Plane;
+pub use sampling::{Sampling, FACTORS};
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -85,6 +87,9 @@ pub enum FrameError {
     /// Samples that are NaN or infinite where the caller asked for finite ones.
     #[error("{0}")]
     NonFinite(NonFiniteCounts),
+    /// A shading pattern that is not one (see [`Sampling::validate`]).
+    #[error("{0}")]
+    Sampling(String),
     /// A motion-convention name that is not a preset.
     #[error("unknown motion convention {got:?}; known: {known}")]
     UnknownMotionConvention {
@@ -206,6 +211,8 @@ pub struct Frame {
     object_id: Option<Plane<u32>>,
     albedo: Option<Rgb>,
     reference: Option<Rgb>,
+    /// Where the colour samples lie (full resolution unless shaded sparsely).
+    sampling: Sampling,
     /// Per-frame values.
     pub meta: FrameMeta,
 }
@@ -269,8 +276,91 @@ impl Frame {
             object_id: None,
             albedo: None,
             reference: None,
+            sampling: Sampling::FULL,
             meta: FrameMeta::default(),
         })
+    }
+
+    /// A `width x height` frame whose colour was shaded sparsely with `sampling`: the
+    /// colour planes are `sampling.color_size(width, height)` (see [`Sampling`]). Every
+    /// other channel is set at full resolution afterwards, as with [`Frame::new`].
+    pub fn subsampled(
+        color: Rgb,
+        width: usize,
+        height: usize,
+        sampling: Sampling,
+    ) -> Result<Frame, FrameError> {
+        if width == 0 || height == 0 {
+            return Err(FrameError::Empty { width, height });
+        }
+        sampling.validate().map_err(FrameError::Sampling)?;
+        let (cw, ch) = sampling.color_size(width, height);
+        check_planes(ChannelKind::Color, &color, cw, ch)?;
+        let mut f = Frame::new(color)?;
+        f.width = width;
+        f.height = height;
+        f.sampling = sampling;
+        Ok(f)
+    }
+
+    /// Where the colour samples lie on the full-resolution grid.
+    pub fn sampling(&self) -> Sampling {
+        self.sampling
+    }
+
+    /// Size of the colour planes: the frame's size unless shaded sparsely.
+    pub fn color_size(&self) -> (usize, usize) {
+        self.color[0].size()
+    }
+
+    /// The colour at full resolution: the colour itself (borrowed) for a fully shaded
+    /// frame, else each pixel takes the sample shaded in its block (nearest-neighbour
+    /// expansion, what a viewer of the raw input sees).
+    pub fn color_full(&self) -> std::borrow::Cow<'_, Rgb> {
+        if self.sampling.is_full() {
+            return std::borrow::Cow::Borrowed(&self.color);
+        }
+        let f = self.sampling.factor as usize;
+        let (cw, ch) = self.color_size();
+        std::borrow::Cow::Owned(self.color.each_ref().map(|p| {
+            Plane::from_fn(self.width, self.height, |x, y| {
+                p.get((x / f).min(cw - 1), (y / f).min(ch - 1))
+            })
+        }))
+    }
+
+    /// The colour gathered at `sampling` from a full-resolution `color` (the inverse of a
+    /// scatter: how a file that stores sparse shading at full resolution is read back).
+    pub fn gather(color: &Rgb, sampling: Sampling) -> Result<Rgb, FrameError> {
+        sampling.validate().map_err(FrameError::Sampling)?;
+        let (w, h) = color[0].size();
+        let (cw, ch) = sampling.color_size(w, h);
+        Ok(color.each_ref().map(|p| {
+            Plane::from_fn(cw, ch, |a, b| {
+                sampling.position(a, b, w, h).map_or(0.0, |(x, y)| p.get(x, y))
+            })
+        }))
+    }
+
+    /// The colour scattered to full resolution: shaded samples at their pixels, 0
+    /// elsewhere (how the EXR writer stores sparse shading).
+    pub fn color_scattered(&self) -> std::borrow::Cow<'_, Rgb> {
+        if self.sampling.is_full() {
+            return std::borrow::Cow::Borrowed(&self.color);
+        }
+        let (cw, ch) = self.color_size();
+        let s = self.sampling;
+        std::borrow::Cow::Owned(self.color.each_ref().map(|p| {
+            let mut out = Plane::new(self.width, self.height);
+            for b in 0..ch {
+                for a in 0..cw {
+                    if let Some((x, y)) = s.position(a, b, self.width, self.height) {
+                        out.set(x, y, p.get(a, b));
+                    }
+                }
+            }
+            out
+        }))
     }
 
     /// Width in pixels.
@@ -311,7 +401,12 @@ impl Frame {
     /// Sets a float channel from its planes (any channel but `object_id`), replacing what
     /// was there; checks the component count and every plane's size.
     pub fn set_f32(&mut self, channel: ChannelKind, planes: Vec<Plane<f32>>) -> Result<(), FrameError> {
-        check_planes(channel, &planes, self.width, self.height)?;
+        let (w, h) = if channel == ChannelKind::Color {
+            self.color_size()
+        } else {
+            (self.width, self.height)
+        };
+        check_planes(channel, &planes, w, h)?;
         match channel {
             ChannelKind::Color => self.color = into_array(channel, planes)?,
             ChannelKind::Depth => {
@@ -411,7 +506,8 @@ impl Frame {
         }
     }
 
-    /// Colour planes, mutable (their size cannot change through this).
+    /// Colour planes, mutable (their size cannot change through this; they are the
+    /// colour's own size, see [`Frame::color_size`]).
     pub fn color_mut(&mut self) -> [&mut [f32]; 3] {
         let [r, g, b] = &mut self.color;
         [r.data_mut(), g.data_mut(), b.data_mut()]
@@ -530,6 +626,48 @@ mod tests {
             f.channels(),
             ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion])
         );
+    }
+
+    #[test]
+    fn sparse_colour_has_its_own_size_and_scatters_back() {
+        let s = Sampling {
+            factor: 2,
+            phase: [1, 0],
+        };
+        let err = Frame::subsampled(rgb(4, 3, 0.5), 5, 3, s).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "channel color component 0 is 4x3, but the frame is 3x2"
+        );
+        let full = [0, 1, 2].map(|c| Plane::from_fn(5, 3, |x, y| (c * 100 + y * 10 + x) as f32));
+        let gathered = Frame::gather(&full, s).unwrap();
+        let mut f = Frame::subsampled(gathered, 5, 3, s).unwrap();
+        assert_eq!((f.width(), f.height(), f.color_size()), (5, 3, (3, 2)));
+        // Other channels are full size; colour keeps its own.
+        f.set_f32(ChannelKind::Depth, vec![Plane::filled(5, 3, 1.0)])
+            .unwrap();
+        assert!(f.set_f32(ChannelKind::Color, rgb(5, 3, 0.0).to_vec()).is_err());
+        let back = f.color_scattered();
+        for (y, x) in [(0, 1), (0, 3), (2, 1), (2, 3)] {
+            assert_eq!(back[1].get(x, y), full[1].get(x, y), "shaded ({x},{y})");
+        }
+        assert_eq!(back[0].get(0, 0), 0.0, "unshaded pixels scatter as 0");
+        assert_eq!(Frame::gather(&back, s).unwrap(), *f.color());
+        // Nearest expansion: pixel (4, 2) is in block (2, 1), whose sample (x = 5) lies
+        // outside the frame and holds 0.
+        let near = f.color_full();
+        assert_eq!(near[2].get(0, 1), full[2].get(1, 0));
+        assert_eq!(near[2].get(4, 2), 0.0);
+        assert!(Frame::subsampled(
+            rgb(3, 2, 0.0),
+            5,
+            3,
+            Sampling {
+                factor: 3,
+                phase: [0, 0]
+            }
+        )
+        .is_err());
     }
 
     #[test]

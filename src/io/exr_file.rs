@@ -3,7 +3,7 @@
 use super::preset::Preset;
 use super::raw::{RawChannel, RawData, RawImage};
 use super::IoError;
-use crate::frame::{ChannelKind, DepthKind, Frame, FrameMeta, NormalSpace, Plane};
+use crate::frame::{ChannelKind, DepthKind, Frame, FrameMeta, NormalSpace, Plane, Sampling};
 use exr::prelude::{self as x, AttributeValue, ReadChannels, ReadLayers, Text, WritableImage};
 use std::path::Path;
 
@@ -14,6 +14,8 @@ mod attr {
     pub const RESET: &str = "afterimage.reset";
     pub const DEPTH_KIND: &str = "afterimage.depth_kind";
     pub const NORMAL_SPACE: &str = "afterimage.normal_space";
+    /// Sparse shading: (factor, phase x, phase y); absent for full shading.
+    pub const SHADING: &str = "afterimage.shading";
 }
 
 /// Sample precision of written float channels (object ids are always u32).
@@ -105,6 +107,7 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
     let mut size = None;
     let mut channels = Vec::new();
     let mut meta = FrameMeta::default();
+    let mut shading = Sampling::FULL;
     for layer in &image.layer_data {
         let lname = layer.attributes.layer_name.as_ref().map(|t| t.to_string());
         let s = (layer.size.0, layer.size.1);
@@ -127,6 +130,20 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
             _ => {}
         }
         read_meta(&layer.attributes, &mut meta);
+        if let Some(AttributeValue::IntVec3((f, px, py))) =
+            layer.attributes.other.get(&Text::from(attr::SHADING))
+        {
+            let s = [f, px, py].map(|&v| u32::try_from(v).unwrap_or(u32::MAX));
+            shading = Sampling {
+                factor: s[0],
+                phase: [s[1], s[2]],
+            };
+            shading.validate().map_err(|reason| IoError::Format {
+                path: path.to_path_buf(),
+                format: "OpenEXR",
+                reason: format!("attribute {}: {reason}", attr::SHADING),
+            })?;
+        }
         for ch in &layer.channel_data.list {
             if ch.sampling != x::Vec2(1, 1) {
                 return Err(IoError::Format {
@@ -163,6 +180,7 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
         height,
         channels,
         meta,
+        shading,
     })
 }
 
@@ -249,7 +267,7 @@ fn exr_layer(frame: &Frame, opts: &WriteOptions) -> x::Layer<x::AnyChannels<x::F
     let mut list: Vec<x::AnyChannel<x::FlatSamples>> = Vec::new();
     match opts.layout {
         ExrLayout::Plain => {
-            for (p, n) in frame.color().iter().zip(["R", "G", "B"]) {
+            for (p, n) in frame.color_scattered().iter().zip(["R", "G", "B"]) {
                 list.push(x::AnyChannel::new(n, float_samples(p, opts.precision)));
             }
         }
@@ -266,7 +284,13 @@ fn exr_layer(frame: &Frame, opts: &WriteOptions) -> x::Layer<x::AnyChannels<x::F
                     ));
                     continue;
                 }
-                let planes = frame.planes(kind).expect("listed channel exists");
+                let scattered;
+                let planes = if kind == ChannelKind::Color {
+                    scattered = frame.color_scattered();
+                    &scattered[..]
+                } else {
+                    frame.planes(kind).expect("listed channel exists")
+                };
                 for (p, n) in planes.iter().zip(&names) {
                     list.push(x::AnyChannel::new(n.as_str(), float_samples(p, opts.precision)));
                 }
@@ -276,6 +300,13 @@ fn exr_layer(frame: &Frame, opts: &WriteOptions) -> x::Layer<x::AnyChannels<x::F
     let mut attributes = x::LayerAttributes::default();
     if opts.layout == ExrLayout::Afterimage {
         write_meta(&frame.meta, &mut attributes);
+        let s = frame.sampling();
+        if !s.is_full() {
+            attributes.other.insert(
+                Text::from(attr::SHADING),
+                AttributeValue::IntVec3((s.factor as i32, s.phase[0] as i32, s.phase[1] as i32)),
+            );
+        }
     }
     let encoding = x::Encoding {
         compression: match opts.compression {

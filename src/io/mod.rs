@@ -153,6 +153,7 @@ pub fn read_raw(path: &Path) -> Result<RawImage, IoError> {
                 height: frame.height(),
                 channels,
                 meta: frame.meta,
+                shading: crate::frame::Sampling::FULL,
             })
         }
         None => Err(IoError::UnsupportedType {

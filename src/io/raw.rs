@@ -2,7 +2,7 @@
 
 use super::preset::{Preset, ReadOptions};
 use super::IoError;
-use crate::frame::{ChannelKind, Frame, FrameMeta, MotionConvention, Plane, SampleKind};
+use crate::frame::{ChannelKind, Frame, FrameMeta, MotionConvention, Plane, SampleKind, Sampling};
 use std::path::PathBuf;
 
 /// Samples of one file channel, widened to 32 bits.
@@ -84,6 +84,9 @@ pub struct RawImage {
     pub channels: Vec<RawChannel>,
     /// Per-frame values found in the file's attributes (defaults where absent).
     pub meta: FrameMeta,
+    /// Sparse shading the file declares (`afterimage.shading`): its colour holds shaded
+    /// samples at their pixels and is gathered into the frame's smaller colour planes.
+    pub shading: Sampling,
 }
 
 impl RawImage {
@@ -177,7 +180,13 @@ impl RawImage {
         let color: [Plane<f32>; 3] = float_planes(color_names)?
             .try_into()
             .map_err(|_| IoError::Argument("colour needs 3 components".into()))?;
-        let mut frame = Frame::new(color).map_err(|e| self.frame_err(e))?;
+        let mut frame = if self.shading.is_full() {
+            Frame::new(color)
+        } else {
+            Frame::gather(&color, self.shading)
+                .and_then(|c| Frame::subsampled(c, self.width, self.height, self.shading))
+        }
+        .map_err(|e| self.frame_err(e))?;
         for (kind, names) in &mapping[1..] {
             match kind.sample_kind() {
                 SampleKind::U32 => {

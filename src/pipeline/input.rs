@@ -21,7 +21,8 @@ pub struct Inputs<'a> {
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Colour, finite and non-negative.
+    /// Colour, finite and non-negative, at its own size (the frame's unless the frame is
+    /// shaded sparsely, see [`crate::frame::Sampling`]).
     pub color: Cow<'a, Rgb>,
     /// Linear depth, finite (when the frame has depth and the filter uses it).
     pub depth: Option<Cow<'a, Plane<f32>>>,
@@ -29,6 +30,8 @@ pub struct Inputs<'a> {
     pub motion: Option<Cow<'a, [Plane<f32>; 2]>>,
     /// Albedo, finite and non-negative.
     pub albedo: Option<Cow<'a, Rgb>>,
+    /// Normals, finite (when the frame has them and the filter uses them).
+    pub normal: Option<Cow<'a, Rgb>>,
     /// Object ids.
     pub object_id: Option<&'a Plane<u32>>,
     /// Samples repaired.
@@ -147,7 +150,7 @@ pub fn prepare<'a>(
     let invalid = (counts.non_finite + counts.negative > 0).then(|| {
         let [r, g, b] = frame.color().each_ref().map(|p| p.data());
         let ok = |v: f32| v.is_finite() && v >= 0.0;
-        (0..frame.pixels())
+        (0..r.len())
             .map(|i| !(ok(r[i]) && ok(g[i]) && ok(b[i])))
             .collect::<Vec<bool>>()
     });
@@ -176,6 +179,10 @@ pub fn prepare<'a>(
         .albedo()
         .filter(|_| uses.contains(ChannelKind::Albedo))
         .map(|a| repair_channel(a, true, &mut counts, &mut unused));
+    let normal = frame
+        .normal()
+        .filter(|_| uses.contains(ChannelKind::Normal))
+        .map(|n| repair_channel(n, false, &mut counts, &mut unused));
     let object_id = frame.object_id().filter(|_| uses.contains(ChannelKind::ObjectId));
     let facts = FrameFacts::new(frame, motion.as_deref(), max_color);
     let elapsed = t.elapsed().as_secs_f64() * 1e3;
@@ -191,6 +198,7 @@ pub fn prepare<'a>(
         depth,
         motion,
         albedo,
+        normal,
         object_id,
         counts,
         invalid,
@@ -212,11 +220,12 @@ impl Inputs<'_> {
             ChannelKind::Motion => self.motion.is_some(),
             ChannelKind::Albedo => self.albedo.is_some(),
             ChannelKind::ObjectId => self.object_id.is_some(),
-            ChannelKind::Normal | ChannelKind::Reference | ChannelKind::MotionNext => false,
+            ChannelKind::Normal => self.normal.is_some(),
+            ChannelKind::Reference | ChannelKind::MotionNext => false,
         }
     }
 
-    /// Whether pixel `i`'s colour was non-finite or negative (see [`Inputs::invalid`]).
+    /// Whether colour sample `i` was non-finite or negative (see [`Inputs::invalid`]).
     pub fn is_invalid(&self, i: usize) -> bool {
         self.invalid.as_ref().is_some_and(|v| v[i])
     }

@@ -100,6 +100,24 @@ pub enum FilterError {
         /// Frames it looks ahead.
         lookahead: usize,
     },
+    /// A sparsely shaded frame given to a filter that needs full-resolution colour.
+    #[error("filter {filter} needs colour shaded at every pixel, but frame {index} shades one pixel per {factor}x{factor} block (colour {color_w}x{color_h} for a {width}x{height} frame); use the upsample filter")]
+    SparseColor {
+        /// The filter.
+        filter: &'static str,
+        /// The frame's index.
+        index: u64,
+        /// Its shading factor.
+        factor: u32,
+        /// Colour width.
+        color_w: usize,
+        /// Colour height.
+        color_h: usize,
+        /// Frame width.
+        width: usize,
+        /// Frame height.
+        height: usize,
+    },
     /// An invalid frame.
     #[error(transparent)]
     Frame(#[from] FrameError),
@@ -267,8 +285,26 @@ pub fn run_sequence<'a>(
     Ok(out)
 }
 
-/// Checks that `frame` has every channel in `needs`.
+/// Checks that `frame` has every channel in `needs` and full-resolution colour.
 pub fn check_needs(filter: &'static str, needs: ChannelSet, frame: &Frame) -> Result<(), FilterError> {
+    if !frame.sampling().is_full() {
+        let (color_w, color_h) = frame.color_size();
+        return Err(FilterError::SparseColor {
+            filter,
+            index: frame.meta.index,
+            factor: frame.sampling().factor,
+            color_w,
+            color_h,
+            width: frame.width(),
+            height: frame.height(),
+        });
+    }
+    check_channels(filter, needs, frame)
+}
+
+/// Checks that `frame` has every channel in `needs`, whatever its colour's sampling (for
+/// filters that reconstruct sparse shading).
+pub fn check_channels(filter: &'static str, needs: ChannelSet, frame: &Frame) -> Result<(), FilterError> {
     match needs.minus(frame.channels()).iter().next() {
         Some(channel) => Err(FilterError::MissingChannel {
             filter,

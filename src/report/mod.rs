@@ -196,6 +196,7 @@ impl Config {
                 jitter: Jitter::Halton(8),
                 noise: false,
                 seed: 1,
+                shading: 1,
             },
             timing: Some(TimingSize {
                 width: 320,

@@ -131,6 +131,10 @@ pub struct Settings {
     pub noise: bool,
     /// Seed of every random choice.
     pub seed: u64,
+    /// Sparse shading: 1 shades every pixel; 2 or 4 shade one pixel of every 2x2 or 4x4
+    /// block, in the rotating order of [`crate::frame::Sampling::rotating`] (Herzog et al.
+    /// 2010), while the G-buffer and the reference stay at full resolution.
+    pub shading: u32,
 }
 
 impl Default for Settings {
@@ -144,6 +148,7 @@ impl Default for Settings {
             jitter: Jitter::Halton(8),
             noise: false,
             seed: 1,
+            shading: 1,
         }
     }
 }
@@ -169,6 +174,12 @@ impl Settings {
         if self.frames == 0 {
             return Err(SceneError::Setting("frames must be at least 1".into()));
         }
+        crate::frame::Sampling {
+            factor: self.shading,
+            phase: [0, 0],
+        }
+        .validate()
+        .map_err(SceneError::Setting)?;
         if let Jitter::Halton(p) = self.jitter {
             if p == 0 {
                 return Err(SceneError::Setting("jitter phases must be at least 1".into()));

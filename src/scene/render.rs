@@ -6,7 +6,7 @@ use super::camera::{Camera, Projected, RayGen};
 use super::math::{radical_inverse, Ray, Rigid};
 use super::shapes::{Face, LocalHit};
 use super::{SceneDef, Settings};
-use crate::frame::{ChannelKind, Frame, FrameMeta, Plane};
+use crate::frame::{ChannelKind, Frame, FrameMeta, Plane, Sampling};
 use crate::rng::SplitMix64;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -554,7 +554,15 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
         (0..3).map(|c| plane(&|p: &Pixel| f(p)[c])).collect()
     };
     let color: [Plane<f32>; 3] = rgb(&|p| p.color).try_into().expect("three planes");
-    let mut frame = Frame::new(color).expect("non-empty");
+    // Sparse shading keeps the samples of this frame's pattern (the others were traced
+    // for the G-buffer anyway, which is full resolution).
+    let sampling = Sampling::rotating(settings.shading, index);
+    let mut frame = if sampling.is_full() {
+        Frame::new(color).expect("non-empty")
+    } else {
+        let sparse = Frame::gather(&color, sampling).expect("validated factor");
+        Frame::subsampled(sparse, w, h, sampling).expect("gathered at the pattern's size")
+    };
     let set = |frame: &mut Frame, k, planes| frame.set_f32(k, planes).expect("sizes match");
     set(&mut frame, ChannelKind::Depth, vec![plane(&|p| p.depth)]);
     set(

@@ -1,0 +1,187 @@
+//! The temporal half of spatio-temporal upsampling (Herzog et al. 2010, seed 001, sec.
+//! 3.2-3.4): history fetched along the motion with a validity test per tap, and the
+//! relative temporal gradient of luma that steers how far history is trusted.
+
+use crate::filters::passes::on_screen;
+use crate::pipeline::exec::{pool, rows_mut};
+use rayon::prelude::*;
+
+/// Luma below which relative gradients are measured against this floor instead: a change
+/// of 0.001 on a pixel of luma 0.001 is noise, not a 100% change. 1% of display white.
+pub const LUMA_FLOOR: f32 = 0.01;
+
+/// History taps must show the same surface as the pixel: seed 001, sec. 3.2, "compare the
+/// warped depth with the depth of the previous frame ... also compare the material (object
+/// id), since depth alone misses contact points".
+pub struct Validity<'a> {
+    /// This frame's linear depth.
+    pub depth: Option<&'a [f32]>,
+    /// The previous frame's depth (history plane).
+    pub prev_depth: &'a [f32],
+    /// This frame's object ids.
+    pub ids: Option<&'a [u32]>,
+    /// The previous frame's ids, stored as f32 (exact below 2^24).
+    pub prev_ids: &'a [f32],
+    /// Relative depth difference a tap may have.
+    pub depth_tolerance: f32,
+}
+
+impl Validity<'_> {
+    #[inline(always)]
+    fn ok(&self, i: usize, tap: usize) -> bool {
+        if let Some(ids) = self.ids {
+            if ids[i] as f32 != self.prev_ids[tap] {
+                return false;
+            }
+        }
+        if let Some(d) = self.depth {
+            let z = d[i];
+            if (self.prev_depth[tap] - z).abs() > self.depth_tolerance * z.abs() {
+                return false;
+            }
+        }
+        true
+    }
+}
+
+/// Fetches `N` history planes at each pixel's previous position `p + motion` (no motion:
+/// in place) bilinearly, over the taps that pass `validity` (all on-screen taps when
+/// `None`), renormalised by their weight; `frac` gets the weight of the taps that passed
+/// (1: all of the history is usable, 0: none, off screen or disoccluded). Returns the
+/// pixels with `frac < 0.5`.
+pub fn reproject<const N: usize>(
+    src: [&[f32]; N],
+    motion: Option<[&[f32]; 2]>,
+    validity: Option<&Validity>,
+    width: usize,
+    height: usize,
+    out: [&mut [f32]; N],
+    frac: &mut [f32],
+) -> u64 {
+    let (w, h) = (width, height);
+    let rows = rows_mut(out, w);
+    pool().install(|| {
+        rows.into_par_iter()
+            .zip(frac.par_chunks_mut(w))
+            .enumerate()
+            .map(|(y, (row, fr))| {
+                let mut lost = 0u64;
+                for x in 0..w {
+                    let i = y * w + x;
+                    let (mx, my) = motion.map_or((0.0, 0.0), |m| (m[0][i], m[1][i]));
+                    let (px, py) = (x as f32 + 0.5 + mx, y as f32 + 0.5 + my);
+                    let mut acc = [0.0f32; N];
+                    let mut total = 0.0f32;
+                    if on_screen(px, py, w, h) {
+                        let (fx, fy) = (px - 0.5, py - 0.5);
+                        let (x0, y0) = (fx.floor(), fy.floor());
+                        let (tx, ty) = (fx - x0, fy - y0);
+                        let clamp = |v: f32, n: usize| (v.max(0.0) as usize).min(n - 1);
+                        let taps = [
+                            (clamp(x0, w), clamp(y0, h), (1.0 - tx) * (1.0 - ty)),
+                            (clamp(x0 + 1.0, w), clamp(y0, h), tx * (1.0 - ty)),
+                            (clamp(x0, w), clamp(y0 + 1.0, h), (1.0 - tx) * ty),
+                            (clamp(x0 + 1.0, w), clamp(y0 + 1.0, h), tx * ty),
+                        ];
+                        for (tx, ty, wt) in taps {
+                            let t = ty * w + tx;
+                            if wt > 0.0 && validity.is_none_or(|v| v.ok(i, t)) {
+                                total += wt;
+                                for c in 0..N {
+                                    acc[c] += wt * src[c][t];
+                                }
+                            }
+                        }
+                    }
+                    let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
+                    for c in 0..N {
+                        row[c][x] = acc[c] * inv;
+                    }
+                    fr[x] = total;
+                    lost += (total < 0.5) as u64;
+                }
+                lost
+            })
+            .sum()
+    })
+}
+
+/// Relative temporal gradient of luma between a new sample and the history at its pixel
+/// (seed 001, sec. 3.4: `|L_t - L_t-1| / max(L_t, L_t-1)`, which measures contrast).
+#[inline(always)]
+pub fn relative_gradient(now: f32, before: f32) -> f32 {
+    ((now - before).abs() / now.max(before).max(LUMA_FLOOR)).min(1.0)
+}
+
+/// The temporal filter of gradients, seed 001, sec. 3.4: the current and the three
+/// previous gradients weighted 4, 3, 2, 1.
+pub const GRADIENT_WEIGHTS: [f32; 4] = [4.0, 3.0, 2.0, 1.0];
+
+/// Confidence in history from a filtered gradient: `(1 - min(1, g / scale))^2`. Seed 001,
+/// eq. 8 squares the term so that large gradients cut history fast while small ones
+/// barely do; `scale` is its sensitivity ("usually kept at 1").
+#[inline(always)]
+pub fn confidence(gradient: f32, scale: f32) -> f32 {
+    let t = 1.0 - (gradient / scale).min(1.0);
+    if t > 0.0 {
+        t * t
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tolerance::Tolerance;
+
+    #[test]
+    fn reprojection_interpolates_valid_taps_and_reports_the_rest() {
+        let (w, h) = (4usize, 3usize);
+        let src: Vec<f32> = (0..w * h).map(|i| i as f32).collect();
+        let mx = vec![-0.5f32; w * h];
+        let my = vec![0.0f32; w * h];
+        let mut out = vec![0.0f32; w * h];
+        let mut frac = vec![0.0f32; w * h];
+        let lost = reproject([&src], Some([&mx, &my]), None, w, h, [&mut out], &mut frac);
+        // Half a pixel to the left: the mean of a pixel and its left neighbour.
+        Tolerance::abs(1e-6)
+            .check("x=2", out[w + 2] as f64, 5.5)
+            .unwrap();
+        assert_eq!(frac[w + 2], 1.0);
+        assert_eq!(lost, 0);
+        // A tap on another object is left out and the rest renormalised.
+        let ids = vec![1u32; w * h];
+        let mut prev_ids = vec![1.0f32; w * h];
+        prev_ids[w + 1] = 2.0;
+        let depth = vec![1.0f32; w * h];
+        let v = Validity {
+            depth: Some(&depth),
+            prev_depth: &depth,
+            ids: Some(&ids),
+            prev_ids: &prev_ids,
+            depth_tolerance: 0.1,
+        };
+        reproject([&src], Some([&mx, &my]), Some(&v), w, h, [&mut out], &mut frac);
+        assert_eq!(out[w + 2], 6.0, "only the pixel's own tap is left");
+        assert_eq!(frac[w + 2], 0.5);
+        // Off screen: nothing.
+        let far = vec![-1e9f32; w * h];
+        let lost = reproject([&src], Some([&far, &my]), None, w, h, [&mut out], &mut frac);
+        assert_eq!(lost, (w * h) as u64);
+        assert!(frac.iter().all(|&f| f == 0.0) && out.iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn gradient_and_confidence() {
+        assert_eq!(relative_gradient(0.5, 0.5), 0.0);
+        Tolerance::abs(1e-7)
+            .check("halved", relative_gradient(0.5, 1.0) as f64, 0.5)
+            .unwrap();
+        assert_eq!(relative_gradient(0.0, 1e-4), 0.01, "dark pixels use the floor");
+        assert_eq!(relative_gradient(1e30, 0.0), 1.0);
+        assert_eq!(confidence(0.0, 1.0), 1.0);
+        assert_eq!(confidence(0.5, 1.0), 0.25);
+        assert_eq!(confidence(2.0, 1.0), 0.0);
+    }
+}
