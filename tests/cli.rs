@@ -304,7 +304,15 @@ fn filters_lists_every_filter_with_bounds_and_bad_params_are_refused() {
         .collect();
     assert_eq!(
         names,
-        ["passthrough", "fxaa", "taa", "traa", "phlm", "pixel_trace"]
+        [
+            "passthrough",
+            "fxaa",
+            "taa",
+            "traa",
+            "phlm",
+            "pixel_trace",
+            "upsample"
+        ]
     );
     let taa = &v[2];
     assert_eq!(taa["defaults"]["alpha"], 0.1);

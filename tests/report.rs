@@ -36,7 +36,9 @@ fn quick_report(dir: &Path) -> (Value, String) {
 fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     let dir = tempfile::tempdir().unwrap();
     let (r, stdout) = quick_report(dir.path());
-    let filters: Vec<&str> = list().iter().map(|i| i.name).collect();
+    // The main section runs every filter of full-resolution colour; the upsampling section
+    // every method of the filters of sparse shading.
+    let filters: Vec<&str> = list().iter().filter(|i| !i.sparse_input).map(|i| i.name).collect();
     let scenes = r["scenes"].as_array().unwrap();
     assert_eq!(scenes.len(), CATALOGUE.len());
     for (sc, entry) in scenes.iter().zip(CATALOGUE) {
@@ -73,7 +75,7 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     }
     // State per megapixel matches each filter's declared bytes per pixel; a windowed
     // filter's is the frames it holds, at most its declared full window of every channel.
-    for (info, row) in list().iter().zip(r["timing"].as_array().unwrap()) {
+    for (info, row) in list().iter().filter(|i| !i.sparse_input).zip(r["timing"].as_array().unwrap()) {
         let got = finite(&row["cost"]["state_bytes_per_megapixel"], info.name);
         let declared = info.state_bytes_per_pixel as f64 * 1e6;
         if info.name == "pixel_trace" {
@@ -84,10 +86,34 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     }
     assert!(finite(&r["bandwidth"]["bytes_per_s"], "bandwidth") > 1e8);
 
-    // The CSV: a header, one row per filter and scene, per filter summary, per filter timing.
+    // The upsampling section: upsample's four methods on its three scenes with 2x2 shading.
+    let u = &r["upsampling"];
+    assert_eq!(u["factor"], 2);
+    let methods = ["spatiotemporal", "spatial", "temporal", "taa"].map(|m| format!("upsample:method={m}"));
+    let u_scenes = u["scenes"].as_array().unwrap();
+    assert_eq!(u_scenes.len(), 3);
+    for (sc, name) in u_scenes.iter().zip(["flyover", "moving-sphere", "dynamic-light"]) {
+        assert_eq!(sc["scene"], format!("{name}-shading-2x2"));
+        let cells = sc["cells"].as_array().unwrap();
+        let names: Vec<&str> = cells.iter().map(|c| c["filter"].as_str().unwrap()).collect();
+        assert_eq!(names, methods, "{name}");
+        for c in cells {
+            let psnr = finite(&c["mean_psnr"], name);
+            assert!((5.0..80.0).contains(&psnr), "{name}: PSNR {psnr}");
+            assert!(finite(&c["cost"]["floor_ratio"], name) > 0.0);
+        }
+        assert!(dir.path().join(format!("strip_{name}-shading-2x2.png")).exists());
+    }
+    for key in ["summary", "timing"] {
+        assert_eq!(u[key].as_array().unwrap().len(), 4, "upsampling {key}");
+    }
+    assert!(stdout.contains("# Upsampling: one pixel of every 2x2 block shaded"));
+
+    // The CSV: a header, one row per filter and scene, per filter summary, per filter
+    // timing, then the same for the upsampling section.
     let csv = std::fs::read_to_string(dir.path().join("report.csv")).unwrap();
     let n = filters.len();
-    assert_eq!(csv.lines().count(), 1 + n * CATALOGUE.len() + 2 * n);
+    assert_eq!(csv.lines().count(), 1 + n * CATALOGUE.len() + 2 * n + 4 * 3 + 2 * 4);
     assert!(csv.starts_with("section,scene,filter,"));
     // The markdown on stdout is the one written to report.md.
     assert_eq!(

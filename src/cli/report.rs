@@ -35,6 +35,13 @@ pub struct ReportArgs {
     /// Timed frames per filter in the timing section (default 10; 3 with --quick).
     #[arg(long)]
     timing_frames: Option<usize>,
+    /// Scenes of the upsampling section (sparse shading), comma-separated, or `none` to
+    /// leave it out (default: flyover, moving-sphere, dynamic-light).
+    #[arg(long, value_delimiter = ',')]
+    upsampling_scenes: Vec<String>,
+    /// Block size of the upsampling section's sparse shading: 2 or 4.
+    #[arg(long)]
+    shading: Option<u32>,
     /// Frame shown in the image strips (default: the last).
     #[arg(long)]
     strip_frame: Option<u64>,
@@ -88,6 +95,18 @@ fn config(args: &ReportArgs) -> anyhow::Result<Config> {
         c.render.seed = n;
     }
     c.strip_frame = args.strip_frame;
+    match args.upsampling_scenes.as_slice() {
+        [] => {}
+        [none] if none.trim() == "none" => c.upsampling = None,
+        scenes => {
+            if let Some(u) = c.upsampling.as_mut() {
+                u.scenes = scenes.iter().map(|s| s.trim().to_string()).collect();
+            }
+        }
+    }
+    if let (Some(f), Some(u)) = (args.shading, c.upsampling.as_mut()) {
+        u.factor = f;
+    }
     let frames = args.timing_frames.or(c.timing.map(|t| t.frames)).unwrap_or(10);
     match args.timing_size {
         Some(TimingArg(None)) => c.timing = None,

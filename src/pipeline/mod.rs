@@ -182,6 +182,9 @@ pub trait FilterKind: Filter + Sized + 'static {
     fn uses() -> ChannelSet;
     /// Bytes of state per pixel with these parameters (both history buffers).
     fn state_bytes_per_pixel(params: &Self::Params) -> usize;
+    /// Whether it reconstructs sparsely shaded colour (see [`crate::frame::Sampling`]);
+    /// the others refuse such frames with [`FilterError::SparseColor`].
+    const SPARSE_INPUT: bool = false;
     /// A fresh instance.
     fn new(params: Self::Params) -> Self;
 }
@@ -205,6 +208,8 @@ pub struct FilterInfo {
     pub defaults: Map<String, Value>,
     /// Bytes of state per pixel with the defaults.
     pub state_bytes_per_pixel: usize,
+    /// Whether it takes sparsely shaded colour (the others need every pixel shaded).
+    pub sparse_input: bool,
 }
 
 /// Builds a filter instance from parameter overrides.
@@ -228,6 +233,7 @@ fn info_of<F: FilterKind>() -> FilterInfo {
         params: <F::Params as FilterParams>::SPECS,
         defaults: params::defaults::<F::Params>(),
         state_bytes_per_pixel: F::state_bytes_per_pixel(&F::Params::default()),
+        sparse_input: F::SPARSE_INPUT,
     }
 }
 

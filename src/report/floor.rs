@@ -3,7 +3,7 @@
 //! "Performance model"). A filter at 1x its floor could only go faster by moving fewer
 //! bytes.
 
-use crate::frame::{ChannelKind, ChannelSet};
+use crate::frame::{ChannelKind, ChannelSet, Frame};
 use crate::metrics::Timing;
 use crate::pipeline::exec::pool;
 use rayon::prelude::*;
@@ -86,6 +86,15 @@ pub fn bytes_per_pixel(uses: ChannelSet, present: ChannelSet, state_bytes_per_pi
         .map(|k| k.components() * SAMPLE_BYTES)
         .sum();
     input + state_bytes_per_pixel + OUTPUT_BYTES
+}
+
+/// Bytes a filter must move for `frame`: [`bytes_per_pixel`] over its pixels, with the
+/// colour read at its own size (a quarter for 2x2 sparse shading).
+pub fn bytes_per_frame(uses: ChannelSet, frame: &Frame, state_bytes_per_pixel: usize) -> usize {
+    let full = bytes_per_pixel(uses, frame.channels(), state_bytes_per_pixel) * frame.pixels();
+    let (cw, ch) = frame.color_size();
+    let color = ChannelKind::Color.components() * SAMPLE_BYTES;
+    full - color * (frame.pixels() - cw * ch)
 }
 
 #[cfg(test)]

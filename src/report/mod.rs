@@ -17,9 +17,11 @@ mod plot;
 mod synthetic;
 mod table;
 
-pub use floor::{bytes_per_pixel, measure_copy_bandwidth, parallel_copy, Bandwidth, COPY_BYTES};
+pub use floor::{
+    bytes_per_frame, bytes_per_pixel, measure_copy_bandwidth, parallel_copy, Bandwidth, COPY_BYTES,
+};
 pub use plot::write_plots;
-pub use synthetic::synthetic_frame;
+pub use synthetic::{synthetic_frame, synthetic_sparse_frame};
 pub use table::{csv, markdown};
 
 use crate::frame::{ChannelSet, Frame, Rgb};
@@ -121,10 +123,12 @@ impl FilterSpec {
         })
     }
 
-    /// Every registered filter at its defaults, in registry order.
+    /// Every registered filter of full-resolution colour at its defaults, in registry
+    /// order (the filters of sparse shading have their own section, [`FilterSpec::sparse`]).
     pub fn every() -> Vec<FilterSpec> {
         pipeline::list()
             .into_iter()
+            .filter(|info| !info.sparse_input)
             .map(|info| FilterSpec {
                 label: info.name.to_string(),
                 name: info.name,
@@ -133,8 +137,42 @@ impl FilterSpec {
             .collect()
     }
 
+    /// Every filter of sparse shading, one spec per value of its `method` parameter (the
+    /// method and its baselines), or at its defaults when it has none.
+    pub fn sparse() -> Vec<FilterSpec> {
+        pipeline::list()
+            .into_iter()
+            .filter(|info| info.sparse_input)
+            .flat_map(|info| {
+                let methods = info.params.iter().find_map(|p| match (p.name, p.kind) {
+                    ("method", crate::pipeline::ParamKind::Choice { options }) => Some(options),
+                    _ => None,
+                });
+                match methods {
+                    Some(options) => options
+                        .iter()
+                        .map(|m| FilterSpec {
+                            label: format!("{}:method={m}", info.name),
+                            name: info.name,
+                            params: [("method".to_string(), Value::from(*m))].into_iter().collect(),
+                        })
+                        .collect(),
+                    None => vec![FilterSpec {
+                        label: info.name.to_string(),
+                        name: info.name,
+                        params: Map::new(),
+                    }],
+                }
+            })
+            .collect()
+    }
+
     fn uses(&self) -> ChannelSet {
         pipeline::info(self.name).map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
+    }
+
+    fn takes_sparse(&self) -> bool {
+        pipeline::info(self.name).is_some_and(|i| i.sparse_input)
     }
 }
 
@@ -164,6 +202,44 @@ pub struct Config {
     pub timing: Option<TimingSize>,
     /// Timed copies for the bandwidth floor.
     pub copy_reps: usize,
+    /// The sparse-shading comparison (None: left out).
+    pub upsampling: Option<UpsamplingConfig>,
+}
+
+/// The upsampling section: scenes rendered with sparse shading (one pixel per `factor x
+/// factor` block, no jitter, as Herzog et al. 2010 sample) and the reconstructions run on
+/// them, at the main section's size, frames and reference samples.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct UpsamplingConfig {
+    /// Catalogue scenes.
+    pub scenes: Vec<String>,
+    /// Reconstructions (filters that take sparse colour).
+    pub filters: Vec<FilterSpec>,
+    /// Block size (2 or 4).
+    pub factor: u32,
+}
+
+impl UpsamplingConfig {
+    /// Seed 001's comparison: `upsample` and its three baselines on the three dynamic
+    /// scenes of issue 8 (camera motion, object motion with disocclusion, moving light),
+    /// 2x2 shading.
+    pub fn standard() -> UpsamplingConfig {
+        UpsamplingConfig {
+            scenes: ["flyover", "moving-sphere", "dynamic-light"]
+                .map(String::from)
+                .to_vec(),
+            filters: FilterSpec::sparse(),
+            factor: 2,
+        }
+    }
+
+    fn render(&self, main: Settings) -> Settings {
+        Settings {
+            jitter: Jitter::None,
+            shading: self.factor,
+            ..main
+        }
+    }
 }
 
 impl Config {
@@ -181,6 +257,7 @@ impl Config {
                 frames: 10,
             }),
             copy_reps: 9,
+            upsampling: Some(UpsamplingConfig::standard()),
         }
     }
 
@@ -236,6 +313,20 @@ impl Config {
                 source,
             })?;
         }
+        if let Some(u) = &self.upsampling {
+            for s in &u.scenes {
+                Scene::new(s, u.render(self.render)).map_err(|source| ReportError::Scene {
+                    scene: s.clone(),
+                    source,
+                })?;
+            }
+            if let Some(f) = u.filters.iter().find(|f| !f.takes_sparse()) {
+                return Err(ReportError::Config(format!(
+                    "the upsampling section runs filters of sparse shading; {} needs full-resolution colour",
+                    f.label
+                )));
+            }
+        }
         Ok(())
     }
 
@@ -245,7 +336,12 @@ impl Config {
         let filters = self.filters.len() as u64;
         let scenes = self.scenes.len() as u64 * (n + filters * n);
         let timing = self.timing.map_or(0, |t| filters * (t.frames as u64 + 1));
-        scenes + timing
+        let upsampling = self.upsampling.as_ref().map_or(0, |u| {
+            let filters = u.filters.len() as u64;
+            u.scenes.len() as u64 * (n + filters * n)
+                + self.timing.map_or(0, |t| filters * (t.frames as u64 + 1))
+        });
+        scenes + timing + upsampling
     }
 }
 
@@ -286,7 +382,7 @@ impl Cost {
         let pixels = frame.width() * frame.height();
         let state = records.iter().map(|r| r.state_bytes).max().unwrap_or(0);
         let state_per_pixel = state.div_ceil(pixels.max(1));
-        let bytes_per_frame = bytes_per_pixel(spec.uses(), frame.channels(), state_per_pixel) * pixels;
+        let bytes_per_frame = bytes_per_frame(spec.uses(), frame, state_per_pixel);
         let time = Timing::of(wall_ms);
         let floor_ms = bw.floor_ms(bytes_per_frame);
         Cost {
@@ -377,6 +473,19 @@ pub struct Strip {
     pub reference: Rgb,
 }
 
+/// The upsampling section's results, laid out as the main section's.
+#[derive(Clone, Debug, Serialize)]
+pub struct UpsamplingReport {
+    /// Block size of the sparse shading.
+    pub factor: u32,
+    /// Per scene, per reconstruction.
+    pub scenes: Vec<SceneReport>,
+    /// Per reconstruction over the scenes.
+    pub summary: Vec<FilterSummary>,
+    /// Per reconstruction on the full-size synthetic sequence, sparsely shaded.
+    pub timing: Vec<TimingRow>,
+}
+
 /// The whole report. Serialises to `report.json` (the strips are written as images).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -390,7 +499,9 @@ pub struct Report {
     pub summary: Vec<FilterSummary>,
     /// Per filter on the full-size synthetic sequence (empty when left out).
     pub timing: Vec<TimingRow>,
-    /// Image strips, one per scene.
+    /// The sparse-shading comparison (None when left out).
+    pub upsampling: Option<UpsamplingReport>,
+    /// Image strips, one per scene (then one per scene of the upsampling section).
     #[serde(skip)]
     pub strips: Vec<Strip>,
 }
@@ -414,11 +525,77 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
     let bandwidth = measure_copy_bandwidth(config.copy_reps);
     let n = config.render.frames as usize;
     let strip_index = config.strip_frame.map_or(n - 1, |f| f as usize);
+    let (scenes, summary, mut strips) = run_scenes(
+        &config.scenes,
+        config.render,
+        &config.filters,
+        strip_index,
+        &bandwidth,
+        &mut tick,
+    )?;
+    let timing = match config.timing {
+        Some(size) => {
+            let frames = [0, 1].map(|i| synthetic_frame(size.width, size.height, i));
+            time_filters(&config.filters, &frames, size, &bandwidth, &mut tick)?
+        }
+        None => Vec::new(),
+    };
+    let upsampling = match &config.upsampling {
+        None => None,
+        Some(u) => {
+            let (scenes, summary, more) = run_scenes(
+                &u.scenes,
+                u.render(config.render),
+                &u.filters,
+                strip_index,
+                &bandwidth,
+                &mut tick,
+            )?;
+            strips.extend(more);
+            let timing = match config.timing {
+                Some(size) => {
+                    let frames = [0, 1].map(|i| synthetic_sparse_frame(size.width, size.height, i, u.factor));
+                    time_filters(&u.filters, &frames, size, &bandwidth, &mut tick)?
+                }
+                None => Vec::new(),
+            };
+            Some(UpsamplingReport {
+                factor: u.factor,
+                scenes,
+                summary,
+                timing,
+            })
+        }
+    };
+    Ok(Report {
+        config: config.clone(),
+        bandwidth,
+        scenes,
+        summary,
+        timing,
+        upsampling,
+        strips,
+    })
+}
+
+type ScenesRun = (Vec<SceneReport>, Vec<FilterSummary>, Vec<Strip>);
+
+/// Renders each scene and runs each filter over it; per scene a report and a strip, per
+/// filter a summary over the scenes.
+fn run_scenes(
+    names: &[String],
+    render: Settings,
+    filters: &[FilterSpec],
+    strip_index: usize,
+    bandwidth: &Bandwidth,
+    tick: &mut dyn FnMut(&str),
+) -> Result<ScenesRun, ReportError> {
+    let n = render.frames as usize;
     let mut scenes = Vec::new();
     let mut strips = Vec::new();
-    let mut wall_by_filter: Vec<Vec<f64>> = vec![Vec::new(); config.filters.len()];
-    for name in &config.scenes {
-        let scene = Scene::new(name, config.render).map_err(|source| ReportError::Scene {
+    let mut wall_by_filter: Vec<Vec<f64>> = vec![Vec::new(); filters.len()];
+    for name in names {
+        let scene = Scene::new(name, render).map_err(|source| ReportError::Scene {
             scene: name.clone(),
             source,
         })?;
@@ -433,16 +610,22 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
             })
             .collect();
         let reference = |f: &Frame| -> Rgb { f.reference().expect("scenes render a reference").clone() };
+        let sparse = render.shading > 1;
+        let label = if sparse {
+            format!("{name}-shading-{0}x{0}", render.shading)
+        } else {
+            name.clone()
+        };
         let mut strip = Strip {
-            scene: name.clone(),
+            scene: label.clone(),
             frame: strip_index as u64,
             space: SpaceChoice::Auto.resolve(&reference(&frames[0])),
-            input: frames[strip_index].color().clone(),
+            input: frames[strip_index].color_full().into_owned(),
             outputs: Vec::new(),
             reference: reference(&frames[strip_index]),
         };
         let mut cells = Vec::new();
-        for (k, spec) in config.filters.iter().enumerate() {
+        for (k, spec) in filters.iter().enumerate() {
             let mut filter =
                 pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
                     spec: spec.label.clone(),
@@ -479,7 +662,7 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
                     } else {
                         filter.recycle(out.color);
                     }
-                    tick(&format!("{name}: {}", spec.label));
+                    tick(&format!("{label}: {}", spec.label));
                 }
             }
             let s = eval.summary().expect("at least one frame");
@@ -489,12 +672,12 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
                 mean_psnr: s.mean_psnr,
                 mean_ssim: s.mean_ssim,
                 trmse: s.trmse,
-                cost: Cost::of(spec, &frames[0], &wall, &records, &bandwidth),
+                cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
                 psnr_per_frame: eval.frames.iter().map(|f| f.psnr).collect(),
             });
         }
         scenes.push(SceneReport {
-            scene: name.clone(),
+            scene: label,
             description: scene.def.description.to_string(),
             space: strip.space,
             render: Timing::of(&render_ms),
@@ -503,8 +686,7 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
         strips.push(strip);
     }
 
-    let summary = config
-        .filters
+    let summary = filters
         .iter()
         .enumerate()
         .map(|(k, spec)| {
@@ -524,59 +706,57 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
             }
         })
         .collect();
+    Ok((scenes, summary, strips))
+}
 
+/// Times each filter on two alternating full-size frames.
+fn time_filters(
+    filters: &[FilterSpec],
+    frames: &[Frame; 2],
+    size: TimingSize,
+    bandwidth: &Bandwidth,
+    tick: &mut dyn FnMut(&str),
+) -> Result<Vec<TimingRow>, ReportError> {
     let mut timing = Vec::new();
-    if let Some(size) = config.timing {
-        let frames = [0, 1].map(|i| synthetic_frame(size.width, size.height, i));
-        for spec in &config.filters {
-            let label = format!("{}x{}: {}", size.width, size.height, spec.label);
-            let mut filter =
-                pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
-                    spec: spec.label.clone(),
-                    source: Box::new(source),
-                })?;
-            let run_err = |index: u64, source| ReportError::Run {
-                filter: spec.label.clone(),
-                scene: format!("synthetic {}x{}", size.width, size.height),
-                index,
-                source: Box::new(source),
-            };
-            // Untimed frames allocate the state, fault its pages in and fill a windowed
-            // filter's window, so that every timed push gives one output.
-            for i in 0..=filter.lookahead() {
-                for out in filter.push(&frames[i % 2]).map_err(|e| run_err(i as u64, e))? {
-                    filter.recycle(out.color);
-                }
+    for spec in filters {
+        let label = format!("{}x{}: {}", size.width, size.height, spec.label);
+        let mut filter = pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
+            spec: spec.label.clone(),
+            source: Box::new(source),
+        })?;
+        let run_err = |index: u64, source| ReportError::Run {
+            filter: spec.label.clone(),
+            scene: format!("synthetic {}x{}", size.width, size.height),
+            index,
+            source: Box::new(source),
+        };
+        // Untimed frames allocate the state, fault its pages in and fill a windowed
+        // filter's window, so that every timed push gives one output.
+        for i in 0..=filter.lookahead() {
+            for out in filter.push(&frames[i % 2]).map_err(|e| run_err(i as u64, e))? {
+                filter.recycle(out.color);
+            }
+        }
+        tick(&label);
+        let mut records = Vec::with_capacity(size.frames);
+        let mut wall = Vec::with_capacity(size.frames);
+        for i in 1..=size.frames {
+            let frame = &frames[i % 2];
+            let t = Instant::now();
+            let outs = filter.push(frame).map_err(|e| run_err(frame.meta.index, e))?;
+            wall.push(t.elapsed().as_secs_f64() * 1e3);
+            for out in outs {
+                records.push(out.record);
+                filter.recycle(out.color);
             }
             tick(&label);
-            let mut records = Vec::with_capacity(size.frames);
-            let mut wall = Vec::with_capacity(size.frames);
-            for i in 1..=size.frames {
-                let frame = &frames[i % 2];
-                let t = Instant::now();
-                let outs = filter.push(frame).map_err(|e| run_err(frame.meta.index, e))?;
-                wall.push(t.elapsed().as_secs_f64() * 1e3);
-                for out in outs {
-                    records.push(out.record);
-                    filter.recycle(out.color);
-                }
-                tick(&label);
-            }
-            timing.push(TimingRow {
-                filter: spec.label.clone(),
-                cost: Cost::of(spec, &frames[0], &wall, &records, &bandwidth),
-            });
         }
+        timing.push(TimingRow {
+            filter: spec.label.clone(),
+            cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
+        });
     }
-
-    Ok(Report {
-        config: config.clone(),
-        bandwidth,
-        scenes,
-        summary,
-        timing,
-        strips,
-    })
+    Ok(timing)
 }
 
 #[cfg(test)]
@@ -592,10 +772,16 @@ mod tests {
         assert!(e.contains("\"nope\"") && e.contains("taa"), "{e}");
         let e = FilterSpec::parse("taa:no_such=1").unwrap_err().to_string();
         assert!(e.contains("no_such"), "{e}");
+        let sparse = pipeline::list().iter().filter(|i| i.sparse_input).count();
         assert_eq!(
-            FilterSpec::every().len(),
+            FilterSpec::every().len() + sparse,
             pipeline::list().len(),
             "every registered filter, no hand-kept list"
+        );
+        let labels: Vec<String> = FilterSpec::sparse().into_iter().map(|s| s.label).collect();
+        assert_eq!(
+            labels,
+            ["spatiotemporal", "spatial", "temporal", "taa"].map(|m| format!("upsample:method={m}"))
         );
     }
 

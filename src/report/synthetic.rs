@@ -2,7 +2,7 @@
 //! would take longer than filtering it (1920x1080 in the report's timing section and in
 //! `benches/filters.rs`).
 
-use crate::frame::{ChannelKind, Frame, Plane};
+use crate::frame::{ChannelKind, Frame, Plane, Sampling};
 
 /// Textured colour with some HDR highlights, a depth ramp with object steps, object ids in
 /// blocks, albedo, and a uniform sub-pixel pan of (-1.3, 0.7) px per frame, so every stage
@@ -41,6 +41,32 @@ pub fn synthetic_frame(width: usize, height: usize, index: u64) -> Frame {
         (1 + x / 64 + 30 * (y / 64)) as u32
     }))
     .expect("same size");
+    let normal = [0.3f32, -0.2, 0.93]
+        .map(|k| Plane::from_fn(width, height, |x, y| k + 0.05 * ((x / 64 + y / 64) % 2) as f32));
+    f.set_f32(ChannelKind::Normal, normal.to_vec())
+        .expect("same size");
     f.meta.index = index;
+    f
+}
+
+/// [`synthetic_frame`] with its colour shaded sparsely: one pixel per `factor x factor`
+/// block in the rotating order of frame `index` (for timing the upsampling filters).
+pub fn synthetic_sparse_frame(width: usize, height: usize, index: u64, factor: u32) -> Frame {
+    let full = synthetic_frame(width, height, index);
+    let s = Sampling::rotating(factor, index);
+    let color = Frame::gather(full.color(), s).expect("a valid factor");
+    let mut f = Frame::subsampled(color, width, height, s).expect("gathered at the pattern's size");
+    for k in [
+        ChannelKind::Albedo,
+        ChannelKind::Depth,
+        ChannelKind::Motion,
+        ChannelKind::Normal,
+    ] {
+        let planes = full.planes(k).expect("set above").to_vec();
+        f.set_f32(k, planes).expect("same size");
+    }
+    f.set_object_id(full.object_id().expect("set above").clone())
+        .expect("same size");
+    f.meta = full.meta;
     f
 }

@@ -1,6 +1,6 @@
 //! The report as text: a markdown table for people, a CSV for spreadsheets.
 
-use super::{Cell, Cost, Report};
+use super::{Cell, Cost, FilterSummary, Report, SceneReport, TimingRow, TimingSize};
 use crate::pipeline::StageSummary;
 use std::fmt::Write;
 
@@ -81,12 +81,45 @@ pub fn markdown(r: &Report) -> String {
         r.bandwidth.copy.count
     );
     let _ = writeln!(o, "## All scenes (mean over {} scenes)\n", r.scenes.len());
+    summary_table(&mut o, &r.summary);
+    if let Some(t) = c.timing {
+        timing_table(&mut o, &r.timing, t, "synthetic G-buffer with every channel");
+    }
+    scene_blocks(&mut o, &r.scenes);
+    if let Some(u) = &r.upsampling {
+        let _ = writeln!(
+            o,
+            "\n# Upsampling: one pixel of every {f}x{f} block shaded (Herzog et al. 2010)\n\n\
+             The scenes rendered with sparse shading in the rotating order, no jitter, G-buffer and reference at full \
+             resolution; `upsample` and its baselines reconstruct full resolution. The input row of each strip shows each \
+             pixel its block's sample.\n",
+            f = u.factor
+        );
+        let _ = writeln!(o, "## All scenes (mean over {} scenes)\n", u.scenes.len());
+        summary_table(&mut o, &u.summary);
+        if let Some(t) = c.timing {
+            timing_table(
+                &mut o,
+                &u.timing,
+                t,
+                &format!(
+                    "synthetic G-buffer, colour shaded at one pixel per {0}x{0} block",
+                    u.factor
+                ),
+            );
+        }
+        scene_blocks(&mut o, &u.scenes);
+    }
+    o
+}
+
+fn summary_table(o: &mut String, summary: &[FilterSummary]) {
     let _ = writeln!(
         o,
         "| filter | PSNR dB | SSIM | tRMSE | ms/frame median | p95 | x floor | state MB/MP |"
     );
     let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|");
-    for f in &r.summary {
+    for f in summary {
         let _ = writeln!(
             o,
             "| {} | {:.2} | {:.4} | {} | {:.3} | {:.3} | {:.1} | {:.1} |",
@@ -100,28 +133,35 @@ pub fn markdown(r: &Report) -> String {
             f.state_bytes_per_megapixel / MB
         );
     }
-    if let (Some(t), false) = (c.timing, r.timing.is_empty()) {
-        let _ = writeln!(
-            o,
-            "\n## Timing at {}x{} (synthetic G-buffer with every channel, {} frames after one untimed)\n",
-            t.width, t.height, t.frames
-        );
-        let _ = writeln!(
-            o,
-            "| filter | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | stages (median ms) |"
-        );
-        let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---|");
-        for row in &r.timing {
-            let _ = writeln!(
-                o,
-                "| {} | {} | {} |",
-                row.filter,
-                cost_cells(&row.cost),
-                stages_text(&row.cost.stages)
-            );
-        }
+}
+
+fn timing_table(o: &mut String, rows: &[TimingRow], t: TimingSize, what: &str) {
+    if rows.is_empty() {
+        return;
     }
-    for sc in &r.scenes {
+    let _ = writeln!(
+        o,
+        "\n## Timing at {}x{} ({what}, {} frames after one untimed)\n",
+        t.width, t.height, t.frames
+    );
+    let _ = writeln!(
+        o,
+        "| filter | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | stages (median ms) |"
+    );
+    let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---|");
+    for row in rows {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {} |",
+            row.filter,
+            cost_cells(&row.cost),
+            stages_text(&row.cost.stages)
+        );
+    }
+}
+
+fn scene_blocks(o: &mut String, scenes: &[SceneReport]) {
+    for sc in scenes {
         let _ = writeln!(
             o,
             "\n## {} ({:?} space, render {:.0} ms/frame)\n\n{}\n",
@@ -145,7 +185,6 @@ pub fn markdown(r: &Report) -> String {
             );
         }
     }
-    o
 }
 
 /// Quotes a CSV field when it holds a comma, quote or newline.
@@ -187,46 +226,59 @@ pub fn csv(r: &Report) -> String {
             field(&stages_csv(&c.cost.stages))
         );
     };
-    for sc in &r.scenes {
-        for c in &sc.cells {
-            cell_row(&mut o, &sc.scene, c);
+    let sections = std::iter::once((&r.scenes, &r.summary, &r.timing, "all", "synthetic".to_string())).chain(
+        r.upsampling.iter().map(|u| {
+            (
+                &u.scenes,
+                &u.summary,
+                &u.timing,
+                "upsampling",
+                format!("synthetic-shading-{0}x{0}", u.factor),
+            )
+        }),
+    );
+    for (scenes, summary, timing, all, synthetic) in sections {
+        for sc in scenes {
+            for c in &sc.cells {
+                cell_row(&mut o, &sc.scene, c);
+            }
         }
-    }
-    for f in &r.summary {
-        let _ = writeln!(
-            o,
-            "summary,all,{},{},{},{},{},{},{},{},{},,,{},{},",
-            field(&f.filter),
-            s.width,
-            s.height,
-            s.frames,
-            f.mean_psnr,
-            f.mean_ssim,
-            f.mean_trmse.map_or(String::new(), |t| t.to_string()),
-            f.time.median_ms,
-            f.time.p95_ms,
-            f.floor_ratio,
-            f.state_bytes_per_megapixel
-        );
-    }
-    if let Some(t) = r.config.timing {
-        for row in &r.timing {
-            let c = &row.cost;
+        for f in summary {
             let _ = writeln!(
                 o,
-                "timing,synthetic,{},{},{},{},,,,{},{},{},{},{},{},{}",
-                field(&row.filter),
-                t.width,
-                t.height,
-                t.frames,
-                c.time.median_ms,
-                c.time.p95_ms,
-                c.bytes_per_frame,
-                c.floor_ms,
-                c.floor_ratio,
-                c.state_bytes_per_megapixel,
-                field(&stages_csv(&c.stages))
+                "summary,{all},{},{},{},{},{},{},{},{},{},,,{},{},",
+                field(&f.filter),
+                s.width,
+                s.height,
+                s.frames,
+                f.mean_psnr,
+                f.mean_ssim,
+                f.mean_trmse.map_or(String::new(), |t| t.to_string()),
+                f.time.median_ms,
+                f.time.p95_ms,
+                f.floor_ratio,
+                f.state_bytes_per_megapixel
             );
+        }
+        if let Some(t) = r.config.timing {
+            for row in timing {
+                let c = &row.cost;
+                let _ = writeln!(
+                    o,
+                    "timing,{synthetic},{},{},{},{},,,,{},{},{},{},{},{},{}",
+                    field(&row.filter),
+                    t.width,
+                    t.height,
+                    t.frames,
+                    c.time.median_ms,
+                    c.time.p95_ms,
+                    c.bytes_per_frame,
+                    c.floor_ms,
+                    c.floor_ratio,
+                    c.state_bytes_per_megapixel,
+                    field(&stages_csv(&c.stages))
+                );
+            }
         }
     }
     o

@@ -233,6 +233,7 @@ impl FilterKind for Upsample {
         "spatio-temporal upsampling of sparse shading (Herzog et al. 2010), with spatial, temporal and TAA-style baselines";
     const STAGES: &'static [&'static str] = &["repair", "geometry", "reproject", "gradient", "blend"];
     type Params = Params;
+    const SPARSE_INPUT: bool = true;
     fn needs() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color])
     }
@@ -296,13 +297,7 @@ impl Filter for Upsample {
             variant: method.name(),
         };
         let (cw, ch) = inp.color[0].size();
-        let sparse = Sparse {
-            color: inp.color_slices(),
-            color_width: cw,
-            color_height: ch,
-            sampling,
-            invalid: inp.invalid.as_deref(),
-        };
+        let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
         let depth = inp.depth.as_deref().map(Plane::data);
         let ids = inp.object_id.map(Plane::data);
 
@@ -520,6 +515,9 @@ impl Filter for Upsample {
                     pixels.history_reset += holes.history_reset;
                 }
                 Method::Taa => {
+                    let taa_kernel: Vec<f32> =
+                        (0..81).map(|o| (-TAA_KERNEL * sparse.dist2(o)).exp()).collect();
+                    let taa_kernel = &taa_kernel;
                     let [o0, o1, o2] = slices_mut(&mut out);
                     let mut it = next.iter_mut();
                     let n: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
@@ -533,8 +531,8 @@ impl Filter for Upsample {
                                 let i = y * w + x;
                                 let (mut sum, mut wsum, mut beta) = ([0.0f32; 3], 0.0f32, 0.0f32);
                                 let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-                                sparse.for_each_near(x, y, w, h, |k, _, d2| {
-                                    let wt = (-TAA_KERNEL * d2).exp();
+                                sparse.for_each_near(x, y, w, h, |k, _, o| {
+                                    let wt = taa_kernel[o];
                                     beta = beta.max(wt);
                                     wsum += wt;
                                     for c in 0..3 {

@@ -17,12 +17,9 @@ pub const WEIGHT_EPSILON: f32 = 1.0e-5;
 /// to the clamp at `sigma`, a cheap stand-in for Yang et al.'s Gaussian.
 #[inline(always)]
 pub fn falloff(x: f32, sigma: f32) -> f32 {
-    let t = 1.0 - x / sigma;
-    if t > 0.0 {
-        (t * t * t).max(WEIGHT_EPSILON)
-    } else {
-        WEIGHT_EPSILON
-    }
+    // Branch-free: `max` returns the other operand for a NaN distance, so NaN gets the clamp.
+    let t = (1.0 - x * (1.0 / sigma)).max(0.0);
+    (t * t * t).max(WEIGHT_EPSILON)
 }
 
 /// The full-resolution geometry the weights read, and the constants that scale it.
@@ -40,6 +37,18 @@ pub struct Geometry<'a> {
     pub inv_depth_scale: f32,
     /// Falloff width on `1 - n_i . n_j`.
     pub normal_sigma: f32,
+}
+
+/// Up to nine shaded samples around a pixel: colour index, pixel index, offset index.
+pub struct Near {
+    /// How many.
+    pub n: usize,
+    /// Colour indices.
+    pub k: [u32; 9],
+    /// Full-resolution pixel indices.
+    pub j: [u32; 9],
+    /// Offset indices (see [`Sparse::dist`]).
+    pub o: [u8; 9],
 }
 
 impl Geometry<'_> {
@@ -103,6 +112,9 @@ impl Gathered {
     }
 }
 
+/// Offsets within one block of a pixel, `(2 x 4 + 1)^2` for the largest factor.
+const OFFSETS: usize = 81;
+
 /// The sparse colour and where its samples lie.
 pub struct Sparse<'a> {
     /// Colour planes at their own size.
@@ -115,9 +127,55 @@ pub struct Sparse<'a> {
     pub sampling: Sampling,
     /// Samples to leave out (repaired from NaN or negative input), indexed like `color`.
     pub invalid: Option<&'a [bool]>,
+    /// Per offset `(dx, dy)` in `[-factor, factor]^2` (index `(dy + f)(2f + 1) + dx + f`):
+    /// the distance in block diagonals.
+    dist: [f32; OFFSETS],
+    /// The same offsets' squared distance in pixels.
+    dist2: [f32; OFFSETS],
 }
 
-impl Sparse<'_> {
+impl<'a> Sparse<'a> {
+    /// The sparse colour `color` (`color_width x color_height`) shaded with `sampling`.
+    pub fn new(
+        color: [&'a [f32]; 3],
+        color_width: usize,
+        color_height: usize,
+        sampling: Sampling,
+        invalid: Option<&'a [bool]>,
+    ) -> Self {
+        let f = sampling.factor as isize;
+        let side = 2 * f + 1;
+        let (mut dist, mut dist2) = ([0.0f32; OFFSETS], [0.0f32; OFFSETS]);
+        for dy in -f..=f {
+            for dx in -f..=f {
+                let o = ((dy + f) * side + dx + f) as usize;
+                dist2[o] = (dx * dx + dy * dy) as f32;
+                dist[o] = (dist2[o] / (2.0 * (f * f) as f32)).sqrt();
+            }
+        }
+        Sparse {
+            color,
+            color_width,
+            color_height,
+            sampling,
+            invalid,
+            dist,
+            dist2,
+        }
+    }
+
+    /// Distance of offset `o` (as passed by [`Sparse::for_each_near`]) in block diagonals.
+    #[inline(always)]
+    pub fn dist(&self, o: usize) -> f32 {
+        self.dist[o]
+    }
+
+    /// Squared distance of offset `o` in pixels.
+    #[inline(always)]
+    pub fn dist2(&self, o: usize) -> f32 {
+        self.dist2[o]
+    }
+
     /// Index of the colour sample of lattice cell `(a, b)` and its full-resolution pixel,
     /// when it exists and was shaded inside the frame.
     #[inline(always)]
@@ -151,10 +209,50 @@ impl Sparse<'_> {
         (x as isize - p as isize).div_euclid(self.sampling.factor as isize)
     }
 
-    /// Calls `f(colour index, pixel index, squared distance in pixels)` for each shaded
-    /// sample within `factor` pixels of `(x, y)` along both axes: the four around an
-    /// unshaded pixel, and a shaded pixel's own sample with its eight lattice neighbours
-    /// (so that the footprint is symmetric about every pixel; fewer at the borders).
+    /// The shaded samples within `factor` pixels of `(x, y)` along both axes: the four
+    /// around an unshaded pixel, and a shaded pixel's own sample with its eight lattice
+    /// neighbours (so that the footprint is symmetric about every pixel; fewer at the
+    /// borders, and none that are invalid).
+    #[inline(always)]
+    pub fn near(&self, x: usize, y: usize, width: usize, height: usize) -> Near {
+        let fac = self.sampling.factor as isize;
+        let side = 2 * fac + 1;
+        let [px, py] = self.sampling.phase.map(|p| p as isize);
+        let (x, y) = (x as isize, y as isize);
+        let a0 = (x - px).div_euclid(fac);
+        let b0 = (y - py).div_euclid(fac);
+        let mut near = Near {
+            n: 0,
+            k: [0; 9],
+            j: [0; 9],
+            o: [0; 9],
+        };
+        for b in b0 - 1..=b0 + 1 {
+            let sy = fac * b + py;
+            let dy = sy - y;
+            if b < 0 || b as usize >= self.color_height || sy as usize >= height || dy.abs() > fac {
+                continue;
+            }
+            for a in a0 - 1..=a0 + 1 {
+                let sx = fac * a + px;
+                let dx = sx - x;
+                if a < 0 || a as usize >= self.color_width || sx as usize >= width || dx.abs() > fac {
+                    continue;
+                }
+                let k = b as usize * self.color_width + a as usize;
+                if self.invalid.is_some_and(|v| v[k]) {
+                    continue;
+                }
+                near.k[near.n] = k as u32;
+                near.j[near.n] = (sy as usize * width + sx as usize) as u32;
+                near.o[near.n] = ((dy + fac) * side + dx + fac) as u8;
+                near.n += 1;
+            }
+        }
+        near
+    }
+
+    /// Calls `f(colour index, pixel index, offset)` for each sample of [`Sparse::near`].
     #[inline(always)]
     pub fn for_each_near(
         &self,
@@ -162,21 +260,11 @@ impl Sparse<'_> {
         y: usize,
         width: usize,
         height: usize,
-        mut f: impl FnMut(usize, usize, f32),
+        mut f: impl FnMut(usize, usize, usize),
     ) {
-        let fac = self.sampling.factor as isize;
-        let a0 = self.cell(x, self.sampling.phase[0]);
-        let b0 = self.cell(y, self.sampling.phase[1]);
-        for b in b0 - 1..=b0 + 1 {
-            for a in a0 - 1..=a0 + 1 {
-                if let Some((k, j)) = self.sample(a, b, width, height) {
-                    let dx = (j % width) as isize - x as isize;
-                    let dy = (j / width) as isize - y as isize;
-                    if dx.abs() <= fac && dy.abs() <= fac {
-                        f(k, j, (dx * dx + dy * dy) as f32);
-                    }
-                }
-            }
+        let near = self.near(x, y, width, height);
+        for s in 0..near.n {
+            f(near.k[s] as usize, near.j[s] as usize, near.o[s] as usize);
         }
     }
 
@@ -187,24 +275,24 @@ impl Sparse<'_> {
     pub fn gather(&self, geo: &Geometry, x: usize, y: usize, kernel_sigma: f32) -> Gathered {
         let (w, h) = (geo.width, geo.height);
         let i = y * w + x;
-        let f = self.sampling.factor as f32;
-        let inv_diag2 = 1.0 / (2.0 * f * f);
         let mut g = Gathered {
             min: [f32::INFINITY; 3],
             max: [f32::NEG_INFINITY; 3],
             ..Gathered::default()
         };
-        self.for_each_near(x, y, w, h, |k, j, d2| {
-            let wk = falloff((d2 * inv_diag2).sqrt(), kernel_sigma);
-            let wt = wk * geo.weight(i, j);
+        let near = self.near(x, y, w, h);
+        let [cr, cg, cb] = self.color;
+        for s in 0..near.n {
+            let (k, j) = (near.k[s] as usize, near.j[s] as usize);
+            let wt = falloff(self.dist[near.o[s] as usize], kernel_sigma) * geo.weight(i, j);
+            let v = [cr[k], cg[k], cb[k]];
             for c in 0..3 {
-                let v = self.color[c][k];
-                g.sum[c] += wt * v;
-                g.min[c] = g.min[c].min(v);
-                g.max[c] = g.max[c].max(v);
+                g.sum[c] += wt * v[c];
+                g.min[c] = g.min[c].min(v[c]);
+                g.max[c] = g.max[c].max(v[c]);
             }
             g.weight += wt;
-        });
+        }
         g
     }
 }
@@ -271,13 +359,7 @@ mod tests {
                     inv_depth_scale: 1.0 / (0.1 * 3.0),
                     normal_sigma: 0.5,
                 };
-                let sparse = Sparse {
-                    color: [&color[0], &color[1], &color[2]],
-                    color_width: cw,
-                    color_height: ch,
-                    sampling: s,
-                    invalid: None,
-                };
+                let sparse = Sparse::new([&color[0], &color[1], &color[2]], cw, ch, s, None);
                 let g64 =
                     |x: f64, sigma: f64| ((1.0 - x / sigma).max(0.0).powi(3)).max(WEIGHT_EPSILON as f64);
                 for y in 0..h {

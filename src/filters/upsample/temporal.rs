@@ -145,9 +145,7 @@ mod tests {
         let mut frac = vec![0.0f32; w * h];
         let lost = reproject([&src], Some([&mx, &my]), None, w, h, [&mut out], &mut frac);
         // Half a pixel to the left: the mean of a pixel and its left neighbour.
-        Tolerance::abs(1e-6)
-            .check("x=2", out[w + 2] as f64, 5.5)
-            .unwrap();
+        Tolerance::abs(1e-6).check("x=2", out[w + 2] as f64, 5.5).unwrap();
         assert_eq!(frac[w + 2], 1.0);
         assert_eq!(lost, 0);
         // A tap on another object is left out and the rest renormalised.
