@@ -38,7 +38,11 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     let (r, stdout) = quick_report(dir.path());
     // The main section runs every filter of full-resolution colour; the upsampling section
     // every method of the filters of sparse shading.
-    let filters: Vec<&str> = list().iter().filter(|i| !i.sparse_input).map(|i| i.name).collect();
+    let filters: Vec<&str> = list()
+        .iter()
+        .filter(|i| !i.sparse_input)
+        .map(|i| i.name)
+        .collect();
     let scenes = r["scenes"].as_array().unwrap();
     assert_eq!(scenes.len(), CATALOGUE.len());
     for (sc, entry) in scenes.iter().zip(CATALOGUE) {
@@ -75,7 +79,11 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     }
     // State per megapixel matches each filter's declared bytes per pixel; a windowed
     // filter's is the frames it holds, at most its declared full window of every channel.
-    for (info, row) in list().iter().filter(|i| !i.sparse_input).zip(r["timing"].as_array().unwrap()) {
+    for (info, row) in list()
+        .iter()
+        .filter(|i| !i.sparse_input)
+        .zip(r["timing"].as_array().unwrap())
+    {
         let got = finite(&row["cost"]["state_bytes_per_megapixel"], info.name);
         let declared = info.state_bytes_per_pixel as f64 * 1e6;
         if info.name == "pixel_trace" {
@@ -113,7 +121,10 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     // timing, then the same for the upsampling section.
     let csv = std::fs::read_to_string(dir.path().join("report.csv")).unwrap();
     let n = filters.len();
-    assert_eq!(csv.lines().count(), 1 + n * CATALOGUE.len() + 2 * n + 4 * 3 + 2 * 4);
+    assert_eq!(
+        csv.lines().count(),
+        1 + n * CATALOGUE.len() + 2 * n + 4 * 3 + 2 * 4
+    );
     assert!(csv.starts_with("section,scene,filter,"));
     // The markdown on stdout is the one written to report.md.
     assert_eq!(
