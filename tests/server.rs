@@ -15,15 +15,24 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tonic::Code;
 
 fn frames(scene: &str, n: u64, seed: u64) -> Vec<Frame> {
+    frames_shaded(scene, n, seed, 1)
+}
+
+/// Scene frames with one colour sample per `shading x shading` block (1: every pixel).
+fn frames_shaded(scene: &str, n: u64, seed: u64, shading: u32) -> Vec<Frame> {
     let s = Settings {
         width: 64,
         height: 36,
         frames: n,
         spp: 4,
-        jitter: Jitter::Halton(8),
+        jitter: if shading > 1 {
+            Jitter::None
+        } else {
+            Jitter::Halton(8)
+        },
         noise: false,
         seed,
-        shading: 1,
+        shading,
     };
     let sc = Scene::new(scene, s).unwrap();
     (0..n).map(|i| sc.frame(i)).collect()
@@ -171,6 +180,18 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
             .into_inner();
         assert_eq!(info.frames, 6);
     }
+    // Sparse shading (one pixel per 2x2 block) travels with its pattern; upsample
+    // reconstructs it as in process, and a filter that needs every pixel refuses it.
+    let sparse = frames_shaded("moving-sphere", 6, 1, 2);
+    let s = open(&mut c, "upsample").await;
+    same(
+        &stream_all(&mut c, &s, &sparse, F32).await.unwrap(),
+        &in_process("upsample", &sparse),
+        "upsample, sparse frames",
+    );
+    let s = open(&mut c, "taa").await;
+    let e = stream_all(&mut c, &s, &sparse, F32).await.unwrap_err();
+    assert!(e.to_string().contains("shades one pixel per 2x2 block"), "{e}");
     // The reference travels with scene frames: the report has PSNR and SSIM.
     let s = open(&mut c, "taa").await;
     let mut reports = Vec::new();
@@ -549,6 +570,39 @@ async fn http_frames_are_bit_identical_too() {
             &format!("http frame {i}"),
         );
     }
+    // Sparse shading in an EXR body (the pattern is an attribute) to upsample.
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        br#"{"filter":"upsample","width":64,"height":36}"#,
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 201, "{}", String::from_utf8_lossy(&body));
+    let s: Value = serde_json::from_slice(&body).unwrap();
+    let uid = s["id"].as_str().unwrap().to_string();
+    let sparse = frames_shaded("fence", 3, 1, 2);
+    let want = in_process("upsample", &sparse);
+    for (i, f) in sparse.iter().enumerate() {
+        let exr = write_exr_bytes(f, &opts).unwrap();
+        let (st, _, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{uid}/frames"),
+            &exr,
+            "image/x-exr",
+        )
+        .await;
+        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+        same(
+            &[exr_color(&body)],
+            &[want[i].clone()],
+            &format!("http sparse frame {i}"),
+        );
+    }
+    let del = http(addr, "DELETE", &format!("/v1/sessions/{uid}"), b"", "text/plain").await;
+    assert_eq!(del.0, 200);
     // A windowed filter: 202 while its window fills, then frame t after frame t + 2; the
     // flush gives the rest one per request, then 204.
     let (st, _, body) = http(

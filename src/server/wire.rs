@@ -4,7 +4,7 @@
 //! channels, lengths) and says precisely what is wrong.
 
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
 use crate::session::SessionError;
 use std::borrow::Cow;
 
@@ -226,6 +226,13 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
     let mut color: Option<Rgb> = None;
     let mut rest: Vec<(ChannelKind, Vec<Plane<f32>>)> = Vec::new();
     let mut ids: Option<Plane<u32>> = None;
+    let hd = &a.header;
+    let sampling = Sampling {
+        factor: hd.shading_factor.max(1),
+        phase: [hd.shading_phase_x, hd.shading_phase_y],
+    };
+    sampling.validate().map_err(|e| invalid("shading_factor", e))?;
+    let (cw, chh) = sampling.color_size(w, h);
     for ch in &a.header.channels {
         let name = ch.name.as_str();
         let kind = ChannelKind::from_name(name).ok_or_else(|| {
@@ -251,7 +258,12 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
         let bytes = &a.bytes[at..at + len];
         at += len;
         let comps = kind.components();
-        let raw = decompress(name, ch, bytes, comps * n * 4)?;
+        let (pw, ph) = if kind == ChannelKind::Color {
+            (cw, chh)
+        } else {
+            (w, h)
+        };
+        let raw = decompress(name, ch, bytes, comps * pw * ph * 4)?;
         if kind == ChannelKind::ObjectId {
             if ch.sample != SampleType::U32 as i32 {
                 return Err(invalid("channels[object_id].sample", "expected u32"));
@@ -269,7 +281,7 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
             ids = Some(Plane::from_vec(w, h, v).expect("length checked"));
             continue;
         }
-        let planes = decode_planes(name, ch, &raw, w, h, comps)?;
+        let planes = decode_planes(name, ch, &raw, pw, ph, comps)?;
         if kind == ChannelKind::Color {
             let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
             color = Some([r, g, b]);
@@ -278,7 +290,12 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
         }
     }
     let color = color.ok_or_else(|| invalid("channels", "no color channel; every frame needs one"))?;
-    let mut frame = Frame::new(color).map_err(|e| invalid("color", e.to_string()))?;
+    let mut frame = if sampling.is_full() {
+        Frame::new(color)
+    } else {
+        Frame::subsampled(color, w, h, sampling)
+    }
+    .map_err(|e| invalid("color", e.to_string()))?;
     for (kind, planes) in rest {
         frame
             .set_f32(kind, planes)
@@ -368,6 +385,9 @@ pub fn encode_frame(
         channels: headers,
         reply_sample: sample as i32,
         reply_compression: compression as i32,
+        shading_factor: frame.sampling().factor,
+        shading_phase_x: frame.sampling().phase[0],
+        shading_phase_y: frame.sampling().phase[1],
     };
     (header, chunks(bytes, max_chunk))
 }
