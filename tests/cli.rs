@@ -342,3 +342,60 @@ fn filters_lists_every_filter_with_bounds_and_bad_params_are_refused() {
         "{err}"
     );
 }
+
+/// Sparse shading end to end on the command line: `scene --shading 2` writes it, `info`
+/// shows the pattern, `upsample` filters it to full resolution, `taa` refuses it precisely.
+#[test]
+fn sparse_shading_from_scene_to_upsample() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("ms2");
+    let s = scene.to_str().unwrap();
+    let (ok, _, err) = run(&[
+        "scene",
+        "moving-sphere",
+        "--size",
+        "34x20",
+        "--frames",
+        "4",
+        "--spp",
+        "1",
+        "--shading",
+        "2",
+        "--jitter",
+        "none",
+        "--out",
+        s,
+    ]);
+    assert!(ok, "{err}");
+    let (ok, text, _) = run(&["info", &format!("{s}/frame_0001.exr")]);
+    assert!(
+        ok && text.contains("shading: one pixel per 2x2 block, at (1, 1) of each"),
+        "{text}"
+    );
+    let out = dir.path().join("up");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "upsample",
+        "--input",
+        s,
+        "--output",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let f = read_frame(&out.join("frame_0003.exr"), &ReadOptions::default()).unwrap();
+    assert_eq!((f.width(), f.height(), f.color_size()), (34, 20, (34, 20)));
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "--input",
+        s,
+        "--output",
+        dir.path().join("taa").to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("filter taa needs colour shaded at every pixel"),
+        "{err}"
+    );
+}

@@ -40,6 +40,8 @@ struct Info {
     channels: Vec<ChannelInfo>,
     non_finite_total: u64,
     meta: afterimage::frame::FrameMeta,
+    /// Sparse shading the file declares (factor 1: every pixel).
+    shading: afterimage::frame::Sampling,
 }
 
 fn fmt_opt(v: Option<f64>) -> String {
@@ -77,6 +79,7 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         non_finite_total: channels.iter().map(|c| c.stats.nan + c.stats.inf).sum(),
         channels,
         meta: raw.meta.clone(),
+        shading: raw.shading,
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&info)?);
@@ -103,6 +106,15 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         meta.exposure.map_or("-".into(), |e| e.to_string()),
         meta.near_far.map_or("-".into(), |[n, f]| format!("{n}/{f}")),
     );
+    let s = info.shading;
+    if !s.is_full() {
+        println!(
+            "shading: one pixel per {f}x{f} block, at ({}, {}) of each: colour stored at those pixels, 0 elsewhere",
+            s.phase[0],
+            s.phase[1],
+            f = s.factor
+        );
+    }
     println!();
     println!(
         "{:<28} {:<5} {:>14} {:>14} {:>14} {:>8} {:>8}",
