@@ -99,10 +99,6 @@ pub struct Gathered {
     pub sum: [f32; 3],
     /// Sum of weights.
     pub weight: f32,
-    /// Per-channel minimum of the samples (for a clamp box).
-    pub min: [f32; 3],
-    /// Per-channel maximum of the samples.
-    pub max: [f32; 3],
 }
 
 impl Gathered {
@@ -275,11 +271,7 @@ impl<'a> Sparse<'a> {
     pub fn gather(&self, geo: &Geometry, x: usize, y: usize, kernel_sigma: f32) -> Gathered {
         let (w, h) = (geo.width, geo.height);
         let i = y * w + x;
-        let mut g = Gathered {
-            min: [f32::INFINITY; 3],
-            max: [f32::NEG_INFINITY; 3],
-            ..Gathered::default()
-        };
+        let mut g = Gathered::default();
         let near = self.near(x, y, w, h);
         let [cr, cg, cb] = self.color;
         for s in 0..near.n {
@@ -288,8 +280,6 @@ impl<'a> Sparse<'a> {
             let v = [cr[k], cg[k], cb[k]];
             for c in 0..3 {
                 g.sum[c] += wt * v[c];
-                g.min[c] = g.min[c].min(v[c]);
-                g.max[c] = g.max[c].max(v[c]);
             }
             g.weight += wt;
         }
