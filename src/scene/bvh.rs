@@ -8,6 +8,37 @@ enum Node {
     Inner { left: u32, right: u32, axis: u8 },
 }
 
+/// Whether the box `b` is not entirely outside one of the `planes` (point, inward normal)
+/// of a beam: false means no ray of the beam can touch it.
+#[inline]
+pub fn in_beam(planes: &[(glam::DVec3, glam::DVec3)], b: &Aabb) -> bool {
+    !planes.iter().any(|(o, n)| {
+        let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
+        n.dot(p - *o) < 0.0
+    })
+}
+
+/// Whether the box `centre +- half`, swept from where it is along `dir` (with
+/// `inv = 1 / dir`) to infinity, may touch the box `b`: a ray from `centre` against `b`
+/// grown by `half` (the Minkowski sum), so conservative for every ray leaving the box in
+/// direction `dir`.
+#[inline]
+pub fn swept_touches(
+    centre: glam::DVec3,
+    half: glam::DVec3,
+    dir: glam::DVec3,
+    inv: glam::DVec3,
+    b: &Aabb,
+) -> bool {
+    let grown = Aabb {
+        min: b.min - half,
+        max: b.max + half,
+    };
+    grown
+        .hit(&Ray { origin: centre, dir }, inv, f64::INFINITY)
+        .is_some()
+}
+
 /// Binary BVH with median splits on the longest centroid axis.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
@@ -99,15 +130,7 @@ impl Bvh {
     /// Appends to `out` every primitive whose bounds are not entirely outside one of the
     /// `planes` (point, inward normal): a conservative list for a beam of rays.
     pub fn collect_in_beam(&self, planes: &[(glam::DVec3, glam::DVec3)], out: &mut Vec<usize>) {
-        self.collect(
-            |b| {
-                !planes.iter().any(|(o, n)| {
-                    let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
-                    n.dot(p - *o) < 0.0
-                })
-            },
-            out,
-        );
+        self.collect(|b| in_beam(planes, b), out);
     }
 
     /// Appends to `out` every primitive that the box `centre +- half`, swept from
@@ -121,18 +144,8 @@ impl Bvh {
         dir: glam::DVec3,
         out: &mut Vec<usize>,
     ) {
-        let ray = Ray { origin: centre, dir };
         let inv = dir.recip();
-        self.collect(
-            |b| {
-                let grown = Aabb {
-                    min: b.min - half,
-                    max: b.max + half,
-                };
-                grown.hit(&ray, inv, f64::INFINITY).is_some()
-            },
-            out,
-        );
+        self.collect(|b| swept_touches(centre, half, dir, inv, b), out);
     }
 
     /// Calls `visit(item, t_max) -> new t_max` for every primitive whose bounds the ray

@@ -62,6 +62,12 @@ impl Rigid {
         self.rotation * v
     }
 
+    /// World direction to local.
+    #[inline]
+    pub fn vector_to_local(&self, v: DVec3) -> DVec3 {
+        self.inverse * v
+    }
+
     /// World ray to local (the parameter `t` is preserved: rotations keep lengths).
     #[inline]
     pub fn ray_to_local(&self, r: &Ray) -> Ray {

@@ -1,15 +1,17 @@
 //! Ray casting one instant of a scene: visibility, shading, exact motion, and the frame
 //! assembly (G-buffer from one jittered sample, reference from N x N samples).
 
-use super::bvh::Bvh;
+use super::bvh::{in_beam, swept_touches, Bvh};
 use super::camera::{Camera, Projected, RayGen};
-use super::math::{radical_inverse, Ray, Rigid};
+use super::math::{radical_inverse, Aabb, Ray, Rigid};
 use super::shapes::{Face, LocalHit};
 use super::{SceneDef, Settings};
 use crate::frame::{ChannelKind, Frame, FrameMeta, Plane, Sampling};
 use crate::rng::SplitMix64;
 use glam::DVec3;
 use rayon::prelude::*;
+
+mod reference;
 
 /// Depth written for sky pixels (also the far plane in the frame values): far beyond
 /// every scene, finite so that depth arithmetic in filters stays finite.
@@ -26,6 +28,8 @@ const SHADOW_EPSILON: f64 = 1e-6;
 pub struct Instant<'a> {
     def: &'a SceneDef,
     xf: Vec<Rigid>,
+    /// World bounds of each object (None: an infinite plane).
+    bounds: Vec<Option<Aabb>>,
     bvh: Bvh,
     planes: Vec<usize>,
     /// The camera.
@@ -71,16 +75,20 @@ impl<'a> Instant<'a> {
     /// The scene at time `t`.
     pub fn new(def: &'a SceneDef, t: f64) -> Instant<'a> {
         let xf: Vec<Rigid> = def.objects.iter().map(|o| (o.motion)(t)).collect();
+        let bounds: Vec<Option<Aabb>> = (def.objects.iter().zip(&xf))
+            .map(|(o, xf)| o.shape.bounds().map(|b| b.transformed(xf)))
+            .collect();
         let mut finite = Vec::new();
         let mut planes = Vec::new();
-        for (i, o) in def.objects.iter().enumerate() {
-            match o.shape.bounds() {
-                Some(b) => finite.push((i, b.transformed(&xf[i]))),
+        for (i, b) in bounds.iter().enumerate() {
+            match b {
+                Some(b) => finite.push((i, *b)),
                 None => planes.push(i),
             }
         }
         Instant {
             def,
+            bounds,
             bvh: Bvh::build(&finite),
             planes,
             xf,
@@ -99,66 +107,15 @@ impl<'a> Instant<'a> {
     pub fn beam_candidates(&self, corners: &[Ray; 4], out: &mut Vec<usize>) {
         out.clear();
         let centre = corners.iter().fold(DVec3::ZERO, |a, r| a + r.origin + r.dir) / 4.0;
-        let planes: Vec<(DVec3, DVec3)> = (0..4)
-            .map(|i| {
-                let (a, b) = (&corners[i], &corners[(i + 1) % 4]);
-                let n = a.dir.cross(b.origin + b.dir - a.origin);
-                let n = if n.dot(centre - a.origin) < 0.0 { -n } else { n };
-                (a.origin, n)
-            })
-            .collect();
+        let planes: [(DVec3, DVec3); 4] = std::array::from_fn(|i| {
+            let (a, b) = (&corners[i], &corners[(i + 1) % 4]);
+            let n = a.dir.cross(b.origin + b.dir - a.origin);
+            let n = if n.dot(centre - a.origin) < 0.0 { -n } else { n };
+            (a.origin, n)
+        });
         self.bvh.collect_in_beam(&planes, out);
-    }
-
-    /// The nearest hit along `ray` among the planes and the finite primitives
-    /// `candidates` (from [`Instant::beam_candidates`] of a beam holding the ray).
-    pub fn intersect_among(&self, ray: &Ray, candidates: &[usize]) -> Option<Hit> {
-        self.finish_hit(ray, self.nearest_among(ray, candidates))
-    }
-
-    /// [`Instant::intersect_among`] without the surface details: the object, the ray
-    /// parameter and the face (for [`Instant::finish_hit`] later).
-    fn nearest_among(&self, ray: &Ray, candidates: &[usize]) -> Option<Nearest> {
-        self.nearest_in(ray, self.planes.iter().chain(candidates).map(|&i| (i, None)))
-    }
-
-    /// The nearest hit along `ray` among `objects`, each with its local ray origin when
-    /// known in advance (see [`Instant::local_origins`]).
-    #[inline]
-    fn nearest_in(
-        &self,
-        ray: &Ray,
-        objects: impl Iterator<Item = (usize, Option<DVec3>)>,
-    ) -> Option<Nearest> {
-        let mut best: Option<Nearest> = None;
-        let mut t = f64::INFINITY;
-        for (i, origin) in objects {
-            let local = match origin {
-                Some(o) => self.xf[i].ray_to_local_from(o, ray),
-                None => self.xf[i].ray_to_local(ray),
-            };
-            if let Some((ht, face)) = self.def.objects[i].shape.hit(&local, 0.0, t) {
-                t = ht;
-                best = Some(Nearest {
-                    object: i as u32,
-                    t: ht,
-                    face,
-                });
-            }
-        }
-        best
-    }
-
-    /// The planes and `candidates` with `origin` in each one's local frame (into `out`,
-    /// cleared first): rays from one origin then skip that part of the transform.
-    fn local_origins(&self, origin: DVec3, candidates: &[usize], out: &mut Vec<(usize, Option<DVec3>)>) {
-        out.clear();
-        out.extend(
-            self.planes
-                .iter()
-                .chain(candidates)
-                .map(|&i| (i, Some(self.xf[i].point_to_local(origin)))),
-        );
+        // The leaves hold more than one primitive: test each one's own bounds too.
+        out.retain(|&i| self.bounds[i].is_none_or(|b| in_beam(&planes, &b)));
     }
 
     /// The surface details of the nearest hit `best` of `ray`.
@@ -211,7 +168,7 @@ impl<'a> Instant<'a> {
         if !lo.cmple(hi).all() {
             return;
         }
-        // Shadow rays start up to this far from the hit points (see `shade_with`).
+        // Shadow rays start up to this far from the hit points (see `Instant::surface`).
         let margin = SHADOW_EPSILON * (1.0 + lo.abs().max(hi.abs()).max_element()) + SHADOW_EPSILON;
         let (lo, hi) = (lo - margin, hi + margin);
         for &i in &self.planes {
@@ -234,21 +191,20 @@ impl<'a> Instant<'a> {
                 out.push(i);
             }
         }
-        self.bvh
-            .collect_swept((lo + hi) * 0.5, (hi - lo) * 0.5, self.sun, out);
-    }
-
-    /// Whether one of `candidates` (but not `skip`) blocks `ray`.
-    pub fn occluded_among(&self, ray: &Ray, skip: usize, candidates: &[usize]) -> bool {
-        candidates.iter().any(|&i| {
-            i != skip && {
-                let local = self.xf[i].ray_to_local(ray);
-                self.def.objects[i]
-                    .shape
-                    .hit(&local, 0.0, f64::INFINITY)
-                    .is_some()
+        let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+        let first = out.len();
+        self.bvh.collect_swept(centre, half, self.sun, out);
+        // The leaves hold more than one primitive: test each one's own bounds too.
+        let inv = self.sun.recip();
+        let mut k = first;
+        for j in first..out.len() {
+            let i = out[j];
+            if self.bounds[i].is_none_or(|b| swept_touches(centre, half, self.sun, inv, &b)) {
+                out[k] = i;
+                k += 1;
             }
-        })
+        }
+        out.truncate(k);
     }
 
     /// Whether anything but object `skip` blocks `ray` before `t_max`. (A shadow ray
@@ -311,45 +267,54 @@ impl<'a> Instant<'a> {
     /// Colour seen along `ray`; `light` picks a point of the sun's disc (None: its
     /// centre, hard shadows).
     pub fn shade(&self, ray: &Ray, hit: Option<&Hit>, light: Option<(f64, f64)>) -> DVec3 {
-        self.shade_with(ray, hit, light, None)
+        let Some(hit) = hit else { return self.sky(ray.dir) };
+        let l = self.sun_direction(light);
+        let surface = self.surface(ray, hit, l);
+        let blocked = (surface.shadow.as_ref()).is_some_and(|r| self.occluded(r, f64::INFINITY, hit.object));
+        self.lit_colour(ray, hit.object, hit.local.t, &surface, blocked)
     }
 
-    /// [`Instant::shade`], testing shadow rays only against the planes and
-    /// `shadow_candidates` when given (see [`Instant::shadow_candidates`]).
-    pub fn shade_with(
-        &self,
-        ray: &Ray,
-        hit: Option<&Hit>,
-        light: Option<(f64, f64)>,
-        shadow_candidates: Option<&[usize]>,
-    ) -> DVec3 {
-        let Some(hit) = hit else { return self.sky(ray.dir) };
+    /// The first half of [`Instant::shade`] for a hit lit from direction `l`:
+    /// everything before the shadow ray, and that ray (None when the sun cannot light the
+    /// point, so that no ray is cast).
+    fn surface(&self, ray: &Ray, hit: &Hit, l: DVec3) -> Surface {
         let m = &self.def.objects[hit.object].material;
         let mut n = hit.normal;
         if n.dot(ray.dir) > 0.0 {
             n = -n; // back faces (inside a box seen through a gap) shade like front faces
         }
         let albedo = m.albedo(hit.uv);
-        let mut c = m.emission + albedo * self.def.ambient;
-        let l = self.sun_direction(light);
+        let unlit = m.emission + albedo * self.def.ambient;
         let ndl = n.dot(l);
-        if ndl > 0.0 && self.def.sun_irradiance.max_element() > 0.0 {
+        let shadow = (ndl > 0.0 && self.def.sun_irradiance.max_element() > 0.0).then(|| {
             let at = ray.at(hit.local.t);
             let p = at + n * SHADOW_EPSILON * (1.0 + at.abs().max_element());
-            let shadow = Ray { origin: p, dir: l };
-            let blocked = match shadow_candidates {
-                None => self.occluded(&shadow, f64::INFINITY, hit.object),
-                Some(c) => self.occluded_among(&shadow, hit.object, c),
-            };
+            Ray { origin: p, dir: l }
+        });
+        Surface {
+            n,
+            albedo,
+            unlit,
+            ndl,
+            shadow,
+        }
+    }
+
+    /// The second half of [`Instant::shade`]: the colour of `surface` given whether
+    /// its shadow ray was `blocked`, for a hit of `object` at ray parameter `t`.
+    fn lit_colour(&self, ray: &Ray, object: usize, t: f64, surface: &Surface, blocked: bool) -> DVec3 {
+        let mut c = surface.unlit;
+        if let Some(shadow) = &surface.shadow {
             if !blocked {
-                c += albedo * self.def.sun_irradiance * ndl;
+                let m = &self.def.objects[object].material;
+                c += surface.albedo * self.def.sun_irradiance * surface.ndl;
                 if m.specular > 0.0 {
-                    let h = (l - ray.dir).normalize();
-                    c += self.def.sun_irradiance * m.specular * n.dot(h).max(0.0).powf(m.shininess);
+                    let h = (shadow.dir - ray.dir).normalize();
+                    c += self.def.sun_irradiance * m.specular * surface.n.dot(h).max(0.0).powf(m.shininess);
                 }
             }
         }
-        self.fog(c, hit.local.t)
+        self.fog(c, t)
     }
 
     /// The full sample through image position `(x, y)` of a `w x h` image, with motion
@@ -425,6 +390,20 @@ struct Pixel {
     reference: [f32; 3],
 }
 
+/// A hit's shading before its shadow ray (see [`Instant::surface`]).
+#[derive(Clone, Copy, Debug)]
+struct Surface {
+    /// Normal facing the viewer.
+    n: DVec3,
+    albedo: DVec3,
+    /// Emission plus ambient: the colour in shadow, before fog.
+    unlit: DVec3,
+    /// Cosine between the normal and the light.
+    ndl: f64,
+    /// The shadow ray (None: the sun cannot light the point).
+    pub shadow: Option<Ray>,
+}
+
 /// The nearest hit of a ray before its surface details (see [`Instant::finish_hit`]).
 #[derive(Clone, Copy, Debug)]
 struct Nearest {
@@ -453,14 +432,10 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
     let jitter = settings.jitter.offset(index);
     let n = settings.reference_grid() as usize;
     let rays = now.camera.rays(w, h);
-    let perspective = rays.perspective();
     let rows: Vec<Vec<Pixel>> = (0..h)
         .into_par_iter()
         .map(|py| {
-            let mut candidates = Vec::new();
-            let mut shadow_candidates = Vec::new();
-            let mut origins = Vec::new();
-            let mut hits = Vec::with_capacity(n * n);
+            let mut scratch = reference::Scratch::default();
             (0..w)
                 .map(|px| {
                     let mut rng = SplitMix64::new(pixel_seed(settings.seed, index, px, py));
@@ -479,59 +454,16 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                     // only, so a still scene has the same reference in every frame.
                     let mut still = SplitMix64::new(pixel_seed(settings.seed, u64::MAX, px, py));
                     let (ru, rv) = (still.next_f64(), still.next_f64());
-                    let (x0, y0) = (px as f64, py as f64);
-                    now.beam_candidates(&pixel_beam(&rays, x0, y0), &mut candidates);
-                    // A perspective camera's rays share its position: transform it into
-                    // each object's frame once per pixel, not once per sample.
-                    if perspective {
-                        now.local_origins(rays.ray(x0, y0).origin, &candidates, &mut origins);
-                    }
-                    // Pass 1: visibility of N x N stratified positions over the pixel
-                    // box (one jittered point per cell: a regular grid leaves edge errors
-                    // of O(1/N), jittered strata O(N^-1.5)), and the bounds of the points
-                    // they hit.
-                    hits.clear();
-                    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-                    for j in 0..n {
-                        for i in 0..n {
-                            // Jittered stratification: one uniform point per cell.
-                            let (u, v) = (still.next_f64(), still.next_f64());
-                            let ray =
-                                rays.ray(x0 + (i as f64 + u) / n as f64, y0 + (j as f64 + v) / n as f64);
-                            let hit = if perspective {
-                                now.nearest_in(&ray, origins.iter().copied())
-                            } else {
-                                now.nearest_among(&ray, &candidates)
-                            };
-                            if let Some(h) = &hit {
-                                let p = ray.at(h.t);
-                                lo = lo.min(p);
-                                hi = hi.max(p);
-                            }
-                            hits.push((ray, hit));
-                        }
-                    }
-                    // Pass 2: shading. Without noise every shadow ray goes to the sun's
-                    // centre, so one swept-box query bounds the occluders of the whole
-                    // pixel; with noise each sample has its own point of the sun's disc
-                    // (Halton 2,3 with a per-pixel rotation), so the reference integrates
-                    // the soft shadow that the input estimates with one sample.
-                    let shadow = (!settings.noise).then(|| {
-                        now.shadow_candidates(lo, hi, &mut shadow_candidates);
-                        shadow_candidates.as_slice()
-                    });
-                    let mut sum = DVec3::ZERO;
-                    for (k, (ray, hit)) in hits.iter().enumerate() {
-                        let k = k as u64 + 1;
-                        let light = settings.noise.then(|| {
-                            (
-                                (radical_inverse(k, 2) + ru).fract(),
-                                (radical_inverse(k, 3) + rv).fract(),
-                            )
-                        });
-                        let hit = now.finish_hit(ray, *hit);
-                        sum += now.shade_with(ray, hit.as_ref(), light, shadow);
-                    }
+                    let reference = now.reference(
+                        &rays,
+                        px,
+                        py,
+                        n,
+                        &mut still,
+                        settings.noise,
+                        (ru, rv),
+                        &mut scratch,
+                    );
                     Pixel {
                         color: f3(s.color),
                         depth: s.depth as f32,
@@ -540,7 +472,7 @@ pub fn render(def: &SceneDef, settings: &Settings, index: u64) -> Frame {
                         normal: f3(s.normal),
                         id: s.object_id,
                         albedo: f3(s.albedo),
-                        reference: f3(sum / (n * n) as f64),
+                        reference: f3(reference),
                     }
                 })
                 .collect()
@@ -598,12 +530,13 @@ mod tests {
     use super::*;
     use crate::scene::{Scene, CATALOGUE};
 
-    /// The reference's culling (beam candidates for visibility, swept candidates and the
-    /// plane test for shadows, cached local origins) changes nothing: every sample of every
-    /// pixel of every scene hits the same object at the same distance and shades to the same
-    /// bits as the unculled queries that test every primitive.
+    /// The batched reference (beam candidates for visibility, swept candidates and the
+    /// plane test for shadows, shared local origins and directions, one loop per primitive)
+    /// changes nothing: every pixel of every scene, with and without noise, has the same
+    /// bits as the mean of [`Instant::shade`] over [`Instant::intersect`] of the same
+    /// sample rays, the unbatched queries that test every primitive.
     #[test]
-    fn culling_is_exact() {
+    fn batched_reference_is_exact() {
         let (w, h, n) = (48usize, 27usize, 5usize);
         for entry in CATALOGUE {
             let settings = Settings {
@@ -612,70 +545,62 @@ mod tests {
                 ..Settings::default()
             };
             let scene = Scene::new(entry.name, settings).unwrap();
-            for t in [0.0, 7.0] {
+            for (t, noise) in [(0.0, false), (7.0, false), (3.0, true)] {
                 let now = scene.instant(t);
                 let rays = now.camera.rays(w, h);
-                let (mut candidates, mut shadow, mut origins) = (Vec::new(), Vec::new(), Vec::new());
+                let mut scratch = reference::Scratch::default();
                 let mut shadowed = 0;
                 for py in 0..h {
                     for px in 0..w {
-                        let (x0, y0) = (px as f64, py as f64);
-                        now.beam_candidates(&pixel_beam(&rays, x0, y0), &mut candidates);
-                        now.local_origins(rays.ray(x0, y0).origin, &candidates, &mut origins);
-                        let mut samples = Vec::new();
-                        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                        let seed = pixel_seed(11, 3, px, py);
+                        let rotation = (0.3, 0.8);
+                        let batched = now.reference(
+                            &rays,
+                            px,
+                            py,
+                            n,
+                            &mut SplitMix64::new(seed),
+                            noise,
+                            rotation,
+                            &mut scratch,
+                        );
+                        let mut rng = SplitMix64::new(seed);
+                        let mut sum = DVec3::ZERO;
                         for k in 0..n * n {
                             let (i, j) = (k % n, k / n);
-                            let ray = rays.ray(
-                                x0 + (i as f64 + 0.37) / n as f64,
-                                y0 + (j as f64 + 0.61) / n as f64,
+                            let (u, v) = (rng.next_f64(), rng.next_f64());
+                            let (x, y) = (
+                                px as f64 + (i as f64 + u) / n as f64,
+                                py as f64 + (j as f64 + v) / n as f64,
                             );
-                            let full = now.intersect(&ray, f64::INFINITY);
-                            let culled = now.nearest_among(&ray, &candidates);
-                            let key = |o: Option<(usize, f64)>| o.map(|(i, t)| (i, t.to_bits()));
-                            assert_eq!(
-                                key(full.map(|h| (h.object, h.local.t))),
-                                key(culled.map(|h| (h.object as usize, h.t))),
-                                "{} t={t} pixel ({px},{py}) sample {k}: beam culling",
-                                entry.name
-                            );
-                            if rays.perspective() {
-                                let cached = now.nearest_in(&ray, origins.iter().copied());
-                                assert_eq!(
-                                    key(culled.map(|h| (h.object as usize, h.t))),
-                                    key(cached.map(|h| (h.object as usize, h.t))),
-                                    "{} pixel ({px},{py}): cached origins",
-                                    entry.name
-                                );
-                            }
-                            if let Some(hit) = &full {
-                                let p = ray.at(hit.local.t);
-                                lo = lo.min(p);
-                                hi = hi.max(p);
-                            }
-                            samples.push((ray, full));
-                        }
-                        now.shadow_candidates(lo, hi, &mut shadow);
-                        for (ray, hit) in &samples {
-                            let all = now.shade(ray, hit.as_ref(), None);
-                            let culled = now.shade_with(ray, hit.as_ref(), None, Some(&shadow));
-                            assert_eq!(
-                                all.to_array().map(f64::to_bits),
-                                culled.to_array().map(f64::to_bits),
-                                "{} t={t} pixel ({px},{py}): shadow culling",
-                                entry.name
-                            );
-                            if let Some(hit) = hit {
+                            let ray = rays.ray(x, y);
+                            let hit = now.intersect(&ray, f64::INFINITY);
+                            let q = k as u64 + 1;
+                            let light = noise.then(|| {
+                                (
+                                    (radical_inverse(q, 2) + rotation.0).fract(),
+                                    (radical_inverse(q, 3) + rotation.1).fract(),
+                                )
+                            });
+                            sum += now.shade(&ray, hit.as_ref(), light);
+                            if let Some(hit) = &hit {
                                 let at = ray.at(hit.local.t);
-                                let lit = now.sun.dot(hit.normal).abs() > 0.0;
                                 let shadow_ray = Ray {
                                     origin: at + hit.normal * 1e-3,
                                     dir: now.sun,
                                 };
+                                let lit = now.sun.dot(hit.normal) > 0.0;
                                 shadowed +=
                                     (lit && now.occluded(&shadow_ray, f64::INFINITY, hit.object)) as usize;
                             }
                         }
+                        let scalar = sum / (n * n) as f64;
+                        assert_eq!(
+                            batched.to_array().map(f64::to_bits),
+                            scalar.to_array().map(f64::to_bits),
+                            "{} t={t} noise={noise} pixel ({px},{py}): batched {batched} vs scalar {scalar}",
+                            entry.name
+                        );
                     }
                 }
                 // Lit scenes have shadows to get right, so the comparison above meant something.

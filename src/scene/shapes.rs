@@ -30,8 +30,20 @@ pub enum Shape {
 /// Which part of a shape a ray met: enough, with the local hit point, to give the normal
 /// (see [`Shape::normal`]). Visibility queries carry this instead of the normal, so that
 /// only the nearest hit of a ray pays for one.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Face(u8);
+
+impl Face {
+    /// A box's face: the axis of its normal (0, 1, 2 for x, y, z).
+    pub(crate) fn axis(self) -> usize {
+        self.0 as usize
+    }
+
+    /// A cylinder's face: whether it is a (flat) cap.
+    pub(crate) fn is_cap(self) -> bool {
+        self.0 != CYLINDER_SIDE
+    }
+}
 
 /// A hit in local coordinates.
 #[derive(Clone, Copy, Debug)]
@@ -127,91 +139,120 @@ impl Shape {
     }
 
     /// [`Shape::intersect`] without the normal: the ray parameter and the face.
+    #[inline]
     pub fn hit(&self, r: &Ray, t_min: f64, t_max: f64) -> Option<(f64, Face)> {
-        let ok = |t: f64| t > t_min && t < t_max;
         match *self {
-            Shape::Plane => {
-                if r.dir.y.abs() < 1e-15 {
-                    return None;
+            Shape::Plane => hit_plane(r, t_min, t_max),
+            Shape::Sphere { radius } => hit_sphere(radius, r, t_min, t_max),
+            Shape::Cuboid { half } => hit_cuboid(half, r, t_min, t_max),
+            Shape::Cylinder { radius, half_height } => hit_cylinder(radius, half_height, r, t_min, t_max),
+        }
+    }
+}
+
+// One function per shape, so that batched queries (the reference's, which test one
+// primitive against all the samples of a pixel) run a loop without a dispatch per ray,
+// with exactly the arithmetic of [`Shape::hit`].
+
+/// [`Shape::hit`] of [`Shape::Plane`].
+#[inline(always)]
+pub(crate) fn hit_plane(r: &Ray, t_min: f64, t_max: f64) -> Option<(f64, Face)> {
+    if r.dir.y.abs() < 1e-15 {
+        return None;
+    }
+    let t = -r.origin.y / r.dir.y;
+    (t > t_min && t < t_max).then_some((t, Face(0)))
+}
+
+/// [`Shape::hit`] of [`Shape::Sphere`].
+#[inline(always)]
+pub(crate) fn hit_sphere(radius: f64, r: &Ray, t_min: f64, t_max: f64) -> Option<(f64, Face)> {
+    let ok = |t: f64| t > t_min && t < t_max;
+    let b = 2.0 * r.origin.dot(r.dir);
+    let c = r.origin.length_squared() - radius * radius;
+    let (t0, t1) = solve_quadratic(1.0, b, c)?;
+    let t = if ok(t0) {
+        t0
+    } else if ok(t1) {
+        t1
+    } else {
+        return None;
+    };
+    Some((t, Face(0)))
+}
+
+/// [`Shape::hit`] of [`Shape::Cuboid`].
+#[inline(always)]
+pub(crate) fn hit_cuboid(half: DVec3, r: &Ray, t_min: f64, t_max: f64) -> Option<(f64, Face)> {
+    let ok = |t: f64| t > t_min && t < t_max;
+    let inv = r.dir.recip();
+    let t0 = (-half - r.origin) * inv;
+    let t1 = (half - r.origin) * inv;
+    let tn = t0.min(t1);
+    let tf = t0.max(t1);
+    let near = tn.max_element();
+    let far = tf.min_element();
+    if near > far {
+        return None;
+    }
+    // The face: the axis whose slab boundary this is.
+    let (t, bounds) = if ok(near) {
+        (near, tn)
+    } else if ok(far) {
+        (far, tf)
+    } else {
+        return None;
+    };
+    let axis = if bounds.x == t {
+        0
+    } else if bounds.y == t {
+        1
+    } else if bounds.z == t {
+        2
+    } else {
+        0
+    };
+    Some((t, Face(axis)))
+}
+
+/// [`Shape::hit`] of [`Shape::Cylinder`].
+#[inline(always)]
+pub(crate) fn hit_cylinder(
+    radius: f64,
+    half_height: f64,
+    r: &Ray,
+    t_min: f64,
+    t_max: f64,
+) -> Option<(f64, Face)> {
+    let ok = |t: f64| t > t_min && t < t_max;
+    let mut best: Option<(f64, Face)> = None;
+    let mut consider = |t: f64, face: u8| {
+        if ok(t) && best.is_none_or(|b| t < b.0) {
+            best = Some((t, Face(face)));
+        }
+    };
+    let a = r.dir.x * r.dir.x + r.dir.z * r.dir.z;
+    if a > 1e-18 {
+        let b = 2.0 * (r.origin.x * r.dir.x + r.origin.z * r.dir.z);
+        let c = r.origin.x * r.origin.x + r.origin.z * r.origin.z - radius * radius;
+        if let Some((t0, t1)) = solve_quadratic(a, b, c) {
+            for t in [t0, t1] {
+                if r.at(t).y.abs() <= half_height {
+                    consider(t, CYLINDER_SIDE);
                 }
-                let t = -r.origin.y / r.dir.y;
-                ok(t).then_some((t, Face(0)))
-            }
-            Shape::Sphere { radius } => {
-                let b = 2.0 * r.origin.dot(r.dir);
-                let c = r.origin.length_squared() - radius * radius;
-                let (t0, t1) = solve_quadratic(1.0, b, c)?;
-                let t = if ok(t0) {
-                    t0
-                } else if ok(t1) {
-                    t1
-                } else {
-                    return None;
-                };
-                Some((t, Face(0)))
-            }
-            Shape::Cuboid { half } => {
-                let inv = r.dir.recip();
-                let t0 = (-half - r.origin) * inv;
-                let t1 = (half - r.origin) * inv;
-                let tn = t0.min(t1);
-                let tf = t0.max(t1);
-                let near = tn.max_element();
-                let far = tf.min_element();
-                if near > far {
-                    return None;
-                }
-                // The face: the axis whose slab boundary this is.
-                let (t, bounds) = if ok(near) {
-                    (near, tn)
-                } else if ok(far) {
-                    (far, tf)
-                } else {
-                    return None;
-                };
-                let axis = if bounds.x == t {
-                    0
-                } else if bounds.y == t {
-                    1
-                } else if bounds.z == t {
-                    2
-                } else {
-                    0
-                };
-                Some((t, Face(axis)))
-            }
-            Shape::Cylinder { radius, half_height } => {
-                let mut best: Option<(f64, Face)> = None;
-                let mut consider = |t: f64, face: u8| {
-                    if ok(t) && best.is_none_or(|b| t < b.0) {
-                        best = Some((t, Face(face)));
-                    }
-                };
-                let a = r.dir.x * r.dir.x + r.dir.z * r.dir.z;
-                if a > 1e-18 {
-                    let b = 2.0 * (r.origin.x * r.dir.x + r.origin.z * r.dir.z);
-                    let c = r.origin.x * r.origin.x + r.origin.z * r.origin.z - radius * radius;
-                    if let Some((t0, t1)) = solve_quadratic(a, b, c) {
-                        for t in [t0, t1] {
-                            if r.at(t).y.abs() <= half_height {
-                                consider(t, CYLINDER_SIDE);
-                            }
-                        }
-                    }
-                }
-                if r.dir.y.abs() > 1e-15 {
-                    for (s, face) in [(-1.0, CYLINDER_BOTTOM), (1.0, CYLINDER_TOP)] {
-                        let t = (s * half_height - r.origin.y) / r.dir.y;
-                        let p = r.at(t);
-                        if p.x * p.x + p.z * p.z <= radius * radius {
-                            consider(t, face);
-                        }
-                    }
-                }
-                best
             }
         }
     }
+    if r.dir.y.abs() > 1e-15 {
+        for (s, face) in [(-1.0, CYLINDER_BOTTOM), (1.0, CYLINDER_TOP)] {
+            let t = (s * half_height - r.origin.y) / r.dir.y;
+            let p = r.at(t);
+            if p.x * p.x + p.z * p.z <= radius * radius {
+                consider(t, face);
+            }
+        }
+    }
+    best
 }
 
 /// [`Face`]s of a cylinder.
