@@ -3,15 +3,25 @@
 use glam::{DVec2, DVec3};
 
 /// `floor(x)` as an integer without a libm call (baseline x86-64 has no rounding
-/// instruction for it); values beyond the i64 range saturate, which only changes the
+/// instruction for it) and without the saturating float-to-integer cast on the common
+/// path: adding 1.5 x 2^52 rounds `x` to the nearest integer, which then sits in the low
+/// mantissa bits. Values beyond 2^51 take the saturating cast, which only changes the
 /// pattern parity at distances no scene reaches.
 #[inline]
 fn floor_i64(x: f64) -> i64 {
-    let i = x as i64;
-    if (i as f64) > x {
-        i - 1
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 x 2^52
+    if x.abs() < 2_251_799_813_685_248.0 {
+        // |x| < 2^51: y's ulp is 1, so y - MAGIC is x rounded to the nearest integer.
+        let y = x + MAGIC;
+        let nearest = (y.to_bits() as i64).wrapping_sub(MAGIC.to_bits() as i64);
+        nearest - ((y - MAGIC) > x) as i64
     } else {
-        i
+        let i = x as i64;
+        if (i as f64) > x {
+            i.saturating_sub(1)
+        } else {
+            i
+        }
     }
 }
 
@@ -113,8 +123,20 @@ mod tests {
 
     #[test]
     fn floor_matches_std() {
-        for x in [-2.5, -2.0, -0.5, -0.0, 0.0, 0.3, 1.0, 7.9, -1e-12, 1e15 + 0.5] {
+        for x in [
+            -2.5, -2.0, -0.5, -0.0, 0.0, 0.3, 1.0, 7.9, -1e-12, 1e15 + 0.5, 0.5, 1.5, 2.5, -1.5, -3.5, 4503599627370495.5,
+            -2251799813685247.5, 2251799813685248.0, -1e300,
+        ] {
             assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
+        // Random values at every scale a texture coordinate over a pattern size can take,
+        // and the integers and half-integers around them.
+        let mut rng = crate::rng::SplitMix64::new(7);
+        for _ in 0..100_000 {
+            let x = rng.range(-1.0, 1.0) * 10f64.powf(rng.range(-6.0, 16.0));
+            for x in [x, x.round(), x.round() + 0.5, x.round() - 0.5] {
+                assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+            }
         }
     }
 }

@@ -269,15 +269,15 @@ impl<'a> Instant<'a> {
     pub fn shade(&self, ray: &Ray, hit: Option<&Hit>, light: Option<(f64, f64)>) -> DVec3 {
         let Some(hit) = hit else { return self.sky(ray.dir) };
         let l = self.sun_direction(light);
-        let surface = self.surface(ray, hit, l);
-        let blocked = (surface.shadow.as_ref()).is_some_and(|r| self.occluded(r, f64::INFINITY, hit.object));
+        let (surface, shadow) = self.surface(ray, hit, l);
+        let blocked = shadow.is_some_and(|r| self.occluded(&r, f64::INFINITY, hit.object));
         self.lit_colour(ray, hit.object, hit.local.t, &surface, blocked)
     }
 
     /// The first half of [`Instant::shade`] for a hit lit from direction `l`:
     /// everything before the shadow ray, and that ray (None when the sun cannot light the
     /// point, so that no ray is cast).
-    fn surface(&self, ray: &Ray, hit: &Hit, l: DVec3) -> Surface {
+    fn surface(&self, ray: &Ray, hit: &Hit, l: DVec3) -> (Surface, Option<Ray>) {
         let m = &self.def.objects[hit.object].material;
         let mut n = hit.normal;
         if n.dot(ray.dir) > 0.0 {
@@ -291,27 +291,27 @@ impl<'a> Instant<'a> {
             let p = at + n * SHADOW_EPSILON * (1.0 + at.abs().max_element());
             Ray { origin: p, dir: l }
         });
-        Surface {
+        let surface = Surface {
             n,
             albedo,
             unlit,
             ndl,
-            shadow,
-        }
+            l,
+            lit: shadow.is_some(),
+        };
+        (surface, shadow)
     }
 
     /// The second half of [`Instant::shade`]: the colour of `surface` given whether
     /// its shadow ray was `blocked`, for a hit of `object` at ray parameter `t`.
     fn lit_colour(&self, ray: &Ray, object: usize, t: f64, surface: &Surface, blocked: bool) -> DVec3 {
         let mut c = surface.unlit;
-        if let Some(shadow) = &surface.shadow {
-            if !blocked {
-                let m = &self.def.objects[object].material;
-                c += surface.albedo * self.def.sun_irradiance * surface.ndl;
-                if m.specular > 0.0 {
-                    let h = (shadow.dir - ray.dir).normalize();
-                    c += self.def.sun_irradiance * m.specular * surface.n.dot(h).max(0.0).powf(m.shininess);
-                }
+        if surface.lit && !blocked {
+            let m = &self.def.objects[object].material;
+            c += surface.albedo * self.def.sun_irradiance * surface.ndl;
+            if m.specular > 0.0 {
+                let h = (surface.l - ray.dir).normalize();
+                c += self.def.sun_irradiance * m.specular * surface.n.dot(h).max(0.0).powf(m.shininess);
             }
         }
         self.fog(c, t)
@@ -391,7 +391,7 @@ struct Pixel {
 }
 
 /// A hit's shading before its shadow ray (see [`Instant::surface`]).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 struct Surface {
     /// Normal facing the viewer.
     n: DVec3,
@@ -400,8 +400,10 @@ struct Surface {
     unlit: DVec3,
     /// Cosine between the normal and the light.
     ndl: f64,
-    /// The shadow ray (None: the sun cannot light the point).
-    pub shadow: Option<Ray>,
+    /// Direction towards the light.
+    l: DVec3,
+    /// Whether the sun may light the point (it casts a shadow ray).
+    lit: bool,
 }
 
 /// The nearest hit of a ray before its surface details (see [`Instant::finish_hit`]).

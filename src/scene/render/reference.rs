@@ -24,8 +24,8 @@ pub(super) struct Scratch {
     t: Vec<f64>,
     object: Vec<u32>,
     face: Vec<Face>,
-    /// Per sample: the hit's object, ray parameter and surface (None: sky).
-    surface: Vec<Option<(usize, f64, Surface)>>,
+    /// Per sample: the hit's surface (a default one for the sky).
+    surface: Vec<Surface>,
     blocked: Vec<bool>,
     /// The samples with a shadow ray, and those rays.
     lit: Vec<usize>,
@@ -241,72 +241,53 @@ impl Instant<'_> {
         // the sun's disc (Halton 2,3 with a per-pixel rotation), so the reference
         // integrates the soft shadow that the input estimates with one sample.
         s.surface.clear();
-        s.blocked.clear();
-        s.blocked.resize(m, false);
+        s.lit.clear();
+        s.shadow_rays.clear();
         for k in 0..m {
-            let surface = (s.object[k] != MISS).then(|| {
-                let nearest = Nearest {
-                    object: s.object[k],
-                    t: s.t[k],
-                    face: s.face[k],
-                };
-                let hit = self.finish_hit(&s.rays[k], Some(nearest)).expect("a hit");
-                let kk = k as u64 + 1;
-                let light = noise.then(|| {
-                    (
-                        (radical_inverse(kk, 2) + rotation.0).fract(),
-                        (radical_inverse(kk, 3) + rotation.1).fract(),
-                    )
-                });
-                let l = self.sun_direction(light);
-                (hit.object, hit.local.t, self.surface(&s.rays[k], &hit, l))
+            if s.object[k] == MISS {
+                s.surface.push(Surface::default());
+                continue;
+            }
+            let nearest = Nearest {
+                object: s.object[k],
+                t: s.t[k],
+                face: s.face[k],
+            };
+            let hit = self.finish_hit(&s.rays[k], Some(nearest)).expect("a hit");
+            let q = k as u64 + 1;
+            let light = noise.then(|| {
+                (
+                    (radical_inverse(q, 2) + rotation.0).fract(),
+                    (radical_inverse(q, 3) + rotation.1).fract(),
+                )
             });
+            let (surface, shadow) = self.surface(&s.rays[k], &hit, self.sun_direction(light));
+            if let Some(shadow) = shadow {
+                s.lit.push(k);
+                s.shadow_rays.push(shadow);
+            }
             s.surface.push(surface);
         }
+        s.blocked.clear();
+        s.blocked.resize(m, false);
         if noise {
-            for (blocked, surface) in s.blocked.iter_mut().zip(&s.surface) {
-                if let Some((
-                    object,
-                    _,
-                    Surface {
-                        shadow: Some(ray), ..
-                    },
-                )) = surface
-                {
-                    *blocked = self.occluded(ray, f64::INFINITY, *object);
-                }
+            for (&k, ray) in s.lit.iter().zip(&s.shadow_rays) {
+                s.blocked[k] = self.occluded(ray, f64::INFINITY, s.object[k] as usize);
             }
-        } else {
+        } else if !s.lit.is_empty() {
             self.shadow_candidates(lo, hi, &mut s.shadow_candidates);
-            // The shadow rays of the samples the sun may light, in sample order.
-            s.lit.clear();
-            s.shadow_rays.clear();
-            for (k, surface) in s.surface.iter().enumerate() {
-                if let Some((
-                    _,
-                    _,
-                    Surface {
-                        shadow: Some(ray), ..
-                    },
-                )) = surface
-                {
-                    s.lit.push(k);
-                    s.shadow_rays.push(*ray);
-                }
-            }
             for &i in &s.shadow_candidates {
-                let (blocked, surface, lit) = (&mut s.blocked, &s.surface, &s.lit);
+                let (blocked, object, lit) = (&mut s.blocked, &s.object, &s.lit);
                 batch!(
                     self.def.objects[i].shape,
                     &self.xf[i],
                     &s.shadow_rays,
                     Shared::Dir,
-                    |k, hit| {
-                        let k = lit[k];
+                    |j, hit| {
+                        let k = lit[j];
                         // A shadow ray never tests the primitive it leaves (as in
-                        // `Instant::occluded_among`).
-                        let own = surface[k].as_ref().is_some_and(|&(o, _, _)| o == i);
-                        if !blocked[k] && !own {
+                        // `Instant::occluded`).
+                        if !blocked[k] && object[k] as usize != i {
                             blocked[k] = hit(f64::INFINITY).is_some();
                         }
                     }
@@ -314,10 +295,11 @@ impl Instant<'_> {
             }
         }
         let mut sum = DVec3::ZERO;
-        for ((r, surface), &blocked) in s.rays.iter().zip(&s.surface).zip(&s.blocked) {
-            sum += match surface {
-                None => self.sky(r.dir),
-                Some((object, t, surface)) => self.lit_colour(r, *object, *t, surface, blocked),
+        for k in 0..m {
+            let r = &s.rays[k];
+            sum += match s.object[k] {
+                MISS => self.sky(r.dir),
+                object => self.lit_colour(r, object as usize, s.t[k], &s.surface[k], s.blocked[k]),
             };
         }
         sum / m as f64
