@@ -3,6 +3,7 @@
 
 use super::bvh::{in_beam, swept_touches, Bvh};
 use super::camera::{Camera, Projected, RayGen};
+use super::material::Pattern;
 use super::math::{radical_inverse, Aabb, Ray, Rigid};
 use super::shapes::{Face, LocalHit};
 use super::{SceneDef, Settings};
@@ -46,7 +47,8 @@ pub struct Hit {
     pub local: LocalHit,
     /// The hit point in the object's local coordinates.
     pub local_point: DVec3,
-    /// Texture coordinates of the hit.
+    /// Texture coordinates of the hit (zero on a solid-coloured material, which reads
+    /// none).
     pub uv: glam::DVec2,
     /// World normal.
     pub normal: DVec3,
@@ -129,7 +131,12 @@ impl<'a> Instant<'a> {
                 object,
                 local: LocalHit { t, normal },
                 local_point,
-                uv: shape.uv(local_point, normal),
+                // A solid colour reads no texture coordinates (and a sphere's cost two
+                // inverse trigonometric calls).
+                uv: match self.def.objects[object].material.pattern {
+                    Pattern::Solid => glam::DVec2::ZERO,
+                    _ => shape.uv(local_point, normal),
+                },
                 normal: self.xf[object].vector(normal),
             }
         })
