@@ -106,6 +106,7 @@ impl Material {
     }
 
     /// Albedo at texture coordinates `uv`.
+    #[inline(always)]
     pub fn albedo(&self, uv: DVec2) -> DVec3 {
         let m = match self.pattern {
             Pattern::Solid => 0.0,

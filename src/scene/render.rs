@@ -121,25 +121,30 @@ impl<'a> Instant<'a> {
     }
 
     /// The surface details of the nearest hit `best` of `ray`.
+    #[inline(always)]
     fn finish_hit(&self, ray: &Ray, best: Option<Nearest>) -> Option<Hit> {
-        best.map(|Nearest { object, t, face }| {
-            let object = object as usize;
-            let shape = &self.def.objects[object].shape;
-            let local_point = self.xf[object].ray_to_local(ray).at(t);
-            let normal = shape.normal(face, local_point);
-            Hit {
-                object,
-                local: LocalHit { t, normal },
-                local_point,
-                // A solid colour reads no texture coordinates (and a sphere's cost two
-                // inverse trigonometric calls).
-                uv: match self.def.objects[object].material.pattern {
-                    Pattern::Solid => glam::DVec2::ZERO,
-                    _ => shape.uv(local_point, normal),
-                },
-                normal: self.xf[object].vector(normal),
-            }
-        })
+        best.map(|nearest| self.finish(ray, nearest))
+    }
+
+    /// The surface details of `nearest`, the nearest hit of `ray`.
+    #[inline(always)]
+    fn finish(&self, ray: &Ray, Nearest { object, t, face }: Nearest) -> Hit {
+        let object = object as usize;
+        let shape = &self.def.objects[object].shape;
+        let local_point = self.xf[object].ray_to_local(ray).at(t);
+        let normal = shape.normal(face, local_point);
+        Hit {
+            object,
+            local: LocalHit { t, normal },
+            local_point,
+            // A solid colour reads no texture coordinates (and a sphere's cost two
+            // inverse trigonometric calls).
+            uv: match self.def.objects[object].material.pattern {
+                Pattern::Solid => glam::DVec2::ZERO,
+                _ => shape.uv(local_point, normal),
+            },
+            normal: self.xf[object].vector(normal),
+        }
     }
 
     /// The nearest hit along `ray` before `t_max`.
@@ -241,6 +246,7 @@ impl<'a> Instant<'a> {
     }
 
     /// Distance fog towards the horizon colour (none when the scene has no fog).
+    #[inline(always)]
     fn fog(&self, c: DVec3, distance: f64) -> DVec3 {
         match self.def.fog_distance {
             Some(f) => {
@@ -251,6 +257,7 @@ impl<'a> Instant<'a> {
         }
     }
 
+    #[inline(always)]
     fn sky(&self, dir: DVec3) -> DVec3 {
         let (top, horizon) = (self.def.sky_top, self.def.sky_horizon);
         horizon + (top - horizon) * dir.y.max(0.0)
@@ -258,6 +265,7 @@ impl<'a> Instant<'a> {
 
     /// Direction towards the sun, or a point of the sun's disc for `light` in [0,1)^2
     /// (uniform over the cone of the disc's angular radius).
+    #[inline(always)]
     fn sun_direction(&self, light: Option<(f64, f64)>) -> DVec3 {
         let Some((u, v)) = light else { return self.sun };
         let cos_max = self.def.sun_angular_radius.cos();
@@ -284,6 +292,7 @@ impl<'a> Instant<'a> {
     /// The first half of [`Instant::shade`] for a hit lit from direction `l`:
     /// everything before the shadow ray, and that ray (None when the sun cannot light the
     /// point, so that no ray is cast).
+    #[inline(always)]
     fn surface(&self, ray: &Ray, hit: &Hit, l: DVec3) -> (Surface, Option<Ray>) {
         let m = &self.def.objects[hit.object].material;
         let mut n = hit.normal;
@@ -311,6 +320,7 @@ impl<'a> Instant<'a> {
 
     /// The second half of [`Instant::shade`]: the colour of `surface` given whether
     /// its shadow ray was `blocked`, for a hit of `object` at ray parameter `t`.
+    #[inline(always)]
     fn lit_colour(&self, ray: &Ray, object: usize, t: f64, surface: &Surface, blocked: bool) -> DVec3 {
         let mut c = surface.unlit;
         if surface.lit && !blocked {

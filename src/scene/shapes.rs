@@ -83,6 +83,7 @@ impl Shape {
 
     /// Texture coordinates of the local surface point `p` whose local normal is `n`
     /// (world units along the surface, so patterns keep their scale).
+    #[inline]
     pub fn uv(&self, p: DVec3, n: DVec3) -> DVec2 {
         match *self {
             Shape::Plane => DVec2::new(p.x, p.z),

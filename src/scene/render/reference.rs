@@ -253,7 +253,7 @@ impl Instant<'_> {
                 t: s.t[k],
                 face: s.face[k],
             };
-            let hit = self.finish_hit(&s.rays[k], Some(nearest)).expect("a hit");
+            let hit = self.finish(&s.rays[k], nearest);
             let q = k as u64 + 1;
             let light = noise.then(|| {
                 (
