@@ -131,7 +131,7 @@ impl Instant<'_> {
     /// part of the beam in front of it is the hull of the corners' origins and hits, and a
     /// primitive whose bounds miss that hull's box is dropped. Exact: the batched
     /// reference is checked against unculled queries (`batched_reference_is_exact`).
-    pub(super) fn pixel_candidates(&self, rays: &RayGen, x0: f64, y0: f64, out: &mut Vec<usize>) {
+    fn pixel_candidates(&self, rays: &RayGen, x0: f64, y0: f64, out: &mut Vec<usize>) {
         let corners = pixel_beam(rays, x0, y0);
         self.beam_candidates(&corners, out);
         // Each corner's nearest hit among the candidates: object, parameter, face and
