@@ -8,37 +8,6 @@ enum Node {
     Inner { left: u32, right: u32, axis: u8 },
 }
 
-/// Whether the box `b` is not entirely outside one of the `planes` (point, inward normal)
-/// of a beam: false means no ray of the beam can touch it.
-#[inline]
-pub fn in_beam(planes: &[(glam::DVec3, glam::DVec3)], b: &Aabb) -> bool {
-    !planes.iter().any(|(o, n)| {
-        let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
-        n.dot(p - *o) < 0.0
-    })
-}
-
-/// Whether the box `centre +- half`, swept from where it is along `dir` (with
-/// `inv = 1 / dir`) to infinity, may touch the box `b`: a ray from `centre` against `b`
-/// grown by `half` (the Minkowski sum), so conservative for every ray leaving the box in
-/// direction `dir`.
-#[inline]
-pub fn swept_touches(
-    centre: glam::DVec3,
-    half: glam::DVec3,
-    dir: glam::DVec3,
-    inv: glam::DVec3,
-    b: &Aabb,
-) -> bool {
-    let grown = Aabb {
-        min: b.min - half,
-        max: b.max + half,
-    };
-    grown
-        .hit(&Ray { origin: centre, dir }, inv, f64::INFINITY)
-        .is_some()
-}
-
 /// Binary BVH with median splits on the longest centroid axis.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
@@ -46,6 +15,8 @@ pub struct Bvh {
     nodes: Vec<Node>,
     /// Primitive indices, leaves point into this.
     items: Vec<usize>,
+    /// Each item's own bounds (a leaf's bounds hold several items).
+    item_bounds: Vec<Aabb>,
 }
 
 const LEAF_SIZE: usize = 2;
@@ -72,6 +43,7 @@ impl Bvh {
                 count: prims.len() as u32,
             });
             self.items.extend(prims.iter().map(|(i, _)| *i));
+            self.item_bounds.extend(prims.iter().map(|(_, b)| *b));
             return id;
         }
         self.nodes.push(Node::Leaf { start: 0, count: 0 });
@@ -100,8 +72,8 @@ impl Bvh {
         id
     }
 
-    /// Appends to `out` every primitive in the leaves reached through nodes whose bounds
-    /// pass `keep`.
+    /// Appends to `out` every primitive whose own bounds pass `keep`, in the leaves
+    /// reached through nodes whose bounds pass it.
     fn collect(&self, keep: impl Fn(&Aabb) -> bool, out: &mut Vec<usize>) {
         if self.nodes.is_empty() {
             return;
@@ -116,7 +88,9 @@ impl Bvh {
             }
             match self.nodes[n] {
                 Node::Leaf { start, count } => {
-                    out.extend_from_slice(&self.items[start as usize..(start + count) as usize]);
+                    let range = start as usize..(start + count) as usize;
+                    let leaf = self.items[range.clone()].iter().zip(&self.item_bounds[range]);
+                    out.extend(leaf.filter(|(_, b)| keep(b)).map(|(&i, _)| i));
                 }
                 Node::Inner { left, right, .. } => {
                     stack[sp] = right;
@@ -130,7 +104,15 @@ impl Bvh {
     /// Appends to `out` every primitive whose bounds are not entirely outside one of the
     /// `planes` (point, inward normal): a conservative list for a beam of rays.
     pub fn collect_in_beam(&self, planes: &[(glam::DVec3, glam::DVec3)], out: &mut Vec<usize>) {
-        self.collect(|b| in_beam(planes, b), out);
+        self.collect(
+            |b| {
+                !planes.iter().any(|(o, n)| {
+                    let p = glam::DVec3::select(n.cmpge(glam::DVec3::ZERO), b.max, b.min);
+                    n.dot(p - *o) < 0.0
+                })
+            },
+            out,
+        );
     }
 
     /// Appends to `out` every primitive that the box `centre +- half`, swept from
@@ -144,8 +126,18 @@ impl Bvh {
         dir: glam::DVec3,
         out: &mut Vec<usize>,
     ) {
+        let ray = Ray { origin: centre, dir };
         let inv = dir.recip();
-        self.collect(|b| swept_touches(centre, half, dir, inv, b), out);
+        self.collect(
+            |b| {
+                let grown = Aabb {
+                    min: b.min - half,
+                    max: b.max + half,
+                };
+                grown.hit(&ray, inv, f64::INFINITY).is_some()
+            },
+            out,
+        );
     }
 
     /// Calls `visit(item, t_max) -> new t_max` for every primitive whose bounds the ray

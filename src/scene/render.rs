@@ -1,7 +1,7 @@
 //! Ray casting one instant of a scene: visibility, shading, exact motion, and the frame
 //! assembly (G-buffer from one jittered sample, reference from N x N samples).
 
-use super::bvh::{in_beam, swept_touches, Bvh};
+use super::bvh::Bvh;
 use super::camera::{Camera, Projected, RayGen};
 use super::material::Pattern;
 use super::math::{radical_inverse, Aabb, Ray, Rigid};
@@ -116,8 +116,6 @@ impl<'a> Instant<'a> {
             (a.origin, n)
         });
         self.bvh.collect_in_beam(&planes, out);
-        // The leaves hold more than one primitive: test each one's own bounds too.
-        out.retain(|&i| self.bounds[i].is_none_or(|b| in_beam(&planes, &b)));
     }
 
     /// The surface details of the nearest hit `best` of `ray`.
@@ -203,20 +201,8 @@ impl<'a> Instant<'a> {
                 out.push(i);
             }
         }
-        let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
-        let first = out.len();
-        self.bvh.collect_swept(centre, half, self.sun, out);
-        // The leaves hold more than one primitive: test each one's own bounds too.
-        let inv = self.sun.recip();
-        let mut k = first;
-        for j in first..out.len() {
-            let i = out[j];
-            if self.bounds[i].is_none_or(|b| swept_touches(centre, half, self.sun, inv, &b)) {
-                out[k] = i;
-                k += 1;
-            }
-        }
-        out.truncate(k);
+        self.bvh
+            .collect_swept((lo + hi) * 0.5, (hi - lo) * 0.5, self.sun, out);
     }
 
     /// Whether anything but object `skip` blocks `ray` before `t_max`. (A shadow ray
