@@ -461,19 +461,24 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_budget_idle_eviction_and_reconnect() {
-    // phlm at 64x36 holds 200 B/px = 460,800 bytes; a 1 MiB budget fits two.
+    // phlm at 64x36 holds 200 B/px = 460,800 bytes; a 2 MiB budget fits four, and
+    // leaves 253,952 bytes for frames in flight (a 64x36 phlm frame with its reference
+    // takes 202,752: wire bytes, decoded frame, output and reply).
     let r = server(|c| {
-        c.memory_budget_mib = 1;
+        c.memory_budget_mib = 2;
         c.idle_timeout_s = 2;
     })
     .await;
     let mut c = client(&r).await;
     let a = open(&mut c, "phlm").await;
-    let _b = open(&mut c, "phlm").await;
+    for _ in 0..3 {
+        open(&mut c, "phlm").await;
+    }
     let e = c.inner.create_session(session_req("phlm")).await.unwrap_err();
     assert_eq!(e.code(), Code::ResourceExhausted);
     assert!(
-        e.message().contains("460800") && e.message().contains("126976 of the 1048576"),
+        e.message()
+            .contains("needs 460800 bytes; 253952 of the 2097152 bytes of the memory budget are free"),
         "{}",
         e.message()
     );
@@ -761,5 +766,379 @@ async fn the_stream_command_filters_a_scene_remotely() {
     }
     // It closed its session.
     assert_eq!(r.service.sessions.totals().sessions, 0);
+    r.shutdown().await.unwrap();
+}
+
+// ---------------------------------------------------------------------------------------
+// Hostile clients. Each test ends by checking that the server still answers `/healthz`
+// and that a fresh session still filters bit-identically.
+
+/// The server is alive: `/healthz` answers and a new gRPC session filters three frames
+/// exactly as in process.
+async fn still_serving(r: &Running) {
+    let (st, _, _) = tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        http(r.http_addr, "GET", "/healthz", b"", "text/plain"),
+    )
+    .await
+    .expect("/healthz answers within 10 s");
+    assert_eq!(st, 200);
+    let mut c = client(r).await;
+    let s = open(&mut c, "taa").await;
+    let fr = frames("fence", 3, 7);
+    let got = stream_all(&mut c, &s, &fr, F32).await.unwrap();
+    same(&got, &in_process("taa", &fr), "a fresh session after the attack");
+}
+
+/// Opens an HTTP session and returns its id.
+async fn http_session(addr: std::net::SocketAddr, body: &str) -> String {
+    let (st, _, b) = http(addr, "POST", "/v1/sessions", body.as_bytes(), "application/json").await;
+    assert_eq!(st, 201, "{}", String::from_utf8_lossy(&b));
+    let v: Value = serde_json::from_slice(&b).unwrap();
+    v["id"].as_str().unwrap().to_string()
+}
+
+/// Sends only a request head (no body) and reads the reply that comes before the body:
+/// status, headers and body; None when the server does not answer within `secs`.
+async fn head_only(addr: std::net::SocketAddr, head: &str, secs: u64) -> Option<(u16, String)> {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(head.as_bytes()).await.unwrap();
+    let mut buf = Vec::new();
+    let read = async {
+        let mut chunk = [0u8; 4096];
+        loop {
+            match s.read(&mut chunk).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => buf.extend_from_slice(&chunk[..n]),
+            }
+            if let Some(split) = buf.windows(4).position(|w| w == b"\r\n\r\n") {
+                let text = String::from_utf8_lossy(&buf).to_string();
+                let len = text[..split]
+                    .lines()
+                    .find_map(|l| {
+                        l.to_ascii_lowercase()
+                            .strip_prefix("content-length:")
+                            .map(|v| v.trim().parse::<usize>().unwrap_or(0))
+                    })
+                    .unwrap_or(0);
+                if buf.len() >= split + 4 + len {
+                    break;
+                }
+            }
+        }
+    };
+    tokio::time::timeout(std::time::Duration::from_secs(secs), read)
+        .await
+        .ok()?;
+    let text = String::from_utf8_lossy(&buf).to_string();
+    Some((text.get(9..12)?.parse().ok()?, text))
+}
+
+/// A valid 4x4 EXR, uncompressed, in one 4x4 tile, whose data window, display window and
+/// tile size are then rewritten to `w x h` (395 bytes that declare a `w x h` image).
+fn lying_exr(w: i32, h: i32) -> Vec<u8> {
+    use exr::prelude::*;
+    let channels = AnyChannels::sort(
+        ["B", "G", "R"]
+            .iter()
+            .map(|n| AnyChannel::new(*n, FlatSamples::F32(vec![0.5; 16])))
+            .collect(),
+    );
+    let encoding = Encoding {
+        compression: exr::compression::Compression::Uncompressed,
+        blocks: Blocks::Tiles(Vec2(4, 4)),
+        line_order: LineOrder::Increasing,
+    };
+    let layer = Layer::new((4, 4), LayerAttributes::default(), encoding, channels);
+    let mut exr = Vec::new();
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(std::io::Cursor::new(&mut exr))
+        .unwrap();
+    let patch = |exr: &mut Vec<u8>, name: &[u8], values: &[i32]| {
+        let at = exr.windows(name.len()).position(|x| x == name).unwrap() + name.len() + 4;
+        for (k, v) in values.iter().enumerate() {
+            exr[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+    };
+    patch(&mut exr, b"dataWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
+    patch(&mut exr, b"displayWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
+    patch(&mut exr, b"tiles\0tiledesc\0", &[w, h]);
+    exr
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_exr_header_declaring_a_huge_image_is_refused_before_allocation() {
+    let r = server(|_| {}).await;
+    let id = http_session(r.http_addr, r#"{"filter":"taa","width":64,"height":36}"#).await;
+    let exr = lying_exr(100_000, 100_000);
+    assert!(exr.len() < 1000, "{} bytes", exr.len());
+    let (st, _, body) = http(
+        r.http_addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames"),
+        &exr,
+        "image/x-exr",
+    )
+    .await;
+    let body = String::from_utf8_lossy(&body);
+    assert_eq!(st, 400, "{body}");
+    assert!(body.contains("100000x100000") && body.contains("64x36"), "{body}");
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_byte_lengths_that_overflow_are_refused() {
+    let r = server(|_| {}).await;
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let ch = |name: &str, len: u64| pb::ChannelHeader {
+        name: name.into(),
+        sample: pb::SampleType::F32 as i32,
+        compression: pb::Compression::None as i32,
+        byte_length: len,
+    };
+    // 2^63 + (2^63 + 16) wraps to 16 in u64 arithmetic.
+    let h = pb::FrameHeader {
+        session_id: s.id.clone(),
+        channels: vec![ch("color", 1 << 63), ch("depth", (1 << 63) + 16)],
+        ..Default::default()
+    };
+    let e = raw_stream(
+        &mut c,
+        vec![
+            frame_chunk::Part::Header(h),
+            frame_chunk::Part::Data(pb::DataChunk {
+                data: vec![0; 16].into(),
+            }),
+        ],
+    )
+    .await;
+    assert_eq!(e.code(), Code::InvalidArgument, "{}", e.message());
+    assert!(e.message().contains("color"), "{}", e.message());
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_frames_to_one_session_are_refused_not_deadlocked() {
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    let id = http_session(addr, r#"{"filter":"phlm","width":64,"height":36}"#).await;
+    let opts = WriteOptions {
+        precision: Precision::F32,
+        compression: Compression::Zip,
+        layout: ExrLayout::Afterimage,
+    };
+    let exr = write_exr_bytes(&frames("fence", 1, 1)[0], &opts).unwrap();
+    let mut tasks = Vec::new();
+    for _ in 0..8 {
+        let (exr, id) = (exr.clone(), id.clone());
+        tasks.push(tokio::spawn(async move {
+            let mut codes = Vec::new();
+            for _ in 0..6 {
+                let (st, _, body) = http(
+                    addr,
+                    "POST",
+                    &format!("/v1/sessions/{id}/frames"),
+                    &exr,
+                    "image/x-exr",
+                )
+                .await;
+                if st == 409 {
+                    let b = String::from_utf8_lossy(&body);
+                    assert!(b.contains("session busy: "), "{b}");
+                }
+                codes.push(st);
+            }
+            codes
+        }));
+    }
+    let all = tokio::time::timeout(std::time::Duration::from_secs(120), async {
+        let mut codes = Vec::new();
+        for t in tasks {
+            codes.extend(t.await.unwrap());
+        }
+        codes
+    })
+    .await
+    .expect("48 concurrent frames to one session finish within 120 s (no deadlock)");
+    assert!(all.iter().all(|&c| c == 200 || c == 409), "{all:?}");
+    let ok = all.iter().filter(|&&c| c == 200).count() as u64;
+    assert!(ok >= 1, "{all:?}");
+    // Every accepted frame went through the filter once; GET never waits for a frame.
+    let (st, _, body) = http(addr, "GET", &format!("/v1/sessions/{id}"), b"", "text/plain").await;
+    assert_eq!(st, 200);
+    let v: Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(v["frames"].as_u64(), Some(ok), "{v}");
+
+    // Two gRPC streams on one session: the second is refused, the first is unharmed.
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let fr = frames("flyover", 8, 3);
+    let (tx, rx) = tokio::sync::mpsc::channel::<pb::FrameChunk>(64);
+    let mut first = c
+        .inner
+        .stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap()
+        .into_inner();
+    for p in frame_parts(&fr[0], &s.id, &[afterimage::frame::ChannelKind::Color]) {
+        tx.send(pb::FrameChunk { part: Some(p) }).await.unwrap();
+    }
+    let head = first.message().await.unwrap().unwrap();
+    assert!(matches!(head.part, Some(pb::filtered_chunk::Part::Header(_))));
+    let mut c2 = client(&r).await;
+    let e = tokio::time::timeout(
+        std::time::Duration::from_secs(30),
+        raw_stream(
+            &mut c2,
+            frame_parts(&fr[1], &s.id, &[afterimage::frame::ChannelKind::Color]),
+        ),
+    )
+    .await
+    .expect("a second stream on a streamed session is answered at once");
+    assert_eq!(e.code(), Code::FailedPrecondition, "{}", e.message());
+    assert!(e.message().contains("another stream"), "{}", e.message());
+    drop(tx);
+    drop(first);
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bodies_and_frames_larger_than_the_session_are_refused_before_reading() {
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    // An unknown session: 404 before a byte of the 1 GiB body is sent.
+    let head = "POST /v1/sessions/0123/frames HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\nContent-Length: 1073741824\r\n\r\n";
+    let (st, text) = head_only(addr, head, 10)
+        .await
+        .expect("an answer without the body");
+    assert_eq!(st, 404, "{text}");
+    // A known 64x36 session: a body far larger than any EXR of that size gets 413.
+    let id = http_session(addr, r#"{"filter":"taa","width":64,"height":36}"#).await;
+    let head = format!("POST /v1/sessions/{id}/frames HTTP/1.1\r\nHost: x\r\nContent-Type: image/x-exr\r\nContent-Length: 536870912\r\n\r\n");
+    let (st, text) = head_only(addr, &head, 10)
+        .await
+        .expect("an answer without the body");
+    assert_eq!(st, 413, "{text}");
+    assert!(text.contains("536870912") && text.contains("64x36"), "{text}");
+    // A ZIP-compressed EXR that declares 16384x8192 (1.6 MB of zeros that would decode to
+    // 3.2 GB) is refused from its header.
+    let big = {
+        let f = Frame::new([0, 1, 2].map(|_| Plane::filled(16384, 8192, 0.0f32))).unwrap();
+        let opts = WriteOptions {
+            precision: Precision::F16,
+            compression: Compression::Zip,
+            layout: ExrLayout::Plain,
+        };
+        write_exr_bytes(&f, &opts).unwrap()
+    };
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames"),
+        &big,
+        "image/x-exr",
+    )
+    .await;
+    let body = String::from_utf8_lossy(&body);
+    assert_eq!(st, 400, "{body}");
+    assert!(
+        body.contains("16384x8192") && body.contains("before decoding"),
+        "{body}"
+    );
+    // gRPC: a header announcing more bytes than the session's frame can hold is refused
+    // before any data.
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let h = pb::FrameHeader {
+        session_id: s.id.clone(),
+        channels: vec![pb::ChannelHeader {
+            name: "color".into(),
+            sample: pb::SampleType::F32 as i32,
+            compression: pb::Compression::None as i32,
+            byte_length: 900 << 20,
+        }],
+        ..Default::default()
+    };
+    let e = tokio::time::timeout(
+        std::time::Duration::from_secs(10),
+        raw_stream(&mut c, vec![frame_chunk::Part::Header(h)]),
+    )
+    .await
+    .expect("refused at the header");
+    assert_eq!(e.code(), Code::InvalidArgument, "{}", e.message());
+    assert!(e.message().contains("27648"), "{}", e.message());
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_budget_counts_the_state_the_parameters_build() {
+    // pixel_trace holds (window + 1) frames of 36 B/px: at 64x36, 1.4 MB with the default
+    // window of 16 and 21 MB with 256. An 8 MiB budget takes the first, not the second.
+    let r = server(|c| c.memory_budget_mib = 8).await;
+    let mut c = client(&r).await;
+    open(&mut c, "pixel_trace").await;
+    let mut req = session_req("pixel_trace");
+    req.params.insert("window".into(), "256".into());
+    let e = c.inner.create_session(req).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{}", e.message());
+    assert!(e.message().contains("pixel_trace"), "{}", e.message());
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversize_chunk_is_an_error_not_a_silent_end() {
+    let r = server(|_| {}).await;
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let fr = frames("fence", 1, 1);
+    let mut parts = frame_parts(&fr[0], &s.id, &[afterimage::frame::ChannelKind::Color]);
+    parts.truncate(1);
+    parts.push(frame_chunk::Part::Data(pb::DataChunk {
+        data: vec![0u8; 5 << 20].into(),
+    }));
+    let e = raw_stream(&mut c, parts).await;
+    assert_ne!(e.code(), Code::Ok, "{}", e.message());
+    assert!(e.message().contains("chunk"), "{}", e.message());
+    let m = r.service.metrics.render(r.service.sessions.totals());
+    assert!(
+        m.contains("afterimage_errors_total{reason=\"too_large\"} 1"),
+        "{m}"
+    );
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn error_messages_do_not_echo_long_input() {
+    let r = server(|_| {}).await;
+    let name = "x".repeat(60_000);
+    let body = format!(r#"{{"filter":"{name}","width":64,"height":36}}"#);
+    let (st, _, b) = http(
+        r.http_addr,
+        "POST",
+        "/v1/sessions",
+        body.as_bytes(),
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 400);
+    assert!(b.len() < 2048, "{} bytes of error", b.len());
+    assert!(String::from_utf8_lossy(&b).contains("xxxxxxxx"));
+    let mut c = client(&r).await;
+    let e = c
+        .inner
+        .create_session(session_req(&"y".repeat(1 << 20)))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument);
+    assert!(e.message().len() < 2048, "{} bytes of error", e.message().len());
+    still_serving(&r).await;
     r.shutdown().await.unwrap();
 }

@@ -4,6 +4,7 @@
 mod eval;
 mod filter;
 mod info;
+mod keygen;
 mod read_args;
 mod report;
 mod scene;
@@ -41,6 +42,9 @@ enum Command {
     Stream(stream::StreamArgs),
     /// Render a procedural test scene (exact G-buffer, supersampled reference) to EXR.
     Scene(scene::SceneArgs),
+    /// Make a new API key for `serve`: prints the secret for the client and the entry for
+    /// the server's keys file (which stores only its hash).
+    Keygen(keygen::KeygenArgs),
 }
 
 /// Runs the parsed command.
@@ -54,6 +58,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Report(a) => report::run(a),
         Command::Filter(a) => filter::run(a),
         Command::Filters(a) => filter::list(a),
+        Command::Keygen(a) => keygen::run(a),
     }
 }
 

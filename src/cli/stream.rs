@@ -8,7 +8,7 @@ use afterimage::io::{write_exr, Compression, ExrLayout, Precision, Sequence, Wri
 use afterimage::metrics::Timing;
 use afterimage::pipeline::{create, params::parse_assignments};
 use afterimage::scene::{Jitter, Scene, Settings};
-use afterimage::server::client::{Client, SendOptions};
+use afterimage::server::client::{Client, ConnectOptions, SendOptions};
 use afterimage::server::proto as pb;
 use afterimage::session::params_from_json;
 use anyhow::Context;
@@ -20,9 +20,19 @@ use std::time::Instant;
 /// Arguments of `stream`.
 #[derive(Args, Debug)]
 pub struct StreamArgs {
-    /// gRPC address of the server.
+    /// gRPC address of the server (`https://` for TLS, with --tls-ca).
     #[arg(long, default_value = "http://127.0.0.1:50051")]
     server: String,
+    /// API key of a server that has keys (sent as `authorization: Bearer KEY`).
+    #[arg(long, env = "AFTERIMAGE_API_KEY", hide_env_values = true)]
+    api_key: Option<String>,
+    /// PEM file of the CA (or self-signed certificate) that the server's TLS certificate
+    /// must chain to.
+    #[arg(long)]
+    tls_ca: Option<PathBuf>,
+    /// The name in the server's certificate, when it is not the address's host.
+    #[arg(long)]
+    tls_domain: Option<String>,
     /// Filter name (see `afterimage filters`).
     #[arg(long)]
     filter: String,
@@ -111,7 +121,16 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let mut replies = Vec::new();
     let wall = Instant::now();
     rt.block_on(async {
-        let mut client = Client::connect(args.server.clone())
+        let connect = ConnectOptions {
+            api_key: args.api_key.clone(),
+            tls_ca: args
+                .tls_ca
+                .as_ref()
+                .map(|p| std::fs::read(p).with_context(|| format!("--tls-ca {}", p.display())))
+                .transpose()?,
+            tls_domain: args.tls_domain.clone(),
+        };
+        let mut client = Client::connect_with(args.server.clone(), &connect)
             .await
             .with_context(|| format!("connecting to {}", args.server))?;
         let session = client

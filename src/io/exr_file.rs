@@ -88,7 +88,7 @@ pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
     read_raw_exr_bytes(&bytes, path)
 }
 
-/// Reads an EXR held in memory (an HTTP body); `label` names it in errors.
+/// Reads an EXR held in memory; `label` names it in errors.
 pub fn read_raw_exr_bytes(bytes: &[u8], label: &Path) -> Result<RawImage, IoError> {
     let image = x::read()
         .no_deep_data()
@@ -96,6 +96,107 @@ pub fn read_raw_exr_bytes(bytes: &[u8], label: &Path) -> Result<RawImage, IoErro
         .all_channels()
         .all_layers()
         .all_attributes()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| exr_error(label, e))?;
+    raw_from_exr(image, label)
+}
+
+/// What an EXR from an untrusted source (an HTTP body) may declare. Its header is checked
+/// against these before a single pixel is decoded, so what decoding allocates is bounded
+/// by `width x height x max_channels` samples whatever the header claims.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ExrLimits {
+    /// The data window every part must have: width.
+    pub width: usize,
+    /// The data window every part must have: height.
+    pub height: usize,
+    /// Channels over all parts.
+    pub max_channels: usize,
+    /// Parts (layers).
+    pub max_parts: usize,
+}
+
+/// What [`check_exr_header`] read from a header: enough to size the decode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ExrShape {
+    /// Channels over all parts.
+    pub channels: usize,
+    /// Parts.
+    pub parts: usize,
+}
+
+/// Reads only the header of the EXR in `bytes` and checks it against `limits`: each part's
+/// data window size, the number of parts and channels, no deep data, no subsampling.
+pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Result<ExrShape, IoError> {
+    let refuse = |reason: String| IoError::Format {
+        path: label.to_path_buf(),
+        format: "OpenEXR",
+        reason: format!("{reason}; refused before decoding"),
+    };
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .map_err(|e| exr_error(label, e))?;
+    if meta.headers.len() > limits.max_parts {
+        return Err(refuse(format!(
+            "{} parts, at most {}",
+            meta.headers.len(),
+            limits.max_parts
+        )));
+    }
+    let mut channels = 0usize;
+    for (i, h) in meta.headers.iter().enumerate() {
+        let part = h
+            .own_attributes
+            .layer_name
+            .as_ref()
+            .map_or(format!("part {i}"), |n| {
+                format!("part {:?}", crate::session::clip(&n.to_string()))
+            });
+        if h.deep {
+            return Err(refuse(format!("{part} holds deep data, which is not supported")));
+        }
+        let (w, hh) = (h.layer_size.0, h.layer_size.1);
+        if (w, hh) != (limits.width, limits.height) {
+            return Err(refuse(format!(
+                "{part} declares a {w}x{hh} data window, frames here are {}x{}",
+                limits.width, limits.height
+            )));
+        }
+        if let Some(ch) = h.channels.list.iter().find(|c| c.sampling != x::Vec2(1, 1)) {
+            return Err(refuse(format!(
+                "{part}: channel {} is subsampled, which is not supported",
+                crate::session::clip(&ch.name.to_string())
+            )));
+        }
+        channels += h.channels.list.len();
+    }
+    if channels > limits.max_channels {
+        return Err(refuse(format!(
+            "{channels} channels, at most {}",
+            limits.max_channels
+        )));
+    }
+    Ok(ExrShape {
+        channels,
+        parts: meta.headers.len(),
+    })
+}
+
+/// Reads an EXR from an untrusted source: the header is checked against `limits` first
+/// ([`check_exr_header`]), then the pixels are decoded on the calling thread (no thread
+/// pool of the decoder's own).
+pub fn read_raw_exr_bytes_limited(
+    bytes: &[u8],
+    label: &Path,
+    limits: &ExrLimits,
+) -> Result<RawImage, IoError> {
+    check_exr_header(bytes, label, limits)?;
+    let image = x::read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .non_parallel()
         .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| exr_error(label, e))?;
     raw_from_exr(image, label)

@@ -12,8 +12,8 @@ mod sequence;
 
 pub use colormap::inferno;
 pub use exr_file::{
-    read_raw_exr, read_raw_exr_bytes, write_exr, write_exr_bytes, Compression, ExrLayout, Precision,
-    WriteOptions,
+    check_exr_header, read_raw_exr, read_raw_exr_bytes, read_raw_exr_bytes_limited, write_exr,
+    write_exr_bytes, Compression, ExrLayout, ExrLimits, ExrShape, Precision, WriteOptions,
 };
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
@@ -183,6 +183,18 @@ pub fn read_frame_after(
 /// [`read_frame`]; `label` names it in errors.
 pub fn read_exr_frame_bytes(bytes: &[u8], label: &Path, opts: &ReadOptions) -> Result<Frame, IoError> {
     frame_of(&read_raw_exr_bytes(bytes, label)?, opts, None)
+}
+
+/// Reads one frame from an EXR from an untrusted source, its header checked against
+/// `limits` before anything is decoded (see [`check_exr_header`]); motion as
+/// [`read_exr_frame_bytes`].
+pub fn read_exr_frame_bytes_limited(
+    bytes: &[u8],
+    label: &Path,
+    opts: &ReadOptions,
+    limits: &ExrLimits,
+) -> Result<Frame, IoError> {
+    frame_of(&read_raw_exr_bytes_limited(bytes, label, limits)?, opts, None)
 }
 
 /// The frame in `raw`, with its motion converted from the file's convention to the

@@ -21,9 +21,23 @@ pub fn pool() -> &'static rayon::ThreadPool {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("afterimage-filter-{i}"))
+            // A panic in a spawned job that nobody caught would abort the process (rayon's
+            // default); the server catches its jobs' panics itself, this is the backstop.
+            .panic_handler(|panic| {
+                tracing::error!(cause = %panic_text(panic.as_ref()), "a job on the filter pool panicked");
+            })
             .build()
             .expect("a rayon pool with default settings builds")
     })
+}
+
+/// The message of a caught panic's payload (`panic!("...")` gives a `&str` or a `String`).
+pub fn panic_text(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into())
 }
 
 /// Splits `N` planes of `width`-wide rows into one `[row; N]` per image row.

@@ -212,8 +212,9 @@ pub struct FilterInfo {
     pub sparse_input: bool,
 }
 
-/// Builds a filter instance from parameter overrides.
-pub type CreateFn = fn(&Map<String, Value>) -> Result<Box<dyn Filter>, FilterError>;
+/// Builds a filter instance from parameter overrides, with the bytes of state per pixel
+/// its parameters make it hold (what a server reserves for it).
+pub type CreateFn = fn(&Map<String, Value>) -> Result<(Box<dyn Filter>, usize), FilterError>;
 
 /// One registry entry: the description and a constructor.
 pub struct FilterEntry {
@@ -237,8 +238,10 @@ fn info_of<F: FilterKind>() -> FilterInfo {
     }
 }
 
-fn create_of<F: FilterKind>(values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
-    Ok(Box::new(F::new(params::build::<F::Params>(F::NAME, values)?)))
+fn create_of<F: FilterKind>(values: &Map<String, Value>) -> Result<(Box<dyn Filter>, usize), FilterError> {
+    let params = params::build::<F::Params>(F::NAME, values)?;
+    let bytes = F::state_bytes_per_pixel(&params);
+    Ok((Box::new(F::new(params)), bytes))
 }
 
 /// The registry entry of filter kind `F`.
@@ -266,6 +269,15 @@ pub fn info(name: &str) -> Option<FilterInfo> {
 
 /// A new instance of filter `name` with `values` overriding its defaults.
 pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
+    Ok(create_sized(name, values)?.0)
+}
+
+/// A new instance of filter `name` with `values` overriding its defaults, and the bytes of
+/// state per pixel it will hold with those parameters.
+pub fn create_sized(
+    name: &str,
+    values: &Map<String, Value>,
+) -> Result<(Box<dyn Filter>, usize), FilterError> {
     let reg = registry();
     let entry = reg
         .iter()

@@ -9,8 +9,50 @@ use std::time::Instant;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::StreamExt;
-use tonic::transport::Channel;
+use tonic::metadata::{Ascii, MetadataValue};
+use tonic::service::interceptor::InterceptedService;
+use tonic::service::Interceptor;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::Status;
+
+/// How to reach a server: its API key and, for `https://` addresses, the CA that signed
+/// its certificate.
+#[derive(Clone, Debug, Default)]
+pub struct ConnectOptions {
+    /// Sent as `authorization: Bearer KEY` on every call.
+    pub api_key: Option<String>,
+    /// PEM of the CA (or the self-signed certificate) to trust, for `https://`.
+    pub tls_ca: Option<Vec<u8>>,
+    /// The name the certificate is for, when it is not the address's host.
+    pub tls_domain: Option<String>,
+}
+
+/// Why a client could not connect.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    /// The connection failed.
+    #[error(transparent)]
+    Transport(#[from] tonic::transport::Error),
+    /// The options do not fit the address.
+    #[error("{0}")]
+    Options(String),
+}
+
+/// Adds the API key to every call.
+#[derive(Clone, Debug, Default)]
+pub struct Auth(Option<MetadataValue<Ascii>>);
+
+impl Interceptor for Auth {
+    fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, Status> {
+        if let Some(v) = &self.0 {
+            req.metadata_mut().insert("authorization", v.clone());
+        }
+        Ok(req)
+    }
+}
+
+/// The generated client, with the API key added to every call.
+pub type Inner = AfterimageClient<InterceptedService<Channel, Auth>>;
 
 /// A filtered frame as the client receives it.
 #[derive(Clone, Debug)]
@@ -31,7 +73,7 @@ pub struct Reply {
 #[derive(Clone)]
 pub struct Client {
     /// The generated client, for calls not wrapped here.
-    pub inner: AfterimageClient<Channel>,
+    pub inner: Inner,
 }
 
 /// How frames are sent.
@@ -46,15 +88,50 @@ pub struct SendOptions {
 }
 
 impl Client {
-    /// Connects to `url` (`http://host:port`).
-    pub async fn connect(url: String) -> Result<Client, tonic::transport::Error> {
-        let channel = tonic::transport::Endpoint::from_shared(url)?
+    /// Connects to `url` (`http://host:port`) without a key.
+    pub async fn connect(url: String) -> Result<Client, ConnectError> {
+        Self::connect_with(url, &ConnectOptions::default()).await
+    }
+
+    /// Connects to `url` (`http://host:port`, or `https://` with `opts.tls_ca`) and sends
+    /// `opts.api_key` with every call.
+    pub async fn connect_with(url: String, opts: &ConnectOptions) -> Result<Client, ConnectError> {
+        let tls = url.starts_with("https://");
+        let mut endpoint = Endpoint::from_shared(url)?
             .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
             .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
-            .tcp_nodelay(true)
-            .connect()
-            .await?;
-        let inner = AfterimageClient::new(channel)
+            .tcp_nodelay(true);
+        match (&opts.tls_ca, tls) {
+            (Some(ca), true) => {
+                let mut config = ClientTlsConfig::new().ca_certificate(Certificate::from_pem(ca));
+                if let Some(d) = &opts.tls_domain {
+                    config = config.domain_name(d.clone());
+                }
+                endpoint = endpoint.tls_config(config)?;
+            }
+            (None, true) => {
+                return Err(ConnectError::Options(
+                    "an https:// server needs the CA certificate that signed its certificate (--tls-ca)"
+                        .into(),
+                ))
+            }
+            (Some(_), false) => {
+                return Err(ConnectError::Options(
+                    "a CA certificate was given for an http:// address; use https://".into(),
+                ))
+            }
+            (None, false) => {}
+        }
+        let key = opts
+            .api_key
+            .as_ref()
+            .map(|k| {
+                MetadataValue::try_from(format!("Bearer {k}"))
+                    .map_err(|_| ConnectError::Options("the API key is not printable ASCII".into()))
+            })
+            .transpose()?;
+        let channel = endpoint.connect().await?;
+        let inner = AfterimageClient::with_interceptor(channel, Auth(key))
             .max_decoding_message_size(64 << 20)
             .max_encoding_message_size(64 << 20);
         Ok(Client { inner })
@@ -127,6 +204,11 @@ impl Client {
                     )))
                 }
             }
+        }
+        // Read to the end of the stream: its status, and the server has let go of the
+        // session by then (a new stream on it may start at once).
+        while let Some(m) = replies.next().await {
+            m?;
         }
         Ok(())
     }

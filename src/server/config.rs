@@ -1,8 +1,10 @@
 //! Server configuration in layers: built-in defaults, then an optional TOML file, then
 //! `AFTERIMAGE_<FIELD>` environment variables (e.g. `AFTERIMAGE_MAX_SESSIONS=8`); validated
 //! once at start with messages that name the field, the source and the expected value.
+//! API keys come from `api_keys_file` and the `AFTERIMAGE_API_KEYS` variable.
 
-use crate::session::Limits;
+use crate::session::access::{KeyError, KEYS_ENV};
+use crate::session::{Keyring, Limits, Quotas};
 use serde::{Deserialize, Serialize};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -41,6 +43,40 @@ pub struct Config {
     pub queue_depth: usize,
     /// Seconds to finish frames in flight after SIGTERM/SIGINT.
     pub shutdown_deadline_s: u64,
+    /// TOML file of API keys (`[[key]]` with `name`, `sha256`, optional `max_sessions` and
+    /// `memory_mib`; `afterimage keygen` writes entries). Empty: none from a file.
+    pub api_keys_file: String,
+    /// Serve a non-loopback address without API keys (refused unless set).
+    pub allow_unauthenticated: bool,
+    /// `/metrics` needs an API key too (when the server has keys).
+    pub metrics_require_key: bool,
+    /// PEM certificate chain for TLS on both ports (with `tls_key`); empty: plain TCP.
+    pub tls_cert: String,
+    /// PEM private key for TLS.
+    pub tls_key: String,
+    /// Seconds a client has to send a request's headers (HTTP/1), or to finish the TLS
+    /// handshake and send its first bytes (any connection). Also how long an HTTP/1
+    /// keep-alive connection may wait for its next request.
+    pub header_timeout_s: u64,
+    /// Seconds a connection may go without reading or writing a byte before it is closed.
+    pub idle_connection_timeout_s: u64,
+    /// Seconds to receive one frame: an HTTP body, or the chunks of one gRPC frame.
+    pub request_timeout_s: u64,
+    /// Connections open at once over both ports; more are closed at accept.
+    pub max_connections: usize,
+    /// Seconds between HTTP/2 keepalive pings on an idle connection (gRPC and h2).
+    pub keepalive_interval_s: u64,
+    /// Seconds to wait for a ping's answer before closing the connection.
+    pub keepalive_timeout_s: u64,
+    /// Concurrent HTTP/2 streams per connection (gRPC calls, h2 requests).
+    pub max_concurrent_streams: u32,
+    /// Channels an EXR frame may hold over all its parts (checked from its header).
+    pub max_exr_channels: usize,
+    /// Parts an EXR frame may have.
+    pub max_exr_parts: usize,
+    /// Plain API keys from the environment (`AFTERIMAGE_API_KEYS`); never printed.
+    #[serde(skip)]
+    pub api_keys_plain: Option<String>,
 }
 
 impl Default for Config {
@@ -58,6 +94,21 @@ impl Default for Config {
             max_non_finite_fraction: 0.5,
             queue_depth: 4,
             shutdown_deadline_s: 10,
+            api_keys_file: String::new(),
+            allow_unauthenticated: false,
+            metrics_require_key: false,
+            tls_cert: String::new(),
+            tls_key: String::new(),
+            header_timeout_s: 10,
+            idle_connection_timeout_s: 120,
+            request_timeout_s: 60,
+            max_connections: 1024,
+            keepalive_interval_s: 30,
+            keepalive_timeout_s: 10,
+            max_concurrent_streams: 16,
+            max_exr_channels: 64,
+            max_exr_parts: 16,
+            api_keys_plain: None,
         }
     }
 }
@@ -81,6 +132,9 @@ pub enum ConfigError {
         /// What is wrong.
         message: String,
     },
+    /// The API keys cannot be used.
+    #[error(transparent)]
+    Keys(#[from] KeyError),
     /// A value out of range.
     #[error("config {field}: expected {expected}, got {got}")]
     Invalid {
@@ -121,7 +175,12 @@ impl Config {
                 table.insert(k, v);
             }
         }
+        let mut api_keys_plain = None;
         for (name, value) in env {
+            if name == KEYS_ENV {
+                api_keys_plain = Some(value);
+                continue;
+            }
             let Some(field) = name.strip_prefix(ENV_PREFIX).map(str::to_ascii_lowercase) else {
                 continue;
             };
@@ -139,6 +198,16 @@ impl Config {
                             source_name: name.clone(),
                             message: format!("expected a whole number, got {value:?}"),
                         })?,
+                    toml::Value::Boolean(_) => match value.trim().to_ascii_lowercase().as_str() {
+                        "true" | "1" | "yes" => toml::Value::Boolean(true),
+                        "false" | "0" | "no" => toml::Value::Boolean(false),
+                        _ => {
+                            return Err(ConfigError::Parse {
+                                source_name: name.clone(),
+                                message: format!("expected true or false, got {value:?}"),
+                            })
+                        }
+                    },
                     toml::Value::Float(_) => {
                         value.trim().parse::<f64>().map(toml::Value::Float).map_err(|_| {
                             ConfigError::Parse {
@@ -156,14 +225,46 @@ impl Config {
                 };
             table.insert(field, v);
         }
-        let config: Config = toml::Value::Table(table)
+        let mut config: Config = toml::Value::Table(table)
             .try_into()
             .map_err(|e: toml::de::Error| ConfigError::Parse {
                 source_name: file.map_or("environment".into(), |p| p.display().to_string()),
                 message: e.to_string(),
             })?;
+        config.api_keys_plain = api_keys_plain;
         config.validate()?;
         Ok(config)
+    }
+
+    /// The API keys: the keys file's, then `AFTERIMAGE_API_KEYS`'; each key's quotas
+    /// default to the server's limits.
+    pub fn keyring(&self) -> Result<Keyring, ConfigError> {
+        let defaults = Quotas {
+            max_sessions: self.max_sessions,
+            memory_bytes: self.memory_budget_mib << 20,
+        };
+        let mut ring = Keyring::default();
+        if !self.api_keys_file.is_empty() {
+            let path = Path::new(&self.api_keys_file);
+            let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                path: path.into(),
+                source,
+            })?;
+            ring.add_file_text(&text, &self.api_keys_file, defaults)?;
+        }
+        if let Some(plain) = &self.api_keys_plain {
+            ring.add_plain(plain, KEYS_ENV, defaults)?;
+        }
+        Ok(ring)
+    }
+
+    /// The addresses this config listens on that are not loopback.
+    pub fn public_addrs(&self) -> Vec<&str> {
+        [&self.grpc_addr, &self.http_addr]
+            .into_iter()
+            .filter(|a| a.parse::<SocketAddr>().is_ok_and(|s| !s.ip().is_loopback()))
+            .map(String::as_str)
+            .collect()
     }
 
     /// Checks ranges and addresses.
@@ -175,7 +276,7 @@ impl Config {
                 got: format!("{addr:?}"),
             })?;
         }
-        let positive: [(&'static str, u64); 8] = [
+        let positive: [(&'static str, u64); 17] = [
             ("max_sessions", self.max_sessions as u64),
             ("memory_budget_mib", self.memory_budget_mib),
             ("max_width", self.max_width as u64),
@@ -184,6 +285,15 @@ impl Config {
             ("max_chunk_bytes", self.max_chunk_bytes as u64),
             ("queue_depth", self.queue_depth as u64),
             ("idle_timeout_s", self.idle_timeout_s),
+            ("header_timeout_s", self.header_timeout_s),
+            ("idle_connection_timeout_s", self.idle_connection_timeout_s),
+            ("request_timeout_s", self.request_timeout_s),
+            ("max_connections", self.max_connections as u64),
+            ("keepalive_interval_s", self.keepalive_interval_s),
+            ("keepalive_timeout_s", self.keepalive_timeout_s),
+            ("max_concurrent_streams", self.max_concurrent_streams as u64),
+            ("max_exr_channels", self.max_exr_channels as u64),
+            ("max_exr_parts", self.max_exr_parts as u64),
         ];
         for (field, v) in positive {
             if v == 0 {
@@ -193,6 +303,17 @@ impl Config {
                     got: "0".into(),
                 });
             }
+        }
+        if self.tls_cert.is_empty() != self.tls_key.is_empty() {
+            return Err(ConfigError::Invalid {
+                field: if self.tls_cert.is_empty() {
+                    "tls_cert"
+                } else {
+                    "tls_key"
+                },
+                expected: "both tls_cert and tls_key, or neither".into(),
+                got: "only one of them".into(),
+            });
         }
         if !(0.0..=1.0).contains(&self.max_non_finite_fraction) {
             return Err(ConfigError::Invalid {

@@ -1,24 +1,36 @@
 //! The gRPC layer (tonic): a thin adapter from the proto messages to [`Service`].
+//!
+//! A stream claims its session with its first frame header; every header is checked
+//! against the session's shape (and its memory reserved) before a byte of data is taken;
+//! each complete frame is decoded, filtered and answered on the rayon pool. Every refusal
+//! ends the stream with a status naming the problem.
 
+use super::listener::until_true;
 use super::proto::afterimage_server::{Afterimage, AfterimageServer};
 use super::proto::{self as pb, filtered_chunk, frame_chunk};
-use super::service::Service;
-use super::wire::{self, Assembly};
+use super::service::{InFlight, Service};
+use super::wire::{self, Assembly, FramePlan};
 use crate::pipeline::{self, ParamKind};
-use crate::session::{ErrorKind, Filtered, SessionError, SessionInfo, SessionRequest};
+use crate::session::{
+    clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Reservation, SessionError, SessionInfo,
+    SessionRequest, StreamClaim,
+};
 use std::pin::Pin;
+use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tokio_stream::{wrappers::ReceiverStream, Stream, StreamExt};
-use tonic::{Request, Response, Status, Streaming};
+use tonic::metadata::MetadataMap;
+use tonic::{Code, Request, Response, Status, Streaming};
 
-/// The status for a session error.
+/// The status for a session error (its message capped).
 pub fn status(e: &SessionError) -> Status {
-    let msg = e.to_string();
+    let msg = e.client_message();
     match e.kind() {
         ErrorKind::InvalidArgument => Status::invalid_argument(msg),
         ErrorKind::NotFound => Status::not_found(msg),
-        ErrorKind::ResourceExhausted => Status::resource_exhausted(msg),
+        ErrorKind::ResourceExhausted | ErrorKind::TooLarge => Status::resource_exhausted(msg),
         ErrorKind::FailedPrecondition => Status::failed_precondition(msg),
+        ErrorKind::Unauthenticated => Status::unauthenticated(msg),
         ErrorKind::Internal => Status::internal(msg),
         ErrorKind::Unavailable => Status::unavailable(msg),
     }
@@ -160,10 +172,24 @@ pub struct Grpc(pub Service);
 impl Grpc {
     /// As a tonic server, with message limits that fit the chunking.
     pub fn server(self) -> AfterimageServer<Grpc> {
-        let limit = self.0.config.max_chunk_bytes + (64 << 10);
+        let limit = self.message_limit();
         AfterimageServer::new(self)
-            .max_decoding_message_size(limit.max(4 << 20))
-            .max_encoding_message_size(limit.max(4 << 20))
+            .max_decoding_message_size(limit)
+            .max_encoding_message_size(limit)
+    }
+
+    /// Largest message either way: a chunk and its framing, at least 4 MiB (gRPC's
+    /// default, so session requests with many parameters still fit).
+    fn message_limit(&self) -> usize {
+        (self.0.config.max_chunk_bytes + (64 << 10)).max(4 << 20)
+    }
+
+    /// The caller named by a request's `authorization` metadata.
+    fn caller(&self, md: &MetadataMap) -> Result<Caller, Status> {
+        let value = md
+            .get("authorization")
+            .map(|v| v.to_str().unwrap_or("(not text)"));
+        self.0.caller(value).map_err(|e| status(&e))
     }
 }
 
@@ -187,22 +213,137 @@ async fn send_replies(
             true
         }
         Err(e) => {
-            tracing::debug!(error = %e, "frame refused");
             let _ = tx.send(Err(status(&e))).await;
             false
         }
     }
 }
 
+/// A frame being received: its chunks so far, the memory it may take, and its place in
+/// the requests in flight.
+struct Receiving {
+    assembly: Assembly,
+    _hold: Reservation,
+    _in_flight: InFlight,
+}
+
+/// Checks a frame header against the stream's session (claiming the session with the
+/// first header) and reserves what the frame will take: its wire bytes, the decoded frame,
+/// the output and the reply.
+fn start_frame(
+    svc: &Service,
+    caller: &Caller,
+    claim: &mut Option<StreamClaim>,
+    h: pb::FrameHeader,
+) -> Result<Receiving, SessionError> {
+    if svc.sessions.is_closing() {
+        return Err(SessionError::ShuttingDown);
+    }
+    let claimed = match claim.take() {
+        Some(c) if c.id() == h.session_id => c,
+        Some(c) => {
+            let e = SessionError::invalid(
+                "header.session_id",
+                format!(
+                    "this stream serves session {}, got a frame for {}; open one stream per session",
+                    c.id(),
+                    clip(&h.session_id)
+                ),
+            );
+            *claim = Some(c);
+            return Err(e);
+        }
+        None => svc.sessions.attach(caller, &h.session_id)?,
+    };
+    let shape = claimed.shape();
+    *claim = Some(claimed);
+    let plan = FramePlan::check(&h, shape, svc.config.max_frame_mib << 20)?;
+    let bytes = plan.wire_bytes + plan.decoded_bytes + 2 * shape.output_bytes();
+    let hold = svc
+        .sessions
+        .reserve(caller, bytes, &format!("frame {}", h.index))?;
+    Ok(Receiving {
+        assembly: Assembly::start(h, plan),
+        _hold: hold,
+        _in_flight: svc.begin(),
+    })
+}
+
+/// Every output as a reply built by `finish` (given it and the server time in ms, shared
+/// by the outputs); each output is counted and its planes go back to the filter.
+fn replies_of<R>(
+    svc: &Service,
+    co: &mut Checkout,
+    outs: Vec<Filtered>,
+    t: Instant,
+    finish: impl Fn(&Filtered, f64) -> R,
+) -> Vec<R> {
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    outs.into_iter()
+        .map(|out| {
+            let r = finish(&out, ms);
+            svc.metrics.frame(&out.record);
+            co.recycle(out.color);
+            r
+        })
+        .collect()
+}
+
+/// Decodes, filters and answers one complete frame on the pool.
+async fn filter_frame(
+    svc: &Service,
+    claim: &StreamClaim,
+    frame: Receiving,
+    max_chunk: usize,
+) -> Result<Vec<Vec<pb::FilteredChunk>>, SessionError> {
+    let co = svc.count(claim.checkout())?;
+    let shape = claim.shape();
+    let req = frame.assembly.header.clone();
+    let job = svc.clone();
+    svc.on_pool(move |_| {
+        let t = Instant::now();
+        let mut co = co;
+        let decoded = wire::decode(&frame.assembly, shape)?;
+        drop(frame);
+        let outs = co.process(decoded, MotionInput::Session)?;
+        let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
+        Ok(replies_of(&job, &mut co, outs, t, finish))
+    })
+    .await
+}
+
+/// The outputs a windowed filter still holds when its stream ends, as replies encoded
+/// like the last frame's.
+async fn flush_stream(
+    svc: &Service,
+    claim: &StreamClaim,
+    req: pb::FrameHeader,
+    max_chunk: usize,
+) -> Result<Vec<Vec<pb::FilteredChunk>>, SessionError> {
+    let co = svc.count(claim.checkout())?;
+    let job = svc.clone();
+    svc.on_pool(move |_| {
+        let t = Instant::now();
+        let mut co = co;
+        let outs = co.flush()?;
+        let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
+        Ok(replies_of(&job, &mut co, outs, t, finish))
+    })
+    .await
+}
+
 async fn handle_stream(
     svc: Service,
+    caller: Caller,
+    message_limit: usize,
     mut inbound: Streaming<pb::FrameChunk>,
     tx: mpsc::Sender<Result<pb::FilteredChunk, Status>>,
 ) {
     let max_chunk = svc.config.max_chunk_bytes;
-    let max_frame = svc.config.max_frame_mib << 20;
-    let mut current: Option<Assembly> = None;
-    let mut stream_session: Option<String> = None;
+    let frame_timeout = Duration::from_secs(svc.config.request_timeout_s);
+    let mut draining = svc.draining();
+    let mut claim: Option<StreamClaim> = None;
+    let mut current: Option<Receiving> = None;
     // The last frame's header: how the replies a flush gives are encoded.
     let mut last_header: Option<pb::FrameHeader> = None;
     let fail = |e: SessionError| {
@@ -210,52 +351,71 @@ async fn handle_stream(
         tracing::debug!(error = %e, "stream refused");
         Err(status(&e))
     };
-    while let Some(msg) = inbound.next().await {
-        let chunk = match msg {
-            Ok(c) => c,
-            Err(s) => {
+    loop {
+        let next = match &current {
+            Some(r) => match tokio::time::timeout(frame_timeout, inbound.next()).await {
+                Ok(m) => m,
+                Err(_) => {
+                    let e = SessionError::invalid(
+                        "data",
+                        format!(
+                            "frame {}: {} bytes still missing after the request timeout of {} s",
+                            r.assembly.header.index,
+                            r.assembly.missing(),
+                            frame_timeout.as_secs()
+                        ),
+                    );
+                    let _ = tx.send(fail(e)).await;
+                    return;
+                }
+            },
+            None => tokio::select! {
+                m = inbound.next() => m,
+                _ = until_true(&mut draining) => {
+                    let _ = tx.send(Err(status(&SessionError::ShuttingDown))).await;
+                    return;
+                }
+            },
+        };
+        let chunk = match next {
+            None => break,
+            Some(Ok(c)) => c,
+            Some(Err(s)) if s.code() == Code::OutOfRange => {
+                let e = SessionError::too_large(
+                    "data",
+                    format!(
+                        "a message over the server's limit of {message_limit} bytes ({}); send DataChunks of at most max_chunk_bytes = {max_chunk}",
+                        s.message()
+                    ),
+                );
+                tracing::warn!(error = %e, "stream refused");
+                let _ = tx.send(fail(e)).await;
+                return;
+            }
+            Some(Err(s)) => {
                 tracing::debug!(status = %s, "client stream ended with an error");
                 return;
             }
         };
         let step: Result<(), SessionError> = match chunk.part {
-            Some(frame_chunk::Part::Header(h)) => {
-                if let Some(a) = &current {
-                    Err(SessionError::invalid(
-                        "header",
-                        format!(
-                            "chunk out of order: a header for frame {} while frame {} still misses {} bytes",
-                            h.index,
-                            a.header.index,
-                            a.missing()
-                        ),
-                    ))
-                } else if stream_session.as_ref().is_some_and(|s| *s != h.session_id) {
-                    Err(SessionError::invalid(
-                        "header.session_id",
-                        format!(
-                            "this stream serves session {}, got a frame for {}; open one stream per session",
-                            stream_session.as_deref().unwrap_or_default(),
-                            h.session_id
-                        ),
-                    ))
-                } else {
-                    // Unknown ids are refused here, before any data is read.
-                    match svc.sessions.frame_shape(&h.session_id) {
-                        Err(e) => Err(e),
-                        Ok(_) => {
-                            stream_session = Some(h.session_id.clone());
-                            Assembly::start(h, max_frame).map(|a| current = Some(a))
-                        }
-                    }
-                }
-            }
+            Some(frame_chunk::Part::Header(h)) => match &current {
+                Some(r) => Err(SessionError::invalid(
+                    "header",
+                    format!(
+                        "chunk out of order: a header for frame {} while frame {} still misses {} bytes",
+                        h.index,
+                        r.assembly.header.index,
+                        r.assembly.missing()
+                    ),
+                )),
+                None => start_frame(&svc, &caller, &mut claim, h).map(|r| current = Some(r)),
+            },
             Some(frame_chunk::Part::Data(d)) => match current.as_mut() {
                 None => Err(SessionError::invalid(
                     "data",
                     "chunk out of order: data before any frame header",
                 )),
-                Some(a) => a.push(&d.data, max_chunk),
+                Some(r) => r.assembly.push(&d.data, max_chunk),
             },
             None => Err(SessionError::invalid(
                 "part",
@@ -266,34 +426,30 @@ async fn handle_stream(
             let _ = tx.send(fail(e)).await;
             return;
         }
-        if current.as_ref().is_some_and(Assembly::complete) {
-            let a = current.take().expect("checked");
-            let req = a.header.clone();
-            last_header = Some(req.clone());
-            let finish = move |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-            if !send_replies(&tx, svc.wire_frame(a, finish).await).await {
+        if current.as_ref().is_some_and(|r| r.assembly.complete()) {
+            let frame = current.take().expect("checked");
+            let claimed = claim.as_ref().expect("claimed with the header");
+            last_header = Some(frame.assembly.header.clone());
+            if !send_replies(&tx, filter_frame(&svc, claimed, frame, max_chunk).await).await {
                 return;
             }
         }
     }
-    // The client closed its side: a windowed filter's last frames come out now.
-    if let (None, Some(req)) = (&current, last_header) {
-        let id = req.session_id.clone();
-        let finish = move |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-        if !send_replies(&tx, svc.wire_flush(id, finish).await).await {
-            return;
-        }
-    }
-    if let Some(a) = current {
+    if let Some(r) = current {
         let e = SessionError::invalid(
             "data",
             format!(
                 "the stream ended with frame {} missing {} bytes",
-                a.header.index,
-                a.missing()
+                r.assembly.header.index,
+                r.assembly.missing()
             ),
         );
         let _ = tx.send(fail(e)).await;
+        return;
+    }
+    // The client closed its side: a windowed filter's last frames come out now.
+    if let (Some(claimed), Some(req)) = (&claim, last_header) {
+        send_replies(&tx, flush_stream(&svc, claimed, req, max_chunk).await).await;
     }
 }
 
@@ -301,8 +457,9 @@ async fn handle_stream(
 impl Afterimage for Grpc {
     async fn list_filters(
         &self,
-        _: Request<pb::ListFiltersRequest>,
+        req: Request<pb::ListFiltersRequest>,
     ) -> Result<Response<pb::ListFiltersResponse>, Status> {
+        self.caller(req.metadata())?;
         Ok(Response::new(pb::ListFiltersResponse {
             filters: filters_pb(),
         }))
@@ -312,6 +469,7 @@ impl Afterimage for Grpc {
         &self,
         req: Request<pb::CreateSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
+        let caller = self.caller(req.metadata())?;
         let r = req.into_inner();
         let mut params: Vec<(String, String)> = r.params.into_iter().collect();
         params.sort();
@@ -325,7 +483,7 @@ impl Afterimage for Grpc {
         };
         let info = self
             .0
-            .count(self.0.sessions.create(&req))
+            .count(self.0.sessions.create(&caller, &req))
             .map_err(|e| status(&e))?;
         Ok(Response::new(session_pb(info, self.0.config.max_chunk_bytes)))
     }
@@ -334,9 +492,10 @@ impl Afterimage for Grpc {
         &self,
         req: Request<pb::GetSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
+        let caller = self.caller(req.metadata())?;
         let info = self
             .0
-            .count(self.0.sessions.get(&req.into_inner().id))
+            .count(self.0.sessions.get(&caller, &req.into_inner().id))
             .map_err(|e| status(&e))?;
         Ok(Response::new(session_pb(info, self.0.config.max_chunk_bytes)))
     }
@@ -345,9 +504,10 @@ impl Afterimage for Grpc {
         &self,
         req: Request<pb::CloseSessionRequest>,
     ) -> Result<Response<pb::CloseSessionResponse>, Status> {
+        let caller = self.caller(req.metadata())?;
         let frames = self
             .0
-            .count(self.0.sessions.close(&req.into_inner().id))
+            .count(self.0.sessions.close(&caller, &req.into_inner().id))
             .map_err(|e| status(&e))?;
         Ok(Response::new(pb::CloseSessionResponse { frames }))
     }
@@ -358,8 +518,15 @@ impl Afterimage for Grpc {
         &self,
         req: Request<Streaming<pb::FrameChunk>>,
     ) -> Result<Response<Self::StreamStream>, Status> {
+        let caller = self.caller(req.metadata())?;
         let (tx, rx) = mpsc::channel(self.0.config.queue_depth);
-        tokio::spawn(handle_stream(self.0.clone(), req.into_inner(), tx));
+        tokio::spawn(handle_stream(
+            self.0.clone(),
+            caller,
+            self.message_limit(),
+            req.into_inner(),
+            tx,
+        ));
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 }

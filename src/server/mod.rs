@@ -5,6 +5,7 @@ pub mod client;
 pub mod config;
 pub mod grpc;
 pub mod http;
+pub mod listener;
 pub mod metrics;
 pub mod proto;
 pub mod run;

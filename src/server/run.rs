@@ -1,21 +1,29 @@
-//! Starting and stopping the servers: bind both ports, sweep idle sessions, and on
-//! shutdown refuse new work, let frames in flight finish, and stop within the deadline.
+//! Starting and stopping the servers: check the config (no public address without API
+//! keys unless told), bind both ports, sweep idle sessions, and on shutdown drain: refuse
+//! new work (`/readyz` turns 503), let frames in flight finish, then close the listeners,
+//! all within the deadline.
 
 use super::config::Config;
 use super::grpc::Grpc;
 use super::http::router;
+use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings};
 use super::service::Service;
 use std::future::Future;
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::time::Duration;
 use thiserror::Error;
 use tokio::net::TcpListener;
-use tokio::sync::watch;
+use tokio::sync::{watch, Semaphore};
 use tokio::task::JoinHandle;
+use tokio_stream::StreamExt;
 
 /// Why the server could not start or stopped badly.
 #[derive(Debug, Error)]
 pub enum ServeError {
+    /// The configuration cannot be served (keys, TLS, public address without keys).
+    #[error("{0}")]
+    Config(String),
     /// A port could not be bound.
     #[error("cannot listen on {addr} ({what}): {source}")]
     Bind {
@@ -46,7 +54,17 @@ pub struct Running {
 impl Running {
     /// Asks the server to stop and waits for it (at most the configured deadline).
     pub async fn shutdown(self) -> Result<(), ServeError> {
+        self.begin_shutdown();
+        self.stopped().await
+    }
+
+    /// Asks the server to stop (drain, then close) without waiting.
+    pub fn begin_shutdown(&self) {
         let _ = self.stop.send(true);
+    }
+
+    /// Waits until the server has stopped.
+    pub async fn stopped(self) -> Result<(), ServeError> {
         self.task
             .await
             .map_err(|e| ServeError::Run(format!("server task: {e}")))?
@@ -63,17 +81,52 @@ async fn bind(addr: &str, what: &'static str) -> Result<TcpListener, ServeError>
 
 /// Binds both ports (port 0 picks a free one) and serves in the background.
 pub async fn start(config: Config) -> Result<Running, ServeError> {
+    let keys = config.keyring().map_err(|e| ServeError::Config(e.to_string()))?;
+    let public = config.public_addrs();
+    if keys.is_empty() && !public.is_empty() && !config.allow_unauthenticated {
+        return Err(ServeError::Config(format!(
+            "refusing to serve {} without API keys: set api_keys_file or AFTERIMAGE_API_KEYS, listen on a loopback address, or set allow_unauthenticated = true",
+            public.join(" and ")
+        )));
+    }
+    let tls = |alpn: &[&[u8]]| -> Result<_, ServeError> {
+        if config.tls_cert.is_empty() {
+            return Ok(None);
+        }
+        tls_acceptor(&config.tls_cert, &config.tls_key, alpn)
+            .map(Some)
+            .map_err(ServeError::Config)
+    };
+    let grpc_tls = tls(&[b"h2"])?;
+    let http_tls = tls(&[b"h2", b"http/1.1"])?;
     let grpc_l = bind(&config.grpc_addr, "gRPC").await?;
     let http_l = bind(&config.http_addr, "HTTP").await?;
     let grpc_addr = grpc_l.local_addr().map_err(|e| ServeError::Run(e.to_string()))?;
     let http_addr = http_l.local_addr().map_err(|e| ServeError::Run(e.to_string()))?;
     let deadline = Duration::from_secs(config.shutdown_deadline_s);
-    let service = Service::new(config);
-    let (stop, stopped) = watch::channel(false);
-    let wait = |mut rx: watch::Receiver<bool>| async move {
-        let _ = rx.wait_for(|s| *s).await;
+    let conn = ConnSettings {
+        slots: Arc::new(Semaphore::new(config.max_connections)),
+        first_byte: Duration::from_secs(config.header_timeout_s),
+        idle: Duration::from_secs(config.idle_connection_timeout_s),
+        tls: None,
     };
-    let svc = service.clone();
+    let http_settings = HttpSettings {
+        header_timeout: Duration::from_secs(config.header_timeout_s),
+        keepalive_interval: Duration::from_secs(config.keepalive_interval_s),
+        keepalive_timeout: Duration::from_secs(config.keepalive_timeout_s),
+        max_concurrent_streams: config.max_concurrent_streams,
+    };
+    let mut grpc_builder = tonic::transport::Server::builder()
+        .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
+        .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
+        .http2_keepalive_interval(Some(Duration::from_secs(config.keepalive_interval_s)))
+        .http2_keepalive_timeout(Some(Duration::from_secs(config.keepalive_timeout_s)))
+        .max_concurrent_streams(config.max_concurrent_streams)
+        .http2_max_header_list_size(64 << 10);
+    let service = Service::new(config, keys);
+    let (stop, stopped) = watch::channel(false);
+    // Closing the listeners comes after the drain, so it has a signal of its own.
+    let (close, closed) = watch::channel(false);
     let sweeper = {
         let svc = service.clone();
         let mut rx = stopped.clone();
@@ -87,45 +140,73 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
             }
         })
     };
-    let grpc = tonic::transport::Server::builder()
-        .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
-        .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
-        .tcp_nodelay(true)
-        .add_service(Grpc(service.clone()).server())
-        .serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(grpc_l),
-            wait(stopped.clone()),
-        );
-    let http = axum::serve(http_l, router(service.clone())).with_graceful_shutdown(wait(stopped.clone()));
-    let mut on_stop = stopped.clone();
+    let grpc_conns = accept(
+        grpc_l,
+        ConnSettings {
+            tls: grpc_tls,
+            ..conn.clone()
+        },
+        service.metrics.clone(),
+        closed.clone(),
+        "gRPC",
+    );
+    let http_conns = accept(
+        http_l,
+        ConnSettings {
+            tls: http_tls,
+            ..conn
+        },
+        service.metrics.clone(),
+        closed.clone(),
+        "HTTP",
+    );
+    let grpc = {
+        let mut closed = closed.clone();
+        grpc_builder
+            .add_service(Grpc(service.clone()).server())
+            .serve_with_incoming_shutdown(
+                tokio_stream::wrappers::ReceiverStream::new(grpc_conns).map(Ok::<_, std::io::Error>),
+                async move {
+                    let _ = closed.wait_for(|c| *c).await;
+                },
+            )
+    };
+    let http = serve_http(http_conns, router(service.clone()), http_settings, closed);
+    let svc = service.clone();
+    let mut on_stop = stopped;
     let task = tokio::spawn(async move {
         let grpc = tokio::spawn(grpc);
-        let http = tokio::spawn(async move { http.await });
+        let http = tokio::spawn(http);
         let _ = on_stop.wait_for(|s| *s).await;
-        svc.sessions.close_all_new_work();
+        sweeper.abort();
+        let started = tokio::time::Instant::now();
+        svc.drain();
         tracing::info!(
             deadline_s = deadline.as_secs(),
-            "shutting down: refusing new work, finishing frames in flight"
+            in_flight = svc.in_flight(),
+            "draining: refusing new work, /readyz is 503, finishing frames in flight"
         );
-        let both = async {
-            let g = grpc.await;
-            let h = http.await;
-            (g, h)
-        };
-        sweeper.abort();
-        match tokio::time::timeout(deadline, both).await {
+        while svc.in_flight() > 0 && started.elapsed() < deadline {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let _ = close.send(true);
+        let left = deadline.saturating_sub(started.elapsed());
+        match tokio::time::timeout(left, async { (grpc.await, http.await) }).await {
             Ok((g, h)) => {
                 if let Ok(Err(e)) = g {
                     return Err(ServeError::Run(format!("gRPC: {e}")));
                 }
-                if let Ok(Err(e)) = h {
+                if let Err(e) = h {
                     return Err(ServeError::Run(format!("HTTP: {e}")));
                 }
                 tracing::info!("stopped");
                 Ok(())
             }
             Err(_) => {
-                tracing::warn!("shutdown deadline passed with work in flight; stopping anyway");
+                tracing::warn!(
+                    in_flight = svc.in_flight(),
+                    "shutdown deadline passed with work in flight; stopping anyway"
+                );
                 Ok(())
             }
         }

@@ -1,14 +1,16 @@
-//! The one service both transports call: sessions, metrics, and running frames on the
-//! rayon pool (never on tokio's workers).
+//! The one service both transports call: sessions, keys, metrics, and running every
+//! request's heavy work (decoding, filtering, encoding) on the rayon pool, never on tokio's
+//! workers, with any panic kept inside its request.
 
 use super::config::Config;
 use super::metrics::Metrics;
-use super::wire::{self, Assembly};
-use crate::frame::Frame;
-use crate::pipeline::exec::pool;
-use crate::session::{Filtered, MotionInput, SessionError, Sessions};
+use crate::io::ExrLimits;
+use crate::pipeline::exec::{panic_text, pool};
+use crate::session::{Caller, FrameShape, Keyring, SessionError, Sessions};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
-use std::time::Instant;
+use tokio::sync::watch;
 
 /// Shared by the gRPC and HTTP layers.
 #[derive(Clone)]
@@ -19,115 +21,167 @@ pub struct Service {
     pub metrics: Arc<Metrics>,
     /// The config it runs with.
     pub config: Arc<Config>,
+    /// The API keys (empty: no authentication).
+    pub keys: Arc<Keyring>,
+    /// Requests between taking a session and giving it back (drain waits for these).
+    in_flight: Arc<AtomicUsize>,
+    /// Turns true when the server starts draining (streams end between frames).
+    draining: Arc<watch::Sender<bool>>,
+}
+
+/// One request in flight; counted until dropped.
+pub struct InFlight(Arc<AtomicUsize>);
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
 }
 
 impl Service {
     /// A service with no sessions.
-    pub fn new(config: Config) -> Self {
+    pub fn new(config: Config, keys: Keyring) -> Self {
         Service {
             sessions: Arc::new(Sessions::new(config.limits())),
             metrics: Arc::new(Metrics::default()),
             config: Arc::new(config),
+            keys: Arc::new(keys),
+            in_flight: Arc::default(),
+            draining: Arc::new(watch::channel(false).0),
         }
+    }
+
+    /// Starts draining: new sessions and frames are refused, `/readyz` answers 503, open
+    /// streams end after their current frame.
+    pub fn drain(&self) {
+        self.sessions.close_all_new_work();
+        self.draining.send_replace(true);
+    }
+
+    /// Turns true when draining starts.
+    pub fn draining(&self) -> watch::Receiver<bool> {
+        self.draining.subscribe()
     }
 
     /// Counts `e` and passes it on.
     pub fn count<T>(&self, r: Result<T, SessionError>) -> Result<T, SessionError> {
         if let Err(e) = &r {
             self.metrics.error(e.reason());
+            tracing::debug!(error = %e, "request refused");
         }
         r
     }
 
-    async fn on_pool<T: Send + 'static>(
+    /// The caller presenting `authorization` (an `Authorization` header or `authorization`
+    /// metadata value): anonymous on a server without keys; refusals counted.
+    pub fn caller(&self, authorization: Option<&str>) -> Result<Caller, SessionError> {
+        self.count(self.keys.caller(authorization))
+    }
+
+    /// Marks a request in flight until the guard drops.
+    pub fn begin(&self) -> InFlight {
+        self.in_flight.fetch_add(1, Ordering::SeqCst);
+        InFlight(self.in_flight.clone())
+    }
+
+    /// Requests in flight now.
+    pub fn in_flight(&self) -> usize {
+        self.in_flight.load(Ordering::SeqCst)
+    }
+
+    /// Runs `job` on the rayon pool and waits for it without blocking the async worker. A
+    /// panic in the job fails this request only (INTERNAL, logged and counted); a session
+    /// the job had checked out is put back as it was, or failed when its filter panicked.
+    pub async fn on_pool<T: Send + 'static>(
         &self,
         job: impl FnOnce(&Sessions) -> Result<T, SessionError> + Send + 'static,
     ) -> Result<T, SessionError> {
         let sessions = self.sessions.clone();
+        let guard = self.begin();
         let (tx, rx) = tokio::sync::oneshot::channel();
         pool().spawn(move || {
-            let _ = tx.send(job(&sessions));
+            let r = catch_unwind(AssertUnwindSafe(|| job(&sessions))).unwrap_or_else(|panic| {
+                let cause = panic_text(panic.as_ref());
+                tracing::error!(%cause, "a request panicked; it fails, the server goes on");
+                Err(SessionError::Internal(format!("the request failed: {cause}")))
+            });
+            drop(guard);
+            let _ = tx.send(r);
         });
         let r = rx
             .await
-            .unwrap_or_else(|_| Err(SessionError::Internal("the worker dropped the frame".into())));
+            .unwrap_or_else(|_| Err(SessionError::Internal("the worker dropped the request".into())));
         self.count(r)
     }
 
-    /// Decodes an assembled wire frame, filters it and builds a reply with `finish` for
-    /// every output that came out (given it and the server time in ms, shared by the
-    /// outputs), all on the rayon pool; the outputs' planes then go back to the session's
-    /// filter for the next frame. A windowed filter gives no output while its window
-    /// fills, so the list may be empty.
-    pub async fn wire_frame<R: Send + 'static>(
-        &self,
-        a: Assembly,
-        finish: impl Fn(&Filtered, f64) -> R + Send + 'static,
-    ) -> Result<Vec<R>, SessionError> {
-        let id = a.header.session_id.clone();
-        let metrics = self.metrics.clone();
-        self.on_pool(move |s| {
-            let t = Instant::now();
-            let (w, h, allowed) = s.frame_shape(&id)?;
-            let frame = wire::decode(&a, w, h, allowed)?;
-            let outs = s.process(&id, frame, MotionInput::Session)?;
-            Ok(Self::replies(s, &id, &metrics, outs, t, finish))
-        })
-        .await
+    /// What an EXR body for a session of `shape` may declare (checked from its header).
+    pub fn exr_limits(&self, shape: FrameShape) -> ExrLimits {
+        ExrLimits {
+            width: shape.width as usize,
+            height: shape.height as usize,
+            max_channels: self.config.max_exr_channels,
+            max_parts: self.config.max_exr_parts,
+        }
     }
 
-    /// The end of a stream: the outputs session `id`'s windowed filter still holds, each
-    /// made a reply by `finish`, as [`Service::wire_frame`].
-    pub async fn wire_flush<R: Send + 'static>(
-        &self,
-        id: String,
-        finish: impl Fn(&Filtered, f64) -> R + Send + 'static,
-    ) -> Result<Vec<R>, SessionError> {
-        let metrics = self.metrics.clone();
-        self.on_pool(move |s| {
-            let t = Instant::now();
-            let outs = s.flush(&id)?;
-            Ok(Self::replies(s, &id, &metrics, outs, t, finish))
-        })
-        .await
+    /// The largest EXR body a frame of `shape` can need: every allowed channel as
+    /// uncompressed f32, plus headers and offset tables (1 MiB), capped by `max_frame_mib`.
+    /// OpenEXR stores a chunk uncompressed when compression would grow it, so no valid
+    /// file is larger.
+    pub fn max_exr_body(&self, shape: FrameShape) -> u64 {
+        let samples = shape.pixels() * self.config.max_exr_channels as u64;
+        let offsets = shape.height as u64 * 8 * self.config.max_exr_parts as u64;
+        (samples * 4 + offsets + (1 << 20)).min(self.config.max_frame_mib << 20)
     }
+}
 
-    fn replies<R>(
-        s: &Sessions,
-        id: &str,
-        metrics: &Metrics,
-        outs: Vec<Filtered>,
-        t: Instant,
-        finish: impl Fn(&Filtered, f64) -> R,
-    ) -> Vec<R> {
-        let ms = t.elapsed().as_secs_f64() * 1e3;
-        outs.into_iter()
-            .map(|out| {
-                let reply = finish(&out, ms);
-                metrics.frame(&out.record);
-                s.recycle(id, out.color);
-                reply
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::{MotionInput, SessionRequest};
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_panic_in_a_pool_job_fails_only_that_request() {
+        let svc = Service::new(Config::default(), Keyring::default());
+        let a = Caller::ANONYMOUS;
+        let req = SessionRequest {
+            filter: "taa".into(),
+            width: 24,
+            height: 16,
+            ..Default::default()
+        };
+        let id = svc.sessions.create(&a, &req).unwrap().id;
+        // A panic while "decoding", with the session checked out: the request fails with
+        // the cause, the session is put back untouched, the pool and the server go on.
+        let job_id = id.clone();
+        let e = svc
+            .on_pool(move |s| -> Result<(), SessionError> {
+                let _co = s.checkout(&Caller::ANONYMOUS, &job_id)?;
+                let bytes: &[u8] = &[];
+                let _ = bytes[usize::MAX / 2];
+                Ok(())
             })
-            .collect()
-    }
-
-    /// Filters a decoded frame whose motion is already internal; the outputs that came out.
-    pub async fn frame(&self, id: String, frame: Frame) -> Result<Vec<Filtered>, SessionError> {
-        let outs = self
-            .on_pool(move |s| s.process(&id, frame, MotionInput::Internal))
-            .await?;
-        for f in &outs {
-            self.metrics.frame(&f.record);
-        }
-        Ok(outs)
-    }
-
-    /// Ends session `id`'s sequence: what its windowed filter still holds.
-    pub async fn flush(&self, id: String) -> Result<Vec<Filtered>, SessionError> {
-        let outs = self.on_pool(move |s| s.flush(&id)).await?;
-        for f in &outs {
-            self.metrics.frame(&f.record);
-        }
-        Ok(outs)
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(e, SessionError::Internal(ref m) if m.contains("out of bounds")),
+            "{e}"
+        );
+        assert_eq!(svc.in_flight(), 0);
+        let text = svc.metrics.render(svc.sessions.totals());
+        assert!(
+            text.contains("afterimage_errors_total{reason=\"internal\"} 1"),
+            "{text}"
+        );
+        let job_id = id.clone();
+        let outs = svc
+            .on_pool(move |s| {
+                let mut co = s.checkout(&Caller::ANONYMOUS, &job_id)?;
+                co.process(crate::report::synthetic_frame(24, 16, 0), MotionInput::Internal)
+            })
+            .await
+            .unwrap();
+        assert_eq!(outs.len(), 1);
+        assert_eq!(svc.sessions.get(&a, &id).unwrap().frames, 1);
     }
 }

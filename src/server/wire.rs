@@ -5,7 +5,7 @@
 
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
-use crate::session::SessionError;
+use crate::session::{clip, FrameShape, SessionError};
 use std::borrow::Cow;
 
 /// Default largest chunk: 1 MiB.
@@ -28,50 +28,207 @@ fn sample_bytes(s: SampleType) -> usize {
     }
 }
 
+/// What a frame header announces, checked against the session before a byte of data is
+/// accepted: every channel known, declared, of a sample type and compression that fit it,
+/// and exactly as long as the session's size makes it (uncompressed) or at most zstd's
+/// worst case for that size (compressed). All arithmetic is checked: a client's lengths
+/// can be any u64.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct FramePlan {
+    /// Bytes of data that must follow the header.
+    pub wire_bytes: u64,
+    /// Bytes of the decoded frame (every sent channel as 4-byte samples).
+    pub decoded_bytes: u64,
+    /// Decoded bytes of each channel, in header order.
+    raw_bytes: Vec<u64>,
+}
+
+/// Largest zstd frame for `raw` input bytes (zstd's `ZSTD_COMPRESSBOUND`).
+pub fn zstd_bound(raw: u64) -> u64 {
+    let small = if raw < (128 << 10) {
+        ((128 << 10) - raw) >> 11
+    } else {
+        0
+    };
+    raw + (raw >> 8) + small
+}
+
+impl FramePlan {
+    /// Checks `h` against a session's `shape` and the server's `max_frame_bytes`.
+    pub fn check(
+        h: &FrameHeader,
+        shape: FrameShape,
+        max_frame_bytes: u64,
+    ) -> Result<FramePlan, SessionError> {
+        let sampling = Sampling {
+            factor: h.shading_factor.max(1),
+            phase: [h.shading_phase_x, h.shading_phase_y],
+        };
+        sampling.validate().map_err(|e| invalid("shading_factor", e))?;
+        let (w, hh) = (shape.width as usize, shape.height as usize);
+        let (cw, chh) = sampling.color_size(w, hh);
+        if h.channels.len() > ChannelKind::ALL.len() {
+            return Err(invalid(
+                "channels",
+                format!(
+                    "{} channel headers, there are only {} channels",
+                    h.channels.len(),
+                    ChannelKind::ALL.len()
+                ),
+            ));
+        }
+        let mut seen = ChannelSet::EMPTY;
+        let mut wire = 0u64;
+        let mut decoded = 0u64;
+        let mut raw_bytes = Vec::with_capacity(h.channels.len());
+        for ch in &h.channels {
+            let kind = channel_kind(ch, seen, shape.channels)?;
+            seen = seen.with(kind);
+            let name = kind.name();
+            let sample = SampleType::try_from(ch.sample).map_err(|_| {
+                invalid(
+                    format!("channels[{name}].sample"),
+                    format!("unknown sample type {}", ch.sample),
+                )
+            })?;
+            match (kind == ChannelKind::ObjectId, sample == SampleType::U32) {
+                (true, false) => return Err(invalid("channels[object_id].sample", "expected u32")),
+                (false, true) => {
+                    return Err(invalid(
+                        format!("channels[{name}].sample"),
+                        "u32 is for object_id only; expected f32 or f16",
+                    ))
+                }
+                _ => {}
+            }
+            let (pw, ph) = if kind == ChannelKind::Color {
+                (cw, chh)
+            } else {
+                (w, hh)
+            };
+            let samples = (pw * ph * kind.components()) as u64;
+            let raw = samples * sample_bytes(sample) as u64;
+            let got = ch.byte_length;
+            match Compression::try_from(ch.compression) {
+                Ok(Compression::None) if got != raw => {
+                    return Err(invalid(
+                        format!("channels[{name}]"),
+                        format!(
+                            "expected {raw} bytes ({} x {pw}x{ph} {sample:?} samples), got {got}",
+                            kind.components()
+                        ),
+                    ))
+                }
+                Ok(Compression::Zstd) if got > zstd_bound(raw) => {
+                    return Err(invalid(
+                        format!("channels[{name}]"),
+                        format!(
+                            "{got} bytes of zstd data for {raw} bytes of samples, at most {} can be needed",
+                            zstd_bound(raw)
+                        ),
+                    ))
+                }
+                Ok(_) => {}
+                Err(_) => {
+                    return Err(invalid(
+                        format!("channels[{name}].compression"),
+                        format!("unknown compression {}", ch.compression),
+                    ))
+                }
+            }
+            wire = wire
+                .checked_add(got)
+                .ok_or_else(|| invalid("channels.byte_length", "the lengths overflow"))?;
+            decoded += samples * 4;
+            raw_bytes.push(raw);
+        }
+        if !seen.contains(ChannelKind::Color) {
+            return Err(invalid("channels", "no color channel; every frame needs one"));
+        }
+        if wire > max_frame_bytes {
+            return Err(SessionError::too_large(
+                "channels.byte_length",
+                format!(
+                    "frame {} would be {wire} bytes on the wire, the limit is {max_frame_bytes}",
+                    h.index
+                ),
+            ));
+        }
+        Ok(FramePlan {
+            wire_bytes: wire,
+            decoded_bytes: decoded,
+            raw_bytes,
+        })
+    }
+}
+
+/// The channel a header names: known, not sent twice, declared for the session (a
+/// reference may always come).
+fn channel_kind(
+    ch: &ChannelHeader,
+    seen: ChannelSet,
+    declared: ChannelSet,
+) -> Result<ChannelKind, SessionError> {
+    let name = ch.name.as_str();
+    let kind = ChannelKind::from_name(name).ok_or_else(|| {
+        invalid(
+            "channels.name",
+            format!(
+                "unknown channel {:?}; expected any of {}",
+                clip(name),
+                ChannelKind::ALL.map(|k| k.name()).join(", ")
+            ),
+        )
+    })?;
+    if seen.contains(kind) {
+        return Err(invalid("channels.name", format!("channel {name} is sent twice")));
+    }
+    if kind != ChannelKind::Reference && !declared.contains(kind) {
+        return Err(invalid(
+            "channels.name",
+            format!("channel {name} was not declared when the session was created"),
+        ));
+    }
+    Ok(kind)
+}
+
 /// Collects one frame's chunks after its header.
 #[derive(Debug)]
 pub struct Assembly {
     /// The header.
     pub header: FrameHeader,
-    expected: u64,
+    /// What it announced.
+    pub plan: FramePlan,
     /// Bytes received so far.
     pub bytes: Vec<u8>,
 }
 
 impl Assembly {
-    /// Starts a frame; refuses a header whose encoded size is over `max_frame_bytes`.
-    pub fn start(header: FrameHeader, max_frame_bytes: u64) -> Result<Assembly, SessionError> {
-        let expected: u64 = header.channels.iter().map(|c| c.byte_length).sum();
-        if expected > max_frame_bytes {
-            return Err(invalid(
-                "channels.byte_length",
-                format!(
-                    "frame {} would be {expected} bytes on the wire, the limit is {max_frame_bytes}",
-                    header.index
-                ),
-            ));
-        }
-        Ok(Assembly {
+    /// Starts a frame whose header passed [`FramePlan::check`].
+    pub fn start(header: FrameHeader, plan: FramePlan) -> Assembly {
+        // The plan bounds the length by the session's size; still, grow as data comes.
+        let first = plan.wire_bytes.min(16 << 20) as usize;
+        Assembly {
             header,
-            expected,
-            bytes: Vec::with_capacity(expected as usize),
-        })
+            plan,
+            bytes: Vec::with_capacity(first),
+        }
     }
 
     /// Adds a chunk; refuses one over `max_chunk` bytes or past the announced length.
     pub fn push(&mut self, chunk: &[u8], max_chunk: usize) -> Result<(), SessionError> {
         if chunk.len() > max_chunk {
-            return Err(invalid(
+            return Err(SessionError::too_large(
                 "data",
                 format!("chunk of {} bytes, the limit is {max_chunk}", chunk.len()),
             ));
         }
-        if self.bytes.len() as u64 + chunk.len() as u64 > self.expected {
+        if self.bytes.len() as u64 + chunk.len() as u64 > self.plan.wire_bytes {
             return Err(invalid(
                 "data",
                 format!(
                     "frame {}: chunks add up to more than the {} bytes the header announced",
-                    self.header.index, self.expected
+                    self.header.index, self.plan.wire_bytes
                 ),
             ));
         }
@@ -81,12 +238,12 @@ impl Assembly {
 
     /// Whether every announced byte has arrived.
     pub fn complete(&self) -> bool {
-        self.bytes.len() as u64 == self.expected
+        self.bytes.len() as u64 == self.plan.wire_bytes
     }
 
     /// Bytes still missing.
     pub fn missing(&self) -> u64 {
-        self.expected - self.bytes.len() as u64
+        self.plan.wire_bytes - self.bytes.len() as u64
     }
 }
 
@@ -216,10 +373,10 @@ fn decompress<'a>(
     }
 }
 
-/// Decodes an assembled frame for a session of `width x height` that declared `allowed`
-/// channels.
-pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Result<Frame, SessionError> {
-    let (w, h) = (width as usize, height as usize);
+/// Decodes an assembled frame for a session of `shape` (its header passed
+/// [`FramePlan::check`] against the same shape).
+pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
+    let (w, h) = (shape.width as usize, shape.height as usize);
     let n = w * h;
     let mut at = 0usize;
     let mut seen = ChannelSet::EMPTY;
@@ -233,41 +390,33 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
     };
     sampling.validate().map_err(|e| invalid("shading_factor", e))?;
     let (cw, chh) = sampling.color_size(w, h);
-    for ch in &a.header.channels {
-        let name = ch.name.as_str();
-        let kind = ChannelKind::from_name(name).ok_or_else(|| {
-            invalid(
-                "channels.name",
-                format!(
-                    "unknown channel {name:?}; expected any of {}",
-                    ChannelKind::ALL.map(|k| k.name()).join(", ")
-                ),
-            )
-        })?;
-        if seen.contains(kind) {
-            return Err(invalid("channels.name", format!("channel {name} is sent twice")));
-        }
+    if a.plan.raw_bytes.len() != hd.channels.len() || !a.complete() {
+        return Err(SessionError::Internal(
+            "a frame decoded before its plan was complete".into(),
+        ));
+    }
+    for (ch, &raw_len) in hd.channels.iter().zip(&a.plan.raw_bytes) {
+        let kind = channel_kind(ch, seen, shape.channels)?;
         seen = seen.with(kind);
-        if kind != ChannelKind::Reference && !allowed.contains(kind) {
-            return Err(invalid(
-                "channels.name",
-                format!("channel {name} was not declared when the session was created"),
-            ));
-        }
-        let len = ch.byte_length as usize;
-        let bytes = &a.bytes[at..at + len];
+        let name = kind.name();
+        let len = usize::try_from(ch.byte_length).map_err(|_| invalid("channels.byte_length", "too long"))?;
+        let bytes = at
+            .checked_add(len)
+            .and_then(|end| a.bytes.get(at..end))
+            .ok_or_else(|| {
+                invalid(
+                    format!("channels[{name}]"),
+                    "the data is shorter than the header says",
+                )
+            })?;
         at += len;
-        let comps = kind.components();
         let (pw, ph) = if kind == ChannelKind::Color {
             (cw, chh)
         } else {
             (w, h)
         };
-        let raw = decompress(name, ch, bytes, comps * pw * ph * 4)?;
+        let raw = decompress(name, ch, bytes, raw_len as usize)?;
         if kind == ChannelKind::ObjectId {
-            if ch.sample != SampleType::U32 as i32 {
-                return Err(invalid("channels[object_id].sample", "expected u32"));
-            }
             if raw.len() != n * 4 {
                 return Err(invalid(
                     "channels[object_id]",
@@ -281,7 +430,7 @@ pub fn decode(a: &Assembly, width: u32, height: u32, allowed: ChannelSet) -> Res
             ids = Some(Plane::from_vec(w, h, v).expect("length checked"));
             continue;
         }
-        let planes = decode_planes(name, ch, &raw, pw, ph, comps)?;
+        let planes = decode_planes(name, ch, &raw, pw, ph, kind.components())?;
         if kind == ChannelKind::Color {
             let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
             color = Some([r, g, b]);

@@ -1,30 +1,51 @@
 //! Sessions: one filter instance with its history per client stream, behind limits (count,
-//! a memory budget over all state, frame size), with idle eviction and failure isolation.
-//! Synchronous and transport-free: the gRPC and HTTP layers in `server` call it from the
-//! rayon pool. A session outlives the connections that feed it, so a client can reconnect
-//! by id until the idle timeout.
+//! one memory budget over all state and requests, frame size, per-key quotas), with idle
+//! eviction and failure isolation. Synchronous and transport-free: the gRPC and HTTP layers
+//! in `server` call it, and run the filtering on the rayon pool.
+//!
+//! Concurrency: a session's filter is never behind a lock while it runs. A request
+//! [checks the session out](Sessions::checkout) (a few instructions under a mutex), works
+//! on it with no lock held, and the [`Checkout`] puts it back when dropped. A second
+//! request meanwhile is refused at once ("session busy"), so nothing waits on a frame: not
+//! the pool, not the async workers, not `GET`. A gRPC stream [claims](Sessions::attach) its
+//! session for as long as it is open; other streams and HTTP frames are refused.
+//!
+//! A session outlives the connections that feed it, so a client can reconnect by id until
+//! the idle timeout.
+
+pub mod access;
+pub mod budget;
+mod error;
+
+pub use access::{ApiKey, Caller, Keyring, Quotas};
+pub use budget::{Budget, Reservation};
+pub use error::{cap_message, clip, ErrorKind, SessionError, ECHO_CHARS, MAX_MESSAGE_BYTES};
 
 use crate::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, Rgb};
 use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
+use crate::pipeline::exec::panic_text;
 use crate::pipeline::{self, Filter, FilterError, FrameRecord};
+use access::SessionSlot;
+use error::filter_error;
 use serde::Serialize;
 use serde_json::{Map, Value};
 use std::collections::{HashMap, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
-use thiserror::Error;
 
 /// Limits every session is held to.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Limits {
     /// Sessions open at once.
     pub max_sessions: usize,
-    /// Bytes of filter state over all sessions.
+    /// Bytes the server may hold for its clients: session state, frames being received,
+    /// decoded and answered.
     pub memory_budget_bytes: u64,
     /// A session unused this long is closed.
     pub idle_timeout: Duration,
-    /// Largest frame width and height.
+    /// Largest frame width.
     pub max_width: u32,
     /// Largest frame height.
     pub max_height: u32,
@@ -49,110 +70,7 @@ impl Default for Limits {
     }
 }
 
-/// What went wrong, sorted by whose fault it is; the server maps [`SessionError::kind`] to
-/// a gRPC code and an HTTP status.
-#[derive(Debug, Error, Clone, PartialEq)]
-pub enum SessionError {
-    /// The request is wrong: the message names the field, what was expected and what came.
-    #[error("{field}: {message}")]
-    Invalid {
-        /// The field or value at fault.
-        field: String,
-        /// Expected vs got.
-        message: String,
-    },
-    /// No session of that id (never existed, closed, or evicted after being idle).
-    #[error("no session {id:?} (closed, evicted after {idle_s} s idle, or never created)")]
-    NotFound {
-        /// The id asked for.
-        id: String,
-        /// The idle timeout.
-        idle_s: u64,
-    },
-    /// A limit would be exceeded.
-    #[error("{0}")]
-    Exhausted(String),
-    /// The session failed earlier (a filter panicked) and must be closed.
-    #[error("session {id} failed: {message}; close it and open a new one")]
-    Failed {
-        /// The session.
-        id: String,
-        /// What happened.
-        message: String,
-    },
-    /// A bug on our side (a filter panicked on this frame).
-    #[error("internal error: {0}")]
-    Internal(String),
-    /// The server is shutting down.
-    #[error("the server is shutting down")]
-    ShuttingDown,
-}
-
-/// The class of a [`SessionError`], for status codes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ErrorKind {
-    /// 400 / INVALID_ARGUMENT.
-    InvalidArgument,
-    /// 404 / NOT_FOUND.
-    NotFound,
-    /// 429 / RESOURCE_EXHAUSTED.
-    ResourceExhausted,
-    /// 409 / FAILED_PRECONDITION.
-    FailedPrecondition,
-    /// 500 / INTERNAL.
-    Internal,
-    /// 503 / UNAVAILABLE.
-    Unavailable,
-}
-
-impl SessionError {
-    /// Its class.
-    pub fn kind(&self) -> ErrorKind {
-        match self {
-            SessionError::Invalid { .. } => ErrorKind::InvalidArgument,
-            SessionError::NotFound { .. } => ErrorKind::NotFound,
-            SessionError::Exhausted(_) => ErrorKind::ResourceExhausted,
-            SessionError::Failed { .. } => ErrorKind::FailedPrecondition,
-            SessionError::Internal(_) => ErrorKind::Internal,
-            SessionError::ShuttingDown => ErrorKind::Unavailable,
-        }
-    }
-
-    /// A short stable label for metrics (`errors_total{reason=...}`).
-    pub fn reason(&self) -> &'static str {
-        match self {
-            SessionError::Invalid { .. } => "invalid_argument",
-            SessionError::NotFound { .. } => "not_found",
-            SessionError::Exhausted(_) => "resource_exhausted",
-            SessionError::Failed { .. } => "session_failed",
-            SessionError::Internal(_) => "internal",
-            SessionError::ShuttingDown => "shutting_down",
-        }
-    }
-
-    /// An invalid-argument error.
-    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
-        SessionError::Invalid {
-            field: field.into(),
-            message: message.into(),
-        }
-    }
-}
-
-fn filter_error(e: FilterError) -> SessionError {
-    let field = match &e {
-        FilterError::UnknownFilter { .. } => "filter",
-        FilterError::UnknownParam { .. } | FilterError::BadParam { .. } | FilterError::Assignment { .. } => {
-            "params"
-        }
-        FilterError::MissingChannel { .. } => "channels",
-        FilterError::SizeChanged { .. } => "size",
-        _ => "frame",
-    };
-    SessionError::invalid(field, e.to_string())
-}
-
-/// The convention of a frame's motion when it reaches [`Sessions::process`].
+/// The convention of a frame's motion when it reaches [`Checkout::process`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MotionInput {
     /// The session's convention (the gRPC stream): converted here.
@@ -210,6 +128,45 @@ pub struct SessionInfo {
     pub lookahead: u32,
 }
 
+/// The size and channels of a session's frames: what a transport checks a frame against
+/// before receiving or decoding it, and sizes its memory reservation by.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameShape {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Channels the client declared (a reference may come too).
+    pub channels: ChannelSet,
+}
+
+impl FrameShape {
+    /// Pixels of a frame.
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    /// Float components per pixel of a decoded frame: every declared channel plus a
+    /// reference (object ids count as one 4-byte component).
+    pub fn components(&self) -> u64 {
+        self.channels
+            .with(ChannelKind::Reference)
+            .iter()
+            .map(|k| k.components() as u64)
+            .sum()
+    }
+
+    /// Bytes of a decoded frame at most (4 per component).
+    pub fn decoded_bytes(&self) -> u64 {
+        self.pixels() * self.components() * 4
+    }
+
+    /// Bytes of a filtered colour output (three f32 planes).
+    pub fn output_bytes(&self) -> u64 {
+        self.pixels() * 12
+    }
+}
+
 /// A filtered frame and its figures.
 #[derive(Clone, Debug)]
 pub struct Filtered {
@@ -225,14 +182,14 @@ pub struct Filtered {
     pub ssim: Option<f64>,
 }
 
+/// A session's filter and everything that changes frame by frame: owned by whoever has the
+/// session checked out.
 struct Inner {
     filter: Box<dyn Filter>,
     /// Jitter of the previous frame, for jittered motion conventions.
     jitter_prev: Option<[f32; 2]>,
     /// Metric space fixed by the first reference seen.
     space: Option<MetricSpace>,
-    frames: u64,
-    failed: Option<String>,
     /// References of the frames filtered whose output has not come out yet (windowed
     /// filters hold `lookahead` of them), oldest first.
     pending: VecDeque<Option<Rgb>>,
@@ -241,38 +198,62 @@ struct Inner {
     ready: VecDeque<Filtered>,
 }
 
-impl Inner {
-    /// Refuses work on a session whose filter panicked earlier, with that message.
-    fn usable(&self, id: &str) -> Result<(), SessionError> {
-        match &self.failed {
-            Some(message) => Err(SessionError::Failed {
-                id: id.to_string(),
-                message: message.clone(),
-            }),
-            None => Ok(()),
-        }
-    }
+/// Where a session's [`Inner`] is.
+enum Slot {
+    /// Free to check out.
+    Idle(Box<Inner>),
+    /// Checked out by a request, filtering the frame of this index (None: still receiving
+    /// it).
+    Busy(Option<u64>),
+    /// A filter panicked; the state is dropped and every later request gets this message.
+    Failed(String),
 }
 
 struct Session {
     info: SessionInfo,
+    /// The key that created it (None: a server without keys).
+    owner: Option<String>,
     channels: ChannelSet,
     needs: ChannelSet,
     motion: MotionConvention,
+    /// Largest share of non-finite colour samples in a frame.
+    non_finite_limit: f64,
     last_used: Mutex<Instant>,
-    inner: Mutex<Inner>,
+    frames: AtomicU64,
+    slot: Mutex<Slot>,
+    /// A gRPC stream has claimed it.
+    streamed: AtomicBool,
+    /// Its state's share of the budgets (grown when the filter holds more than reserved).
+    state: Mutex<Reservation>,
+    /// Its place in its key's session quota.
+    _quota: SessionSlot,
+}
+
+impl Session {
+    fn shape(&self) -> FrameShape {
+        FrameShape {
+            width: self.info.width,
+            height: self.info.height,
+            channels: self.channels,
+        }
+    }
+
+    fn touch(&self) {
+        *lock(&self.last_used) = Instant::now();
+    }
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
-    // A panic inside a filter is caught before it can poison; recover anyway.
+    // Nothing panics while these short locks are held; recover anyway.
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// Every open session.
 pub struct Sessions {
     limits: Limits,
+    budget: Arc<Budget>,
     map: Mutex<HashMap<String, Arc<Session>>>,
-    closing: std::sync::atomic::AtomicBool,
+    closing: AtomicBool,
 }
 
 /// Figures over every session, for `/metrics`.
@@ -282,6 +263,10 @@ pub struct Totals {
     pub sessions: usize,
     /// Bytes of state reserved.
     pub state_bytes: u64,
+    /// Bytes of the memory budget in use (state and requests in flight).
+    pub budget_used: u64,
+    /// The memory budget.
+    pub budget_limit: u64,
 }
 
 fn new_id() -> Result<String, SessionError> {
@@ -295,10 +280,22 @@ fn channel_names(set: ChannelSet) -> Vec<String> {
     set.iter().map(|k| k.name().to_string()).collect()
 }
 
+/// Bytes per pixel a session holds beyond its filter's state: a windowed filter's
+/// references waiting for their outputs and the outputs queued for HTTP (up to
+/// `lookahead + 1` of each, three f32 planes).
+fn queued_bytes_per_pixel(lookahead: usize) -> usize {
+    if lookahead == 0 {
+        0
+    } else {
+        2 * (lookahead + 1) * 12
+    }
+}
+
 impl Sessions {
     /// No sessions yet, under `limits`.
     pub fn new(limits: Limits) -> Self {
         Sessions {
+            budget: Budget::new("the memory budget", limits.memory_budget_bytes),
             limits,
             map: Mutex::new(HashMap::new()),
             closing: Default::default(),
@@ -310,27 +307,49 @@ impl Sessions {
         &self.limits
     }
 
+    /// The server's memory budget (state and requests of every session).
+    pub fn budget(&self) -> &Arc<Budget> {
+        &self.budget
+    }
+
     /// Refuses new sessions and frames from now on (graceful shutdown).
     pub fn close_all_new_work(&self) {
-        self.closing.store(true, std::sync::atomic::Ordering::SeqCst);
+        self.closing.store(true, Ordering::SeqCst);
     }
 
     /// Whether [`Sessions::close_all_new_work`] was called.
     pub fn is_closing(&self) -> bool {
-        self.closing.load(std::sync::atomic::Ordering::SeqCst)
+        self.closing.load(Ordering::SeqCst)
     }
 
     fn check_open(&self) -> Result<(), SessionError> {
-        if self.closing.load(std::sync::atomic::Ordering::SeqCst) {
+        if self.is_closing() {
             Err(SessionError::ShuttingDown)
         } else {
             Ok(())
         }
     }
 
-    /// Opens a session: validates the filter, parameters, size, motion convention and
-    /// channels, and reserves its state against the memory budget.
-    pub fn create(&self, req: &SessionRequest) -> Result<SessionInfo, SessionError> {
+    /// The budgets a request of `caller` counts against: the server's and the key's.
+    fn budgets_of(&self, caller: &Caller) -> Vec<Arc<Budget>> {
+        let mut b = vec![self.budget.clone()];
+        if let Some(k) = caller.api_key() {
+            b.push(k.memory.clone());
+        }
+        b
+    }
+
+    /// Takes `bytes` of the memory budget (and the caller's quota) for a request, named
+    /// `what` in the error when they are not free.
+    pub fn reserve(&self, caller: &Caller, bytes: u64, what: &str) -> Result<Reservation, SessionError> {
+        let budgets = self.budgets_of(caller);
+        Reservation::take(&budgets.iter().collect::<Vec<_>>(), bytes, what)
+    }
+
+    /// Opens a session for `caller`: validates the filter, parameters, size, motion
+    /// convention and channels, and reserves the state its parameters build against the
+    /// memory budget and the caller's quotas.
+    pub fn create(&self, caller: &Caller, req: &SessionRequest) -> Result<SessionInfo, SessionError> {
         self.check_open()?;
         self.evict_idle();
         let info = pipeline::info(&req.filter).ok_or_else(|| {
@@ -339,14 +358,20 @@ impl Sessions {
                 "filter",
                 format!(
                     "unknown filter {:?}; expected one of {}",
-                    req.filter,
+                    clip(&req.filter),
                     known.join(", ")
                 ),
             )
         })?;
+        if req.params.len() > 64 {
+            return Err(SessionError::invalid(
+                "params",
+                format!("{} parameters, at most 64", req.params.len()),
+            ));
+        }
         let pairs: Vec<String> = req.params.iter().map(|(k, v)| format!("{k}={v}")).collect();
         let values = pipeline::params::parse_assignments(&pairs).map_err(filter_error)?;
-        let filter = pipeline::create(&req.filter, &values).map_err(filter_error)?;
+        let (filter, state_bpp) = pipeline::create_sized(&req.filter, &values).map_err(filter_error)?;
         let l = &self.limits;
         for (field, got, max) in [
             ("width", req.width, l.max_width),
@@ -369,7 +394,8 @@ impl Sessions {
             SessionError::invalid(
                 "motion",
                 format!(
-                    "unknown convention {motion_name:?}; expected one of {}",
+                    "unknown convention {:?}; expected one of {}",
+                    clip(motion_name),
                     known.join(", ")
                 ),
             )
@@ -385,7 +411,8 @@ impl Sessions {
                     SessionError::invalid(
                         "channels",
                         format!(
-                            "unknown channel {name:?}; expected any of {}",
+                            "unknown channel {:?}; expected any of {}",
+                            clip(name),
                             ChannelKind::ALL.map(|k| k.name()).join(", ")
                         ),
                     )
@@ -404,7 +431,21 @@ impl Sessions {
             ));
         }
         let pixels = req.width as u64 * req.height as u64;
-        let state_bytes = info.state_bytes_per_pixel as u64 * pixels;
+        let lookahead = filter.lookahead();
+        let state_bytes = (state_bpp + queued_bytes_per_pixel(lookahead)) as u64 * pixels;
+        let quota = caller.session_slot()?;
+        let budgets = self.budgets_of(caller);
+        let reservation = Reservation::take(
+            &budgets.iter().collect::<Vec<_>>(),
+            state_bytes,
+            &format!(
+                "a {}x{} {} session with {}",
+                req.width,
+                req.height,
+                info.name,
+                filter.params()
+            ),
+        )?;
         let id = new_id()?;
         let session = Arc::new(Session {
             info: SessionInfo {
@@ -420,21 +461,25 @@ impl Sessions {
                 state_bytes,
                 frames: 0,
                 idle_seconds: 0.0,
-                lookahead: filter.lookahead() as u32,
+                lookahead: lookahead as u32,
             },
+            owner: caller.name().map(str::to_string),
             channels,
             needs,
             motion,
+            non_finite_limit: l.max_non_finite_fraction,
             last_used: Mutex::new(Instant::now()),
-            inner: Mutex::new(Inner {
+            frames: AtomicU64::new(0),
+            slot: Mutex::new(Slot::Idle(Box::new(Inner {
                 filter,
                 jitter_prev: None,
                 space: None,
-                frames: 0,
-                failed: None,
                 pending: VecDeque::new(),
                 ready: VecDeque::new(),
-            }),
+            }))),
+            streamed: AtomicBool::new(false),
+            state: Mutex::new(reservation),
+            _quota: quota,
         });
         let mut map = lock(&self.map);
         if map.len() >= l.max_sessions {
@@ -445,57 +490,63 @@ impl Sessions {
                 l.idle_timeout.as_secs()
             )));
         }
-        let used: u64 = map.values().map(|s| s.info.state_bytes).sum();
-        let free = l.memory_budget_bytes.saturating_sub(used);
-        if state_bytes > free {
-            return Err(SessionError::Exhausted(format!(
-                "a {}x{} {} session needs {state_bytes} bytes of state, {free} of the {} byte budget are free",
-                req.width, req.height, info.name, l.memory_budget_bytes
-            )));
-        }
         map.insert(id, session.clone());
-        tracing::info!(id = %session.info.id, filter = info.name, width = req.width, height = req.height, "session opened");
+        drop(map);
+        tracing::info!(id = %session.info.id, key = caller.name().unwrap_or("-"), filter = info.name, width = req.width, height = req.height, state_bytes, "session opened");
         Ok(session.info.clone())
     }
 
-    fn get_arc(&self, id: &str) -> Result<Arc<Session>, SessionError> {
+    fn not_found(&self, id: &str) -> SessionError {
+        SessionError::NotFound {
+            id: clip(id).into_owned(),
+            idle_s: self.limits.idle_timeout.as_secs(),
+        }
+    }
+
+    /// Session `id` if `caller` owns it: another key's session is "not found", the same
+    /// reply as for an id that never existed.
+    fn get_arc(&self, caller: &Caller, id: &str) -> Result<Arc<Session>, SessionError> {
         self.evict_idle();
         lock(&self.map)
             .get(id)
+            .filter(|s| s.owner.as_deref() == caller.name())
             .cloned()
-            .ok_or_else(|| SessionError::NotFound {
-                id: id.to_string(),
-                idle_s: self.limits.idle_timeout.as_secs(),
-            })
+            .ok_or_else(|| self.not_found(id))
     }
 
-    /// A session's figures.
-    pub fn get(&self, id: &str) -> Result<SessionInfo, SessionError> {
-        let s = self.get_arc(id)?;
+    /// A session's figures; never waits for a frame being filtered.
+    pub fn get(&self, caller: &Caller, id: &str) -> Result<SessionInfo, SessionError> {
+        let s = self.get_arc(caller, id)?;
         let mut info = s.info.clone();
-        info.frames = lock(&s.inner).frames;
+        info.frames = s.frames.load(Ordering::SeqCst);
         info.idle_seconds = lock(&s.last_used).elapsed().as_secs_f64();
+        info.state_bytes = lock(&s.state).bytes();
         Ok(info)
     }
 
-    /// Closes a session; returns the frames it filtered.
-    pub fn close(&self, id: &str) -> Result<u64, SessionError> {
-        let s = lock(&self.map).remove(id).ok_or_else(|| SessionError::NotFound {
-            id: id.to_string(),
-            idle_s: self.limits.idle_timeout.as_secs(),
-        })?;
+    /// Closes a session; returns the frames it filtered. A frame being filtered finishes,
+    /// and the session's memory is given back when it does.
+    pub fn close(&self, caller: &Caller, id: &str) -> Result<u64, SessionError> {
+        let mut map = lock(&self.map);
+        let owned = map.get(id).is_some_and(|s| s.owner.as_deref() == caller.name());
+        let s = owned
+            .then(|| map.remove(id))
+            .flatten()
+            .ok_or_else(|| self.not_found(id))?;
+        drop(map);
         tracing::info!(id, "session closed");
-        let frames = lock(&s.inner).frames;
-        Ok(frames)
+        Ok(s.frames.load(Ordering::SeqCst))
     }
 
-    /// Closes every session idle for longer than the timeout; returns how many.
+    /// Closes every session idle for longer than the timeout (but not one that is
+    /// filtering a frame); returns how many.
     pub fn evict_idle(&self) -> usize {
         let timeout = self.limits.idle_timeout;
         let mut map = lock(&self.map);
         let before = map.len();
         map.retain(|id, s| {
-            let keep = lock(&s.last_used).elapsed() <= timeout;
+            let busy = matches!(*lock(&s.slot), Slot::Busy(_));
+            let keep = busy || lock(&s.last_used).elapsed() <= timeout;
             if !keep {
                 tracing::info!(id = %id, "session evicted after being idle");
             }
@@ -504,44 +555,157 @@ impl Sessions {
         before - map.len()
     }
 
-    /// Open sessions and reserved state.
+    /// Open sessions, reserved state and the budget.
     pub fn totals(&self) -> Totals {
         let map = lock(&self.map);
         Totals {
             sessions: map.len(),
-            state_bytes: map.values().map(|s| s.info.state_bytes).sum(),
+            state_bytes: map.values().map(|s| lock(&s.state).bytes()).sum(),
+            budget_used: self.budget.used(),
+            budget_limit: self.budget.limit(),
         }
     }
 
-    /// Hands an output's planes back to session `id`'s filter for reuse (see
-    /// [`Filter::recycle`]); nothing happens when the session is gone.
-    pub fn recycle(&self, id: &str, planes: Rgb) {
-        if let Ok(s) = self.get_arc(id) {
-            lock(&s.inner).filter.recycle(planes);
-        }
+    /// The frame shape of session `id`.
+    pub fn frame_shape(&self, caller: &Caller, id: &str) -> Result<FrameShape, SessionError> {
+        Ok(self.get_arc(caller, id)?.shape())
     }
 
-    /// The size and channels a frame for session `id` must have (for decoding).
-    pub fn frame_shape(&self, id: &str) -> Result<(u32, u32, ChannelSet), SessionError> {
-        let s = self.get_arc(id)?;
-        Ok((s.info.width, s.info.height, s.channels))
-    }
-
-    /// Filters one frame of session `id` (blocking: call it on the rayon pool) and returns
-    /// the outputs that came out, oldest first: this frame's own for a causal filter; for
-    /// a windowed one the frame `lookahead` back (none while its window fills; a whole shot
-    /// at a cut). The frame must have the session's size and the channels the filter
-    /// needs; its motion is in the session's convention (or already internal with
-    /// [`MotionInput::Internal`]). On any error the session's state is as it was.
-    pub fn process(
-        &self,
-        id: &str,
-        mut frame: Frame,
-        motion: MotionInput,
-    ) -> Result<Vec<Filtered>, SessionError> {
+    /// Takes session `id` for one request (a frame over HTTP, a flush): refused at once
+    /// when it is busy with another frame, fed by a gRPC stream, or failed. The session is
+    /// put back when the [`Checkout`] is dropped.
+    pub fn checkout(&self, caller: &Caller, id: &str) -> Result<Checkout, SessionError> {
         self.check_open()?;
-        let s = self.get_arc(id)?;
-        *lock(&s.last_used) = Instant::now();
+        let s = self.get_arc(caller, id)?;
+        if s.streamed.load(Ordering::SeqCst) {
+            return Err(SessionError::Busy(format!(
+                "session busy: session {} is fed by a gRPC stream; send its frames there",
+                s.info.id
+            )));
+        }
+        Checkout::take(s)
+    }
+
+    /// Claims session `id` for a gRPC stream until the [`StreamClaim`] is dropped: refused
+    /// when another stream has it.
+    pub fn attach(&self, caller: &Caller, id: &str) -> Result<StreamClaim, SessionError> {
+        self.check_open()?;
+        let s = self.get_arc(caller, id)?;
+        if s.streamed
+            .compare_exchange(false, true, Ordering::SeqCst, Ordering::SeqCst)
+            .is_err()
+        {
+            return Err(SessionError::Busy(format!(
+                "session busy: session {} is fed by another stream; one stream per session",
+                s.info.id
+            )));
+        }
+        Ok(StreamClaim { session: s })
+    }
+}
+
+/// A session claimed by one gRPC stream.
+pub struct StreamClaim {
+    session: Arc<Session>,
+}
+
+impl StreamClaim {
+    /// The session's id.
+    pub fn id(&self) -> &str {
+        &self.session.info.id
+    }
+
+    /// The session's frame shape.
+    pub fn shape(&self) -> FrameShape {
+        self.session.shape()
+    }
+
+    /// Takes the session for the stream's next frame (refused when it failed). A frame
+    /// whose header came before a shutdown is still filtered.
+    pub fn checkout(&self) -> Result<Checkout, SessionError> {
+        Checkout::take(self.session.clone())
+    }
+}
+
+impl Drop for StreamClaim {
+    fn drop(&mut self) {
+        self.session.streamed.store(false, Ordering::SeqCst);
+    }
+}
+
+/// A session taken by one request: its filter, with no lock held. Dropping it puts the
+/// session back (or leaves it failed, when its filter panicked).
+pub struct Checkout {
+    session: Arc<Session>,
+    inner: Option<Box<Inner>>,
+    /// Set when the filter panicked: the state may be torn.
+    failed: Option<String>,
+}
+
+impl Checkout {
+    fn take(session: Arc<Session>) -> Result<Checkout, SessionError> {
+        let inner = {
+            let mut slot = lock(&session.slot);
+            match std::mem::replace(&mut *slot, Slot::Busy(None)) {
+                Slot::Idle(inner) => inner,
+                Slot::Busy(index) => {
+                    *slot = Slot::Busy(index);
+                    return Err(SessionError::Busy(match index {
+                        Some(i) => format!("session busy: frame {i} is being filtered"),
+                        None => "session busy: a frame is being received".into(),
+                    }));
+                }
+                Slot::Failed(message) => {
+                    *slot = Slot::Failed(message.clone());
+                    return Err(SessionError::Failed {
+                        id: session.info.id.clone(),
+                        message,
+                    });
+                }
+            }
+        };
+        session.touch();
+        Ok(Checkout {
+            session,
+            inner: Some(inner),
+            failed: None,
+        })
+    }
+
+    /// The session's id.
+    pub fn id(&self) -> &str {
+        &self.session.info.id
+    }
+
+    /// The session's frame shape.
+    pub fn shape(&self) -> FrameShape {
+        self.session.shape()
+    }
+
+    /// The session's frames of latency (windowed filters).
+    pub fn lookahead(&self) -> u32 {
+        self.session.info.lookahead
+    }
+
+    fn inner(&mut self) -> Result<&mut Inner, SessionError> {
+        if let Some(message) = &self.failed {
+            return Err(SessionError::Failed {
+                id: self.session.info.id.clone(),
+                message: message.clone(),
+            });
+        }
+        Ok(self.inner.as_mut().expect("present until dropped or failed"))
+    }
+
+    /// Filters one frame and returns the outputs that came out, oldest first: this frame's
+    /// own for a causal filter; for a windowed one the frame `lookahead` back (none while
+    /// its window fills; a whole shot at a cut). The frame must have the session's size
+    /// and the channels the filter needs; its motion is in the session's convention (or
+    /// already internal with [`MotionInput::Internal`]). On any error but a filter panic
+    /// the session's state is as it was; after a panic the session is failed.
+    pub fn process(&mut self, mut frame: Frame, motion: MotionInput) -> Result<Vec<Filtered>, SessionError> {
+        let s = self.session.clone();
+        *lock(&s.slot) = Slot::Busy(Some(frame.meta.index));
         let (w, h) = (s.info.width as usize, s.info.height as usize);
         if (frame.width(), frame.height()) != (w, h) {
             return Err(SessionError::invalid(
@@ -563,23 +727,23 @@ impl Sessions {
                 ),
             ));
         }
-        let nf = frame.non_finite();
-        let bad = nf.of(ChannelKind::Color);
-        let fraction = bad as f64 / (3 * w * h) as f64;
-        if fraction > self.limits.max_non_finite_fraction {
+        let (cw, ch) = frame.color_size();
+        let samples = 3 * cw * ch;
+        let bad = frame.non_finite().of(ChannelKind::Color);
+        let fraction = bad as f64 / samples as f64;
+        let max = s.non_finite_limit;
+        if fraction > max {
             return Err(SessionError::invalid(
                 "color",
                 format!(
-                    "frame {}: {bad} of {} colour samples are NaN or infinite ({:.1}%), at most {:.1}% allowed",
+                    "frame {}: {bad} of {samples} colour samples are NaN or infinite ({:.1}%), at most {:.1}% allowed",
                     frame.meta.index,
-                    3 * w * h,
                     fraction * 100.0,
-                    self.limits.max_non_finite_fraction * 100.0
+                    max * 100.0
                 ),
             ));
         }
-        let mut inner = lock(&s.inner);
-        inner.usable(id)?;
+        let inner = self.inner()?;
         if motion == MotionInput::Session {
             let prev = inner.jitter_prev.unwrap_or(frame.meta.jitter);
             s.motion.frame_to_internal(&mut frame, prev);
@@ -587,97 +751,130 @@ impl Sessions {
         let jitter = frame.meta.jitter;
         let index = frame.meta.index;
         inner.pending.push_back(frame.reference().cloned());
-        let outs = Self::guarded(&s.info.filter, id, &mut inner, &format!("frame {index}"), |f| {
-            f.push(&frame)
-        });
+        let outs = self.guarded(&format!("frame {index}"), |f| f.push(&frame));
+        let Some(inner) = self.inner.as_mut() else {
+            return outs.map(|_| Vec::new()); // the filter panicked: `outs` is the error
+        };
         if outs.is_err() {
             inner.pending.pop_back();
         }
         let outs = outs?;
         inner.jitter_prev = Some(jitter);
-        inner.frames += 1;
-        outs.into_iter().map(|o| Self::measured(&mut inner, o)).collect()
+        s.frames.fetch_add(1, Ordering::SeqCst);
+        let outs = outs.into_iter().map(|o| measured(inner, o)).collect();
+        self.account_state();
+        outs
     }
 
-    /// Ends session `id`'s sequence: the outputs a windowed filter still holds, oldest
-    /// first (none for a causal filter). The session stays open; the next frame starts a
-    /// new sequence.
-    pub fn flush(&self, id: &str) -> Result<Vec<Filtered>, SessionError> {
-        self.check_open()?;
-        let s = self.get_arc(id)?;
-        *lock(&s.last_used) = Instant::now();
-        let mut inner = lock(&s.inner);
-        inner.usable(id)?;
-        let outs = Self::guarded(&s.info.filter, id, &mut inner, "the flush", |f| f.finish())?;
+    /// Ends the session's sequence: the outputs a windowed filter still holds, oldest
+    /// first (none for a causal filter). The next frame starts a new sequence.
+    pub fn flush(&mut self) -> Result<Vec<Filtered>, SessionError> {
+        self.inner()?;
+        let outs = self.guarded("the flush", |f| f.finish())?;
+        let inner = self
+            .inner
+            .as_mut()
+            .expect("present after a flush that did not panic");
         let outs: Result<Vec<Filtered>, SessionError> =
-            outs.into_iter().map(|o| Self::measured(&mut inner, o)).collect();
+            outs.into_iter().map(|o| measured(inner, o)).collect();
         inner.pending.clear();
         outs
     }
 
-    /// Queues outputs of session `id` to be handed over one at a time, then takes the
-    /// oldest queued one; also returns how many are left after it.
-    pub fn queue_and_take(
-        &self,
-        id: &str,
-        outs: Vec<Filtered>,
-    ) -> Result<(Option<Filtered>, usize), SessionError> {
-        let s = self.get_arc(id)?;
-        let mut inner = lock(&s.inner);
+    /// Hands an output's planes back to the filter for reuse (see [`Filter::recycle`]).
+    pub fn recycle(&mut self, planes: Rgb) {
+        if let Ok(inner) = self.inner() {
+            inner.filter.recycle(planes);
+        }
+    }
+
+    /// Queues outputs to be handed over one per request (HTTP), then takes the oldest;
+    /// also returns how many are left after it.
+    pub fn queue_and_take(&mut self, outs: Vec<Filtered>) -> Result<(Option<Filtered>, usize), SessionError> {
+        let inner = self.inner()?;
         inner.ready.extend(outs);
         let first = inner.ready.pop_front();
         Ok((first, inner.ready.len()))
     }
 
-    /// Runs `call` on the session's filter with a panic kept inside the session: the
-    /// session is marked failed (later frames are refused with the message) and the
-    /// server goes on.
+    /// Runs `call` on the filter with a panic kept inside the session: the session is
+    /// marked failed (its state is dropped, later requests are refused with the message)
+    /// and the server goes on.
     fn guarded(
-        filter: &str,
-        id: &str,
-        inner: &mut Inner,
+        &mut self,
         what: &str,
         call: impl FnOnce(&mut dyn Filter) -> Result<Vec<pipeline::Output>, FilterError>,
     ) -> Result<Vec<pipeline::Output>, SessionError> {
+        let inner = self.inner.as_mut().expect("checked by the caller");
         match catch_unwind(AssertUnwindSafe(|| call(inner.filter.as_mut()))) {
             Ok(Ok(outs)) => Ok(outs),
             Ok(Err(e)) => Err(filter_error(e)),
             Err(panic) => {
-                let cause = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_else(|| "a panic".into());
-                let message = format!("filter {filter} panicked on {what}: {cause}");
-                tracing::error!(id, %message, "session failed");
-                inner.failed = Some(message.clone());
+                let message = format!(
+                    "filter {} panicked on {what}: {}",
+                    self.session.info.filter,
+                    panic_text(panic.as_ref())
+                );
+                tracing::error!(id = %self.session.info.id, %message, "session failed");
+                self.failed = Some(message.clone());
+                self.inner = None;
                 Err(SessionError::Internal(message))
             }
         }
     }
 
-    /// An output with its figures against the reference its frame came with.
-    fn measured(inner: &mut Inner, out: pipeline::Output) -> Result<Filtered, SessionError> {
-        let reference = inner.pending.pop_front().flatten();
-        let (psnr, ssim_v) = match reference {
-            Some(r) => {
-                let space = *inner.space.get_or_insert_with(|| SpaceChoice::Auto.resolve(&r));
-                let m = mse(&out.color, &r, space).map_err(|e| SessionError::Internal(e.to_string()))?;
-                let s = ssim(&luma(&out.color, space), &luma(&r, space), false)
-                    .map_err(|e| SessionError::Internal(e.to_string()))?
-                    .mean;
-                (Some(psnr_from_mse(m)), Some(s))
-            }
-            None => (None, None),
-        };
-        Ok(Filtered {
-            index: out.record.index,
-            color: out.color,
-            record: out.record,
-            psnr,
-            ssim: ssim_v,
-        })
+    /// Counts what the filter holds now against the session's reservation: state that
+    /// outgrew its estimate is held in the budget anyway (it exists) and logged, since the
+    /// estimate is a bug to fix.
+    fn account_state(&mut self) {
+        let s = &self.session;
+        let Some(inner) = &self.inner else { return };
+        let px = s.info.width as u64 * s.info.height as u64;
+        let queued = (inner.pending.len() + inner.ready.len()) as u64 * px * 12;
+        let held = inner.filter.state_bytes() as u64 + queued;
+        let mut r = lock(&s.state);
+        if held > r.bytes() {
+            tracing::warn!(id = %s.info.id, filter = %s.info.filter, reserved = r.bytes(), held, "session state outgrew its reservation");
+            let more = held - r.bytes();
+            r.force_grow(more);
+        }
     }
+}
+
+impl Drop for Checkout {
+    fn drop(&mut self) {
+        let s = &self.session;
+        let back = match (self.failed.take(), self.inner.take()) {
+            (Some(message), _) => Slot::Failed(message),
+            (None, Some(inner)) => Slot::Idle(inner),
+            (None, None) => Slot::Failed("the session's state was lost".into()),
+        };
+        *lock(&s.slot) = back;
+        s.touch();
+    }
+}
+
+/// An output with its figures against the reference its frame came with.
+fn measured(inner: &mut Inner, out: pipeline::Output) -> Result<Filtered, SessionError> {
+    let reference = inner.pending.pop_front().flatten();
+    let (psnr, ssim_v) = match reference {
+        Some(r) => {
+            let space = *inner.space.get_or_insert_with(|| SpaceChoice::Auto.resolve(&r));
+            let m = mse(&out.color, &r, space).map_err(|e| SessionError::Internal(e.to_string()))?;
+            let s = ssim(&luma(&out.color, space), &luma(&r, space), false)
+                .map_err(|e| SessionError::Internal(e.to_string()))?
+                .mean;
+            (Some(psnr_from_mse(m)), Some(s))
+        }
+        None => (None, None),
+    };
+    Ok(Filtered {
+        index: out.record.index,
+        color: out.color,
+        record: out.record,
+        psnr,
+        ssim: ssim_v,
+    })
 }
 
 /// Parameter overrides from a JSON object (the HTTP API's form), as text pairs.
@@ -698,6 +895,8 @@ mod tests {
     use super::*;
     use crate::pipeline::Output;
     use crate::report::synthetic_frame;
+
+    const A: Caller = Caller::ANONYMOUS;
 
     /// Delegates to a real filter but panics on one frame index: the only way to exercise
     /// the isolation path, since no shipped filter panics on purpose.
@@ -727,14 +926,18 @@ mod tests {
         }
     }
 
-    fn open(sessions: &Sessions, filter: &str) -> String {
+    fn open_as(sessions: &Sessions, caller: &Caller, filter: &str) -> String {
         let req = SessionRequest {
             filter: filter.into(),
             width: 24,
             height: 16,
             ..Default::default()
         };
-        sessions.create(&req).expect("valid session").id
+        sessions.create(caller, &req).expect("valid session").id
+    }
+
+    fn open(sessions: &Sessions, filter: &str) -> String {
+        open_as(sessions, &A, filter)
     }
 
     fn frame(index: u64) -> Frame {
@@ -743,14 +946,21 @@ mod tests {
         f
     }
 
+    fn process(sessions: &Sessions, id: &str, f: Frame) -> Result<Vec<Filtered>, SessionError> {
+        sessions.checkout(&A, id)?.process(f, MotionInput::Internal)
+    }
+
     #[test]
     fn a_panicking_filter_fails_only_its_session() {
         let sessions = Sessions::new(Limits::default());
         let sick = open(&sessions, "taa");
         let healthy = open(&sessions, "taa");
         {
-            let s = sessions.get_arc(&sick).unwrap();
-            let mut inner = lock(&s.inner);
+            let s = sessions.get_arc(&A, &sick).unwrap();
+            let mut slot = lock(&s.slot);
+            let Slot::Idle(inner) = &mut *slot else {
+                panic!("idle")
+            };
             let real = std::mem::replace(
                 &mut inner.filter,
                 pipeline::create("passthrough", &Map::new()).unwrap(),
@@ -765,12 +975,10 @@ mod tests {
             let want = reference.process(&frame(i)).unwrap().color;
             // The healthy session is filtered between the sick one's frames, on the same
             // thread, before and after the panic: it must match in-process filtering exactly.
-            let got = sessions
-                .process(&healthy, frame(i), MotionInput::Internal)
-                .unwrap();
+            let got = process(&sessions, &healthy, frame(i)).unwrap();
             assert_eq!(got.len(), 1, "a causal filter gives its frame at once");
             assert_eq!(got[0].color, want, "healthy session, frame {i}");
-            let sick_result = sessions.process(&sick, frame(i), MotionInput::Internal);
+            let sick_result = process(&sessions, &sick, frame(i));
             match (i, sick_result) {
                 (0 | 1, Ok(_)) => {}
                 (2, Err(SessionError::Internal(m))) => {
@@ -785,14 +993,148 @@ mod tests {
             }
         }
         // The failed session can still be inspected and closed, which frees its budget.
-        assert_eq!(sessions.get(&sick).unwrap().frames, 2);
+        assert_eq!(sessions.get(&A, &sick).unwrap().frames, 2);
         let before = sessions.totals();
-        sessions.close(&sick).unwrap();
+        sessions.close(&A, &sick).unwrap();
         let after = sessions.totals();
         assert_eq!(after.sessions, before.sessions - 1);
         assert!(after.state_bytes < before.state_bytes);
+        assert_eq!(after.budget_used, after.state_bytes);
         // And a new session works.
         let fresh = open(&sessions, "phlm");
-        sessions.process(&fresh, frame(0), MotionInput::Internal).unwrap();
+        process(&sessions, &fresh, frame(0)).unwrap();
+    }
+
+    #[test]
+    fn a_checked_out_session_refuses_other_requests_without_waiting() {
+        let sessions = Sessions::new(Limits::default());
+        let id = open(&sessions, "taa");
+        let mut held = sessions.checkout(&A, &id).unwrap();
+        let e = sessions.checkout(&A, &id).err().unwrap();
+        assert_eq!(e.to_string(), "session busy: a frame is being received");
+        assert_eq!(e.kind(), ErrorKind::FailedPrecondition);
+        // Reads answer while it is out.
+        assert_eq!(sessions.get(&A, &id).unwrap().frames, 0);
+        held.process(frame(7), MotionInput::Internal).unwrap();
+        let e = sessions.checkout(&A, &id).err().unwrap();
+        assert_eq!(e.to_string(), "session busy: frame 7 is being filtered");
+        // Idle sessions are not evicted while out.
+        drop(held);
+        assert_eq!(sessions.get(&A, &id).unwrap().frames, 1);
+        // A stream's claim keeps HTTP and other streams out until it ends.
+        let claim = sessions.attach(&A, &id).unwrap();
+        assert!(sessions
+            .attach(&A, &id)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("another stream"));
+        assert!(sessions
+            .checkout(&A, &id)
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("gRPC stream"));
+        claim
+            .checkout()
+            .unwrap()
+            .process(frame(8), MotionInput::Internal)
+            .unwrap();
+        drop(claim);
+        process(&sessions, &id, frame(9)).unwrap();
+    }
+
+    #[test]
+    fn sessions_belong_to_their_key_and_count_against_its_quotas() {
+        let mut ring = Keyring::default();
+        let q = Quotas {
+            max_sessions: 2,
+            memory_bytes: 24 * 16 * 200 * 3 / 2,
+        };
+        ring.add_plain("a:aaaaaaaaaaaaaaaa,b:bbbbbbbbbbbbbbbb", "test", q)
+            .unwrap();
+        let a = ring.caller(Some("Bearer aaaaaaaaaaaaaaaa")).unwrap();
+        let b = ring.caller(Some("Bearer bbbbbbbbbbbbbbbb")).unwrap();
+        let sessions = Sessions::new(Limits::default());
+        let id = open_as(&sessions, &a, "phlm");
+        for e in [
+            sessions.get(&b, &id).err(),
+            sessions.checkout(&b, &id).err(),
+            sessions.attach(&b, &id).err(),
+            sessions.close(&b, &id).err(),
+            sessions.get(&A, &id).err(),
+        ] {
+            assert!(matches!(e, Some(SessionError::NotFound { .. })), "{e:?}");
+        }
+        // phlm at 24x16 reserves 76,800 bytes; the key's quota holds one and a half.
+        let req = SessionRequest {
+            filter: "phlm".into(),
+            width: 24,
+            height: 16,
+            ..Default::default()
+        };
+        let e = sessions.create(&a, &req).unwrap_err().to_string();
+        assert!(e.contains("memory quota of key a"), "{e}");
+        let _t1 = open_as(&sessions, &a, "taa");
+        let e = sessions.create(&a, &req).unwrap_err().to_string();
+        assert!(e.contains("key a has 2 sessions open, its quota is 2"), "{e}");
+        // The other key is not affected.
+        open_as(&sessions, &b, "phlm");
+        sessions.close(&a, &id).unwrap();
+        open_as(&sessions, &a, "taa");
+    }
+
+    #[test]
+    fn the_reservation_covers_what_every_filter_holds() {
+        let cases: &[(&str, &[&str])] = &[
+            ("passthrough", &[]),
+            ("fxaa", &[]),
+            ("taa", &[]),
+            ("taa", &["depth_rejection=0.1", "sharpen=0.2"]),
+            ("traa", &[]),
+            ("traa", &["variant=baseline"]),
+            ("phlm", &[]),
+            ("upsample", &[]),
+            ("pixel_trace", &["window=4"]),
+            ("pixel_trace", &["window=32"]),
+        ];
+        for (filter, set) in cases {
+            let sessions = Sessions::new(Limits::default());
+            let req = SessionRequest {
+                filter: filter.to_string(),
+                params: set
+                    .iter()
+                    .map(|kv| {
+                        let (k, v) = kv.split_once('=').unwrap();
+                        (k.to_string(), v.to_string())
+                    })
+                    .collect(),
+                width: 24,
+                height: 16,
+                channels: ChannelKind::ALL
+                    .iter()
+                    .filter(|k| **k != ChannelKind::Reference)
+                    .map(|k| k.name().to_string())
+                    .collect(),
+                ..Default::default()
+            };
+            let info = sessions.create(&A, &req).unwrap();
+            // Enough frames to fill the largest window.
+            for i in 0..40 {
+                let mut f = synthetic_frame(24, 16, i);
+                f.meta.index = i;
+                sessions
+                    .checkout(&A, &info.id)
+                    .unwrap()
+                    .process(f, MotionInput::Internal)
+                    .unwrap();
+                let now = sessions.get(&A, &info.id).unwrap().state_bytes;
+                assert_eq!(
+                    now, info.state_bytes,
+                    "{filter} {set:?}: the reservation had to grow at frame {i}"
+                );
+            }
+            assert!(info.state_bytes > 0 || ["passthrough", "fxaa"].contains(filter));
+        }
     }
 }
