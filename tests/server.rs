@@ -1142,3 +1142,627 @@ async fn error_messages_do_not_echo_long_input() {
     still_serving(&r).await;
     r.shutdown().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_and_silent_connections_are_closed_and_capped() {
+    let r = server(|c| {
+        c.header_timeout_s = 1;
+        c.max_connections = 210;
+    })
+    .await;
+    // 200 connections that send half a request head and stop; one to the gRPC port that
+    // sends nothing.
+    let mut slow = Vec::new();
+    for _ in 0..200 {
+        let mut s = tokio::net::TcpStream::connect(r.http_addr).await.unwrap();
+        s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+            .await
+            .unwrap();
+        slow.push(s);
+    }
+    slow.push(tokio::net::TcpStream::connect(r.grpc_addr).await.unwrap());
+    // Every one of them is closed by the server within a few seconds.
+    let closed = tokio::time::timeout(std::time::Duration::from_secs(10), async {
+        for mut s in slow {
+            let mut buf = [0u8; 1024];
+            loop {
+                match s.read(&mut buf).await {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => continue,
+                }
+            }
+        }
+    })
+    .await;
+    assert!(
+        closed.is_ok(),
+        "slow-header connections were still open after 10 s"
+    );
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+
+    // Past max_connections, a connection is closed at once; the ones holding the slots
+    // time out and the server answers again.
+    let r = server(|c| {
+        c.header_timeout_s = 2;
+        c.max_connections = 3;
+    })
+    .await;
+    let mut held = Vec::new();
+    for _ in 0..3 {
+        held.push(tokio::net::TcpStream::connect(r.http_addr).await.unwrap());
+    }
+    tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    let mut extra = tokio::net::TcpStream::connect(r.http_addr).await.unwrap();
+    let mut buf = [0u8; 16];
+    let n = tokio::time::timeout(std::time::Duration::from_secs(1), extra.read(&mut buf))
+        .await
+        .expect("the fourth connection is closed at once");
+    assert!(matches!(n, Ok(0) | Err(_)), "{n:?}");
+    let m = r.service.metrics.render(r.service.sessions.totals());
+    assert!(
+        m.contains("afterimage_errors_total{reason=\"too_many_connections\"}"),
+        "{m}"
+    );
+    tokio::time::sleep(std::time::Duration::from_millis(2500)).await;
+    drop(held);
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_drains_readyz_503_while_a_frame_finishes() {
+    use afterimage::report::synthetic_frame;
+    let r = server(|c| c.shutdown_deadline_s = 60).await;
+    let addr = r.http_addr;
+    // A pixel_trace flush of a 33-frame window: seconds of work in one request.
+    let (w, h) = (160, 96);
+    let id = http_session(
+        addr,
+        &format!(r#"{{"filter":"pixel_trace","params":{{"window":32}},"width":{w},"height":{h}}}"#),
+    )
+    .await;
+    let opts = WriteOptions {
+        precision: Precision::F16,
+        compression: Compression::Zip,
+        layout: ExrLayout::Afterimage,
+    };
+    for i in 0..16 {
+        let exr = write_exr_bytes(&synthetic_frame(w, h, i), &opts).unwrap();
+        let (st, _, b) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{id}/frames"),
+            &exr,
+            "image/x-exr",
+        )
+        .await;
+        assert_eq!(st, 202, "{}", String::from_utf8_lossy(&b));
+    }
+    let flush = tokio::spawn(async move {
+        let t = std::time::Instant::now();
+        let (st, _, _) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{id}/flush"),
+            b"",
+            "text/plain",
+        )
+        .await;
+        (st, t.elapsed())
+    });
+    // Wait until the flush is being filtered, then ask the server to stop.
+    let t = std::time::Instant::now();
+    while r.service.in_flight() == 0 {
+        assert!(t.elapsed().as_secs() < 10, "the flush never started");
+        tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+    }
+    r.begin_shutdown();
+    let mut saw_503 = false;
+    while !flush.is_finished() {
+        let (st, _, _) = http(addr, "GET", "/readyz", b"", "text/plain").await;
+        if st == 503 {
+            saw_503 = true;
+            // New work is refused while draining.
+            let (st, _, b) = http(
+                addr,
+                "POST",
+                "/v1/sessions",
+                br#"{"filter":"taa","width":8,"height":8}"#,
+                "application/json",
+            )
+            .await;
+            assert_eq!(st, 503, "{}", String::from_utf8_lossy(&b));
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+    }
+    assert!(
+        saw_503,
+        "/readyz never answered 503 while the flush was in flight"
+    );
+    let (st, took) = flush.await.unwrap();
+    assert_eq!(st, 200, "the frame in flight finished with its output");
+    eprintln!("flush took {took:?}");
+    r.stopped().await.unwrap();
+    assert!(
+        tokio::net::TcpStream::connect(addr).await.is_err(),
+        "the HTTP listener is closed after the drain"
+    );
+}
+
+/// Two keys: `a` (at most 2 sessions) from a keys file of hashes, `b` plain.
+async fn keyed_server(tweak: impl FnOnce(&mut Config)) -> (Running, tempfile::TempDir) {
+    let dir = tempfile::tempdir().unwrap();
+    let keys = dir.path().join("keys.toml");
+    std::fs::write(
+        &keys,
+        format!(
+            "[[key]]\nname = \"a\"\nsha256 = \"{}\"\nmax_sessions = 2\n",
+            afterimage::session::access::hash_hex(KEY_A)
+        ),
+    )
+    .unwrap();
+    let r = server(|c| {
+        c.api_keys_file = keys.display().to_string();
+        c.api_keys_plain = Some(format!("b:{KEY_B}"));
+        tweak(c);
+    })
+    .await;
+    (r, dir)
+}
+
+const KEY_A: &str = "key-a-0123456789abcdef";
+const KEY_B: &str = "key-b-0123456789abcdef";
+
+async fn keyed_client(r: &Running, key: Option<&str>) -> Client {
+    let opts = afterimage::server::client::ConnectOptions {
+        api_key: key.map(str::to_string),
+        ..Default::default()
+    };
+    Client::connect_with(format!("http://{}", r.grpc_addr), &opts)
+        .await
+        .unwrap()
+}
+
+/// An HTTP/1.1 exchange with extra request headers.
+async fn http_with(
+    addr: std::net::SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &str,
+    body: &[u8],
+) -> (u16, String, Vec<u8>) {
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n{headers}Content-Length: {}\r\n\r\n",
+        body.len()
+    );
+    s.write_all(head.as_bytes()).await.unwrap();
+    s.write_all(body).await.unwrap();
+    let mut buf = Vec::new();
+    s.read_to_end(&mut buf).await.unwrap();
+    let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let text = String::from_utf8_lossy(&buf[..split]).to_string();
+    (text[9..12].parse().unwrap(), text, buf[split + 4..].to_vec())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn api_keys_own_their_sessions_and_quotas() {
+    let (r, _dir) = keyed_server(|_| {}).await;
+    // gRPC: no key, a wrong key.
+    for key in [None, Some("not-a-key-0123456789")] {
+        let mut c = keyed_client(&r, key).await;
+        let e = c.inner.create_session(session_req("taa")).await.unwrap_err();
+        assert_eq!(e.code(), Code::Unauthenticated, "{key:?}: {}", e.message());
+        let e = c.inner.list_filters(pb::ListFiltersRequest {}).await.unwrap_err();
+        assert_eq!(e.code(), Code::Unauthenticated);
+    }
+    let mut a = keyed_client(&r, Some(KEY_A)).await;
+    let mut b = keyed_client(&r, Some(KEY_B)).await;
+    let sa = open(&mut a, "taa").await;
+    // Another key's session is not found, whatever the call.
+    let e = b
+        .inner
+        .get_session(pb::GetSessionRequest { id: sa.id.clone() })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{}", e.message());
+    let fr = frames("fence", 2, 1);
+    let e = stream_all(&mut b, &sa, &fr, F32).await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{}", e.message());
+    let e = b
+        .inner
+        .close_session(pb::CloseSessionRequest { id: sa.id.clone() })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    // Its owner streams it as usual.
+    let got = stream_all(&mut a, &sa, &fr, F32).await.unwrap();
+    same(&got, &in_process("taa", &fr), "keyed session");
+    // Key a's quota is two sessions; key b is not affected.
+    open(&mut a, "taa").await;
+    let e = a.inner.create_session(session_req("taa")).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{}", e.message());
+    assert!(
+        e.message().contains("key a has 2 sessions open"),
+        "{}",
+        e.message()
+    );
+    open(&mut b, "taa").await;
+
+    // HTTP: 401 with WWW-Authenticate without a key or with a wrong one; another key's
+    // session is 404; health and readiness stay open, and so do metrics by default.
+    let addr = r.http_addr;
+    let body = br#"{"filter":"taa","width":64,"height":36}"#;
+    for auth in [
+        "",
+        "Authorization: Bearer nope-nope-nope-nope\r\n",
+        "Authorization: Basic abc\r\n",
+    ] {
+        let (st, head, _) = http_with(
+            addr,
+            "POST",
+            "/v1/sessions",
+            &format!("{auth}Content-Type: application/json\r\n"),
+            body,
+        )
+        .await;
+        assert_eq!(st, 401, "{auth:?}");
+        assert!(
+            head.to_ascii_lowercase().contains("www-authenticate: bearer"),
+            "{head}"
+        );
+    }
+    let auth_b = format!("Authorization: Bearer {KEY_B}\r\n");
+    let (st, _, _) = http_with(addr, "GET", &format!("/v1/sessions/{}", sa.id), &auth_b, b"").await;
+    assert_eq!(st, 404);
+    let (st, _, _) = http_with(addr, "DELETE", &format!("/v1/sessions/{}", sa.id), &auth_b, b"").await;
+    assert_eq!(st, 404);
+    let auth_a = format!("Authorization: Bearer {KEY_A}\r\n");
+    let (st, _, b2) = http_with(addr, "GET", &format!("/v1/sessions/{}", sa.id), &auth_a, b"").await;
+    assert_eq!(st, 200, "{}", String::from_utf8_lossy(&b2));
+    for p in ["/healthz", "/readyz", "/metrics"] {
+        assert_eq!(http(addr, "GET", p, b"", "text/plain").await.0, 200, "{p}");
+    }
+    r.shutdown().await.unwrap();
+    // Metrics can be keyed too.
+    let (r, _dir) = keyed_server(|c| c.metrics_require_key = true).await;
+    assert_eq!(
+        http(r.http_addr, "GET", "/metrics", b"", "text/plain").await.0,
+        401
+    );
+    let (st, _, _) = http_with(
+        r.http_addr,
+        "GET",
+        "/metrics",
+        &format!("Authorization: Bearer {KEY_B}\r\n"),
+        b"",
+    )
+    .await;
+    assert_eq!(st, 200);
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_public_address_needs_keys() {
+    let public = |c: &mut Config| c.http_addr = "0.0.0.0:0".into();
+    let mut c = Config {
+        grpc_addr: "127.0.0.1:0".into(),
+        ..Config::default()
+    };
+    public(&mut c);
+    let e = start(c.clone()).await.err().expect("refused").to_string();
+    assert!(
+        e.contains("0.0.0.0:0") && e.contains("without API keys") && e.contains("allow_unauthenticated"),
+        "{e}"
+    );
+    let ok = start(Config {
+        allow_unauthenticated: true,
+        ..c.clone()
+    })
+    .await
+    .unwrap();
+    ok.shutdown().await.unwrap();
+    let ok = start(Config {
+        api_keys_plain: Some(format!("b:{KEY_B}")),
+        ..c
+    })
+    .await
+    .unwrap();
+    ok.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_end_to_end_over_grpc_and_http() {
+    use tokio_rustls::rustls;
+    let dir = tempfile::tempdir().unwrap();
+    let ck = rcgen::generate_simple_self_signed(vec!["localhost".to_string()]).unwrap();
+    let (cert, key) = (dir.path().join("cert.pem"), dir.path().join("key.pem"));
+    std::fs::write(&cert, ck.cert.pem()).unwrap();
+    std::fs::write(&key, ck.signing_key.serialize_pem()).unwrap();
+    let r = server(|c| {
+        c.tls_cert = cert.display().to_string();
+        c.tls_key = key.display().to_string();
+        c.api_keys_plain = Some(format!("b:{KEY_B}"));
+    })
+    .await;
+    // gRPC over TLS, with a key: bit-identical to in-process filtering.
+    let opts = afterimage::server::client::ConnectOptions {
+        api_key: Some(KEY_B.into()),
+        tls_ca: Some(ck.cert.pem().into_bytes()),
+        tls_domain: Some("localhost".into()),
+    };
+    let mut c = Client::connect_with(format!("https://localhost:{}", r.grpc_addr.port()), &opts)
+        .await
+        .unwrap();
+    let s = open(&mut c, "taa").await;
+    let fr = frames("fence", 3, 2);
+    same(
+        &stream_all(&mut c, &s, &fr, F32).await.unwrap(),
+        &in_process("taa", &fr),
+        "gRPC over TLS",
+    );
+    // Without the CA the client refuses to connect.
+    let e = Client::connect_with(
+        format!("https://localhost:{}", r.grpc_addr.port()),
+        &afterimage::server::client::ConnectOptions::default(),
+    )
+    .await
+    .err()
+    .unwrap();
+    assert!(e.to_string().contains("CA"), "{e}");
+    // HTTP over TLS.
+    let mut roots = rustls::RootCertStore::empty();
+    roots.add(ck.cert.der().clone()).unwrap();
+    let config = rustls::ClientConfig::builder_with_provider(std::sync::Arc::new(
+        rustls::crypto::ring::default_provider(),
+    ))
+    .with_safe_default_protocol_versions()
+    .unwrap()
+    .with_root_certificates(roots)
+    .with_no_client_auth();
+    let connector = tokio_rustls::TlsConnector::from(std::sync::Arc::new(config));
+    let tcp = tokio::net::TcpStream::connect(r.http_addr).await.unwrap();
+    let mut tls = connector
+        .connect(rustls::pki_types::ServerName::try_from("localhost").unwrap(), tcp)
+        .await
+        .unwrap();
+    tls.write_all(format!("GET /v1/sessions/{} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\nAuthorization: Bearer {KEY_B}\r\n\r\n", s.id).as_bytes())
+        .await
+        .unwrap();
+    let mut buf = Vec::new();
+    let _ = tls.read_to_end(&mut buf).await;
+    let text = String::from_utf8_lossy(&buf);
+    assert!(text.starts_with("HTTP/1.1 200"), "{text}");
+    assert!(text.contains("\"frames\":3"), "{text}");
+    // Plain HTTP to the TLS port gets no answer but a closed connection, and the server
+    // goes on.
+    let (st, _) = head_only(r.http_addr, "GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n", 5)
+        .await
+        .unwrap_or((0, String::new()));
+    assert_ne!(st, 200);
+    r.shutdown().await.unwrap();
+}
+
+/// A port free now on loopback.
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// Resident memory of process `pid`, MiB.
+fn rss_mib(pid: u32) -> f64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(0.0, |kb| kb / 1024.0)
+}
+
+/// What one misbehaving client does, in turn: garbage EXR bodies, bodies larger than
+/// the session allows, slow headers, gRPC headers that lie about lengths, huge filter
+/// names, and frames for the good clients' sessions (refused: they are streamed).
+async fn misbehave(
+    http_addr: std::net::SocketAddr,
+    grpc_url: String,
+    victims: Vec<String>,
+    until: std::time::Instant,
+) -> u64 {
+    let mut c = Client::connect(grpc_url).await.unwrap();
+    let own = open(&mut c, "taa").await;
+    let mut n = 0u64;
+    while std::time::Instant::now() < until {
+        n += 1;
+        match n % 6 {
+            0 => {
+                let (st, _, _) = http(
+                    http_addr,
+                    "POST",
+                    &format!("/v1/sessions/{}/frames", own.id),
+                    &vec![0x76u8; 5000],
+                    "image/x-exr",
+                )
+                .await;
+                assert_eq!(st, 400);
+            }
+            1 => {
+                let head = format!(
+                    "POST /v1/sessions/{}/frames HTTP/1.1\r\nHost: x\r\nContent-Length: 900000000\r\n\r\n",
+                    own.id
+                );
+                let r = head_only(http_addr, &head, 5).await;
+                assert_eq!(r.map(|r| r.0), Some(413));
+            }
+            2 => {
+                let mut s = tokio::net::TcpStream::connect(http_addr).await.unwrap();
+                s.write_all(b"GET /healthz HTTP/1.1\r\nHo").await.unwrap();
+                tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+            }
+            3 => {
+                let h = pb::FrameHeader {
+                    session_id: own.id.clone(),
+                    channels: vec![pb::ChannelHeader {
+                        name: "color".into(),
+                        sample: 0,
+                        compression: 0,
+                        byte_length: u64::MAX,
+                    }],
+                    ..Default::default()
+                };
+                let e = raw_stream(&mut c, vec![frame_chunk::Part::Header(h)]).await;
+                assert_eq!(e.code(), Code::InvalidArgument);
+            }
+            4 => {
+                let e = c
+                    .inner
+                    .create_session(session_req(&"z".repeat(100_000)))
+                    .await
+                    .unwrap_err();
+                assert_eq!(e.code(), Code::InvalidArgument);
+            }
+            _ => {
+                let victim = &victims[(n as usize / 6) % victims.len()];
+                let fr = frames("fence", 1, 1);
+                let e = raw_stream(
+                    &mut c,
+                    frame_parts(&fr[0], victim, &[afterimage::frame::ChannelKind::Color]),
+                )
+                .await;
+                assert_eq!(e.code(), Code::FailedPrecondition, "{}", e.message());
+            }
+        }
+    }
+    n
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "a load and soak run: AFTERIMAGE_SOAK_SECS=60 cargo test --release --test server soak -- --ignored --nocapture"]
+async fn soak_eight_clients_and_one_misbehaving() {
+    use afterimage::scene::{Jitter, Scene, Settings};
+    let secs: u64 = std::env::var("AFTERIMAGE_SOAK_SECS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(60);
+    let (gp, hp) = (free_port(), free_port());
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
+        .arg("serve")
+        .env("AFTERIMAGE_GRPC_ADDR", format!("127.0.0.1:{gp}"))
+        .env("AFTERIMAGE_HTTP_ADDR", format!("127.0.0.1:{hp}"))
+        .env("AFTERIMAGE_HEADER_TIMEOUT_S", "2")
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let pid = child.id();
+    let http_addr: std::net::SocketAddr = format!("127.0.0.1:{hp}").parse().unwrap();
+    let grpc_url = format!("http://127.0.0.1:{gp}");
+    for _ in 0..100 {
+        if tokio::net::TcpStream::connect(http_addr).await.is_ok() {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let scene = Scene::new(
+        "flyover",
+        Settings {
+            width: 256,
+            height: 144,
+            frames: 8,
+            spp: 1,
+            jitter: Jitter::Halton(8),
+            noise: false,
+            seed: 1,
+            shading: 1,
+        },
+    )
+    .unwrap();
+    let shot: Vec<Frame> = (0..8).map(|i| scene.frame(i)).collect();
+    let start = std::time::Instant::now();
+    let until = start + std::time::Duration::from_secs(secs);
+    // Eight clients, each streaming its own taa session as fast as replies come back.
+    let mut sessions = Vec::new();
+    let mut good = Vec::new();
+    for k in 0..8u64 {
+        let mut c = Client::connect(grpc_url.clone()).await.unwrap();
+        let mut req = session_req("taa");
+        req.width = 256;
+        req.height = 144;
+        let s = c.inner.create_session(req).await.unwrap().into_inner();
+        sessions.push(s.id.clone());
+        let shot = shot.clone();
+        good.push(tokio::spawn(async move {
+            let mut rtts = Vec::new();
+            let mut i = 0u64;
+            let frames = std::iter::from_fn(|| {
+                (std::time::Instant::now() < until).then(|| {
+                    let mut f = shot[(i % 8) as usize].clone();
+                    f.meta.index = i;
+                    i += 1;
+                    f
+                })
+            });
+            let r = c
+                .stream(
+                    &s,
+                    frames,
+                    SendOptions {
+                        reference: false,
+                        ..F32
+                    },
+                    |r| rtts.push(r.round_trip_ms),
+                )
+                .await;
+            (k, r.err(), rtts)
+        }));
+    }
+    // Give the streams a moment to claim their sessions before the misbehaving client
+    // tries to feed them.
+    tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    let bad = tokio::spawn(misbehave(http_addr, grpc_url.clone(), sessions, until));
+    let mut rss = Vec::new();
+    while std::time::Instant::now() < until {
+        rss.push((start.elapsed().as_secs_f64(), rss_mib(pid)));
+        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+    }
+    let mut all = Vec::new();
+    for g in good {
+        let (k, err, rtts) = g.await.unwrap();
+        assert!(err.is_none(), "client {k}: {err:?}");
+        all.extend(rtts);
+    }
+    let bad_requests = bad.await.unwrap();
+    let wall = start.elapsed().as_secs_f64();
+    all.sort_by(f64::total_cmp);
+    let pct = |p: f64| all[((all.len() - 1) as f64 * p).round() as usize];
+    let peak = rss.iter().map(|r| r.1).fold(0.0, f64::max);
+    let half: Vec<(f64, f64)> = rss.iter().copied().filter(|r| r.0 >= secs as f64 / 2.0).collect();
+    let (first, last) = (half.first().unwrap().1, half.last().unwrap().1);
+    let metrics = http(http_addr, "GET", "/metrics", b"", "text/plain").await.2;
+    let metrics = String::from_utf8_lossy(&metrics);
+    let errors: Vec<&str> = metrics
+        .lines()
+        .filter(|l| l.starts_with("afterimage_errors_total{"))
+        .collect();
+    eprintln!(
+        "soak: {secs} s, 8 clients x taa 256x144 (gRPC, f32, lockstep) + 1 misbehaving ({bad_requests} bad requests): {} frames, {:.1} frames/s; round trip p50 {:.1} ms, p99 {:.1} ms; server RSS peak {peak:.1} MiB, over the last half {first:.1} -> {last:.1} MiB ({:+.1}%); server errors {errors:?}",
+        all.len(),
+        all.len() as f64 / wall,
+        pct(0.5),
+        pct(0.99),
+        (last / first - 1.0) * 100.0
+    );
+    assert!(
+        all.len() as u64 > 8 * secs,
+        "fewer than one frame per second per client"
+    );
+    assert!(
+        last <= first * 1.10 + 8.0,
+        "RSS grew from {first:.1} to {last:.1} MiB over the last half"
+    );
+    let _ = child.kill();
+    let _ = child.wait();
+}

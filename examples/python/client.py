@@ -16,7 +16,13 @@ With --check it also verifies the contract end to end and exits non-zero on any 
   - the filter's replies arrive in order, finite, with PSNR, and beat passthrough's PSNR
     against the same reference by at least --min-gain dB over the second half;
   - a bad parameter gets INVALID_ARGUMENT naming it, and the server keeps serving;
-  - a closed session is NOT_FOUND.
+  - a closed session is NOT_FOUND;
+  - with --api-key, a call without the key is UNAUTHENTICATED.
+
+A server with API keys takes `--api-key KEY` (or AFTERIMAGE_API_KEY), sent as
+`authorization: Bearer KEY` metadata on every call; a server with TLS takes
+`--tls-ca cert.pem` (the CA, or the self-signed certificate, to trust) and, when the
+certificate's name is not the address's host, `--tls-domain NAME`.
 
 The wire format (see proto/afterimage/v1/afterimage.proto): a FrameHeader naming the
 channels, then DataChunks of at most the session's max_chunk_bytes whose concatenation
@@ -138,6 +144,32 @@ def run_session(stub, args, filter_name, params, frames, send):
     return session, out, wall
 
 
+class BearerKey(grpc.UnaryUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
+    """Adds `authorization: Bearer KEY` to every call."""
+
+    def __init__(self, key):
+        self.metadata = [("authorization", f"Bearer {key}")]
+
+    def _details(self, d):
+        return d._replace(metadata=list(d.metadata or []) + self.metadata)
+
+    def intercept_unary_unary(self, continuation, details, request):
+        return continuation(self._details(details), request)
+
+    def intercept_stream_stream(self, continuation, details, requests):
+        return continuation(self._details(details), requests)
+
+
+def open_channel(args):
+    """The channel the arguments describe: plain or TLS."""
+    if args.tls_ca:
+        with open(args.tls_ca, "rb") as f:
+            creds = grpc.ssl_channel_credentials(root_certificates=f.read())
+        options = [("grpc.ssl_target_name_override", args.tls_domain)] if args.tls_domain else []
+        return grpc.secure_channel(args.server, creds, options=options)
+    return grpc.insecure_channel(args.server)
+
+
 def mean(xs):
     return sum(xs) / len(xs) if xs else float("nan")
 
@@ -154,16 +186,21 @@ def main():
     ap.add_argument("--min-gain", type=float, default=1.0,
                     help="with --check: dB the filter must gain over passthrough")
     ap.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the server")
+    ap.add_argument("--api-key", default=os.environ.get("AFTERIMAGE_API_KEY"),
+                    help="API key of a server that has keys (default: $AFTERIMAGE_API_KEY)")
+    ap.add_argument("--tls-ca", help="PEM file of the CA that signed the server's TLS certificate")
+    ap.add_argument("--tls-domain", help="the name in the server's certificate, when not the host")
     args = ap.parse_args()
     args.width, args.height = (int(x) for x in args.size.lower().split("x"))
     params = dict(kv.split("=", 1) for kv in args.set)
 
-    channel = grpc.insecure_channel(args.server)
+    bare = open_channel(args)
     try:
-        grpc.channel_ready_future(channel).result(timeout=args.wait)
+        grpc.channel_ready_future(bare).result(timeout=args.wait)
     except grpc.FutureTimeoutError:
         print(f"no afterimage server at {args.server} after {args.wait:.0f} s", file=sys.stderr)
         return 2
+    channel = grpc.intercept_channel(bare, BearerKey(args.api_key)) if args.api_key else bare
     stub = pb_grpc.AfterimageStub(channel)
 
     filters = {f.name: f for f in stub.ListFilters(pb.ListFiltersRequest()).filters}
@@ -229,6 +266,13 @@ def main():
             raise CheckFailed("a closed session is still there")
         except grpc.RpcError as e:
             expect(e.code() == grpc.StatusCode.NOT_FOUND, f"closed session: got {e.code()}")
+        if args.api_key:
+            try:
+                pb_grpc.AfterimageStub(bare).ListFilters(pb.ListFiltersRequest())
+                raise CheckFailed("a call without the API key was served")
+            except grpc.RpcError as e:
+                expect(e.code() == grpc.StatusCode.UNAUTHENTICATED, f"no key: got {e.code()}")
+                print(f"check: no key -> {e.code().name}: {e.details()}")
         print("check: all passed")
         return 0
     except CheckFailed as e:

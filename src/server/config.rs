@@ -102,7 +102,7 @@ impl Default for Config {
             header_timeout_s: 10,
             idle_connection_timeout_s: 120,
             request_timeout_s: 60,
-            max_connections: 1024,
+            max_connections: 256,
             keepalive_interval_s: 30,
             keepalive_timeout_s: 10,
             max_concurrent_streams: 16,

@@ -344,7 +344,7 @@ async fn post_flush(
     Ok(reply.into_response())
 }
 
-async fn filters() -> Response {
+async fn filters(Auth(_): Auth) -> Response {
     Json(json!({"filters": pipeline::list()})).into_response()
 }
 

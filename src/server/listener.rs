@@ -70,12 +70,16 @@ enum Io {
 }
 
 /// An accepted connection: counts against the cap until dropped, and fails its reads and
-/// writes with `TimedOut` once it has been quiet too long.
+/// writes with `TimedOut` once it has been quiet too long: no byte from the client within
+/// the first-byte deadline (whatever the server wrote, such as HTTP/2 settings), then no
+/// byte either way for the idle timeout.
 pub struct Conn {
     io: Io,
     remote: SocketAddr,
     deadline: Pin<Box<Sleep>>,
     idle: Duration,
+    /// The client has sent a byte.
+    heard: bool,
     _slot: OwnedSemaphorePermit,
 }
 
@@ -97,6 +101,12 @@ impl Conn {
     fn active(&mut self) {
         let next = Instant::now() + self.idle;
         self.deadline.as_mut().reset(next);
+    }
+
+    fn wrote(&mut self) {
+        if self.heard {
+            self.active();
+        }
     }
 
     /// After a pending read or write: a timeout error once the deadline has passed (the
@@ -126,6 +136,7 @@ impl AsyncRead for Conn {
         match r {
             Poll::Ready(Ok(())) => {
                 if buf.filled().len() > before {
+                    self.heard = true;
                     self.active();
                 }
                 Poll::Ready(Ok(()))
@@ -145,7 +156,7 @@ impl AsyncWrite for Conn {
         match r {
             Poll::Ready(Ok(n)) => {
                 if n > 0 {
-                    self.active();
+                    self.wrote();
                 }
                 Poll::Ready(Ok(n))
             }
@@ -166,7 +177,7 @@ impl AsyncWrite for Conn {
         match r {
             Poll::Ready(Ok(n)) => {
                 if n > 0 {
-                    self.active();
+                    self.wrote();
                 }
                 Poll::Ready(Ok(n))
             }
@@ -256,6 +267,7 @@ pub fn accept(
                     remote,
                     deadline: Box::pin(tokio::time::sleep(settings.first_byte)),
                     idle: settings.idle,
+                    heard: false,
                     _slot: slot,
                 };
                 let _ = tx.send(conn).await;
