@@ -517,19 +517,7 @@ async fn http(
     body: &[u8],
     ctype: &str,
 ) -> (u16, String, Vec<u8>) {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    let head = format!(
-        "{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\n\r\n",
-        body.len()
-    );
-    s.write_all(head.as_bytes()).await.unwrap();
-    s.write_all(body).await.unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).await.unwrap();
-    let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
-    let headers = String::from_utf8_lossy(&buf[..split]).to_string();
-    let status = headers[9..12].parse().unwrap();
-    (status, headers, buf[split + 4..].to_vec())
+    http_with(addr, method, path, &format!("Content-Type: {ctype}\r\n"), body).await
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -90,12 +90,20 @@ pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
 
 /// Reads an EXR held in memory; `label` names it in errors.
 pub fn read_raw_exr_bytes(bytes: &[u8], label: &Path) -> Result<RawImage, IoError> {
-    let image = x::read()
+    decode_exr(bytes, label, true)
+}
+
+/// Decodes every channel of every part's largest level; `parallel` lets the decoder
+/// decompress on a thread pool of its own.
+fn decode_exr(bytes: &[u8], label: &Path, parallel: bool) -> Result<RawImage, IoError> {
+    let reader = x::read()
         .no_deep_data()
         .largest_resolution_level()
         .all_channels()
         .all_layers()
-        .all_attributes()
+        .all_attributes();
+    let reader = if parallel { reader } else { reader.non_parallel() };
+    let image = reader
         .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| exr_error(label, e))?;
     raw_from_exr(image, label)
@@ -190,16 +198,7 @@ pub fn read_raw_exr_bytes_limited(
     limits: &ExrLimits,
 ) -> Result<RawImage, IoError> {
     check_exr_header(bytes, label, limits)?;
-    let image = x::read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .all_layers()
-        .all_attributes()
-        .non_parallel()
-        .from_buffered(std::io::Cursor::new(bytes))
-        .map_err(|e| exr_error(label, e))?;
-    raw_from_exr(image, label)
+    decode_exr(bytes, label, false)
 }
 
 type AnyImage = x::Image<x::Layers<x::AnyChannels<x::FlatSamples>>>;

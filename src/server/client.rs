@@ -183,9 +183,10 @@ impl Client {
             let parts = std::iter::once(frame_chunk::Part::Header(header))
                 .chain(chunks.into_iter().map(frame_chunk::Part::Data));
             for part in parts {
-                tx.send(pb::FrameChunk { part: Some(part) })
-                    .await
-                    .map_err(|_| Status::unavailable("the server closed the stream"))?;
+                if tx.send(pb::FrameChunk { part: Some(part) }).await.is_err() {
+                    // The server ended the stream: its status says why.
+                    return Err(ended(&mut replies).await);
+                }
             }
             if in_flight.len() > lookahead {
                 let reply = read_reply(&mut replies, &mut in_flight).await?;
@@ -212,6 +213,16 @@ impl Client {
         }
         Ok(())
     }
+}
+
+/// Why the server ended a stream: the first error status among the replies left.
+async fn ended(replies: &mut tonic::Streaming<pb::FilteredChunk>) -> Status {
+    while let Some(m) = replies.next().await {
+        if let Err(s) = m {
+            return s;
+        }
+    }
+    Status::unavailable("the server closed the stream")
 }
 
 /// Reads one reply (header, then the colour's chunks), matched to the oldest frame in

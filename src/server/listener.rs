@@ -103,9 +103,18 @@ impl Conn {
         self.deadline.as_mut().reset(next);
     }
 
-    fn wrote(&mut self) {
-        if self.heard {
-            self.active();
+    /// A write's result: bytes written count as activity once the client has spoken; a
+    /// write that cannot go on is subject to the deadline (a client that stops reading).
+    fn after_write(&mut self, cx: &mut Context<'_>, r: Poll<io::Result<usize>>) -> Poll<io::Result<usize>> {
+        match r {
+            Poll::Ready(Ok(n)) => {
+                if n > 0 && self.heard {
+                    self.active();
+                }
+                Poll::Ready(Ok(n))
+            }
+            Poll::Pending => self.quiet_too_long(cx),
+            other => other,
         }
     }
 
@@ -153,16 +162,7 @@ impl AsyncWrite for Conn {
             Io::Plain(s) => Pin::new(s).poll_write(cx, data),
             Io::Tls(s) => Pin::new(s.as_mut()).poll_write(cx, data),
         };
-        match r {
-            Poll::Ready(Ok(n)) => {
-                if n > 0 {
-                    self.wrote();
-                }
-                Poll::Ready(Ok(n))
-            }
-            Poll::Pending => self.quiet_too_long(cx),
-            other => other,
-        }
+        self.after_write(cx, r)
     }
 
     fn poll_write_vectored(
@@ -174,16 +174,7 @@ impl AsyncWrite for Conn {
             Io::Plain(s) => Pin::new(s).poll_write_vectored(cx, bufs),
             Io::Tls(s) => Pin::new(s.as_mut()).poll_write_vectored(cx, bufs),
         };
-        match r {
-            Poll::Ready(Ok(n)) => {
-                if n > 0 {
-                    self.wrote();
-                }
-                Poll::Ready(Ok(n))
-            }
-            Poll::Pending => self.quiet_too_long(cx),
-            other => other,
-        }
+        self.after_write(cx, r)
     }
 
     fn is_write_vectored(&self) -> bool {
