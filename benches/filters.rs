@@ -9,8 +9,8 @@
 //! same G-buffer with its colour shaded at one pixel per 2x2 block
 //! (`afterimage::report::synthetic_sparse_frame`); their colour read is a quarter.
 
+use afterimage::filters::{create, list};
 use afterimage::frame::ChannelSet;
-use afterimage::pipeline::{create, list};
 use afterimage::report::{bytes_per_frame, parallel_copy, synthetic_frame, synthetic_sparse_frame};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use std::hint::black_box;

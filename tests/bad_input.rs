@@ -637,7 +637,7 @@ mod fuzz {
             .enable_all()
             .build()
             .unwrap();
-        let filters: Vec<(String, Vec<String>)> = afterimage::pipeline::list()
+        let filters: Vec<(String, Vec<String>)> = afterimage::filters::list()
             .into_iter()
             .map(|i| {
                 (

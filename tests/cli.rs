@@ -269,7 +269,7 @@ fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
     assert_eq!(records["params"]["sharpen"], false);
     assert_eq!(records["frames"][0]["stages"][3]["name"], "reproject");
     // The written frames are what the library computes, and the printed PSNR is theirs.
-    let mut f = afterimage::pipeline::create(
+    let mut f = afterimage::filters::create(
         "traa",
         &afterimage::pipeline::params::parse_assignments(&["variant=baseline", "sharpen=false"]).unwrap(),
     )

@@ -4,8 +4,9 @@
 
 mod common;
 
+use afterimage::filters::{create, list};
 use afterimage::frame::{ChannelKind, Frame, Plane};
-use afterimage::pipeline::{create, list, params::parse_assignments, run_sequence, FilterError, Skip};
+use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError, Skip};
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn small_scene(name: &str, frames: u64) -> Vec<Frame> {

@@ -1,8 +1,9 @@
 //! Filters on the scene catalogue at small sizes: the behaviour issue 4 asks for, asserted.
 
+use afterimage::filters::create;
 use afterimage::frame::{Frame, Rgb};
 use afterimage::metrics::{Evaluator, SpaceChoice, Summary};
-use afterimage::pipeline::{create, params::parse_assignments, FrameRecord};
+use afterimage::pipeline::{params::parse_assignments, FrameRecord};
 use afterimage::scene::{Jitter, Scene, Settings};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};

@@ -1,9 +1,10 @@
 //! `pixel_trace` (Shinya 1993, seed 002): the paper's two experiments on our scenes, flow
 //! separation at silhouettes, and the windowed interface (latency, flush, cuts).
 
+use afterimage::filters::create;
 use afterimage::frame::{ChannelKind, Frame, Rgb};
 use afterimage::metrics::{mse, psnr_from_mse, MetricSpace};
-use afterimage::pipeline::{create, params::parse_assignments, run_sequence, FilterError, Output};
+use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError, Output};
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn settings(width: usize, height: usize, frames: u64, spp: u32) -> Settings {

@@ -3,7 +3,7 @@
 
 mod common;
 
-use afterimage::pipeline::list;
+use afterimage::filters::list;
 use afterimage::scene::CATALOGUE;
 use afterimage::tolerance::Tolerance;
 use serde_json::Value;

@@ -3,9 +3,10 @@
 //! status with a message naming the problem and leaves the session working; the memory
 //! budget, idle eviction and reconnect-by-id hold.
 
+use afterimage::filters::create;
 use afterimage::frame::{Frame, Plane, Rgb};
 use afterimage::io::{write_exr_bytes, Compression, ExrLayout, Precision, WriteOptions};
-use afterimage::pipeline::{create, run_sequence};
+use afterimage::pipeline::run_sequence;
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, SendOptions};
 use afterimage::server::proto::{self as pb, frame_chunk};

@@ -5,9 +5,10 @@
 //! factorisation. Long variants are `#[ignore]`d (`cargo test --release --test stiff --
 //! --ignored`).
 
+use afterimage::filters::create;
 use afterimage::filters::phlm::{rls, Params as PhlmParams, Phlm};
 use afterimage::frame::{ChannelKind, Frame, Plane, Rgb};
-use afterimage::pipeline::{create, params::parse_assignments, Filter, FilterKind, FrameRecord};
+use afterimage::pipeline::{params::parse_assignments, Filter, FilterKind, FrameRecord};
 use afterimage::rng::SplitMix64;
 use afterimage::tolerance::Tolerance;
 

@@ -2,10 +2,11 @@
 //! still scene, sharp silhouettes, disocclusion, and the paper's comparison with the
 //! spatial-only, temporal-only and TAA-style baselines.
 
+use afterimage::filters::create;
 use afterimage::frame::{Frame, Rgb, Sampling};
 use afterimage::io::{read_frame, write_exr, ReadOptions, WriteOptions};
 use afterimage::metrics::{mse, Evaluator, MetricSpace, SpaceChoice};
-use afterimage::pipeline::{create, params::parse_assignments, run_sequence, FilterError, Output};
+use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError, Output};
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn settings(width: usize, height: usize, frames: u64, spp: u32, shading: u32) -> Settings {

@@ -1,11 +1,12 @@
 //! `afterimage filter` (run a filter over a sequence) and `afterimage filters` (list them).
 
 use super::read_args::ReadArgs;
+use afterimage::filters;
 use afterimage::frame::{Frame, FrameMeta, Rgb};
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
 use afterimage::pipeline::{
-    self, params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind,
+    params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind,
 };
 use anyhow::Context;
 use clap::Args;
@@ -56,7 +57,7 @@ pub struct FiltersArgs {
 
 pub fn list(args: FiltersArgs) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    let infos = pipeline::list();
+    let infos = filters::list();
     let mut text = String::new();
     if args.json {
         text = serde_json::to_string_pretty(&infos)? + "\n";
@@ -108,7 +109,7 @@ struct Pending {
 
 pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let values = parse_assignments(&args.set)?;
-    let mut filter = pipeline::create(&args.filter, &values)?;
+    let mut filter = filters::create(&args.filter, &values)?;
     let in_opts = args.read.options()?;
     let (input, reference, ref_opts) = super::read_args::open_with_reference(
         &args.input,

@@ -3,10 +3,11 @@
 //! reports round-trip time next to the in-process filter time.
 
 use super::read_args::ReadArgs;
+use afterimage::filters::create;
 use afterimage::frame::{Frame, Rgb};
 use afterimage::io::{write_exr, Compression, ExrLayout, Precision, Sequence, WriteOptions};
 use afterimage::metrics::Timing;
-use afterimage::pipeline::{create, params::parse_assignments};
+use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, ConnectOptions, SendOptions};
 use afterimage::server::proto as pb;

@@ -8,58 +8,28 @@
 //! input at the offset position).
 
 use super::passes::{planes, slices_mut};
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, luma, tonemap};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
-    Recorder,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder,
 };
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-/// Parameters of `fxaa` (the three tunables of `FxaaPixelShader`, defaults as in the header).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// `fxaaQualitySubpix`: amount of sub-pixel aliasing removal.
-    pub subpix: f32,
-    /// `fxaaQualityEdgeThreshold`: local contrast needed to process a pixel.
-    pub edge_threshold: f32,
-    /// `fxaaQualityEdgeThresholdMin`: darkness below which edges are ignored.
-    pub edge_threshold_min: f32,
-}
-
-impl Default for Params {
-    fn default() -> Self {
-        // Fxaa3_11.h defaults: subpix 0.75, edge threshold 0.166, edge threshold min 0.0833.
-        Params {
-            subpix: 0.75,
-            edge_threshold: 0.166,
-            edge_threshold_min: 0.0833,
-        }
+filter_params! {
+    /// Parameters of `fxaa` (the three tunables of `FxaaPixelShader`, defaults as in the header).
+    pub struct Params {
+        subpix: f32 = 0.75,
+            ParamKind::Float { min: 0.0, max: 1.0 },
+            "sub-pixel aliasing removal (Fxaa3_11.h: 1.0 upper limit softer, 0.75 default, 0.5 sharper, 0 off)";
+        edge_threshold: f32 = 0.166,
+            ParamKind::Float { min: 0.063, max: 0.333 },
+            "minimum local contrast to process (0.333 too little, 0.25 low quality, 0.166 default, 0.125 high, 0.063 overkill)";
+        edge_threshold_min: f32 = 0.0833,
+            ParamKind::Float { min: 0.0, max: 0.0833 },
+            "darkness threshold below which edges are skipped (0.0833 upper limit/default, 0.0625 high quality, 0.0312 visible limit)";
     }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "subpix",
-            doc: "sub-pixel aliasing removal (Fxaa3_11.h: 1.0 upper limit softer, 0.75 default, 0.5 sharper, 0 off)",
-            kind: ParamKind::Float { min: 0.0, max: 1.0 },
-        },
-        ParamSpec {
-            name: "edge_threshold",
-            doc: "minimum local contrast to process (0.333 too little, 0.25 low quality, 0.166 default, 0.125 high, 0.063 overkill)",
-            kind: ParamKind::Float { min: 0.063, max: 0.333 },
-        },
-        ParamSpec {
-            name: "edge_threshold_min",
-            doc: "darkness threshold below which edges are skipped (0.0833 upper limit/default, 0.0625 high quality, 0.0312 visible limit)",
-            kind: ParamKind::Float { min: 0.0, max: 0.0833 },
-        },
-    ];
 }
 
 /// Search steps of FXAA 3.11 quality preset 12 (`FXAA_QUALITY__PS 5`: P0..P4 =
@@ -311,7 +281,8 @@ impl Filter for Fxaa {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::{create, params::parse_assignments};
+    use crate::filters::create;
+    use crate::pipeline::params::parse_assignments;
     use crate::rng::SplitMix64;
 
     /// f64 reference of the search: each side walks on its own, sampling after every step

@@ -16,21 +16,9 @@ pub mod passes;
 pub mod passthrough;
 pub mod phlm;
 pub mod pixel_trace;
+mod registry;
 pub mod taa;
 pub mod traa;
 pub mod upsample;
 
-use crate::pipeline::{entry, FilterEntry};
-
-/// Every filter, in listing order.
-pub fn all() -> Vec<FilterEntry> {
-    vec![
-        entry::<passthrough::Passthrough>(),
-        entry::<fxaa::Fxaa>(),
-        entry::<taa::Taa>(),
-        entry::<traa::Traa>(),
-        entry::<phlm::Phlm>(),
-        entry::<pixel_trace::PixelTrace>(),
-        entry::<upsample::Upsample>(),
-    ]
-}
+pub use registry::{create, create_sized, info, list, registry};

@@ -1,21 +1,14 @@
 //! `passthrough`: the input colour, repaired (non-finite and negative samples replaced).
 //! The no-anti-aliasing baseline every other filter is measured against.
 
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame};
-use crate::pipeline::{
-    check_needs, params::FilterParams, prepare, Filter, FilterError, FilterKind, Output, ParamSpec,
-    PixelCounts, Recorder,
-};
-use serde::{Deserialize, Serialize};
+use crate::pipeline::{check_needs, prepare, Filter, FilterError, FilterKind, Output, PixelCounts, Recorder};
 use serde_json::Value;
 
-/// `passthrough` has no parameters.
-#[derive(Clone, Debug, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Params {}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[];
+filter_params! {
+    /// `passthrough` has no parameters.
+    pub struct Params {}
 }
 
 /// The passthrough filter (stateless).

@@ -22,15 +22,14 @@
 use super::passes::{
     from_working, on_screen, sharpen, slices_mut, to_working, to_ycocg, Reprojection, TemporalState,
 };
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
-    Recorder, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -45,24 +44,31 @@ pub enum HistoryFilter {
     Bilinear,
 }
 
-/// Parameters of `taa`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// Weight of the current frame in the blend.
-    pub alpha: f32,
-    /// Width of the variance box in standard deviations.
-    pub gamma: f32,
-    /// History resampling.
-    pub history_filter: HistoryFilter,
-    /// Velocity dilation (needs depth).
-    pub dilation: bool,
-    /// Karis's luminance weighting of the blend.
-    pub luminance_weighting: bool,
-    /// Relative depth difference that rejects history; 0 turns the test off.
-    pub depth_rejection: f32,
-    /// Strength of the output sharpen; 0 turns it off.
-    pub sharpen: f32,
+filter_params! {
+    /// Parameters of `taa`.
+    pub struct Params {
+        alpha: f32 = DEFAULT_ALPHA,
+            ParamKind::Float { min: 0.01, max: 1.0 },
+            "weight of the current frame (Karis 2014: 0.1). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer";
+        gamma: f32 = DEFAULT_GAMMA,
+            ParamKind::Float { min: 0.25, max: 4.0 },
+            "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting";
+        history_filter: HistoryFilter = HistoryFilter::CatmullRom,
+            ParamKind::Choice { options: &["catmull_rom", "bilinear"], },
+            "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it";
+        dilation: bool = true,
+            ParamKind::Bool,
+            "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history";
+        luminance_weighting: bool = true,
+            ParamKind::Bool,
+            "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias";
+        depth_rejection: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 10.0 },
+            "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry";
+        sharpen: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 4.0 },
+            "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
+    }
 }
 
 /// Blend weight of the current frame: 0.1 (Karis 2014; DESIGN.md "alpha 0.1 default").
@@ -72,62 +78,6 @@ pub const DEFAULT_GAMMA: f32 = 1.0;
 /// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
 /// anyway, and a bounded count keeps the state bounded on endless still scenes.
 const MAX_COUNT: f32 = 255.0;
-
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            alpha: DEFAULT_ALPHA,
-            gamma: DEFAULT_GAMMA,
-            history_filter: HistoryFilter::CatmullRom,
-            dilation: true,
-            luminance_weighting: true,
-            depth_rejection: 0.0,
-            sharpen: 0.0,
-        }
-    }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "alpha",
-            doc: "weight of the current frame (Karis 2014: 0.1). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer",
-            kind: ParamKind::Float { min: 0.01, max: 1.0 },
-        },
-        ParamSpec {
-            name: "gamma",
-            doc: "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting",
-            kind: ParamKind::Float { min: 0.25, max: 4.0 },
-        },
-        ParamSpec {
-            name: "history_filter",
-            doc: "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it",
-            kind: ParamKind::Choice {
-                options: &["catmull_rom", "bilinear"],
-            },
-        },
-        ParamSpec {
-            name: "dilation",
-            doc: "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history",
-            kind: ParamKind::Bool,
-        },
-        ParamSpec {
-            name: "luminance_weighting",
-            doc: "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias",
-            kind: ParamKind::Bool,
-        },
-        ParamSpec {
-            name: "depth_rejection",
-            doc: "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry",
-            kind: ParamKind::Float { min: 0.0, max: 10.0 },
-        },
-        ParamSpec {
-            name: "sharpen",
-            doc: "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise",
-            kind: ParamKind::Float { min: 0.0, max: 4.0 },
-        },
-    ];
-}
 
 /// History planes.
 const Y: usize = 0;

@@ -38,15 +38,14 @@
 //!   3.1's "colour peak" cannot reach extreme values.
 
 use super::passes::{from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState};
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, ParamSpec, PixelCounts,
-    Recorder, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -71,18 +70,22 @@ impl Variant {
     }
 }
 
-/// Parameters of `traa`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// Baseline or improved.
-    pub variant: Variant,
-    /// History weight when current and history luma differ most.
-    pub feedback_min: f32,
-    /// History weight when they agree.
-    pub feedback_max: f32,
-    /// Sharpen the output (eq. 3.1 for baseline, eq. 4.17 for improved).
-    pub sharpen: bool,
+filter_params! {
+    /// Parameters of `traa`.
+    pub struct Params {
+        variant: Variant = Variant::Improved,
+            ParamKind::Choice { options: &["baseline", "improved"], },
+            "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)";
+        feedback_min: f32 = FEEDBACK_MIN,
+            ParamKind::Float { min: 0.0, max: 0.999 },
+            "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting";
+        feedback_max: f32 = FEEDBACK_MAX,
+            ParamKind::Float { min: 0.0, max: 0.999 },
+            "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response";
+        sharpen: bool = true,
+            ParamKind::Bool,
+            "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved";
+    }
 }
 
 /// INSIDE's `_FeedbackMin` (Pedersen 2016; the feedback of thesis sec. 3.6.3).
@@ -101,44 +104,6 @@ const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
 const SOBEL_LIT_WEIGHT: f32 = 0.7;
 /// Sec. 4.3.2: below this normalising depth distance the pseudo-variances are zero.
 const DEPTH_DISTANCE_MIN: f32 = 0.002;
-
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            variant: Variant::Improved,
-            feedback_min: FEEDBACK_MIN,
-            feedback_max: FEEDBACK_MAX,
-            sharpen: true,
-        }
-    }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "variant",
-            doc: "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)",
-            kind: ParamKind::Choice {
-                options: &["baseline", "improved"],
-            },
-        },
-        ParamSpec {
-            name: "feedback_min",
-            doc: "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting",
-            kind: ParamKind::Float { min: 0.0, max: 0.999 },
-        },
-        ParamSpec {
-            name: "feedback_max",
-            doc: "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response",
-            kind: ParamKind::Float { min: 0.0, max: 0.999 },
-        },
-        ParamSpec {
-            name: "sharpen",
-            doc: "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved",
-            kind: ParamKind::Bool,
-        },
-    ];
-}
 
 /// History planes: working RGB, then (improved) the Sobel history and depth / far.
 const SOBEL: usize = 3;

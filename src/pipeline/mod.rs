@@ -1,7 +1,8 @@
 //! The filter interface: requirements, parameters, per-frame records, the stage planner,
-//! and the registry of every filter.
+//! and execution on the pool. The registry of the filters that implement it is
+//! [`crate::filters::registry`]; this module knows none of them.
 //!
-//! A filter is created by name with validated parameters ([`create`]), then fed frames in
+//! A filter is created by name with validated parameters ([`crate::filters::create`]), then fed frames in
 //! order ([`Filter::process`]); each frame gives an output image and a [`FrameRecord`].
 //! Filters run on the crate's rayon pool ([`exec::pool`]), split by rows.
 
@@ -21,7 +22,6 @@ pub use record::{
     StageSummary, WindowRecord,
 };
 
-use crate::filters;
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameError, Rgb};
 use serde::Serialize;
 use serde_json::{Map, Value};
@@ -250,43 +250,6 @@ pub fn entry<F: FilterKind>() -> FilterEntry {
         info: info_of::<F>,
         create: create_of::<F>,
     }
-}
-
-/// Every filter, in the order they are listed.
-pub fn registry() -> Vec<FilterEntry> {
-    filters::all()
-}
-
-/// Descriptions of every filter.
-pub fn list() -> Vec<FilterInfo> {
-    registry().iter().map(|e| (e.info)()).collect()
-}
-
-/// The description of filter `name`, if there is one.
-pub fn info(name: &str) -> Option<FilterInfo> {
-    registry().iter().map(|e| (e.info)()).find(|i| i.name == name)
-}
-
-/// A new instance of filter `name` with `values` overriding its defaults.
-pub fn create(name: &str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, FilterError> {
-    Ok(create_sized(name, values)?.0)
-}
-
-/// A new instance of filter `name` with `values` overriding its defaults, and the bytes of
-/// state per pixel it will hold with those parameters.
-pub fn create_sized(
-    name: &str,
-    values: &Map<String, Value>,
-) -> Result<(Box<dyn Filter>, usize), FilterError> {
-    let reg = registry();
-    let entry = reg
-        .iter()
-        .find(|e| (e.info)().name == name)
-        .ok_or_else(|| FilterError::UnknownFilter {
-            got: name.to_string(),
-            known: reg.iter().map(|e| (e.info)().name).collect::<Vec<_>>().join(", "),
-        })?;
-    (entry.create)(values)
 }
 
 /// Runs `filter` over a whole sequence (push every frame, then finish): one output per

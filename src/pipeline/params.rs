@@ -45,7 +45,60 @@ pub struct ParamSpec {
     pub kind: ParamKind,
 }
 
+/// Declares a filter's parameter struct once: each field with its type, default, kind and
+/// bounds, and the text that documents it (what it does and what raising or lowering it
+/// trades). Generates the struct (serde, every field defaulted, unknown fields refused),
+/// its `Default`, and its [`FilterParams`] specs in field order.
+///
+/// ```
+/// use afterimage::filter_params;
+/// use afterimage::pipeline::params::{FilterParams, ParamKind};
+/// filter_params! {
+///     /// Parameters of an example.
+///     pub struct Params {
+///         alpha: f32 = 0.1,
+///             ParamKind::Float { min: 0.0, max: 1.0 },
+///             "weight of the current frame";
+///     }
+/// }
+/// assert_eq!(Params::default().alpha, 0.1);
+/// assert_eq!(Params::SPECS[0].name, "alpha");
+/// ```
+#[macro_export]
+macro_rules! filter_params {
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $( $field:ident : $ty:ty = $default:expr, $kind:expr, $doc:literal; )*
+        }
+    ) => {
+        $(#[$meta])*
+        #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+        #[serde(default, deny_unknown_fields)]
+        pub struct $name {
+            $( #[doc = $doc] pub $field: $ty, )*
+        }
+
+        impl Default for $name {
+            fn default() -> Self {
+                $name { $( $field: $default, )* }
+            }
+        }
+
+        impl $crate::pipeline::params::FilterParams for $name {
+            const SPECS: &'static [$crate::pipeline::params::ParamSpec] = &[
+                $( $crate::pipeline::params::ParamSpec {
+                    name: stringify!($field),
+                    doc: $doc,
+                    kind: $kind,
+                }, )*
+            ];
+        }
+    };
+}
+
 /// A filter's parameter set: serde (every field has a default), plus the declared specs.
+/// Declared with [`filter_params!`](crate::filter_params).
 pub trait FilterParams: Serialize + DeserializeOwned + Default + Clone + std::fmt::Debug {
     /// One spec per field, in field order.
     const SPECS: &'static [ParamSpec];

@@ -24,12 +24,11 @@ pub use plot::write_plots;
 pub use synthetic::{synthetic_frame, synthetic_sparse_frame};
 pub use table::{csv, markdown};
 
+use crate::filters;
 use crate::frame::{ChannelSet, Frame, Rgb};
 use crate::io::IoError;
 use crate::metrics::{Evaluator, MetricSpace, MetricsError, SpaceChoice, Timing};
-use crate::pipeline::{
-    self, params::parse_assignments, summarize_stages, FilterError, FrameRecord, StageSummary,
-};
+use crate::pipeline::{params::parse_assignments, summarize_stages, FilterError, FrameRecord, StageSummary};
 use crate::scene::{Jitter, Scene, SceneError, Settings, CATALOGUE};
 use serde::Serialize;
 use serde_json::{Map, Value};
@@ -115,7 +114,7 @@ impl FilterSpec {
             source: Box::new(source),
         };
         let params = parse_assignments(&assignments).map_err(err)?;
-        let filter = pipeline::create(name, &params).map_err(err)?;
+        let filter = filters::create(name, &params).map_err(err)?;
         Ok(FilterSpec {
             label: spec.to_string(),
             name: filter.name(),
@@ -126,7 +125,7 @@ impl FilterSpec {
     /// Every registered filter of full-resolution colour at its defaults, in registry
     /// order (the filters of sparse shading have their own section, [`FilterSpec::sparse`]).
     pub fn every() -> Vec<FilterSpec> {
-        pipeline::list()
+        filters::list()
             .into_iter()
             .filter(|info| !info.sparse_input)
             .map(|info| FilterSpec {
@@ -140,7 +139,7 @@ impl FilterSpec {
     /// Every filter of sparse shading, one spec per value of its `method` parameter (the
     /// method and its baselines), or at its defaults when it has none.
     pub fn sparse() -> Vec<FilterSpec> {
-        pipeline::list()
+        filters::list()
             .into_iter()
             .filter(|info| info.sparse_input)
             .flat_map(|info| {
@@ -168,11 +167,11 @@ impl FilterSpec {
     }
 
     fn uses(&self) -> ChannelSet {
-        pipeline::info(self.name).map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
+        filters::info(self.name).map_or(ChannelSet::EMPTY, |i| ChannelSet::of(&i.uses))
     }
 
     fn takes_sparse(&self) -> bool {
-        pipeline::info(self.name).is_some_and(|i| i.sparse_input)
+        filters::info(self.name).is_some_and(|i| i.sparse_input)
     }
 }
 
@@ -627,7 +626,7 @@ fn run_scenes(
         let mut cells = Vec::new();
         for (k, spec) in filters.iter().enumerate() {
             let mut filter =
-                pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
+                filters::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
                     spec: spec.label.clone(),
                     source: Box::new(source),
                 })?;
@@ -720,7 +719,7 @@ fn time_filters(
     let mut timing = Vec::new();
     for spec in filters {
         let label = format!("{}x{}: {}", size.width, size.height, spec.label);
-        let mut filter = pipeline::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
+        let mut filter = filters::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
             spec: spec.label.clone(),
             source: Box::new(source),
         })?;
@@ -772,10 +771,10 @@ mod tests {
         assert!(e.contains("\"nope\"") && e.contains("taa"), "{e}");
         let e = FilterSpec::parse("taa:no_such=1").unwrap_err().to_string();
         assert!(e.contains("no_such"), "{e}");
-        let sparse = pipeline::list().iter().filter(|i| i.sparse_input).count();
+        let sparse = filters::list().iter().filter(|i| i.sparse_input).count();
         assert_eq!(
             FilterSpec::every().len() + sparse,
-            pipeline::list().len(),
+            filters::list().len(),
             "every registered filter, no hand-kept list"
         );
         let labels: Vec<String> = FilterSpec::sparse().into_iter().map(|s| s.label).collect();

@@ -10,7 +10,8 @@ use super::proto::afterimage_server::{Afterimage, AfterimageServer};
 use super::proto::{self as pb, filtered_chunk, frame_chunk};
 use super::service::{InFlight, Service};
 use super::wire::{self, Assembly, FramePlan};
-use crate::pipeline::{self, ParamKind};
+use crate::filters;
+use crate::pipeline::ParamKind;
 use crate::session::{
     clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Reservation, SessionError, SessionInfo,
     SessionRequest, StreamClaim,
@@ -57,7 +58,7 @@ fn session_pb(s: SessionInfo, max_chunk: usize) -> pb::Session {
 
 /// The proto description of every filter.
 pub fn filters_pb() -> Vec<pb::FilterInfo> {
-    pipeline::list()
+    filters::list()
         .into_iter()
         .map(|i| pb::FilterInfo {
             name: i.name.into(),

@@ -8,12 +8,12 @@
 //! and decoded, filtered and encoded on the rayon pool.
 
 use super::service::Service;
+use crate::filters;
 use crate::frame::Frame;
 use crate::io::{
     check_exr_header, read_exr_frame_bytes_limited, write_exr_bytes, Compression, ExrLayout, Precision,
     ReadOptions, WriteOptions,
 };
-use crate::pipeline;
 use crate::session::{
     params_from_json, Caller, Checkout, ErrorKind, Filtered, MotionInput, SessionError, SessionRequest,
 };
@@ -345,7 +345,7 @@ async fn post_flush(
 }
 
 async fn filters(Auth(_): Auth) -> Response {
-    Json(json!({"filters": pipeline::list()})).into_response()
+    Json(json!({"filters": filters::list()})).into_response()
 }
 
 async fn healthz() -> &'static str {

@@ -21,6 +21,7 @@ pub use access::{ApiKey, Caller, Keyring, Quotas};
 pub use budget::{Budget, Reservation};
 pub use error::{cap_message, clip, ErrorKind, SessionError, ECHO_CHARS, MAX_MESSAGE_BYTES};
 
+use crate::filters;
 use crate::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, Rgb};
 use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
 use crate::pipeline::exec::panic_text;
@@ -352,8 +353,8 @@ impl Sessions {
     pub fn create(&self, caller: &Caller, req: &SessionRequest) -> Result<SessionInfo, SessionError> {
         self.check_open()?;
         self.evict_idle();
-        let info = pipeline::info(&req.filter).ok_or_else(|| {
-            let known: Vec<&str> = pipeline::list().iter().map(|i| i.name).collect();
+        let info = filters::info(&req.filter).ok_or_else(|| {
+            let known: Vec<&str> = filters::list().iter().map(|i| i.name).collect();
             SessionError::invalid(
                 "filter",
                 format!(
@@ -371,7 +372,7 @@ impl Sessions {
         }
         let pairs: Vec<String> = req.params.iter().map(|(k, v)| format!("{k}={v}")).collect();
         let values = pipeline::params::parse_assignments(&pairs).map_err(filter_error)?;
-        let (filter, state_bpp) = pipeline::create_sized(&req.filter, &values).map_err(filter_error)?;
+        let (filter, state_bpp) = filters::create_sized(&req.filter, &values).map_err(filter_error)?;
         let l = &self.limits;
         for (field, got, max) in [
             ("width", req.width, l.max_width),
@@ -963,14 +964,14 @@ mod tests {
             };
             let real = std::mem::replace(
                 &mut inner.filter,
-                pipeline::create("passthrough", &Map::new()).unwrap(),
+                filters::create("passthrough", &Map::new()).unwrap(),
             );
             inner.filter = Box::new(PanicsOn {
                 inner: real,
                 index: 2,
             });
         }
-        let mut reference = pipeline::create("taa", &Map::new()).unwrap();
+        let mut reference = filters::create("taa", &Map::new()).unwrap();
         for i in 0..5 {
             let want = reference.process(&frame(i)).unwrap().color;
             // The healthy session is filtered between the sick one's frames, on the same

@@ -42,13 +42,13 @@ pub mod feature;
 pub mod rls;
 
 use super::passes::{from_working, on_screen, slices_mut, to_working, to_ycocg, Conversion, TemporalState};
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, clip_toward_point, for_each_row_stats, rgb_to_ycocg, tonemap, ycocg_to_rgb};
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, ModelHealth, Output, ParamKind, ParamSpec,
-    PixelCounts, Recorder, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, ModelHealth, Output, ParamKind, PixelCounts,
+    Recorder, Skip,
 };
 use rls::{D, P_LEN};
 use serde::{Deserialize, Serialize};
@@ -65,24 +65,31 @@ pub enum ModelFetch {
     Nearest,
 }
 
-/// Parameters of `phlm`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// RLS forgetting factor.
-    pub lambda: f32,
-    /// Diagonal of P at initialisation and off-screen reset.
-    pub p0: f32,
-    /// Diagonal of P after a clip reset.
-    pub clip_p: f32,
-    /// Feature convergence constant `a`.
-    pub feature_a: f32,
-    /// Feature convergence constant `b`.
-    pub feature_b: f32,
-    /// Smallest weight of the current low-pass sample in the feature.
-    pub feature_alpha_min: f32,
-    /// How models are fetched at a reprojected position.
-    pub model_fetch: ModelFetch,
+filter_params! {
+    /// Parameters of `phlm`.
+    pub struct Params {
+        lambda: f32 = DEFAULT_LAMBDA,
+            ParamKind::Float { min: 0.5, max: 0.99999 },
+            "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
+        p0: f32 = DEFAULT_P0,
+            ParamKind::Float { min: 1e-3, max: 1e6 },
+            "diagonal of P at initialisation and off-screen reset (paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
+        clip_p: f32 = DEFAULT_CLIP_P,
+            ParamKind::Float { min: 1e-3, max: 1e6 },
+            "diagonal of P after a clip reset (default 1; paper: 1000 like p0, the model restarts from the input and the pixel shows its raw input). Lower keeps the clipped colour longer: less flicker on thin features, more lag";
+        feature_a: f32 = feature::DEFAULT_A,
+            ParamKind::Float { min: 0.0, max: 100.0 },
+            "feature convergence phi = a l^2 + b v l^3 (paper: a = 0.125): how fast the feature catches up when its luma leaves the neighbourhood range";
+        feature_b: f32 = feature::DEFAULT_B,
+            ParamKind::Float { min: 0.0, max: 100.0 },
+            "feature convergence, motion term (paper: b = 0.25): faster catch-up for moving pixels";
+        feature_alpha_min: f32 = feature::DEFAULT_ALPHA_MIN,
+            ParamKind::Float { min: 0.001, max: 1.0 },
+            "smallest weight of the current low-pass sample in the feature (our choice, 0.03 = a 33-frame memory): lower gives a smoother feature that lags more";
+        model_fetch: ModelFetch = ModelFetch::Bilinear,
+            ParamKind::Choice { options: &["bilinear", "nearest"], },
+            "reprojected model read: bilinear (paper's texture fetch, smooth) or nearest (4x fewer reads)";
+    }
 }
 
 /// RLS forgetting factor `lambda = 0.998` (000, sec. 4 after eq. 6: "we used lambda = 0.998
@@ -98,62 +105,6 @@ pub const DEFAULT_P0: f32 = 1000.0;
 /// raises mean PSNR from 27.72 to 29.34 dB and lowers tRMSE from 0.0596 to 0.0450 (with
 /// `feature_alpha_min = 0.03`); `clip_p = 1000` gives the paper's behaviour.
 pub const DEFAULT_CLIP_P: f32 = 1.0;
-
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            lambda: DEFAULT_LAMBDA,
-            p0: DEFAULT_P0,
-            clip_p: DEFAULT_CLIP_P,
-            feature_a: feature::DEFAULT_A,
-            feature_b: feature::DEFAULT_B,
-            feature_alpha_min: feature::DEFAULT_ALPHA_MIN,
-            model_fetch: ModelFetch::Bilinear,
-        }
-    }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "lambda",
-            doc: "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker",
-            kind: ParamKind::Float { min: 0.5, max: 0.99999 },
-        },
-        ParamSpec {
-            name: "p0",
-            doc: "diagonal of P at initialisation and off-screen reset (paper: 1000). High: a new model follows the input at once; low: it trusts its initial value",
-            kind: ParamKind::Float { min: 1e-3, max: 1e6 },
-        },
-        ParamSpec {
-            name: "clip_p",
-            doc: "diagonal of P after a clip reset (default 1; paper: 1000 like p0, the model restarts from the input and the pixel shows its raw input). Lower keeps the clipped colour longer: less flicker on thin features, more lag",
-            kind: ParamKind::Float { min: 1e-3, max: 1e6 },
-        },
-        ParamSpec {
-            name: "feature_a",
-            doc: "feature convergence phi = a l^2 + b v l^3 (paper: a = 0.125): how fast the feature catches up when its luma leaves the neighbourhood range",
-            kind: ParamKind::Float { min: 0.0, max: 100.0 },
-        },
-        ParamSpec {
-            name: "feature_b",
-            doc: "feature convergence, motion term (paper: b = 0.25): faster catch-up for moving pixels",
-            kind: ParamKind::Float { min: 0.0, max: 100.0 },
-        },
-        ParamSpec {
-            name: "feature_alpha_min",
-            doc: "smallest weight of the current low-pass sample in the feature (our choice, 0.03 = a 33-frame memory): lower gives a smoother feature that lags more",
-            kind: ParamKind::Float { min: 0.001, max: 1.0 },
-        },
-        ParamSpec {
-            name: "model_fetch",
-            doc: "reprojected model read: bilinear (paper's texture fetch, smooth) or nearest (4x fewer reads)",
-            kind: ParamKind::Choice {
-                options: &["bilinear", "nearest"],
-            },
-        },
-    ];
-}
 
 /// Number of state planes: beta (12), R = P^-1 (10), z (3).
 pub const STATE_PLANES: usize = 3 * D + P_LEN + 3;

@@ -27,11 +27,12 @@
 
 mod trace;
 
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame};
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
-    check_needs, params::FilterParams, prepare, Filter, FilterError, FilterKind, InputCounts, Output,
-    ParamKind, ParamSpec, PixelCounts, Recorder, Skip, WindowRecord,
+    check_needs, prepare, Filter, FilterError, FilterKind, InputCounts, Output,
+    ParamKind, PixelCounts, Recorder, Skip, WindowRecord,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -48,22 +49,28 @@ pub enum Kernel {
     Gaussian,
 }
 
-/// Parameters of `pixel_trace`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// Window T: frames t0 - T/2 ..= t0 + T/2.
-    pub window: u32,
-    /// The kernel.
-    pub kernel: Kernel,
-    /// Kernel support radius in pixels.
-    pub support: f32,
-    /// Threshold of the two-way flow test in pixels; 0: the support's diameter.
-    pub d_th: f32,
-    /// Separate flows (eq. 13-17); off: every sample along the path counts (one flow).
-    pub flow_separation: bool,
-    /// Most missed flows kept per pixel.
-    pub max_flows: u32,
+filter_params! {
+    /// Parameters of `pixel_trace`.
+    pub struct Params {
+        window: u32 = DEFAULT_WINDOW,
+            ParamKind::Int { min: 1, max: 256 },
+            "frames T in the window t-T/2..=t+T/2 (Shinya: 16 for a walk-through, 32 for non-uniform motion, 128 for his thin line). Larger: more sub-pixel detail recovered, cost and memory grow as T, latency T/2 frames";
+        kernel: Kernel = Kernel::Box,
+            ParamKind::Choice { options: &["box", "gaussian"], },
+            "filter kernel w: box (Shinya's, sharpest; support 0.5 = one pixel area) or gaussian (smoother, less aliasing left at small T, softer)";
+        support: f32 = DEFAULT_SUPPORT,
+            ParamKind::Float { min: 0.25, max: 4.0 },
+            "kernel support radius in pixels. Larger: softer and more samples per frame (cost grows as its square)";
+        d_th: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 16.0 },
+            "two-way flow test threshold in pixels (eq. 14-15); 0 = the support's diameter. Smaller: objects separate sooner but paths with motion error lose samples; larger: different motions merge";
+        flow_separation: bool = true,
+            ParamKind::Bool,
+            "separate differently moving objects (eq. 13-17). Off: one flow per pixel, cheaper, smears objects into what moves behind them";
+        max_flows: u32 = 3,
+            ParamKind::Int { min: 1, max: 8 },
+            "most missed flows (other objects) kept per pixel, the A-buffer list; more cost memory only where objects overlap";
+    }
 }
 
 /// Window of 16 frames: Shinya's walk-through experiment (sec. 5); his thin line needs 128
@@ -71,19 +78,6 @@ pub struct Params {
 pub const DEFAULT_WINDOW: u32 = 16;
 /// Box of one pixel area (Shinya sec. 5: "the box function with one pixel area").
 pub const DEFAULT_SUPPORT: f32 = 0.5;
-
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            window: DEFAULT_WINDOW,
-            kernel: Kernel::Box,
-            support: DEFAULT_SUPPORT,
-            d_th: 0.0,
-            flow_separation: true,
-            max_flows: 3,
-        }
-    }
-}
 
 impl Params {
     /// The two-way test's threshold: `d_th`, or the support's diameter (Shinya: "according
@@ -99,43 +93,6 @@ impl Params {
     fn half(&self) -> usize {
         self.window as usize / 2
     }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "window",
-            doc: "frames T in the window t-T/2..=t+T/2 (Shinya: 16 for a walk-through, 32 for non-uniform motion, 128 for his thin line). Larger: more sub-pixel detail recovered, cost and memory grow as T, latency T/2 frames",
-            kind: ParamKind::Int { min: 1, max: 256 },
-        },
-        ParamSpec {
-            name: "kernel",
-            doc: "filter kernel w: box (Shinya's, sharpest; support 0.5 = one pixel area) or gaussian (smoother, less aliasing left at small T, softer)",
-            kind: ParamKind::Choice {
-                options: &["box", "gaussian"],
-            },
-        },
-        ParamSpec {
-            name: "support",
-            doc: "kernel support radius in pixels. Larger: softer and more samples per frame (cost grows as its square)",
-            kind: ParamKind::Float { min: 0.25, max: 4.0 },
-        },
-        ParamSpec {
-            name: "d_th",
-            doc: "two-way flow test threshold in pixels (eq. 14-15); 0 = the support's diameter. Smaller: objects separate sooner but paths with motion error lose samples; larger: different motions merge",
-            kind: ParamKind::Float { min: 0.0, max: 16.0 },
-        },
-        ParamSpec {
-            name: "flow_separation",
-            doc: "separate differently moving objects (eq. 13-17). Off: one flow per pixel, cheaper, smears objects into what moves behind them",
-            kind: ParamKind::Bool,
-        },
-        ParamSpec {
-            name: "max_flows",
-            doc: "most missed flows (other objects) kept per pixel, the A-buffer list; more cost memory only where objects overlap",
-            kind: ParamKind::Int { min: 1, max: 8 },
-        },
-    ];
 }
 
 /// Stage names: the paths and maps to t0, the missed flows scattered in, the primary flow

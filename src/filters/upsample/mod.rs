@@ -59,13 +59,13 @@ pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSIL
 pub use temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_WEIGHTS, LUMA_FLOOR};
 
 use super::passes::slices_mut;
+use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
 use crate::kernels::luma;
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::params::FilterParams;
 use crate::pipeline::{
     bind_size, check_channels, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    ParamSpec, PixelCounts, Recorder, Scratch, Skip,
+    PixelCounts, Recorder, Scratch, Skip,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -119,96 +119,37 @@ const G1: usize = 6;
 /// (both carried along the motion; their ratio survives bilinear fetches across unknowns).
 const LK: usize = 9;
 
-/// Parameters of `upsample`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Params {
-    /// Which reconstruction.
-    pub method: Method,
-    /// History decay per frame (0: auto, `1 - 1/(2 period)`).
-    pub decay: f32,
-    /// Gradient at which confidence reaches 0 (eq. 8's sensitivity).
-    pub gradient_scale: f32,
-    /// Image-space kernel width at full confidence, in block diagonals.
-    pub kernel_sharp: f32,
-    /// Image-space kernel width at no confidence, in block diagonals.
-    pub kernel_wide: f32,
-    /// Depth falloff width as a fraction of the depth range.
-    pub depth_sigma: f32,
-    /// Normal falloff width on `1 - n_i . n_j`.
-    pub normal_sigma: f32,
-    /// Relative depth difference a history tap may have.
-    pub depth_tolerance: f32,
-    /// Blend weight of a full-quality sample in the `taa` method.
-    pub taa_alpha: f32,
-}
-
-impl Default for Params {
-    fn default() -> Self {
-        Params {
-            method: Method::Spatiotemporal,
-            decay: 0.0,
-            gradient_scale: 1.0,
-            kernel_sharp: 0.1,
-            kernel_wide: 1.0,
-            depth_sigma: 0.03,
-            normal_sigma: 0.5,
-            depth_tolerance: 0.1,
-            taa_alpha: crate::filters::taa::DEFAULT_ALPHA,
-        }
+filter_params! {
+    /// Parameters of `upsample`.
+    pub struct Params {
+        method: Method = Method::Spatiotemporal,
+            ParamKind::Choice { options: &["spatiotemporal", "spatial", "temporal", "taa"], },
+            "spatiotemporal (Herzog et al. 2010), or a baseline: spatial (joint bilateral only), temporal (reprojection with hole filling), taa (scaling-aware accumulation)";
+        decay: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 0.999 },
+            "history weight kept per frame (0 = auto: 1 - 1/(2 x pattern period), 0.875 for 2x2). Higher: smoother, more lag on changes the gradient misses; lower: faster, noisier";
+        gradient_scale: f32 = 1.0,
+            ParamKind::Float { min: 0.01, max: 100.0 },
+            "relative luma gradient at which history is no longer trusted (seed 001 eq. 8, 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag";
+        kernel_sharp: f32 = 0.1,
+            ParamKind::Float { min: 0.01, max: 4.0 },
+            "image-space kernel width at full confidence, in block diagonals: below 1/(factor x 1.41) (0.18 for 4x4) no other sample reaches it, so a still image converges to its own samples; higher blurs converged detail";
+        kernel_wide: f32 = 1.0,
+            ParamKind::Float { min: 0.01, max: 4.0 },
+            "image-space kernel width at no confidence and for the spatial method, in block diagonals (1: the block footprint). Higher: smoother fill, blurrier";
+        depth_sigma: f32 = 0.03,
+            ParamKind::Float { min: 1e-4, max: 10.0 },
+            "depth difference (fraction of the frame's depth range) at which a sample stops counting (seed 001: 3%). Lower: sharper silhouettes, grazing surfaces fill worse";
+        normal_sigma: f32 = 0.5,
+            ParamKind::Float { min: 1e-3, max: 2.0 },
+            "normal difference (1 - cos) at which a sample stops counting. Lower: sharper creases, curved surfaces fill worse";
+        depth_tolerance: f32 = 0.1,
+            ParamKind::Float { min: 1e-3, max: 10.0 },
+            "relative depth difference a history tap may have and still count as the same surface. Lower: catches more disocclusion, also rejects valid history under fast motion in depth";
+        taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA,
+            ParamKind::Float { min: 0.01, max: 1.0 },
+            "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)";
     }
-}
-
-impl FilterParams for Params {
-    const SPECS: &'static [ParamSpec] = &[
-        ParamSpec {
-            name: "method",
-            doc: "spatiotemporal (Herzog et al. 2010), or a baseline: spatial (joint bilateral only), temporal (reprojection with hole filling), taa (scaling-aware accumulation)",
-            kind: ParamKind::Choice {
-                options: &["spatiotemporal", "spatial", "temporal", "taa"],
-            },
-        },
-        ParamSpec {
-            name: "decay",
-            doc: "history weight kept per frame (0 = auto: 1 - 1/(2 x pattern period), 0.875 for 2x2). Higher: smoother, more lag on changes the gradient misses; lower: faster, noisier",
-            kind: ParamKind::Float { min: 0.0, max: 0.999 },
-        },
-        ParamSpec {
-            name: "gradient_scale",
-            doc: "relative luma gradient at which history is no longer trusted (seed 001 eq. 8, 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag",
-            kind: ParamKind::Float { min: 0.01, max: 100.0 },
-        },
-        ParamSpec {
-            name: "kernel_sharp",
-            doc: "image-space kernel width at full confidence, in block diagonals: below 1/(factor x 1.41) (0.18 for 4x4) no other sample reaches it, so a still image converges to its own samples; higher blurs converged detail",
-            kind: ParamKind::Float { min: 0.01, max: 4.0 },
-        },
-        ParamSpec {
-            name: "kernel_wide",
-            doc: "image-space kernel width at no confidence and for the spatial method, in block diagonals (1: the block footprint). Higher: smoother fill, blurrier",
-            kind: ParamKind::Float { min: 0.01, max: 4.0 },
-        },
-        ParamSpec {
-            name: "depth_sigma",
-            doc: "depth difference (fraction of the frame's depth range) at which a sample stops counting (seed 001: 3%). Lower: sharper silhouettes, grazing surfaces fill worse",
-            kind: ParamKind::Float { min: 1e-4, max: 10.0 },
-        },
-        ParamSpec {
-            name: "normal_sigma",
-            doc: "normal difference (1 - cos) at which a sample stops counting. Lower: sharper creases, curved surfaces fill worse",
-            kind: ParamKind::Float { min: 1e-3, max: 2.0 },
-        },
-        ParamSpec {
-            name: "depth_tolerance",
-            doc: "relative depth difference a history tap may have and still count as the same surface. Lower: catches more disocclusion, also rejects valid history under fast motion in depth",
-            kind: ParamKind::Float { min: 1e-3, max: 10.0 },
-        },
-        ParamSpec {
-            name: "taa_alpha",
-            doc: "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)",
-            kind: ParamKind::Float { min: 0.01, max: 1.0 },
-        },
-    ];
 }
 
 /// Fit of the Blackman-Harris reconstruction kernel, `exp(-2.29 d^2)` with `d` in output
