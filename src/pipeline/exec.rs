@@ -81,9 +81,118 @@ where
     pool().install(|| rows.into_par_iter().enumerate().for_each(|(y, r)| f(y, r)));
 }
 
+/// Rows per band of a fused pass: the band's rows and their 3x3 halo stay in the core's
+/// L1/L2 while every stage of the pass runs over them, and 1080 rows make 135 tasks, plenty
+/// to balance two to sixteen threads.
+pub const BAND_ROWS: usize = 8;
+
+/// Runs `f(scratch, rows, band)` for every band of [`BAND_ROWS`] rows of the `N` output
+/// planes (`band[k]` holds rows `rows` of plane `k`) in parallel on the crate's pool, and
+/// adds up what the calls return. Each task has a `S::default()` scratch of its own (reused
+/// across the bands it runs), for the band-local buffers of fused stages.
+pub fn par_bands<const N: usize, S, C, F>(planes: [&mut [f32]; N], width: usize, height: usize, f: F) -> C
+where
+    S: Default + Send,
+    C: Default + AddAssign + Send,
+    F: Fn(&mut S, std::ops::Range<usize>, [&mut [f32]; N]) -> C + Sync + Send,
+{
+    let step = BAND_ROWS * width.max(1);
+    let mut iters = planes.map(|p| p.chunks_mut(step));
+    let bands: Vec<[&mut [f32]; N]> = (0..height.div_ceil(BAND_ROWS))
+        .map(|_| {
+            iters
+                .each_mut()
+                .map(|it| it.next().expect("all planes have the same size"))
+        })
+        .collect();
+    pool().install(|| {
+        bands
+            .into_par_iter()
+            .enumerate()
+            .map_init(S::default, |s, (b, band)| {
+                let y0 = b * BAND_ROWS;
+                f(s, y0..(y0 + BAND_ROWS).min(height), band)
+            })
+            .reduce(C::default, |mut a, b| {
+                a += b;
+                a
+            })
+    })
+}
+
+/// CPU time per stage of a fused pass, added up over the threads that ran its bands: a
+/// band times each of its stages with [`StageClock::time`], and the record then shares the
+/// pass's wall time among the stages in proportion ([`super::Recorder::fused`]).
+#[derive(Debug)]
+pub struct StageClock<const N: usize> {
+    nanos: [std::sync::atomic::AtomicU64; N],
+}
+
+impl<const N: usize> Default for StageClock<N> {
+    fn default() -> Self {
+        StageClock {
+            nanos: std::array::from_fn(|_| std::sync::atomic::AtomicU64::new(0)),
+        }
+    }
+}
+
+impl<const N: usize> StageClock<N> {
+    /// Runs `f` as part of stage `k` and adds its time.
+    #[inline]
+    pub fn time<T>(&self, k: usize, f: impl FnOnce() -> T) -> T {
+        let t = std::time::Instant::now();
+        let out = f();
+        self.nanos[k].fetch_add(
+            t.elapsed().as_nanos() as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        out
+    }
+
+    /// Each stage's share of the time measured, summing to 1 (equal shares when nothing
+    /// was measured).
+    pub fn shares(&self) -> [f64; N] {
+        let ns = self
+            .nanos
+            .each_ref()
+            .map(|a| a.load(std::sync::atomic::Ordering::Relaxed) as f64);
+        let total: f64 = ns.iter().sum();
+        if total > 0.0 {
+            ns.map(|v| v / total)
+        } else {
+            [1.0 / N as f64; N]
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn bands_cover_every_row_once_with_their_scratch() {
+        for (w, h) in [(1, 1), (3, 7), (5, BAND_ROWS), (4, 3 * BAND_ROWS + 1)] {
+            let mut a = vec![0.0f32; w * h];
+            let rows: usize = par_bands([&mut a], w, h, |s: &mut Vec<usize>, rows, [band]| {
+                assert_eq!(band.len(), rows.len() * w);
+                s.push(rows.start);
+                for (k, y) in rows.clone().enumerate() {
+                    for x in 0..w {
+                        band[k * w + x] += (y * w + x) as f32 + 1.0;
+                    }
+                }
+                rows.len()
+            });
+            assert_eq!(rows, h);
+            for (i, v) in a.iter().enumerate() {
+                assert_eq!(*v, i as f32 + 1.0, "{w}x{h} sample {i}");
+            }
+        }
+        let clock = StageClock::<2>::default();
+        clock.time(1, || std::thread::sleep(std::time::Duration::from_millis(2)));
+        let s = clock.shares();
+        assert!(s[1] > 0.99 && (s[0] + s[1] - 1.0).abs() < 1e-9, "{s:?}");
+    }
 
     #[test]
     fn rows_cover_every_sample_once() {

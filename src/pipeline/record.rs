@@ -222,6 +222,32 @@ impl Recorder {
         });
     }
 
+    /// Notes the stages `names` of one fused pass that took `ms` of wall time: each gets
+    /// the share of it that its clock measured (see [`super::exec::StageClock`]).
+    pub fn fused<const N: usize>(
+        &mut self,
+        names: [&'static str; N],
+        clock: &super::exec::StageClock<N>,
+        ms: f64,
+    ) {
+        for (name, share) in names.into_iter().zip(clock.shares()) {
+            self.ran_for(name, ms * share);
+        }
+    }
+
+    /// Runs a fused pass `f` and notes its stages `names` as [`Recorder::fused`] does.
+    pub fn run_fused<const N: usize, T>(
+        &mut self,
+        names: [&'static str; N],
+        f: impl FnOnce(&super::exec::StageClock<N>) -> T,
+    ) -> T {
+        let clock = super::exec::StageClock::default();
+        let t = Instant::now();
+        let out = f(&clock);
+        self.fused(names, &clock, t.elapsed().as_secs_f64() * 1e3);
+        out
+    }
+
     /// The finished record.
     pub fn finish(
         self,

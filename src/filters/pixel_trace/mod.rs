@@ -31,8 +31,8 @@ use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame};
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, InputCounts, Output,
-    ParamKind, PixelCounts, Recorder, Skip, WindowRecord,
+    check_needs, prepare, Filter, FilterError, FilterKind, InputCounts, Output, ParamKind, PixelCounts,
+    Recorder, Skip, WindowRecord,
 };
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
