@@ -11,6 +11,8 @@
 //! | `pixel_trace` | Shinya's pixel-tracing filter (002): a window of frames along motion paths, offline |
 //! | `upsample` | Herzog et al.'s spatio-temporal upsampling (001) of sparse shading, and its baselines |
 
+#[cfg(test)]
+pub(crate) mod check;
 pub mod fxaa;
 pub mod passes;
 pub mod passthrough;

@@ -1,11 +1,14 @@
 //! Whole-plane passes shared by the temporal filters, built on [`crate::kernels`] and run
 //! on the crate's pool by rows.
 
-use crate::frame::ChannelKind;
+use crate::frame::{ChannelKind, ChannelSet};
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{bind_size, DoubleBuffer, FilterError, Inputs, Recorder, Scratch, Skip};
+use crate::pipeline::{
+    bind_size, check_channels, check_needs, prepare, DoubleBuffer, FilterError, Inputs, ModelHealth, Output,
+    PixelCounts, Recorder, Scratch, Skip,
+};
 use std::borrow::Cow;
 
 /// Empty planes of the given size.
@@ -157,8 +160,14 @@ impl TemporalState {
 
     /// History of `planes` planes converted between spaces by `conversion`.
     pub fn with_conversion(planes: usize, conversion: Conversion) -> Self {
+        Self::with_components(&vec![1; planes], conversion)
+    }
+
+    /// History of one plane per entry of `components`, each with that many channels per
+    /// pixel, interleaved; converted between spaces by `conversion`.
+    pub fn with_components(components: &[usize], conversion: Conversion) -> Self {
         TemporalState {
-            buffer: DoubleBuffer::new(planes),
+            buffer: DoubleBuffer::with_components(components),
             scratch: Scratch::default(),
             tonemapped: false,
             conversion,
@@ -186,6 +195,95 @@ impl TemporalState {
         self.tonemapped = hdr;
         self.buffer.bytes()
     }
+}
+
+/// What a temporal filter's own stages work with for one frame (see
+/// [`TemporalState::run`]).
+pub struct FrameContext<'f, 's> {
+    /// The channels the filter uses, repaired, with the planner's facts.
+    pub inp: Inputs<'f>,
+    /// The frame's record: the body times its stages here.
+    pub rec: &'s mut Recorder,
+    /// Whether the history holds a previous frame (not on the first frame, after a reset,
+    /// or on a reset frame).
+    pub has_history: bool,
+    /// The history: the previous frame's planes, in this frame's working space.
+    pub read: &'s [Plane<f32>],
+    /// The planes this frame's history is written into.
+    pub next: &'s mut [Plane<f32>],
+    /// Reused temporaries (and the output planes callers hand back).
+    pub scratch: &'s mut Scratch,
+}
+
+/// What a temporal filter's stages produce for one frame.
+pub struct FrameResult {
+    /// The output colour, linear.
+    pub color: Rgb,
+    /// What happened to the history.
+    pub pixels: PixelCounts,
+    /// Model health, for filters with per-pixel models.
+    pub model: Option<ModelHealth>,
+}
+
+impl TemporalState {
+    /// The frame every temporal filter runs: check that the frame has the channels `needs`
+    /// (and full-resolution colour unless `sparse`), repair and plan the channels it `uses`
+    /// (stage `repair`), size the history and move it to this frame's working space, run
+    /// `body` (the filter's own stages, from tonemap to untonemap), make what it wrote the
+    /// history, and finish the record.
+    pub fn run(
+        &mut self,
+        filter: &'static str,
+        needs: ChannelSet,
+        uses: ChannelSet,
+        sparse: bool,
+        frame: &Frame,
+        body: impl FnOnce(FrameContext<'_, '_>) -> Result<FrameResult, FilterError>,
+    ) -> Result<Output, FilterError> {
+        if sparse {
+            check_channels(filter, needs, frame)?;
+        } else {
+            check_needs(filter, needs, frame)?;
+        }
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, uses, &mut rec)?;
+        let hdr = inp.facts.hdr;
+        let counts = inp.counts;
+        let has_history = self.begin(frame, hdr)?;
+        let (read, next) = self.buffer.split();
+        let result = body(FrameContext {
+            inp,
+            rec: &mut rec,
+            has_history,
+            read,
+            next,
+            scratch: &mut self.scratch,
+        })?;
+        let bytes = self.finish(hdr);
+        let mut record = rec.finish(filter, frame.meta.index, result.pixels, counts, bytes);
+        record.model = result.model;
+        Ok(Output {
+            color: result.color,
+            record,
+        })
+    }
+}
+
+/// Converts a history whose first plane holds texels `[Y, Co, Cg, count]` between linear
+/// and tonemapped working space (as [`convert_history`] does for planar YCoCg).
+pub fn convert_texel_history(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+    let w = planes[0].width();
+    for_rows([planes[0].data_mut()], w, |_, [row]| {
+        for t in row.chunks_exact_mut(4) {
+            let rgb = ycocg_to_rgb([t[0], t[1], t[2]]).map(|v| v.max(0.0));
+            let c = if to_tonemapped {
+                tonemap(rgb)
+            } else {
+                tonemap_inverse(rgb)
+            };
+            [t[0], t[1], t[2]] = rgb_to_ycocg(c);
+        }
+    });
 }
 
 /// Converts colour history planes between linear and tonemapped working space.

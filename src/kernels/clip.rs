@@ -2,7 +2,7 @@
 
 /// Guard added to the half-extent of the box so a flat box (min = max) never divides by
 /// zero (Pedersen 2016, INSIDE's `clip_aabb`, `FLT_EPS = 1e-8`).
-const CLIP_EPS: f32 = 1.0e-8;
+pub(crate) const CLIP_EPS: f32 = 1.0e-8;
 
 /// Clips `q` toward the centre of the box `[min, max]`: if `q` lies outside, it is moved
 /// along the segment to the centre until it meets the box surface; inside, it is returned

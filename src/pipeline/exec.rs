@@ -96,8 +96,28 @@ where
     C: Default + AddAssign + Send,
     F: Fn(&mut S, std::ops::Range<usize>, [&mut [f32]; N]) -> C + Sync + Send,
 {
-    let step = BAND_ROWS * width.max(1);
-    let mut iters = planes.map(|p| p.chunks_mut(step));
+    par_bands_strided(planes, [width; N], height, f)
+}
+
+/// [`par_bands`] over planes of different row lengths: plane `k` has `strides[k]` samples
+/// per image row (e.g. four times the width for interleaved 4-channel texels).
+pub fn par_bands_strided<const N: usize, S, C, F>(
+    planes: [&mut [f32]; N],
+    strides: [usize; N],
+    height: usize,
+    f: F,
+) -> C
+where
+    S: Default + Send,
+    C: Default + AddAssign + Send,
+    F: Fn(&mut S, std::ops::Range<usize>, [&mut [f32]; N]) -> C + Sync + Send,
+{
+    let mut k = 0;
+    let mut iters = planes.map(|p| {
+        let it = p.chunks_mut(BAND_ROWS * strides[k].max(1));
+        k += 1;
+        it
+    });
     let bands: Vec<[&mut [f32]; N]> = (0..height.div_ceil(BAND_ROWS))
         .map(|_| {
             iters

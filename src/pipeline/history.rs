@@ -3,36 +3,53 @@
 use crate::frame::Plane;
 
 /// `N` planes of history, double-buffered so no pixel reads what another pixel of the same
-/// frame writes (the CPU and GPU backends compute the same function).
+/// frame writes (the CPU and GPU backends compute the same function). A plane may hold
+/// several channels per pixel, interleaved (texels): plane `k` of a `w x h` frame is then
+/// `components[k] * w` samples wide.
 #[derive(Clone, Debug)]
 pub struct DoubleBuffer {
-    planes: usize,
+    components: Vec<usize>,
+    size: Option<(usize, usize)>,
     read: Vec<Plane<f32>>,
     write: Vec<Plane<f32>>,
     valid: bool,
 }
 
 impl DoubleBuffer {
-    /// State of `planes` planes; nothing allocated until the first frame.
+    /// State of `planes` planes of one channel; nothing allocated until the first frame.
     pub fn new(planes: usize) -> Self {
+        Self::with_components(&vec![1; planes])
+    }
+
+    /// State of one plane per entry of `components`, each with that many channels per
+    /// pixel, interleaved.
+    pub fn with_components(components: &[usize]) -> Self {
         DoubleBuffer {
-            planes,
+            components: components.to_vec(),
+            size: None,
             read: Vec::new(),
             write: Vec::new(),
             valid: false,
         }
     }
 
-    /// The size of the allocated planes, if any.
+    /// The size in pixels of the allocated planes, if any.
     pub fn size(&self) -> Option<(usize, usize)> {
-        self.read.first().map(Plane::size)
+        self.size
     }
 
-    /// Makes sure both buffers are `width` x `height`; reallocating drops the history.
+    /// Makes sure both buffers are `width` x `height` pixels; reallocating drops the history.
     pub fn ensure(&mut self, width: usize, height: usize) {
-        if self.size() != Some((width, height)) {
-            self.read = (0..self.planes).map(|_| Plane::new(width, height)).collect();
-            self.write = (0..self.planes).map(|_| Plane::new(width, height)).collect();
+        if self.size != Some((width, height)) {
+            let planes = || {
+                self.components
+                    .iter()
+                    .map(|&c| Plane::new(c * width, height))
+                    .collect()
+            };
+            self.read = planes();
+            self.write = planes();
+            self.size = Some((width, height));
             self.valid = false;
         }
     }
@@ -73,12 +90,17 @@ impl DoubleBuffer {
     pub fn release(&mut self) {
         self.read.clear();
         self.write.clear();
+        self.size = None;
         self.valid = false;
     }
 
     /// Bytes held by both buffers.
     pub fn bytes(&self) -> usize {
-        (self.read.len() + self.write.len()) * self.size().map_or(0, |(w, h)| w * h) * 4
+        self.read
+            .iter()
+            .chain(&self.write)
+            .map(|p| p.data().len() * 4)
+            .sum()
     }
 }
 

@@ -54,19 +54,24 @@ struct Scan {
 
 fn scan(p: &Plane<f32>, clamp_negative: bool) -> Scan {
     use rayon::prelude::*;
+    // Branch-free, so the loop runs on vector lanes: counts of non-finite and (finite)
+    // negative samples, and the largest finite sample (at least 0). The maximum is taken
+    // over the bits: for floats >= 0 their order is that of the integers (an integer
+    // maximum vectorises where a float one may not, for NaN's sake).
     let chunk = |data: &[f32]| {
-        let mut s = Scan::default();
+        let (mut non_finite, mut negative, mut max) = (0u32, 0u32, 0u32);
         for &v in data {
-            if !v.is_finite() {
-                s.non_finite += 1;
-            } else {
-                s.max = s.max.max(v);
-                if clamp_negative && v < 0.0 {
-                    s.negative += 1;
-                }
-            }
+            let finite = v.abs() < f32::INFINITY;
+            non_finite += (!finite) as u32;
+            negative += (finite & (v < 0.0)) as u32;
+            let x = if finite & (v > 0.0) { v.to_bits() } else { 0 };
+            max = max.max(x);
         }
-        s
+        Scan {
+            non_finite: non_finite as u64,
+            negative: if clamp_negative { negative as u64 } else { 0 },
+            max: f32::from_bits(max),
+        }
     };
     super::exec::pool().install(|| {
         p.data()

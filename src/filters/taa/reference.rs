@@ -1,155 +1,41 @@
-//! `taa`: the industry TAA baseline (Karis 2014, "High quality temporal supersampling";
-//! Salvi 2016, "An excursion in temporal supersampling"; survey 003; the outline Bevy's TAA
-//! and FSR2's accumulate pass follow).
-//!
-//! Stages per frame:
-//! 1. `repair`: non-finite and negative input replaced and counted.
-//! 2. `tonemap`: the reversible tonemap `c / (1 + max c)` (HDR input only).
-//! 3. `ycocg`: the working colour in YCoCg, where the clip box is built.
-//! 4. `dilate`: velocity dilation (motion of the nearest pixel of the 3x3; needs depth).
-//! 5. `reproject`: history fetched at `p + motion` with Catmull-Rom (or bilinear); a pixel
-//!    whose previous position is off screen restarts. Left out when nothing moves.
-//! 6. `depth_reject` (optional): history whose depth disagrees with the current depth by
-//!    more than `depth_rejection` (relative) restarts.
-//! 7. `resolve`: 3x3 min/max and variance box (mean +- gamma sigma) in YCoCg; history
-//!    clipped toward the box centre; blend with `alpha` (raised to 1/(n+1) for young
-//!    history, so a restarted pixel converges as a running mean) and Karis's luminance
-//!    weights.
-//! 8. `sharpen` (optional), 9. `untonemap` (HDR input only).
-//!
-//! State: history Y, Co, Cg and sample count (+ depth with depth rejection), double-buffered.
+//! The scalar reference of `taa`: one whole-plane pass per stage, exactly as the filter
+//! was first written. The fused band kernel ([`super::kernel`]) must give the same output
+//! (the tests compare them frame by frame); this stays the readable statement of what the
+//! filter computes.
 
-use super::passes::{
+use super::super::passes::{
     from_working, on_screen, sharpen, slices_mut, to_working, to_ycocg, Reprojection, TemporalState,
 };
-use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use super::{HistoryFilter, Params, Taa, CG, CO, COUNT, DEPTH, MAX_COUNT, Y};
+use crate::frame::{ChannelKind, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder, Skip,
-};
-use serde::{Deserialize, Serialize};
-use serde_json::Value;
+use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
 
-/// How history is resampled at its reprojected position.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum HistoryFilter {
-    /// 5-tap Catmull-Rom (sharp; Karis 2014).
-    CatmullRom,
-    /// Bilinear (cheaper, blurs history a little every frame that moves).
-    Bilinear,
-}
-
-filter_params! {
-    /// Parameters of `taa`.
-    pub struct Params {
-        alpha: f32 = DEFAULT_ALPHA,
-            ParamKind::Float { min: 0.01, max: 1.0 },
-            "weight of the current frame (Karis 2014: 0.1). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer";
-        gamma: f32 = DEFAULT_GAMMA,
-            ParamKind::Float { min: 0.25, max: 4.0 },
-            "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting";
-        history_filter: HistoryFilter = HistoryFilter::CatmullRom,
-            ParamKind::Choice { options: &["catmull_rom", "bilinear"], },
-            "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it";
-        dilation: bool = true,
-            ParamKind::Bool,
-            "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history";
-        luminance_weighting: bool = true,
-            ParamKind::Bool,
-            "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias";
-        depth_rejection: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 10.0 },
-            "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry";
-        sharpen: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 4.0 },
-            "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
-    }
-}
-
-/// Blend weight of the current frame: 0.1 (Karis 2014; DESIGN.md "alpha 0.1 default").
-pub const DEFAULT_ALPHA: f32 = 0.1;
-/// Variance-box width: 1.0 sigma (Salvi 2016; the survey 003 gives 0.75-1.25).
-pub const DEFAULT_GAMMA: f32 = 1.0;
-/// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
-/// anyway, and a bounded count keeps the state bounded on endless still scenes.
-const MAX_COUNT: f32 = 255.0;
-
-/// History planes.
-const Y: usize = 0;
-const CO: usize = 1;
-const CG: usize = 2;
-const COUNT: usize = 3;
-const DEPTH: usize = 4;
-
-/// The TAA filter with its history.
+/// `taa` computed stage by stage over whole planes.
 #[derive(Debug)]
-pub struct Taa {
+pub struct ReferenceTaa {
     params: Params,
     hist: TemporalState,
 }
 
-impl FilterKind for Taa {
-    const NAME: &'static str = "taa";
-    const SUMMARY: &'static str =
-        "industry TAA: velocity dilation, Catmull-Rom history, YCoCg variance clipping, luminance-weighted blend";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "tonemap",
-        "ycocg",
-        "dilate",
-        "reproject",
-        "depth_reject",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
-    type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
-    fn uses() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
-    }
-    fn state_bytes_per_pixel(p: &Params) -> usize {
-        2 * 4 * Self::history_planes(p)
-    }
-    fn new(params: Params) -> Self {
-        Taa {
-            hist: TemporalState::new(Self::history_planes(&params), true),
+impl ReferenceTaa {
+    /// A fresh reference filter.
+    pub fn new(params: Params) -> Self {
+        ReferenceTaa {
+            hist: TemporalState::new(Taa::history_planes(&params), true),
             params,
         }
     }
-}
 
-impl Taa {
-    fn history_planes(p: &Params) -> usize {
-        if p.depth_rejection > 0.0 {
-            5
-        } else {
-            4
-        }
-    }
-}
-
-impl Filter for Taa {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        check_needs(Self::NAME, Self::needs(), frame)?;
+    /// Filters one frame.
+    pub fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_needs(Taa::NAME, Taa::needs(), frame)?;
         let p = self.params.clone();
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        let inp = prepare(frame, Taa::uses(), &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
@@ -315,19 +201,7 @@ impl Filter for Taa {
         let bytes = self.hist.finish(hdr);
         Ok(Output {
             color: out,
-            record: rec.finish(Self::NAME, frame.meta.index, pixels, inp.counts, bytes),
+            record: rec.finish(Taa::NAME, frame.meta.index, pixels, inp.counts, bytes),
         })
-    }
-
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
     }
 }

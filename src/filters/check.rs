@@ -1,0 +1,115 @@
+//! Test support shared by the filters' fast-versus-reference tests: adversarial frame
+//! sequences at odd sizes, and a comparison of two outputs (colour through the tolerance
+//! helper, and the record's stages and counts).
+
+use crate::frame::{ChannelKind, Frame, Plane};
+use crate::pipeline::Output;
+use crate::rng::SplitMix64;
+use crate::tolerance::Tolerance;
+
+/// Sizes every fast path is checked at: single pixels, single rows and columns, a size
+/// with one full band of rows and a partial one, odd widths.
+pub const ODD_SIZES: [(usize, usize); 8] =
+    [(1, 1), (1, 7), (7, 1), (2, 2), (3, 3), (5, 9), (17, 11), (33, 19)];
+
+/// A frame of `w x h` with colour, depth and motion built from `rng`: colour in `[0,
+/// scale)` with a few fireflies when `scale > 1`, depth in steps with noise, motion of up
+/// to `motion` pixels (some of it leaving the image).
+pub fn random_frame(rng: &mut SplitMix64, w: usize, h: usize, scale: f64, motion: f64, index: u64) -> Frame {
+    let mut plane =
+        |f: &mut dyn FnMut(&mut SplitMix64, usize, usize) -> f32| Plane::from_fn(w, h, |x, y| f(rng, x, y));
+    let color = [0, 1, 2].map(|_| {
+        plane(&mut |r, _, _| {
+            let v = r.next_f64() * scale.min(1.0);
+            (if scale > 1.0 && r.next_f64() < 0.02 {
+                v * scale
+            } else {
+                v
+            }) as f32
+        })
+    });
+    let mut f = Frame::new(color).expect("same size");
+    let depth = plane(&mut |r, x, y| (1.0 + ((x / 3 + y / 2) % 4) as f64 + 0.01 * r.next_f64()) as f32);
+    f.set_f32(ChannelKind::Depth, vec![depth]).expect("same size");
+    let m = [0, 1].map(|_| plane(&mut |r, _, _| ((r.next_f64() * 2.0 - 1.0) * motion) as f32));
+    f.set_f32(ChannelKind::Motion, m.to_vec()).expect("same size");
+    f.meta.index = index;
+    f
+}
+
+/// Named sequences of `n` frames of `w x h` that reach every branch of a temporal filter:
+/// LDR and HDR frames in turn, smooth pan, random motion (off-screen included), HDR with
+/// fireflies, a cut, NaN and negative input, no depth, no motion channel, a still scene.
+pub fn sequences(w: usize, h: usize, n: u64, seed: u64) -> Vec<(&'static str, Vec<Frame>)> {
+    let mut rng = SplitMix64::new(seed);
+    let mut seq = |scale: f64, motion: f64| -> Vec<Frame> {
+        (0..n)
+            .map(|i| random_frame(&mut rng, w, h, scale, motion, i))
+            .collect()
+    };
+    let pan: Vec<Frame> = (0..n).map(|i| crate::report::synthetic_frame(w, h, i)).collect();
+    let random_motion = seq(1.0, 3.0);
+    let hdr = seq(1e4, 0.7);
+    let mut cut = seq(1.0, 0.5);
+    if let Some(f) = cut.get_mut(n as usize / 2) {
+        f.meta.reset = true;
+    }
+    let mut dirty = seq(2.0, 1.5);
+    for (i, f) in dirty.iter_mut().enumerate() {
+        let [r, g, b] = f.color_mut();
+        let at = (i * 7) % r.len();
+        r[at] = f32::NAN;
+        g[(at + 1) % g.len()] = -2.0;
+        b[(at + 3) % b.len()] = f32::INFINITY;
+    }
+    let mut no_depth = seq(1.0, 1.0);
+    no_depth.iter_mut().for_each(|f| f.remove(ChannelKind::Depth));
+    let mut no_motion = seq(1.0, 1.0);
+    no_motion.iter_mut().for_each(|f| f.remove(ChannelKind::Motion));
+    let still = seq(1.0, 0.0);
+    // LDR and HDR frames in turn: the history moves between working spaces every frame.
+    let switching: Vec<Frame> = (0..n)
+        .map(|i| random_frame(&mut rng, w, h, if i % 2 == 0 { 1.0 } else { 50.0 }, 0.8, i))
+        .collect();
+    vec![
+        ("ldr and hdr in turn", switching),
+        ("pan", pan),
+        ("random motion", random_motion),
+        ("hdr", hdr),
+        ("cut", cut),
+        ("nan and negative", dirty),
+        ("no depth", no_depth),
+        ("no motion", no_motion),
+        ("still", still),
+    ]
+}
+
+/// Panics unless `fast` and `reference` agree: colour within `tol`, the same stages run
+/// and left out (with the same reasons), the same pixel and input counts.
+pub fn assert_same_output(fast: &Output, reference: &Output, tol: Tolerance, what: &str) {
+    for c in 0..3 {
+        tol.check_slices(
+            &format!("{what}: colour {c}"),
+            fast.color[c].data(),
+            reference.color[c].data(),
+        )
+        .unwrap();
+    }
+    let stages = |o: &Output| -> Vec<(&str, bool, Option<String>)> {
+        o.record
+            .stages
+            .iter()
+            .map(|s| (s.name, s.ms.is_some(), s.skipped.as_ref().map(|k| k.to_string())))
+            .collect()
+    };
+    assert_eq!(stages(fast), stages(reference), "{what}: stages");
+    assert_eq!(
+        fast.record.pixels, reference.record.pixels,
+        "{what}: pixel counts"
+    );
+    assert_eq!(fast.record.input, reference.record.input, "{what}: input counts");
+    assert_eq!(
+        fast.record.state_bytes, reference.record.state_bytes,
+        "{what}: state bytes"
+    );
+}

@@ -1,0 +1,783 @@
+//! `taa`'s stages fused into one pass over bands of rows ([`par_bands`]): a band's working
+//! colour and YCoCg (rows and their 3x3 halo) are computed into band-local buffers, then
+//! each row is dilated, reprojected, tested for depth, resolved and brought back to linear
+//! colour while its data is in cache. The full-plane temporaries of the reference (working
+//! colour, YCoCg, dilated motion, reprojected history: 12 planes written and read again)
+//! are gone, and the arithmetic of each stage runs in row loops the compiler vectorises;
+//! only the history fetch, a gather at each pixel's own position, stays scalar.
+//!
+//! Every stage computes what the reference ([`super::reference`]) computes, with the same
+//! float operations in the same order, so the outputs are the same bits; the tests compare
+//! them frame by frame.
+
+use super::{HistoryFilter, Params, MAX_COUNT};
+use crate::filters::passes::{from_working, on_screen, sharpen, FrameContext, FrameResult};
+use crate::frame::{ChannelKind, Rgb};
+use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::{
+    bilinear, bilinear_texels, catmull_rom_texels, clip_toward_center, fmax, fmin, rgb_to_ycocg, tonemap,
+    tonemap_inverse, variance_box, ycocg_to_rgb, NeighborhoodStats,
+};
+use crate::pipeline::exec::{par_bands_strided, StageClock};
+use crate::pipeline::{FilterError, PixelCounts, Skip};
+use std::ops::Range;
+
+/// Stages of the fused pass, in order (indices into its [`StageClock`]).
+const STAGES: [&str; 7] = [
+    "tonemap",
+    "ycocg",
+    "dilate",
+    "reproject",
+    "depth_reject",
+    "resolve",
+    "untonemap",
+];
+const TONEMAP: usize = 0;
+const YCOCG: usize = 1;
+const DILATE: usize = 2;
+const REPROJECT: usize = 3;
+const DEPTH_REJECT: usize = 4;
+const RESOLVE: usize = 5;
+const UNTONEMAP: usize = 6;
+
+/// What the pass reads for one frame.
+struct Sources<'a> {
+    w: usize,
+    h: usize,
+    color: [&'a [f32]; 3],
+    motion: Option<[&'a [f32]; 2]>,
+    depth: Option<&'a [f32]>,
+    invalid: Option<&'a [bool]>,
+    /// The history, when there is one.
+    hist: Option<History<'a>>,
+}
+
+/// The previous frame's state: texels `[Y, Co, Cg, count]`, and depth with depth rejection.
+#[derive(Clone, Copy)]
+struct History<'a> {
+    texels: &'a [f32],
+    depth: Option<&'a [f32]>,
+}
+
+/// Which stages run, and the knobs of the resolve.
+#[derive(Clone, Copy)]
+struct Plan {
+    tonemap: bool,
+    dilate: bool,
+    reproject: bool,
+    depth_reject: bool,
+    untonemap: bool,
+    filter: HistoryFilter,
+    knobs: Knobs,
+}
+
+/// Parameters of the per-pixel resolve.
+#[derive(Clone, Copy)]
+struct Knobs {
+    alpha: f32,
+    gamma: f32,
+    luminance_weighting: bool,
+    depth_rejection: f32,
+}
+
+/// One band task's buffers, reused across the bands it runs and across frames' tasks.
+#[derive(Default)]
+struct Band {
+    /// YCoCg of the band's rows and one row above and below (clamped to the image).
+    cur: [Vec<f32>; 3],
+    /// The working colour of one row (tonemapped input).
+    work: [Vec<f32>; 3],
+    /// This row's motion (dilated).
+    motion: [Vec<f32>; 2],
+    /// This row's reprojected history: Y, Co, Cg, count.
+    hist: [Vec<f32>; 4],
+    /// This row's reprojected history depth, then 1 where depth rejects the history.
+    reject: Vec<f32>,
+    /// Per-column 3-row statistics of this row: min, max, sum, sum of squares, per channel.
+    cols: [Vec<f32>; 12],
+}
+
+fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
+    if v.len() < n {
+        v.resize(n, 0.0);
+    }
+    &mut v[..n]
+}
+
+/// Runs `taa`'s stages from `tonemap` to `untonemap` for one frame.
+pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult, FilterError> {
+    let FrameContext {
+        inp,
+        rec,
+        has_history,
+        read,
+        next,
+        scratch,
+    } = ctx;
+    let (w, h) = (inp.width, inp.height);
+    let facts = inp.facts;
+    // Why each stage is left out (None: it runs), as the reference plans them.
+    let reproject_skip = (!has_history)
+        .then_some(Skip::NoHistory)
+        .or_else(|| inp.require(ChannelKind::Motion))
+        .or_else(|| facts.reprojection());
+    let dilate_skip = reproject_skip
+        .clone()
+        .or_else(|| inp.require(ChannelKind::Depth))
+        .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" }));
+    let reject_skip = (p.depth_rejection <= 0.0)
+        .then_some(Skip::Disabled {
+            param: "depth_rejection",
+        })
+        .or_else(|| (!has_history).then_some(Skip::NoHistory))
+        .or_else(|| inp.require(ChannelKind::Depth));
+    let sharpen_skip = (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" });
+    let tonemap_skip = facts.tonemap();
+    let plan = Plan {
+        tonemap: tonemap_skip.is_none(),
+        dilate: dilate_skip.is_none(),
+        reproject: reproject_skip.is_none(),
+        depth_reject: reject_skip.is_none(),
+        // With a sharpen, colour goes back to linear after it, over the whole frame.
+        untonemap: tonemap_skip.is_none() && sharpen_skip.is_some(),
+        filter: p.history_filter,
+        knobs: Knobs {
+            alpha: p.alpha,
+            gamma: p.gamma,
+            luminance_weighting: p.luminance_weighting,
+            depth_rejection: p.depth_rejection,
+        },
+    };
+    let src = Sources {
+        w,
+        h,
+        color: inp.color_slices(),
+        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
+        depth: inp.depth.as_deref().map(|d| d.data()),
+        invalid: inp.invalid.as_deref(),
+        hist: has_history.then(|| History {
+            texels: read[0].data(),
+            depth: read.get(1).map(|p| p.data()),
+        }),
+    };
+    let mut out: Rgb = scratch.planes(w, h);
+    let clock = StageClock::<7>::default();
+    let t = std::time::Instant::now();
+    let pixels = {
+        let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+        par_bands_strided(
+            [o0, o1, o2, next[0].data_mut()],
+            [w, w, w, 4 * w],
+            h,
+            |band: &mut Band, rows, [or, og, ob, texels]| {
+                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
+            },
+        )
+    };
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    if let (Some(d), Some(nd)) = (src.depth, next.get_mut(1)) {
+        nd.data_mut().copy_from_slice(d);
+    }
+    let shares = clock.shares();
+    let skips = [
+        tonemap_skip.clone(),
+        None,
+        dilate_skip,
+        reproject_skip,
+        reject_skip,
+        None,
+        if plan.untonemap {
+            None
+        } else {
+            tonemap_skip.clone()
+        },
+    ];
+    for (k, skip) in skips.into_iter().enumerate().take(RESOLVE + 1) {
+        match skip {
+            Some(why) => rec.skip(STAGES[k], why),
+            None => rec.ran_for(STAGES[k], ms * shares[k]),
+        }
+    }
+    if let Some(s) = rec.stage("sharpen", sharpen_skip, || {
+        sharpen(&out, p.sharpen, facts.hdr, scratch)
+    }) {
+        scratch.recycle(std::mem::replace(&mut out, s));
+        rec.stage("untonemap", tonemap_skip, || from_working(&mut out, true));
+    } else {
+        match tonemap_skip {
+            Some(why) => rec.skip("untonemap", why),
+            None => rec.ran_for("untonemap", ms * shares[UNTONEMAP]),
+        }
+    }
+    Ok(FrameResult {
+        color: out,
+        pixels,
+        model: None,
+    })
+}
+
+/// One band: its rows' YCoCg (and halo) into the band buffers, then row by row the other
+/// stages.
+#[allow(clippy::too_many_arguments)]
+fn run_band(
+    src: &Sources,
+    plan: &Plan,
+    clock: &StageClock<7>,
+    band: &mut Band,
+    rows: Range<usize>,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let (w, h) = (src.w, src.h);
+    let r0 = rows.start.saturating_sub(1);
+    let r1 = (rows.end + 1).min(h);
+    let Band {
+        cur,
+        work,
+        motion,
+        hist,
+        reject,
+        cols,
+    } = band;
+    let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
+    for r in r0..r1 {
+        let at = r * w..(r + 1) * w;
+        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let dst = (r - r0) * w..(r - r0 + 1) * w;
+        let [c0, c1, c2] = cur.each_mut().map(|c| &mut c[dst.clone()]);
+        if plan.tonemap {
+            let [t0, t1, t2] = work.each_mut().map(|v| sized(v, w));
+            clock.time(TONEMAP, || tonemap_row(input, [&mut *t0, &mut *t1, &mut *t2]));
+            clock.time(YCOCG, || ycocg_row([t0, t1, t2], [c0, c1, c2]));
+        } else {
+            clock.time(YCOCG, || ycocg_row(input, [c0, c1, c2]));
+        }
+    }
+    let [or, og, ob] = out;
+    let mut counts = PixelCounts::default();
+    for y in rows.clone() {
+        let k = y - rows.start;
+        let at = y * w..(y + 1) * w;
+        // This row's motion: dilated, or as given.
+        let m: Option<[&[f32]; 2]> = if !plan.reproject {
+            None
+        } else if plan.dilate {
+            let [mx, my] = motion.each_mut().map(|v| sized(v, w));
+            let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
+            clock.time(DILATE, || dilate_row(d, mv, w, h, y, mx, my));
+            Some([&*mx, &*my])
+        } else {
+            src.motion.map(|mv| [&mv[0][at.clone()], &mv[1][at.clone()]])
+        };
+        // This row's history: reprojected, or in place when nothing moves.
+        let hrow: Option<[&[f32]; 4]> = match src.hist {
+            None => None,
+            Some(hs) => {
+                let [hy, hco, hcg, hn] = hist.each_mut().map(|v| sized(v, w));
+                let dst = [&mut *hy, &mut *hco, &mut *hcg, &mut *hn];
+                match m {
+                    Some(m) => clock.time(REPROJECT, || {
+                        reproject_row(hs.texels, plan.filter, w, h, y, m, dst)
+                    }),
+                    // Nothing moves: this pixel's own texels, taken apart.
+                    None => clock.time(RESOLVE, || {
+                        deinterleave_row(&hs.texels[4 * at.start..4 * at.end], dst)
+                    }),
+                }
+                Some([&*hy, &*hco, &*hcg, &*hn])
+            }
+        };
+        let rej: Option<&[f32]> = if plan.depth_reject {
+            let prev = src.hist.and_then(|hs| hs.depth).expect("planned");
+            let rj = sized(reject, w);
+            let d = &src.depth.expect("planned")[at.clone()];
+            counts.history_rejected += clock.time(DEPTH_REJECT, || {
+                depth_reject_row(prev, d, m, w, h, y, plan.knobs.depth_rejection, rj)
+            });
+            Some(&*rj)
+        } else {
+            None
+        };
+        let [cy, ca, cb] = [0, 1, 2].map(|c| {
+            let rows_of = |r: usize| &cur[c][(r - r0) * w..(r - r0 + 1) * w];
+            [
+                rows_of(y.saturating_sub(1)),
+                rows_of(y),
+                rows_of((y + 1).min(h - 1)),
+            ]
+        });
+        let cl = cols.each_mut().map(|v| sized(v, w));
+        let o = k * w..(k + 1) * w;
+        let c = clock.time(RESOLVE, || {
+            resolve_row(
+                [cy, ca, cb],
+                hrow,
+                rej,
+                src.invalid.map(|v| &v[at.clone()]),
+                &plan.knobs,
+                cl,
+                [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]],
+                &mut next[4 * o.start..4 * o.end],
+            )
+        });
+        counts += c;
+        if plan.untonemap {
+            clock.time(UNTONEMAP, || {
+                untonemap_row([&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]])
+            });
+        }
+    }
+    counts
+}
+
+/// Stage `tonemap` of one row: `c / (1 + max c)` ([`tonemap`]).
+fn tonemap_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
+    let [r, g, b] = src;
+    let [a, c, d] = dst;
+    let n = a.len();
+    let (r, g, b, c, d) = (&r[..n], &g[..n], &b[..n], &mut c[..n], &mut d[..n]);
+    for x in 0..n {
+        let t = tonemap([r[x], g[x], b[x]]);
+        (a[x], c[x], d[x]) = (t[0], t[1], t[2]);
+    }
+}
+
+/// Stage `ycocg` of one row ([`rgb_to_ycocg`]).
+fn ycocg_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
+    let [r, g, b] = src;
+    let [a, c, d] = dst;
+    let n = a.len();
+    let (r, g, b, c, d) = (&r[..n], &g[..n], &b[..n], &mut c[..n], &mut d[..n]);
+    for x in 0..n {
+        [a[x], c[x], d[x]] = rgb_to_ycocg([r[x], g[x], b[x]]);
+    }
+}
+
+/// Stage `untonemap` of one row, in place ([`tonemap_inverse`]).
+fn untonemap_row(rgb: [&mut [f32]; 3]) {
+    let [r, g, b] = rgb;
+    let n = r.len();
+    let (g, b) = (&mut g[..n], &mut b[..n]);
+    for x in 0..n {
+        let c = tonemap_inverse([r[x], g[x], b[x]]);
+        (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
+    }
+}
+
+/// The motion of the nearest (smallest depth) pixel of `(x, y)`'s 3x3 neighbourhood,
+/// rows top to bottom and columns left to right, the first of equal depths winning; the
+/// centre starts as the best (as [`crate::filters::passes::dilate_motion`]).
+#[inline(always)]
+fn nearest_motion(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
+    let mut best = y * w + x;
+    let mut best_d = d[best];
+    for yy in y.saturating_sub(1)..(y + 2).min(h) {
+        for xx in x.saturating_sub(1)..(x + 2).min(w) {
+            let i = yy * w + xx;
+            if d[i] < best_d {
+                best_d = d[i];
+                best = i;
+            }
+        }
+    }
+    (m[0][best], m[1][best])
+}
+
+/// Stage `dilate` of row `y`: each pixel takes the motion of the nearest pixel of its 3x3
+/// (Karis 2014). Pixels with all eight neighbours (not on the image's border) run in a
+/// branch-free loop over the row; the border ones as [`nearest_motion`].
+fn dilate_row(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, y: usize, mx: &mut [f32], my: &mut [f32]) {
+    let border = |x: usize, mx: &mut [f32], my: &mut [f32]| {
+        (mx[x], my[x]) = nearest_motion(d, m, w, h, x, y);
+    };
+    if y == 0 || y + 1 >= h || w < 3 {
+        for x in 0..w {
+            border(x, mx, my);
+        }
+        return;
+    }
+    border(0, mx, my);
+    border(w - 1, mx, my);
+    let n = w - 2;
+    // Rows above, here and below, each starting at column 0: pixel x (1..w-1) reads
+    // columns x-1, x, x+1 of each.
+    let rows = [y - 1, y, y + 1].map(|r| r * w..r * w + w);
+    let dr = rows.clone().map(|r| &d[r]);
+    let xr = rows.clone().map(|r| &m[0][r]);
+    let yr = rows.map(|r| &m[1][r]);
+    let (mx, my) = (&mut mx[1..w - 1], &mut my[1..w - 1]);
+    for i in 0..n {
+        // Candidates in the reference's order; the centre (row 1, column i + 1) first.
+        let mut bd = dr[1][i + 1];
+        let mut bx = xr[1][i + 1];
+        let mut by = yr[1][i + 1];
+        for r in 0..3 {
+            for c in 0..3 {
+                let dv = dr[r][i + c];
+                let take = dv < bd;
+                bd = if take { dv } else { bd };
+                bx = if take { xr[r][i + c] } else { bx };
+                by = if take { yr[r][i + c] } else { by };
+            }
+        }
+        mx[i] = bx;
+        my[i] = by;
+    }
+}
+
+/// Stage `reproject` of row `y`: each pixel's history at its previous position `p +
+/// motion` from the texels: Catmull-Rom (or bilinear) colour and bilinear count; count 0
+/// (a restart) off screen, where the colour is left as it was (the resolve does not read
+/// it).
+fn reproject_row(
+    texels: &[f32],
+    filter: HistoryFilter,
+    w: usize,
+    h: usize,
+    y: usize,
+    m: [&[f32]; 2],
+    dst: [&mut [f32]; 4],
+) {
+    let [hy, hco, hcg, hn] = dst;
+    let (mx, my) = (&m[0][..w], &m[1][..w]);
+    let (hy, hco, hcg, hn) = (&mut hy[..w], &mut hco[..w], &mut hcg[..w], &mut hn[..w]);
+    for x in 0..w {
+        let px = x as f32 + 0.5 + mx[x];
+        let py = y as f32 + 0.5 + my[x];
+        if !on_screen(px, py, w, h) {
+            hn[x] = 0.0;
+            continue;
+        }
+        let t = match filter {
+            HistoryFilter::CatmullRom => catmull_rom_texels(texels, w, h, px, py),
+            HistoryFilter::Bilinear => bilinear_texels(texels, w, h, px, py),
+        };
+        (hy[x], hco[x], hcg[x], hn[x]) = (t[0], t[1], t[2], t[3]);
+    }
+}
+
+/// One row of texels `[Y, Co, Cg, count]` as four rows.
+fn deinterleave_row(texels: &[f32], dst: [&mut [f32]; 4]) {
+    let [a, b, c, d] = dst;
+    for (((t, a), (b, c)), d) in texels
+        .chunks_exact(4)
+        .zip(a.iter_mut())
+        .zip(b.iter_mut().zip(c.iter_mut()))
+        .zip(d.iter_mut())
+    {
+        (*a, *b, *c, *d) = (t[0], t[1], t[2], t[3]);
+    }
+}
+
+/// Stage `depth_reject` of row `y`: 1 where the history's depth (reprojected bilinearly, or
+/// in place when nothing moves) differs from the current depth by more than `threshold`
+/// relative, else 0; returns how many pixels it rejects.
+#[allow(clippy::too_many_arguments)]
+fn depth_reject_row(
+    prev: &[f32],
+    d: &[f32],
+    m: Option<[&[f32]; 2]>,
+    w: usize,
+    h: usize,
+    y: usize,
+    threshold: f32,
+    out: &mut [f32],
+) -> u64 {
+    let mut rejected = 0;
+    for x in 0..w {
+        let dp = match m {
+            Some([mx, my]) => bilinear([prev], w, h, x as f32 + 0.5 + mx[x], y as f32 + 0.5 + my[x])[0],
+            None => prev[y * w + x],
+        };
+        let reject = (dp - d[x]).abs() > threshold * d[x].abs().max(1e-6);
+        rejected += reject as u64;
+        out[x] = reject as u8 as f32;
+    }
+    rejected
+}
+
+/// The resolve of one pixel: returns the new history value and count, and whether the
+/// history restarted and whether it was clipped. `n` = the history's sample count (0: no
+/// history), `hist` its colour, `invalid` = the input sample was repaired (keep the
+/// history). Branch-free, so the row loop vectorises; the same arithmetic as the
+/// reference's resolve.
+#[inline(always)]
+fn resolve_pixel(
+    current: [f32; 3],
+    stats: &NeighborhoodStats,
+    hist: [f32; 3],
+    n: f32,
+    invalid: bool,
+    k: &Knobs,
+) -> ([f32; 3], f32, bool, bool) {
+    let (lo, hi) = variance_box(stats, k.gamma);
+    let (hc, moved) = clip_toward_center(hist, lo, hi);
+    let a = k.alpha.max(1.0 / (n + 1.0));
+    let (wc, wh) = if k.luminance_weighting {
+        (
+            a / (1.0 + current[0].max(0.0)),
+            (1.0 - a) / (1.0 + hc[0].max(0.0)),
+        )
+    } else {
+        (a, 1.0 - a)
+    };
+    let kk = 1.0 / (wc + wh);
+    let blend = [0, 1, 2].map(|j| (wc * current[j] + wh * hc[j]) * kk);
+    let reset = n < 0.5;
+    let keep = !reset && invalid;
+    let value = [0, 1, 2].map(|j| {
+        if reset {
+            current[j]
+        } else if keep {
+            hist[j]
+        } else {
+            blend[j]
+        }
+    });
+    let count = if reset {
+        1.0
+    } else if keep {
+        n
+    } else {
+        (n + 1.0).min(MAX_COUNT)
+    };
+    (value, count, reset, moved && !reset && !keep)
+}
+
+/// The 3x3 statistics of pixel `x` from its columns `xl`, `x`, `xr`: per channel, the
+/// column min, max, sum and sum of squares at `cols[4c..4c+4]` (as
+/// [`crate::kernels::for_each_row_stats`] combines them).
+#[inline(always)]
+fn stats_at(cols: &[&[f32]; 12], xl: usize, x: usize, xr: usize) -> NeighborhoodStats {
+    let mut s = NeighborhoodStats {
+        min: [0.0; 3],
+        max: [0.0; 3],
+        mean: [0.0; 3],
+        mean_sq: [0.0; 3],
+        min_cross: [0.0; 3],
+        max_cross: [0.0; 3],
+        mean_cross: [0.0; 3],
+    };
+    for c in 0..3 {
+        let [vmin, vmax, vsum, vsq] = [cols[4 * c], cols[4 * c + 1], cols[4 * c + 2], cols[4 * c + 3]];
+        s.min[c] = fmin(fmin(vmin[xl], vmin[x]), vmin[xr]);
+        s.max[c] = fmax(fmax(vmax[xl], vmax[x]), vmax[xr]);
+        s.mean[c] = (vsum[xl] + vsum[x] + vsum[xr]) * (1.0 / 9.0);
+        s.mean_sq[c] = (vsq[xl] + vsq[x] + vsq[xr]) * (1.0 / 9.0);
+    }
+    s
+}
+
+/// The rows one resolve writes: output colour (working space) and the new history's
+/// texels.
+struct Outs<'a> {
+    rgb: [&'a mut [f32]; 3],
+    next: &'a mut [f32],
+}
+
+impl Outs<'_> {
+    #[inline(always)]
+    fn put(&mut self, x: usize, value: [f32; 3], count: f32) {
+        self.next[4 * x..4 * x + 4].copy_from_slice(&[value[0], value[1], value[2], count]);
+        let rgb = ycocg_to_rgb(value);
+        self.rgb[0][x] = rgb[0].max(0.0);
+        self.rgb[1][x] = rgb[1].max(0.0);
+        self.rgb[2][x] = rgb[2].max(0.0);
+    }
+}
+
+/// The columns a block of [`LANES`] pixels reads: one more on each side.
+const SPAN: usize = LANES + 2;
+
+/// `s[at..at + N]` as an array (one bounds check for the block, none inside it).
+#[inline(always)]
+fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
+    s[at..at + N].try_into().expect("N elements")
+}
+
+/// [`resolve_pixel`] for a block of pixels in lanes: statistics from the block's columns
+/// `c`, the input `cur`, the history colour and count `n`, the repaired-input flags.
+#[inline(always)]
+fn resolve_lanes(
+    c: &[&[f32; SPAN]; 12],
+    cur: &[Lanes; 3],
+    hist: &[Lanes; 3],
+    n: &Lanes,
+    invalid: &Mask,
+    k: &Knobs,
+) -> ([Lanes; 3], Lanes, Mask, Mask) {
+    let [min, max, mean, mean_sq] = lanes::box_stats(c);
+    let (lo, hi) = lanes::variance_box(&min, &max, &mean, &mean_sq, k.gamma);
+    let (hc, moved) = lanes::clip_toward_center(hist, &lo, &hi);
+    let a = lanes::map(n, |n| k.alpha.max(1.0 / (n + 1.0)));
+    let (wc, wh) = if k.luminance_weighting {
+        (
+            lanes::map2(&a, &cur[0], |a, c| a / (1.0 + c.max(0.0))),
+            lanes::map2(&a, &hc[0], |a, h| (1.0 - a) / (1.0 + h.max(0.0))),
+        )
+    } else {
+        (a, lanes::map(&a, |a| 1.0 - a))
+    };
+    let kk = lanes::map2(&wc, &wh, |c, h| 1.0 / (c + h));
+    let reset: Mask = std::array::from_fn(|l| n[l] < 0.5);
+    let keep: Mask = std::array::from_fn(|l| !reset[l] && invalid[l]);
+    let mut value = [[0.0; LANES]; 3];
+    for j in 0..3 {
+        let blend: Lanes = std::array::from_fn(|l| (wc[l] * cur[j][l] + wh[l] * hc[j][l]) * kk[l]);
+        value[j] = lanes::select(&reset, &cur[j], &lanes::select(&keep, &hist[j], &blend));
+    }
+    let grown = lanes::map(n, |n| (n + 1.0).min(MAX_COUNT));
+    let count = lanes::select(&reset, &lanes::splat(1.0), &lanes::select(&keep, n, &grown));
+    let clipped: Mask = std::array::from_fn(|l| moved[l] && !reset[l] && !keep[l]);
+    (value, count, reset, clipped)
+}
+
+/// The resolve of pixels `xs` (with columns `x - 1` and `x + 1` inside the row) in blocks
+/// of [`LANES`]: every input of a block is a fixed-size array, so the per-pixel code below
+/// has no bounds checks or branches left and the compiler vectorises it across the block.
+/// `REJECT` and `INVALID` say whether those rows exist (the others are not read). Returns
+/// where it stopped (the pixels after it are the caller's) and the counts.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
+    cols: &[&[f32]; 12],
+    centre: [&[f32]; 3],
+    hist: [&[f32]; 4],
+    reject: &[f32],
+    invalid: &[bool],
+    k: &Knobs,
+    out: &mut Outs,
+    xs: Range<usize>,
+) -> (usize, u32, u32) {
+    let (mut resets, mut clips) = (0u32, 0u32);
+    let mut x0 = xs.start;
+    while x0 + LANES <= xs.end {
+        let c: [&[f32; SPAN]; 12] = std::array::from_fn(|i| block(cols[i], x0 - 1));
+        let cen: [&[f32; LANES]; 3] = std::array::from_fn(|i| block(centre[i], x0));
+        let hs: [&[f32; LANES]; 4] = std::array::from_fn(|i| block(hist[i], x0));
+        let rj: [f32; LANES] = if REJECT { *block(reject, x0) } else { [0.0; LANES] };
+        let iv: [bool; LANES] = if INVALID {
+            *block(invalid, x0)
+        } else {
+            [false; LANES]
+        };
+        let cur: [Lanes; 3] = [*cen[0], *cen[1], *cen[2]];
+        let hist3: [Lanes; 3] = [*hs[0], *hs[1], *hs[2]];
+        let n: Lanes = if REJECT {
+            std::array::from_fn(|l| if rj[l] != 0.0 { 0.0 } else { hs[3][l] })
+        } else {
+            *hs[3]
+        };
+        let (value, cnt, reset, clipped) = resolve_lanes(&c, &cur, &hist3, &n, &iv, k);
+        let v = value;
+        let mut rgb = lanes::ycocg_to_rgb(&value);
+        for c in &mut rgb {
+            *c = lanes::map(c, |v| v.max(0.0));
+        }
+        let rs = reset;
+        let cl = clipped;
+        let at = x0..x0 + LANES;
+        for ch in 0..3 {
+            out.rgb[ch][at.clone()].copy_from_slice(&rgb[ch]);
+        }
+        let texels: &mut [f32; 4 * LANES] = (&mut out.next[4 * x0..4 * (x0 + LANES)])
+            .try_into()
+            .expect("a block");
+        for l in 0..LANES {
+            texels[4 * l..4 * l + 4].copy_from_slice(&[v[0][l], v[1][l], v[2][l], cnt[l]]);
+        }
+        resets += rs.iter().map(|&b| b as u32).sum::<u32>();
+        clips += cl.iter().map(|&b| b as u32).sum::<u32>();
+        x0 += LANES;
+    }
+    (x0, resets, clips)
+}
+
+/// Stage `resolve` of one row: 3x3 statistics of the YCoCg rows above, here and below
+/// (edges clamped; per column first, then across), the variance box, the clip, the blend;
+/// writes the new history and the output in the working space.
+#[allow(clippy::too_many_arguments)]
+fn resolve_row(
+    cur: [[&[f32]; 3]; 3],
+    hist: Option<[&[f32]; 4]>,
+    reject: Option<&[f32]>,
+    invalid: Option<&[bool]>,
+    k: &Knobs,
+    cols: [&mut [f32]; 12],
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let w = out[0].len();
+    let mut out = Outs {
+        rgb: out.map(|r| &mut r[..w]),
+        next: &mut next[..4 * w],
+    };
+    let centre = cur.map(|p| &p[1][..w]);
+    let Some(hist) = hist else {
+        // No history: every pixel restarts from its input.
+        for x in 0..w {
+            out.put(x, [centre[0][x], centre[1][x], centre[2][x]], 1.0);
+        }
+        return PixelCounts {
+            history_reset: w as u64,
+            ..Default::default()
+        };
+    };
+    // Per column: min, max, sum and sum of squares of the three rows, per channel.
+    let mut cols = cols;
+    for (c, planes) in cur.iter().enumerate() {
+        let [a, b, t] = planes.map(|p| &p[..w]);
+        let [vmin, vmax, vsum, vsq] = {
+            let (x, rest) = cols[4 * c..4 * c + 4].split_at_mut(1);
+            let (y, rest) = rest.split_at_mut(1);
+            let (z, u) = rest.split_at_mut(1);
+            [&mut x[0][..w], &mut y[0][..w], &mut z[0][..w], &mut u[0][..w]]
+        };
+        for x in 0..w {
+            let (u, v, s) = (a[x], b[x], t[x]);
+            vmin[x] = fmin(fmin(u, v), s);
+            vmax[x] = fmax(fmax(u, v), s);
+            vsum[x] = u + v + s;
+            vsq[x] = u * u + v * v + s * s;
+        }
+    }
+    let cols = cols.each_ref().map(|c| &c[..w]);
+    let hist = hist.map(|h| &h[..w]);
+    let none_f: &[f32] = &[];
+    let none_b: &[bool] = &[];
+    let reject = reject.map_or(none_f, |r| &r[..w]);
+    let invalid = invalid.map_or(none_b, |v| &v[..w]);
+    // The border pixels (columns clamped) one at a time, the others in the vector loop.
+    let one = |x: usize, out: &mut Outs| {
+        let s = stats_at(&cols, x.saturating_sub(1), x, (x + 1).min(w - 1));
+        let n = if reject.get(x).is_some_and(|&r| r != 0.0) {
+            0.0
+        } else {
+            hist[3][x]
+        };
+        let inv = invalid.get(x).is_some_and(|&v| v);
+        let current = [centre[0][x], centre[1][x], centre[2][x]];
+        let hv = [hist[0][x], hist[1][x], hist[2][x]];
+        let (value, count, reset, clipped) = resolve_pixel(current, &s, hv, n, inv, k);
+        out.put(x, value, count);
+        (reset as u32, clipped as u32)
+    };
+    // The interior in blocks, the border pixels and the rest of the interior one by one.
+    let xs = 1..w.saturating_sub(1).max(1);
+    let (stop, mut resets, mut clips) = match (reject.is_empty(), invalid.is_empty()) {
+        (true, true) => resolve_blocks::<false, false>(&cols, centre, hist, reject, invalid, k, &mut out, xs),
+        (false, true) => resolve_blocks::<true, false>(&cols, centre, hist, reject, invalid, k, &mut out, xs),
+        (true, false) => resolve_blocks::<false, true>(&cols, centre, hist, reject, invalid, k, &mut out, xs),
+        (false, false) => resolve_blocks::<true, true>(&cols, centre, hist, reject, invalid, k, &mut out, xs),
+    };
+    for x in std::iter::once(0).chain(stop.max(1)..w) {
+        let (r, c) = one(x, &mut out);
+        resets += r;
+        clips += c;
+    }
+    PixelCounts {
+        history_reset: resets as u64,
+        history_clipped: clips as u64,
+        ..Default::default()
+    }
+}
