@@ -109,6 +109,50 @@ pub fn clip_toward_center(q: &[Lanes; 3], min: &[Lanes; 3], max: &[Lanes; 3]) ->
     (p, moved)
 }
 
+/// [`super::clip_toward_point`] in lanes: each `q` outside its box moved along the ray
+/// toward `target` (clamped into the box) until it enters; returns the points and which
+/// moved.
+#[inline(always)]
+pub fn clip_toward_point(
+    q: &[Lanes; 3],
+    target: &[Lanes; 3],
+    min: &[Lanes; 3],
+    max: &[Lanes; 3],
+) -> ([Lanes; 3], Mask) {
+    let mut t = splat(0.0);
+    let mut outside = [false; LANES];
+    let mut tgt = [[0.0; LANES]; 3];
+    for k in 0..3 {
+        tgt[k] = map3(&target[k], &min[k], &max[k], |t, mn, mx| t.max(mn).min(mx));
+        let below: Mask = std::array::from_fn(|l| q[k][l] < min[k][l]);
+        let out: Mask = std::array::from_fn(|l| below[l] || q[k][l] > max[k][l]);
+        let bound = select(&below, &min[k], &max[k]);
+        let step: Lanes = std::array::from_fn(|l| ((bound[l] - q[k][l]) / (tgt[k][l] - q[k][l])).min(1.0));
+        t = std::array::from_fn(|l| if out[l] { t[l].max(step[l]) } else { t[l] });
+        outside = std::array::from_fn(|l| outside[l] || out[l]);
+    }
+    let mut p = [[0.0; LANES]; 3];
+    for k in 0..3 {
+        let moved: Lanes = std::array::from_fn(|l| {
+            (q[k][l] + t[l] * (tgt[k][l] - q[k][l]))
+                .max(min[k][l])
+                .min(max[k][l])
+        });
+        p[k] = select(&outside, &moved, &q[k]);
+    }
+    (p, outside)
+}
+
+/// [`super::rgb_to_ycocg`] in lanes.
+#[inline(always)]
+pub fn rgb_to_ycocg(c: &[Lanes; 3]) -> [Lanes; 3] {
+    [
+        map3(&c[0], &c[1], &c[2], |r, g, b| 0.25 * r + 0.5 * g + 0.25 * b),
+        map2(&c[0], &c[2], |r, b| 0.5 * r - 0.5 * b),
+        map3(&c[0], &c[1], &c[2], |r, g, b| -0.25 * r + 0.5 * g - 0.25 * b),
+    ]
+}
+
 /// [`super::ycocg_to_rgb`] in lanes.
 #[inline(always)]
 pub fn ycocg_to_rgb(c: &[Lanes; 3]) -> [Lanes; 3] {

@@ -19,7 +19,9 @@ pub use color::{luma, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA
 pub use neighborhood::{
     cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box, NeighborhoodStats, CROSS,
 };
-pub use sample::{bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texels, TEXEL};
+pub use sample::{
+    bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texels, nearest_texel, TEXEL,
+};
 pub use sharpen::sharpen_cross;
 pub use sobel::{sobel_magnitude, sobel_plane};
 

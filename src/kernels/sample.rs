@@ -206,10 +206,10 @@ pub fn bilinear_texel_channel(tex: &[f32], width: usize, height: usize, x: f32, 
     top + (bottom - top) * ty
 }
 
-/// [`bilinear`] of all four channels of an interleaved plane (the same bits as the planar
-/// function per channel).
+/// [`bilinear`] of every channel of a plane of interleaved `N`-channel texels (the same
+/// bits as the planar function per channel).
 #[inline]
-pub fn bilinear_texels(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; TEXEL] {
+pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; N] {
     let fx = x - 0.5;
     let fy = y - 0.5;
     let x0 = fx.floor();
@@ -220,12 +220,21 @@ pub fn bilinear_texels(tex: &[f32], width: usize, height: usize, x: f32, y: f32)
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
     let yb = clamp_index(y0 + 1.0, height) * width;
-    let [p00, p10, p01, p11] = [ya + xa, ya + xb, yb + xa, yb + xb].map(|i| texel(tex, i));
+    let at = |i: usize| -> &[f32; N] { tex[i * N..i * N + N].try_into().expect("a texel") };
+    let [p00, p10, p01, p11] = [ya + xa, ya + xb, yb + xa, yb + xb].map(at);
     std::array::from_fn(|c| {
         let top = p00[c] + (p10[c] - p00[c]) * tx;
         let bottom = p01[c] + (p11[c] - p01[c]) * tx;
         top + (bottom - top) * ty
     })
+}
+
+/// The texel of an interleaved `N`-channel plane nearest to `(x, y)` (the pixel holding
+/// it, clamped into the image).
+#[inline]
+pub fn nearest_texel<const N: usize>(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; N] {
+    let j = (y.max(0.0) as usize).min(height - 1) * width + (x.max(0.0) as usize).min(width - 1);
+    *<&[f32; N]>::try_from(&tex[j * N..j * N + N]).expect("a texel")
 }
 
 #[cfg(test)]
@@ -397,7 +406,7 @@ pub(crate) mod tests {
                 let bits = |v: &[f32]| v.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&got[..3]), bits(&want), "{w}x{h} at ({x}, {y})");
                 assert_eq!(got[3].to_bits(), count.to_bits(), "{w}x{h} count at ({x}, {y})");
-                let bl = bilinear_texels(&tex, w, h, x, y);
+                let bl = bilinear_texels::<TEXEL>(&tex, w, h, x, y);
                 let want4 = bilinear(
                     [&planes[0][..], &planes[1][..], &planes[2][..], &planes[3][..]],
                     w,

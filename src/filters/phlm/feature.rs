@@ -19,6 +19,7 @@
 //!   3x3 box mean.
 
 use super::Params;
+use crate::kernels::lanes::{self, Lanes};
 
 /// `a = 0.125` (000, sec. 5.1: "we have used a = 0.125 and b = 0.25").
 pub const DEFAULT_A: f32 = 0.125;
@@ -52,6 +53,25 @@ pub fn convergence(feature_luma: f32, lo: f32, hi: f32, v: f32, p: &Params) -> f
 pub fn accumulate(prev: [f32; 3], lowpass: [f32; 3], lo: f32, hi: f32, v: f32, p: &Params) -> [f32; 3] {
     let a = convergence(y_of(prev), lo, hi, v, p);
     [0, 1, 2].map(|k| prev[k] + a * (lowpass[k] - prev[k]))
+}
+
+/// [`accumulate`] for a block of pixels in lanes (the same bits per lane).
+#[inline(always)]
+pub fn accumulate_lanes(
+    prev: &[Lanes; 3],
+    lowpass: &[Lanes; 3],
+    lo: &Lanes,
+    hi: &Lanes,
+    v: &Lanes,
+    p: &Params,
+) -> [Lanes; 3] {
+    let fl = lanes::map3(&prev[0], &prev[1], &prev[2], |r, g, b| y_of([r, g, b]));
+    let a: Lanes = std::array::from_fn(|k| {
+        let l = (lo[k] - fl[k]).max(fl[k] - hi[k]).max(0.0);
+        let phi = p.feature_a * l * l + p.feature_b * v[k] * l * l * l;
+        (phi / (l + (hi[k] - lo[k]) + EPS)).clamp(p.feature_alpha_min, 1.0)
+    });
+    std::array::from_fn(|c| std::array::from_fn(|k| prev[c][k] + a[k] * (lowpass[c][k] - prev[c][k])))
 }
 
 #[cfg(test)]
@@ -101,5 +121,24 @@ mod tests {
         assert!(a.is_finite() && a == p.feature_alpha_min);
         let z = accumulate([1.0; 3], [0.0; 3], 0.0, 0.0, 100.0, &p);
         assert!(z.iter().all(|v| v.is_finite() && *v >= 0.0 && *v <= 1.0));
+    }
+
+    #[test]
+    fn lanes_give_the_scalar_bits() {
+        use crate::kernels::lanes::LANES;
+        let mut rng = crate::rng::SplitMix64::new(17);
+        let p = Params::default();
+        for _ in 0..2000 {
+            let mut r = |s: f64| -> Lanes { std::array::from_fn(|_| (rng.next_f64() * s) as f32) };
+            let (prev, lowpass) = ([r(2.0), r(2.0), r(2.0)], [r(2.0), r(2.0), r(2.0)]);
+            let (lo, spread, v) = (r(1.0), r(0.5), r(8.0));
+            let hi: Lanes = std::array::from_fn(|k| lo[k] + spread[k]);
+            let z = accumulate_lanes(&prev, &lowpass, &lo, &hi, &v, &p);
+            for k in 0..LANES {
+                let pick = |a: &[Lanes; 3]| [a[0][k], a[1][k], a[2][k]];
+                let want = accumulate(pick(&prev), pick(&lowpass), lo[k], hi[k], v[k], &p);
+                assert_eq!(want.map(f32::to_bits), pick(&z).map(f32::to_bits));
+            }
+        }
     }
 }

@@ -39,17 +39,16 @@
 //!   value 1000, we default to 1 ([`DEFAULT_CLIP_P`] has the measurements).
 
 pub mod feature;
+mod kernel;
+pub mod reference;
 pub mod rls;
 
-use super::passes::{from_working, on_screen, slices_mut, to_working, to_ycocg, Conversion, TemporalState};
+use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
-use crate::kernels::{bilinear, clip_toward_point, for_each_row_stats, rgb_to_ycocg, tonemap, ycocg_to_rgb};
-use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, ModelHealth, Output, ParamKind, PixelCounts,
-    Recorder, Skip,
-};
+use crate::kernels::{bilinear, tonemap};
+use crate::pipeline::exec::for_rows;
+use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts};
 use rls::{D, P_LEN};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -109,25 +108,25 @@ pub const DEFAULT_CLIP_P: f32 = 1.0;
 /// Number of state planes: beta (12), R = P^-1 (10), z (3).
 pub const STATE_PLANES: usize = 3 * D + P_LEN + 3;
 /// First plane of beta (row-major: channel c, feature j at `BETA + c * D + j`).
-const BETA: usize = 0;
+pub(crate) const BETA: usize = 0;
 /// First plane of the information matrix R = P^-1 (packed upper triangle).
-const R: usize = 3 * D;
+pub(crate) const R: usize = 3 * D;
 /// First plane of z.
-const Z: usize = R + P_LEN;
+pub(crate) const Z: usize = R + P_LEN;
 
 /// One pixel's model state.
 #[derive(Clone, Copy, Debug)]
-struct Model {
-    beta: [[f32; D]; 3],
+pub(crate) struct Model {
+    pub(crate) beta: [[f32; D]; 3],
     /// The information matrix `R = P^-1` (packed), see [`rls::update_information`].
-    r: [f32; P_LEN],
-    z: [f32; 3],
+    pub(crate) r: [f32; P_LEN],
+    pub(crate) z: [f32; 3],
 }
 
 impl Model {
     /// Reset to colour `c` with `P = p0 I` (000, sec. 6: intercept = colour, slopes 0).
     #[inline(always)]
-    fn reset(c: [f32; 3], z: [f32; 3], p0: f32) -> Model {
+    pub(crate) fn reset(c: [f32; 3], z: [f32; 3], p0: f32) -> Model {
         Model {
             beta: c.map(|v| [v, 0.0, 0.0, 0.0]),
             r: rls::init_information(p0),
@@ -138,7 +137,7 @@ impl Model {
     /// The model held in state values `s` (beta and R at their plane offsets) with
     /// feature `z`.
     #[inline(always)]
-    fn from_state(s: &[f32], z: [f32; 3]) -> Model {
+    pub(crate) fn from_state(s: &[f32], z: [f32; 3]) -> Model {
         Model {
             beta: std::array::from_fn(|c| std::array::from_fn(|j| s[BETA + c * D + j])),
             r: std::array::from_fn(|k| s[R + k]),
@@ -147,14 +146,14 @@ impl Model {
     }
 
     #[inline(always)]
-    fn x(&self) -> [f32; D] {
+    pub(crate) fn x(&self) -> [f32; D] {
         [1.0, self.z[0], self.z[1], self.z[2]]
     }
 }
 
 /// Where a pixel's history is.
 #[derive(Clone, Copy, Debug)]
-enum From {
+pub(crate) enum From {
     /// No history (first frame, reset) or off screen.
     Nothing,
     /// In place (nothing moves).
@@ -165,7 +164,13 @@ enum From {
 
 /// Reads `N` state planes of a `w` x `h` image at `at` (zeros for [`From::Nothing`]).
 #[inline(always)]
-fn fetch<const N: usize>(planes: [&[f32]; N], w: usize, h: usize, at: From, how: ModelFetch) -> [f32; N] {
+pub(crate) fn fetch<const N: usize>(
+    planes: [&[f32]; N],
+    w: usize,
+    h: usize,
+    at: From,
+    how: ModelFetch,
+) -> [f32; N] {
     match at {
         From::Nothing => [0.0; N],
         From::Here(i) => planes.map(|p| p[i]),
@@ -181,11 +186,11 @@ fn fetch<const N: usize>(planes: [&[f32]; N], w: usize, h: usize, at: From, how:
 
 /// Per-row counters of the model pass.
 #[derive(Clone, Copy, Debug, Default)]
-struct Counts {
-    pixels: PixelCounts,
-    offscreen: u64,
-    repaired: u64,
-    max_trace: f32,
+pub(crate) struct Counts {
+    pub(crate) pixels: PixelCounts,
+    pub(crate) offscreen: u64,
+    pub(crate) repaired: u64,
+    pub(crate) max_trace: f32,
 }
 
 impl AddAssign for Counts {
@@ -228,9 +233,10 @@ impl FilterKind for Phlm {
         2 * 4 * STATE_PLANES
     }
     fn new(params: Params) -> Self {
+        // One texel of the 25 state floats per pixel: a fetch reads a pixel's model at once.
         Phlm {
             params,
-            hist: TemporalState::with_conversion(STATE_PLANES, Conversion::Custom(convert_state)),
+            hist: TemporalState::with_components(&[STATE_PLANES], Conversion::Custom(convert_state_texels)),
         }
     }
 }
@@ -239,7 +245,7 @@ impl FilterKind for Phlm {
 /// switches between LDR and HDR frames): each model restarts from its own prediction
 /// converted to the new space (slopes 0, P kept), the feature is converted, so the output
 /// does not jump.
-fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+pub(crate) fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     let w = planes[0].width();
     let rows: [&mut [f32]; STATE_PLANES] = {
         let mut it = planes.iter_mut();
@@ -269,6 +275,26 @@ fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     });
 }
 
+/// [`convert_state`] for state kept as texels of [`STATE_PLANES`] floats.
+fn convert_state_texels(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+    let w = planes[0].width() / STATE_PLANES;
+    let rows: Vec<Plane<f32>> = (0..STATE_PLANES)
+        .map(|k| {
+            Plane::from_fn(w, planes[0].height(), |x, y| {
+                planes[0].get(x * STATE_PLANES + k, y)
+            })
+        })
+        .collect();
+    let mut rows = rows;
+    convert_state(&mut rows, to_tonemapped);
+    let t = planes[0].data_mut();
+    for (k, p) in rows.iter().enumerate() {
+        for (i, v) in p.data().iter().enumerate() {
+            t[i * STATE_PLANES + k] = *v;
+        }
+    }
+}
+
 impl Phlm {
     /// Every pixel's information matrix `R = P^-1` (packed upper triangle, see
     /// [`rls::SYM`]) after the last frame; empty before the first frame or after a reset.
@@ -278,9 +304,10 @@ impl Phlm {
         if !b.valid() {
             return Vec::new();
         }
-        let planes = &b.read()[R..R + P_LEN];
-        (0..planes[0].data().len())
-            .map(|i| std::array::from_fn(|k| planes[k].data()[i]))
+        b.read()[0]
+            .data()
+            .chunks_exact(STATE_PLANES)
+            .map(|t| std::array::from_fn(|k| t[R + k]))
             .collect()
     }
 }
@@ -295,204 +322,11 @@ impl Filter for Phlm {
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        check_needs(Self::NAME, Self::needs(), frame)?;
-        let p = self.params.clone();
-        let mut rec = Recorder::new();
-        let inp = prepare(frame, Self::uses(), &mut rec)?;
-        let (w, h) = (inp.width, inp.height);
-        let facts = inp.facts;
-        let hdr = facts.hdr;
-        let has_history = self.hist.begin(frame, hdr)?;
-        let scratch = &mut self.hist.scratch;
-
-        let working = rec
-            .stage("tonemap", facts.tonemap(), || {
-                to_working(&inp.color, true, scratch)
+        let p = &self.params;
+        self.hist
+            .run(Self::NAME, Self::needs(), Self::uses(), false, frame, |ctx| {
+                kernel::frame(p, ctx)
             })
-            .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
-        let rgb = working.each_ref().map(|p| p.data());
-
-        let ycocg: Rgb = rec.run("ycocg", || to_ycocg(&working, scratch));
-        let cur = ycocg.each_ref().map(|p| p.data());
-
-        // Previous positions (pixel units); NaN marks off screen.
-        let skip = (!has_history)
-            .then_some(Skip::NoHistory)
-            .or_else(|| inp.require(ChannelKind::Motion))
-            .or_else(|| facts.reprojection());
-        let positions: Option<[Plane<f32>; 2]> = rec.stage("reproject", skip, || {
-            let m = inp
-                .motion
-                .as_deref()
-                .expect("required")
-                .each_ref()
-                .map(|p| p.data());
-            let mut out: [Plane<f32>; 2] = scratch.planes(w, h);
-            for_rows(slices_mut(&mut out), w, |y, [px, py]| {
-                for x in 0..w {
-                    let i = y * w + x;
-                    let (qx, qy) = (x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i]);
-                    (px[x], py[x]) = if on_screen(qx, qy, w, h) {
-                        (qx, qy)
-                    } else {
-                        (f32::NAN, f32::NAN)
-                    };
-                }
-            });
-            out
-        });
-        let pos = positions.as_ref().map(|p| p.each_ref().map(|p| p.data()));
-        let motion = inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data()));
-
-        let (read, next) = self.hist.buffer.split();
-        let src: [&[f32]; STATE_PLANES] = std::array::from_fn(|k| read[k].data());
-        let from = |i: usize| -> From {
-            if !has_history {
-                return From::Nothing;
-            }
-            match pos {
-                None => From::Here(i),
-                Some([px, _]) if px[i].is_nan() => From::Nothing,
-                Some([px, py]) => From::At(px[i], py[i]),
-            }
-        };
-        let src_z: [&[f32]; 3] = std::array::from_fn(|k| src[Z + k]);
-        let src_model: [&[f32]; Z] = std::array::from_fn(|k| src[k]);
-
-        // Feature (sec. 5.1): written into next's z planes.
-        {
-            let (_, z_next) = next.split_at_mut(Z);
-            let zrows: [&mut [f32]; 3] = {
-                let mut it = z_next.iter_mut();
-                std::array::from_fn(|_| it.next().expect("z planes").data_mut())
-            };
-            rec.run("feature", || {
-                for_rows(zrows, w, |y, [zr, zg, zb]| {
-                    for_each_row_stats(cur, w, h, y, |x, stats| {
-                        let i = y * w + x;
-                        let input = [rgb[0][i], rgb[1][i], rgb[2][i]];
-                        let f = from(i);
-                        let z = if matches!(f, From::Nothing) {
-                            // Sec. 6: "Our temporal feature z is initialized with the input image".
-                            input
-                        } else {
-                            let prev = fetch(src_z, w, h, f, p.model_fetch);
-                            if inp.is_invalid(i) {
-                                prev
-                            } else {
-                                let v = motion.map_or(0.0, |m| m[0][i].hypot(m[1][i]));
-                                feature::accumulate(
-                                    prev,
-                                    ycocg_to_rgb(stats.mean),
-                                    stats.min[0],
-                                    stats.max[0],
-                                    v,
-                                    &p,
-                                )
-                            }
-                        };
-                        (zr[x], zg[x], zb[x]) = (z[0], z[1], z[2]);
-                    });
-                });
-            });
-        }
-
-        // Algorithm 1.
-        let mut out: Rgb = scratch.planes(w, h);
-        let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
-        // The prior R0 = I / p0 that forgetting relaxes toward (rls module docs).
-        let prior = 1.0 / p.p0;
-        let counts: Counts = rec.run("model", || {
-            let (model_next, z_next) = next.split_at_mut(Z);
-            let zs: [&[f32]; 3] = std::array::from_fn(|k| z_next[k].data());
-            let [o0, o1, o2] = slices_mut(&mut out);
-            let mut it = model_next.iter_mut();
-            let mrows: [&mut [f32]; Z] = std::array::from_fn(|_| it.next().expect("model planes").data_mut());
-            let mut all: Vec<&mut [f32]> = mrows.into_iter().collect();
-            all.extend([o0, o1, o2]);
-            let rows: [&mut [f32]; Z + 3] = all.try_into().expect("Z + 3 planes");
-            par_rows(rows, w, |y, mut r| {
-                let mut c = Counts::default();
-                for_each_row_stats(cur, w, h, y, |x, stats| {
-                    let i = y * w + x;
-                    let input = [rgb[0][i], rgb[1][i], rgb[2][i]];
-                    let z = [zs[0][i], zs[1][i], zs[2][i]];
-                    let f = from(i);
-                    let mut m = match f {
-                        From::Nothing => {
-                            c.pixels.history_reset += 1;
-                            if has_history {
-                                c.offscreen += 1;
-                            }
-                            Model::reset(input, z, p.p0)
-                        }
-                        _ => Model::from_state(&fetch(src_model, w, h, f, p.model_fetch), z),
-                    };
-                    let x_feat = m.x();
-                    if !inp.is_invalid(i) {
-                        // Lines 12-19: predict; outside the 3x3 box -> clip toward y and reset.
-                        let pred = rls::predict(&m.beta, &x_feat);
-                        let (clipped, moved) = clip_toward_point(
-                            rgb_to_ycocg(pred),
-                            [cur[0][i], cur[1][i], cur[2][i]],
-                            stats.min,
-                            stats.max,
-                        );
-                        if moved {
-                            c.pixels.history_clipped += 1;
-                            m = Model::reset(ycocg_to_rgb(clipped), z, p.clip_p);
-                        }
-                        // Lines 19-21: error of the (possibly reset) model, RLS update.
-                        let pred = rls::predict(&m.beta, &x_feat);
-                        let e = [0, 1, 2].map(|k| input[k] - pred[k]);
-                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, p.lambda, prior) {
-                            Some(trace) => c.max_trace = c.max_trace.max(trace),
-                            None => {
-                                c.repaired += 1;
-                                m = Model::reset(input, z, p.p0);
-                            }
-                        }
-                        if !m.beta.iter().flatten().all(|v| v.is_finite()) {
-                            c.repaired += 1;
-                            m = Model::reset(input, z, p.p0);
-                        }
-                    }
-                    // Line 22: the output.
-                    let o = rls::predict(&m.beta, &x_feat);
-                    for ch in 0..3 {
-                        for j in 0..D {
-                            r[BETA + ch * D + j][x] = m.beta[ch][j];
-                        }
-                    }
-                    for k in 0..P_LEN {
-                        r[R + k][x] = m.r[k];
-                    }
-                    // Rows Z.. of this pass are the output planes.
-                    for ch in 0..3 {
-                        r[Z + ch][x] = o[ch].clamp(0.0, hi);
-                    }
-                });
-                c
-            })
-        });
-
-        rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
-
-        let n = (w * h) as f64;
-        scratch.recycle(ycocg);
-        scratch.recycle(positions.into_iter().flatten());
-        if let std::borrow::Cow::Owned(w) = working {
-            scratch.recycle(w);
-        }
-        let bytes = self.hist.finish(hdr);
-        let mut record = rec.finish(Self::NAME, frame.meta.index, counts.pixels, inp.counts, bytes);
-        record.model = Some(ModelHealth {
-            reset_by_clip: counts.pixels.history_clipped as f64 / n,
-            reset_by_disocclusion: counts.offscreen as f64 / n,
-            max_trace_p: counts.max_trace as f64,
-            p_repaired: counts.repaired,
-        });
-        Ok(Output { color: out, record })
     }
 
     fn reset(&mut self) {
@@ -505,5 +339,44 @@ impl Filter for Phlm {
 
     fn state_bytes(&self) -> usize {
         self.hist.buffer.bytes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::reference::ReferencePhlm;
+    use super::*;
+    use crate::filters::check::{assert_same_output, sequences, ODD_SIZES};
+    use crate::pipeline::params::{build, parse_assignments};
+    use crate::tolerance::Tolerance;
+
+    /// The fused kernel gives the reference's output and model health, bit for bit, with
+    /// every option, on every kind of sequence, at odd sizes.
+    #[test]
+    fn fused_kernel_matches_the_reference() {
+        let variants: &[&[&str]] = &[
+            &[],
+            &["model_fetch=nearest"],
+            &["lambda=0.9", "clip_p=1000", "feature_alpha_min=0.5"],
+            &["p0=0.01"],
+        ];
+        let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
+        for (w, h) in sizes {
+            for (name, frames) in sequences(w, h, 6, (w * 37 + h) as u64) {
+                for set in variants {
+                    let params: Params = build("phlm", &parse_assignments(set).unwrap()).unwrap();
+                    let mut fast = Phlm::new(params.clone());
+                    let mut slow = ReferencePhlm::new(params);
+                    for (i, f) in frames.iter().enumerate() {
+                        let a = fast.process(f).unwrap();
+                        let b = slow.process(f).unwrap();
+                        let what = format!("{w}x{h} {name} {set:?} frame {i}");
+                        assert_same_output(&a, &b, Tolerance::EXACT, &what);
+                        assert_eq!(a.record.model, b.record.model, "{what}: model health");
+                        fast.recycle(a.color);
+                    }
+                }
+            }
+        }
     }
 }

@@ -33,6 +33,8 @@
 //! noisy feature P's condition grows without bound and f32 P turned NaN between 20,000 and
 //! 200,000 frames).
 
+use crate::kernels::lanes::{Lanes, Mask, LANES};
+
 /// Number of features: the intercept and three feature channels (000, sec. 6, "the final
 /// dimension d ... is 4").
 pub const D: usize = 4;
@@ -164,7 +166,8 @@ pub fn update(
 /// the module docs): `R = lambda R + (1 - lambda) prior I + x x^T` (R packed, in place),
 /// then `beta += R^-1 x e` per channel. Returns `trace(R^-1) = trace(P)`, or `None` when R
 /// is not positive definite (only possible if the stored R was corrupted) and nothing was
-/// changed.
+/// changed. The solve divides once per pivot (4 reciprocals) and multiplies by those
+/// everywhere else; [`update_information_lanes`] computes the same for eight pixels at once.
 #[inline(always)]
 pub fn update_information(
     beta: &mut [[f32; D]; 3],
@@ -174,6 +177,25 @@ pub fn update_information(
     lambda: f32,
     prior: f32,
 ) -> Option<f32> {
+    let a = forgotten(r, x, lambda, prior);
+    let (chol, inv) = cholesky(&a)?;
+    let g = solve(&chol, &inv, &x.map(|v| v as f64));
+    for (b, e) in beta.iter_mut().zip(e) {
+        for j in 0..D {
+            b[j] += (g[j] * e as f64) as f32;
+        }
+    }
+    for i in 0..D {
+        for j in i..D {
+            r[SYM[i][j]] = a[i][j] as f32;
+        }
+    }
+    Some(trace_of_inverse(&chol, &inv))
+}
+
+/// `lambda R + (1 - lambda) prior I + x x^T` in f64, full.
+#[inline(always)]
+fn forgotten(r: &[f32; P_LEN], x: &[f32; D], lambda: f32, prior: f32) -> [[f64; D]; D] {
     let l = lambda as f64;
     let q = (1.0 - l) * prior as f64;
     let xd = x.map(|v| v as f64);
@@ -185,15 +207,20 @@ pub fn update_information(
             a[j][i] = v;
         }
     }
-    let chol = cholesky(&a)?;
-    // g = R^-1 x by forward and back substitution.
+    a
+}
+
+/// `A^-1 x` from the Cholesky factor `L` of `A` and its reciprocal pivots `1 / L_ii`, by
+/// forward and back substitution.
+#[inline(always)]
+fn solve(chol: &[[f64; D]; D], inv: &[f64; D], x: &[f64; D]) -> [f64; D] {
     let mut w = [0.0f64; D];
     for i in 0..D {
-        let mut v = xd[i];
+        let mut v = x[i];
         for k in 0..i {
             v -= chol[i][k] * w[k];
         }
-        w[i] = v / chol[i][i];
+        w[i] = v * inv[i];
     }
     let mut g = [0.0f64; D];
     for i in (0..D).rev() {
@@ -201,25 +228,17 @@ pub fn update_information(
         for k in i + 1..D {
             v -= chol[k][i] * g[k];
         }
-        g[i] = v / chol[i][i];
+        g[i] = v * inv[i];
     }
-    for (b, e) in beta.iter_mut().zip(e) {
-        for j in 0..D {
-            b[j] += (g[j] * e as f64) as f32;
-        }
-    }
-    for i in 0..D {
-        for j in i..D {
-            r[SYM[i][j]] = a[i][j] as f32;
-        }
-    }
-    Some(trace_of_inverse(&chol))
+    g
 }
 
-/// Lower Cholesky factor of a symmetric 4x4, `None` unless positive definite (and finite).
+/// Lower Cholesky factor of a symmetric 4x4 and its reciprocal pivots, `None` unless
+/// positive definite (and finite).
 #[inline(always)]
-fn cholesky(a: &[[f64; D]; D]) -> Option<[[f64; D]; D]> {
+fn cholesky(a: &[[f64; D]; D]) -> Option<([[f64; D]; D], [f64; D])> {
     let mut l = [[0.0f64; D]; D];
+    let mut inv = [0.0f64; D];
     for i in 0..D {
         for j in 0..=i {
             let mut s = a[i][j];
@@ -232,17 +251,19 @@ fn cholesky(a: &[[f64; D]; D]) -> Option<[[f64; D]; D]> {
                     return None;
                 }
                 l[i][i] = s.sqrt();
+                inv[i] = 1.0 / l[i][i];
             } else {
-                l[i][j] = s / l[j][j];
+                l[i][j] = s * inv[j];
             }
         }
     }
-    Some(l)
+    Some((l, inv))
 }
 
-/// `trace(A^-1)` from the Cholesky factor `L` of `A`: `||L^-1||_F^2`.
+/// `trace(A^-1)` from the Cholesky factor `L` of `A` (and its reciprocal pivots):
+/// `||L^-1||_F^2`, column by column of the lower-triangular `L^-1`.
 #[inline(always)]
-fn trace_of_inverse(l: &[[f64; D]; D]) -> f32 {
+fn trace_of_inverse(l: &[[f64; D]; D], inv_diag: &[f64; D]) -> f32 {
     let mut inv = [[0.0f64; D]; D];
     let mut sum = 0.0;
     for j in 0..D {
@@ -251,16 +272,128 @@ fn trace_of_inverse(l: &[[f64; D]; D]) -> f32 {
             for k in j..i {
                 v -= l[i][k] * inv[k][j];
             }
-            inv[i][j] = v / l[i][i];
+            inv[i][j] = v * inv_diag[i];
             sum += inv[i][j] * inv[i][j];
         }
     }
     sum as f32
 }
 
+/// One value in f64 for each pixel of a block.
+pub type Lanes64 = [f64; LANES];
+
+/// [`update_information`] for a block of pixels: lane `l` is updated (beta and R in place)
+/// when `active[l]`, exactly as the scalar function updates one pixel. Returns each lane's
+/// `trace(P)` (0 where nothing was updated) and which lanes failed (inactive lanes never
+/// fail; a failed lane is left unchanged, as the scalar function leaves it).
+#[inline(always)]
+pub fn update_information_lanes(
+    beta: &mut [[Lanes; D]; 3],
+    r: &mut [Lanes; P_LEN],
+    x: &[Lanes; D],
+    e: &[Lanes; 3],
+    lambda: f32,
+    prior: f32,
+    active: &Mask,
+) -> (Lanes, Mask) {
+    let l = lambda as f64;
+    let q = (1.0 - l) * prior as f64;
+    let xd: [Lanes64; D] = std::array::from_fn(|i| std::array::from_fn(|k| x[i][k] as f64));
+    // lambda R + (1 - lambda) prior I + x x^T, as [`forgotten`] sums it.
+    let mut a = [[[0.0f64; LANES]; D]; D];
+    for i in 0..D {
+        for j in i..D {
+            let extra = if i == j { q } else { 0.0 };
+            let v: Lanes64 =
+                std::array::from_fn(|k| l * r[SYM[i][j]][k] as f64 + xd[i][k] * xd[j][k] + extra);
+            a[i][j] = v;
+            a[j][i] = v;
+        }
+    }
+    // Cholesky with reciprocal pivots, every lane; `ok` where every pivot is positive.
+    let mut ch = [[[0.0f64; LANES]; D]; D];
+    let mut inv = [[0.0f64; LANES]; D];
+    let mut ok = *active;
+    for i in 0..D {
+        for j in 0..=i {
+            let mut sum = a[i][j];
+            for k in 0..j {
+                sum = std::array::from_fn(|m| sum[m] - ch[i][k][m] * ch[j][k][m]);
+            }
+            if i == j {
+                ok = std::array::from_fn(|m| ok[m] && sum[m] > 0.0 && sum[m].is_finite());
+                ch[i][i] = std::array::from_fn(|m| sum[m].sqrt());
+                inv[i] = std::array::from_fn(|m| 1.0 / ch[i][i][m]);
+            } else {
+                ch[i][j] = std::array::from_fn(|m| sum[m] * inv[j][m]);
+            }
+        }
+    }
+    // g = R^-1 x ([`solve`]).
+    let mut w = [[0.0f64; LANES]; D];
+    for i in 0..D {
+        let mut v = xd[i];
+        for k in 0..i {
+            v = std::array::from_fn(|m| v[m] - ch[i][k][m] * w[k][m]);
+        }
+        w[i] = std::array::from_fn(|m| v[m] * inv[i][m]);
+    }
+    let mut g = [[0.0f64; LANES]; D];
+    for i in (0..D).rev() {
+        let mut v = w[i];
+        for k in i + 1..D {
+            v = std::array::from_fn(|m| v[m] - ch[k][i][m] * g[k][m]);
+        }
+        g[i] = std::array::from_fn(|m| v[m] * inv[i][m]);
+    }
+    for c in 0..3 {
+        for j in 0..D {
+            beta[c][j] = std::array::from_fn(|m| {
+                let b = beta[c][j][m] + (g[j][m] * e[c][m] as f64) as f32;
+                if ok[m] {
+                    b
+                } else {
+                    beta[c][j][m]
+                }
+            });
+        }
+    }
+    for i in 0..D {
+        for j in i..D {
+            let k = SYM[i][j];
+            r[k] = std::array::from_fn(|m| if ok[m] { a[i][j][m] as f32 } else { r[k][m] });
+        }
+    }
+    // trace(R^-1) = ||L^-1||_F^2 ([`trace_of_inverse`]).
+    let mut li = [[[0.0f64; LANES]; D]; D];
+    let mut sum = [0.0f64; LANES];
+    for j in 0..D {
+        for i in j..D {
+            let mut v = [if i == j { 1.0 } else { 0.0 }; LANES];
+            for k in j..i {
+                v = std::array::from_fn(|m| v[m] - ch[i][k][m] * li[k][j][m]);
+            }
+            li[i][j] = std::array::from_fn(|m| v[m] * inv[i][m]);
+            sum = std::array::from_fn(|m| sum[m] + li[i][j][m] * li[i][j][m]);
+        }
+    }
+    let trace = std::array::from_fn(|m| if ok[m] { sum[m] as f32 } else { 0.0 });
+    let failed = std::array::from_fn(|m| active[m] && !ok[m]);
+    (trace, failed)
+}
+
+/// [`predict`] for a block of pixels.
+#[inline(always)]
+pub fn predict_lanes(beta: &[[Lanes; D]; 3], x: &[Lanes; D]) -> [Lanes; 3] {
+    std::array::from_fn(|c| {
+        let b = &beta[c];
+        std::array::from_fn(|k| b[0][k] * x[0][k] + b[1][k] * x[1][k] + b[2][k] * x[2][k] + b[3][k] * x[3][k])
+    })
+}
+
 /// `trace(R^-1)` of a packed symmetric R, `None` unless R is positive definite.
 pub fn trace_of_inverse_packed(r: &[f32; P_LEN]) -> Option<f32> {
-    cholesky(&unpack(r)).map(|l| trace_of_inverse(&l))
+    cholesky(&unpack(r)).map(|(l, inv)| trace_of_inverse(&l, &inv))
 }
 
 /// `R = I / p` packed: the information form of `P = p I`.
@@ -273,7 +406,7 @@ pub fn init_information(p: f32) -> [f32; P_LEN] {
 /// also returns its smallest pivot (NaN when it is not).
 pub fn positive_definite(p: &[f32; P_LEN]) -> (bool, f64) {
     match cholesky(&unpack(p)) {
-        Some(l) => (
+        Some((l, _)) => (
             true,
             (0..D).map(|i| l[i][i] * l[i][i]).fold(f64::INFINITY, f64::min),
         ),
@@ -655,6 +788,80 @@ mod tests {
                 tr_n,
                 track.join(" / ")
             );
+        }
+    }
+
+    #[test]
+    fn lanes_update_like_the_scalar_step_bit_for_bit() {
+        let mut rng = SplitMix64::new(91);
+        for case in 0..3000 {
+            // Random states: SPD information matrices (from a few updates), and some
+            // corrupted ones (negative or NaN diagonal) that must fail and stay unchanged.
+            let mut beta = [[[0.0f32; LANES]; D]; 3];
+            let mut r = [[0.0f32; LANES]; P_LEN];
+            let mut x = [[0.0f32; LANES]; D];
+            let mut e = [[0.0f32; LANES]; 3];
+            let active: Mask = std::array::from_fn(|m| (case + m) % 5 != 0);
+            for m in 0..LANES {
+                let mut rr = init_information(rng.range(0.5, 1000.0) as f32);
+                let mut bb = [[0.0f32; D]; 3];
+                for _ in 0..(m % 4) {
+                    let xx = [
+                        1.0,
+                        rng.next_f64() as f32,
+                        rng.next_f64() as f32,
+                        rng.next_f64() as f32,
+                    ];
+                    update_information(&mut bb, &mut rr, &xx, [0.1, -0.2, 0.3], 0.998, 1e-3);
+                }
+                if (case + m) % 7 == 3 {
+                    rr[DIAG[(case + m) % D]] = if m % 2 == 0 { -1.0 } else { f32::NAN };
+                }
+                for c in 0..3 {
+                    for j in 0..D {
+                        beta[c][j][m] = bb[c][j] + rng.range(-1.0, 1.0) as f32;
+                    }
+                    e[c][m] = rng.range(-2.0, 2.0) as f32;
+                }
+                for k in 0..P_LEN {
+                    r[k][m] = rr[k];
+                }
+                x[0][m] = 1.0;
+                for j in 1..D {
+                    x[j][m] = (rng.next_f64() * [1.0, 1e3, 1e-3][case % 3]) as f32;
+                }
+            }
+            let (lambda, prior) = (rng.range(0.9, 0.9999) as f32, rng.range(1e-4, 1.0) as f32);
+            let (mut lb, mut lr) = (beta, r);
+            let (trace, failed) = update_information_lanes(&mut lb, &mut lr, &x, &e, lambda, prior, &active);
+            for m in 0..LANES {
+                let mut sb: [[f32; D]; 3] = std::array::from_fn(|c| std::array::from_fn(|j| beta[c][j][m]));
+                let mut sr: [f32; P_LEN] = std::array::from_fn(|k| r[k][m]);
+                let sx: [f32; D] = std::array::from_fn(|j| x[j][m]);
+                let got = if active[m] {
+                    update_information(&mut sb, &mut sr, &sx, [0, 1, 2].map(|c| e[c][m]), lambda, prior)
+                } else {
+                    Some(0.0)
+                };
+                assert_eq!(got.is_none(), failed[m], "case {case} lane {m}");
+                assert_eq!(
+                    got.unwrap_or(0.0).to_bits(),
+                    trace[m].to_bits(),
+                    "case {case} lane {m}: trace"
+                );
+                for c in 0..3 {
+                    for j in 0..D {
+                        assert_eq!(
+                            sb[c][j].to_bits(),
+                            lb[c][j][m].to_bits(),
+                            "case {case} lane {m}: beta"
+                        );
+                    }
+                }
+                for k in 0..P_LEN {
+                    assert_eq!(sr[k].to_bits(), lr[k][m].to_bits(), "case {case} lane {m}: R");
+                }
+            }
         }
     }
 }

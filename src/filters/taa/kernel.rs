@@ -450,7 +450,7 @@ fn reproject_row(
         }
         let t = match filter {
             HistoryFilter::CatmullRom => catmull_rom_texels(texels, w, h, px, py),
-            HistoryFilter::Bilinear => bilinear_texels(texels, w, h, px, py),
+            HistoryFilter::Bilinear => bilinear_texels::<4>(texels, w, h, px, py),
         };
         (hy[x], hco[x], hcg[x], hn[x]) = (t[0], t[1], t[2], t[3]);
     }

@@ -1,0 +1,556 @@
+//! `phlm`'s stages fused into one pass over bands of rows ([`par_bands_strided`]): a band's
+//! working colour and YCoCg (rows and their 3x3 halo) go to band-local buffers; then each
+//! row's models are fetched at their previous positions (one texel of 25 floats per tap:
+//! beta, R and z of a pixel side by side), its 3x3 statistics are computed once for both the
+//! feature and the model test, and the feature and Algorithm 1 (prediction, box test, clip,
+//! the RLS update in f64 with reciprocal pivots) run on blocks of eight pixels in vector
+//! lanes. The reference ([`super::reference`]) reads 25 planes per pixel, computes the
+//! statistics twice and solves each pixel alone.
+//!
+//! Every stage computes what the reference computes, with the same float operations in the
+//! same order, so the outputs are the same bits; the tests compare them frame by frame.
+
+use super::feature::accumulate_lanes;
+use super::rls::{self, D, P_LEN};
+use super::{ModelFetch, Params, BETA, R, STATE_PLANES, Z};
+use crate::filters::passes::{on_screen, FrameContext, FrameResult};
+use crate::frame::{ChannelKind, Rgb};
+use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::{bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse};
+use crate::pipeline::exec::{par_bands_strided, StageClock};
+use crate::pipeline::{FilterError, ModelHealth, PixelCounts, Skip};
+use std::ops::{AddAssign, Range};
+
+/// Stages of the fused pass, in order (indices into its [`StageClock`]).
+const STAGES: [&str; 6] = ["tonemap", "ycocg", "reproject", "feature", "model", "untonemap"];
+const TONEMAP: usize = 0;
+const YCOCG: usize = 1;
+const REPROJECT: usize = 2;
+const FEATURE: usize = 3;
+const MODEL: usize = 4;
+const UNTONEMAP: usize = 5;
+
+/// Floats of one pixel's state texel: beta (12), R (10), z (3).
+pub(super) const TEXEL: usize = STATE_PLANES;
+
+/// What the pass reads for one frame.
+struct Sources<'a> {
+    w: usize,
+    h: usize,
+    color: [&'a [f32]; 3],
+    motion: Option<[&'a [f32]; 2]>,
+    invalid: Option<&'a [bool]>,
+    /// The previous frame's state texels, when there is history.
+    state: Option<&'a [f32]>,
+}
+
+/// What runs and the constants of the model.
+#[derive(Clone, Copy)]
+struct Plan<'a> {
+    tonemap: bool,
+    reproject: bool,
+    has_history: bool,
+    /// Largest output: just below 1 in the tonemapped space, unbounded otherwise.
+    hi: f32,
+    /// The prior `R0 = I / p0` that forgetting relaxes toward.
+    prior: f32,
+    p: &'a Params,
+}
+
+/// Per-row counters of the model stage.
+#[derive(Clone, Copy, Debug, Default)]
+struct Counts {
+    pixels: PixelCounts,
+    offscreen: u64,
+    repaired: u64,
+    max_trace: f32,
+}
+
+impl AddAssign for Counts {
+    fn add_assign(&mut self, o: Counts) {
+        self.pixels += o.pixels;
+        self.offscreen += o.offscreen;
+        self.repaired += o.repaired;
+        self.max_trace = self.max_trace.max(o.max_trace);
+    }
+}
+
+/// One band task's buffers, reused across the bands it runs.
+#[derive(Default)]
+struct Band {
+    /// YCoCg of the band's rows and one row above and below (clamped to the image).
+    cur: [Vec<f32>; 3],
+    /// The working colour (tonemapped input) of the band's rows.
+    work: [Vec<f32>; 3],
+    /// Per-column 3-row min, max and sum of each channel, with one clamped column on each
+    /// side and padding to whole blocks.
+    cols: [Vec<f32>; 9],
+    /// This row's fetched state, one row per state float.
+    fetched: [Vec<f32>; TEXEL],
+    /// This row's pixels without history (first frame, reset, off screen, padding).
+    nothing: Vec<bool>,
+    /// This row's motion length.
+    speed: Vec<f32>,
+    /// This row's new feature.
+    z: [Vec<f32>; 3],
+}
+
+fn sized<T: Clone + Default>(v: &mut Vec<T>, n: usize) -> &mut [T] {
+    if v.len() < n {
+        v.resize(n, T::default());
+    }
+    &mut v[..n]
+}
+
+/// Runs `phlm`'s stages from `tonemap` to `untonemap` for one frame.
+pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult, FilterError> {
+    let FrameContext {
+        inp,
+        rec,
+        has_history,
+        read,
+        next,
+        scratch,
+    } = ctx;
+    let (w, h) = (inp.width, inp.height);
+    let facts = inp.facts;
+    let reproject_skip = (!has_history)
+        .then_some(Skip::NoHistory)
+        .or_else(|| inp.require(ChannelKind::Motion))
+        .or_else(|| facts.reprojection());
+    let tonemap_skip = facts.tonemap();
+    let plan = Plan {
+        tonemap: tonemap_skip.is_none(),
+        reproject: reproject_skip.is_none(),
+        has_history,
+        hi: if facts.hdr { 1.0 - 1e-7 } else { f32::MAX },
+        prior: 1.0 / p.p0,
+        p,
+    };
+    let src = Sources {
+        w,
+        h,
+        color: inp.color_slices(),
+        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
+        invalid: inp.invalid.as_deref(),
+        state: has_history.then(|| read[0].data()),
+    };
+    let mut out: Rgb = scratch.planes(w, h);
+    let clock = StageClock::<6>::default();
+    let t = std::time::Instant::now();
+    let counts = {
+        let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+        par_bands_strided(
+            [o0, o1, o2, next[0].data_mut()],
+            [w, w, w, TEXEL * w],
+            h,
+            |band: &mut Band, rows, [or, og, ob, texels]| {
+                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
+            },
+        )
+    };
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let shares = clock.shares();
+    let skips = [
+        tonemap_skip.clone(),
+        None,
+        reproject_skip,
+        None,
+        None,
+        tonemap_skip,
+    ];
+    for (k, skip) in skips.into_iter().enumerate() {
+        match skip {
+            Some(why) => rec.skip(STAGES[k], why),
+            None => rec.ran_for(STAGES[k], ms * shares[k]),
+        }
+    }
+    let n = (w * h) as f64;
+    Ok(FrameResult {
+        color: out,
+        pixels: counts.pixels,
+        model: Some(ModelHealth {
+            reset_by_clip: counts.pixels.history_clipped as f64 / n,
+            reset_by_disocclusion: counts.offscreen as f64 / n,
+            max_trace_p: counts.max_trace as f64,
+            p_repaired: counts.repaired,
+        }),
+    })
+}
+
+/// One band: its rows' working colour and YCoCg (and halo) into the band buffers, then row
+/// by row the other stages.
+fn run_band(
+    src: &Sources,
+    plan: &Plan,
+    clock: &StageClock<6>,
+    band: &mut Band,
+    rows: Range<usize>,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> Counts {
+    let (w, h) = (src.w, src.h);
+    let r0 = rows.start.saturating_sub(1);
+    let r1 = (rows.end + 1).min(h);
+    let Band {
+        cur,
+        work,
+        cols,
+        fetched,
+        nothing,
+        speed,
+        z,
+    } = band;
+    let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
+    let mut work = work.each_mut().map(|v| sized(v, (r1 - r0) * w));
+    for r in r0..r1 {
+        let at = r * w..(r + 1) * w;
+        let dst = (r - r0) * w..(r - r0 + 1) * w;
+        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let [w0, w1, w2] = work.each_mut().map(|c| &mut c[dst.clone()]);
+        if plan.tonemap {
+            clock.time(TONEMAP, || {
+                for x in 0..w {
+                    let t = tonemap([input[0][x], input[1][x], input[2][x]]);
+                    (w0[x], w1[x], w2[x]) = (t[0], t[1], t[2]);
+                }
+            });
+        } else {
+            w0.copy_from_slice(input[0]);
+            w1.copy_from_slice(input[1]);
+            w2.copy_from_slice(input[2]);
+        }
+        let [c0, c1, c2] = cur.each_mut().map(|c| &mut c[dst.clone()]);
+        let (w0, w1, w2) = (&*w0, &*w1, &*w2);
+        clock.time(YCOCG, || {
+            for x in 0..w {
+                [c0[x], c1[x], c2[x]] = rgb_to_ycocg([w0[x], w1[x], w2[x]]);
+            }
+        });
+    }
+    // Row buffers hold whole blocks: `wp` pixels, the last ones padding.
+    let wp = w.div_ceil(LANES) * LANES;
+    let [or, og, ob] = out;
+    let mut counts = Counts::default();
+    for y in rows.clone() {
+        let at = y * w..(y + 1) * w;
+        let band_row = |r: usize| (r - r0) * w..(r - r0 + 1) * w;
+        let fetch_stage = if plan.reproject { REPROJECT } else { MODEL };
+        let nothing = sized(nothing, wp);
+        let speed = sized(speed, wp);
+        let mut fetched = fetched.each_mut().map(|v| sized(v, wp));
+        clock.time(fetch_stage, || {
+            fetch_row(src, plan, y, &mut fetched, nothing, speed)
+        });
+        let cols = cols.each_mut().map(|v| sized(v, wp + 2));
+        let rows3 = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(band_row);
+        let centre = band_row(y);
+        let stats = clock.time(FEATURE, || column_stats(&cur, &rows3, w, cols));
+        let zrow = z.each_mut().map(|v| sized(v, wp));
+        let working = work.each_ref().map(|c| &c[centre.clone()]);
+        let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
+        let invalid = src.invalid.map(|v| &v[at.clone()]);
+        let fetched = fetched.each_ref().map(|v| &**v);
+        let [z0, z1, z2] = zrow;
+        clock.time(FEATURE, || {
+            feature_row(
+                &stats,
+                working,
+                &fetched,
+                nothing,
+                speed,
+                invalid,
+                plan.p,
+                w,
+                [&mut *z0, &mut *z1, &mut *z2],
+            )
+        });
+        let k = y - rows.start;
+        let o = k * w..(k + 1) * w;
+        let row_out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
+        let texels = &mut next[TEXEL * o.start..TEXEL * o.end];
+        counts += clock.time(MODEL, || {
+            model_row(
+                &stats,
+                working,
+                ycocg,
+                &fetched,
+                nothing,
+                [&*z0, &*z1, &*z2],
+                invalid,
+                plan,
+                w,
+                row_out,
+                texels,
+            )
+        });
+        if plan.tonemap {
+            let [r, g, b] = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
+            clock.time(UNTONEMAP, || {
+                for x in 0..w {
+                    let c = tonemap_inverse([r[x], g[x], b[x]]);
+                    (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
+                }
+            });
+        }
+    }
+    counts
+}
+
+/// Stage `reproject` of row `y` (or the in-place read when nothing moves): each pixel's
+/// previous state (bilinear or nearest at `p + motion`, or its own) into `fetched`, one
+/// row per state float; `nothing` where there is none (no history, off screen, padding);
+/// the motion length for the feature.
+fn fetch_row(
+    src: &Sources,
+    plan: &Plan,
+    y: usize,
+    fetched: &mut [&mut [f32]; TEXEL],
+    nothing: &mut [bool],
+    speed: &mut [f32],
+) {
+    let (w, h) = (src.w, src.h);
+    nothing.fill(true);
+    speed.fill(0.0);
+    if let Some([mx, my]) = src.motion {
+        let (mx, my) = (&mx[y * w..(y + 1) * w], &my[y * w..(y + 1) * w]);
+        for x in 0..w {
+            speed[x] = (mx[x] * mx[x] + my[x] * my[x]).sqrt();
+        }
+    }
+    let Some(state) = src.state else { return };
+    let put = |fetched: &mut [&mut [f32]; TEXEL], x: usize, t: &[f32; TEXEL]| {
+        for c in 0..TEXEL {
+            fetched[c][x] = t[c];
+        }
+    };
+    match (plan.reproject, src.motion) {
+        (true, Some([mx, my])) => {
+            for x in 0..w {
+                let i = y * w + x;
+                let (px, py) = (x as f32 + 0.5 + mx[i], y as f32 + 0.5 + my[i]);
+                if !on_screen(px, py, w, h) {
+                    continue;
+                }
+                nothing[x] = false;
+                let t: [f32; TEXEL] = match plan.p.model_fetch {
+                    ModelFetch::Bilinear => bilinear_texels(state, w, h, px, py),
+                    ModelFetch::Nearest => nearest_texel(state, w, h, px, py),
+                };
+                put(fetched, x, &t);
+            }
+        }
+        _ => {
+            for x in 0..w {
+                let i = (y * w + x) * TEXEL;
+                nothing[x] = false;
+                put(fetched, x, state[i..i + TEXEL].try_into().expect("a texel"));
+            }
+        }
+    }
+}
+
+/// The 3x3 statistics the feature and the model need, per pixel of a row.
+struct RowStats<'a> {
+    cols: [&'a [f32]; 9],
+}
+
+/// Per column of the row: min, max and sum of the three rows `rows3` of each channel, at
+/// index `x + 1`, with the edge columns repeated at indices `0` and `w + 1` (so pixel `x`
+/// reads indices `x .. x + 2` whatever its place) and the padding filled.
+fn column_stats<'a>(
+    cur: &[&mut [f32]; 3],
+    rows3: &[Range<usize>; 3],
+    w: usize,
+    cols: [&'a mut [f32]; 9],
+) -> RowStats<'a> {
+    let mut cols = cols;
+    for c in 0..3 {
+        let [a, b, t] = rows3.clone().map(|r| &cur[c][r]);
+        let (mn, rest) = cols[3 * c..3 * c + 3].split_at_mut(1);
+        let (mx, sm) = rest.split_at_mut(1);
+        let (mn, mx, sm) = (&mut *mn[0], &mut *mx[0], &mut *sm[0]);
+        for x in 0..w {
+            let (u, v, s) = (a[x], b[x], t[x]);
+            mn[x + 1] = fmin(fmin(u, v), s);
+            mx[x + 1] = fmax(fmax(u, v), s);
+            sm[x + 1] = u + v + s;
+        }
+        for col in [&mut *mn, &mut *mx, &mut *sm] {
+            col[0] = col[1];
+            let last = col[w];
+            col[w + 1..].fill(last);
+        }
+    }
+    RowStats {
+        cols: cols.map(|c| &*c),
+    }
+}
+
+impl RowStats<'_> {
+    /// Min, max and mean of each channel for the block of pixels starting at `x0`
+    /// (as [`crate::kernels::for_each_row_stats`] combines its columns).
+    #[inline(always)]
+    fn block(&self, x0: usize) -> [[Lanes; 3]; 3] {
+        let mut out = [[[0.0; LANES]; 3]; 3];
+        for c in 0..3 {
+            let col = |k: usize| -> &[f32; LANES + 2] {
+                self.cols[3 * c + k][x0..x0 + LANES + 2]
+                    .try_into()
+                    .expect("a block")
+            };
+            let (mn, mx, sm) = (col(0), col(1), col(2));
+            out[0][c] = std::array::from_fn(|l| fmin(fmin(mn[l], mn[l + 1]), mn[l + 2]));
+            out[1][c] = std::array::from_fn(|l| fmax(fmax(mx[l], mx[l + 1]), mx[l + 2]));
+            out[2][c] = std::array::from_fn(|l| (sm[l] + sm[l + 1] + sm[l + 2]) * (1.0 / 9.0));
+        }
+        out
+    }
+}
+
+/// `N` lanes of row `s` from pixel `x0`, padding with `pad` past `n` pixels.
+#[inline(always)]
+fn lanes_of<T: Copy>(s: &[T], x0: usize, n: usize, pad: T) -> [T; LANES] {
+    if x0 + LANES <= n {
+        *<&[T; LANES]>::try_from(&s[x0..x0 + LANES]).expect("a block")
+    } else {
+        std::array::from_fn(|l| if x0 + l < n { s[x0 + l] } else { pad })
+    }
+}
+
+/// Stage `feature` of one row (000, sec. 5.1): the temporal feature `z` of each pixel from
+/// its previous feature, the 3x3 mean (the low-pass) and luma range, and its speed; the
+/// input itself where there is no history, the previous feature where the input was
+/// repaired.
+#[allow(clippy::too_many_arguments)]
+fn feature_row(
+    stats: &RowStats,
+    working: [&[f32]; 3],
+    fetched: &[&[f32]; TEXEL],
+    nothing: &[bool],
+    speed: &[f32],
+    invalid: Option<&[bool]>,
+    p: &Params,
+    w: usize,
+    z: [&mut [f32]; 3],
+) {
+    let [z0, z1, z2] = z;
+    for x0 in (0..w).step_by(LANES) {
+        let [min, max, mean] = stats.block(x0);
+        let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
+        let prev: [Lanes; 3] = std::array::from_fn(|c| lanes_of(fetched[Z + c], x0, w, 0.0));
+        let none: Mask = lanes_of(nothing, x0, w, true);
+        let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
+        let v: Lanes = lanes_of(speed, x0, w, 0.0);
+        let lowpass = lanes::ycocg_to_rgb(&mean);
+        let acc = accumulate_lanes(&prev, &lowpass, &min[0], &max[0], &v, p);
+        for (c, zr) in [&mut *z0, &mut *z1, &mut *z2].into_iter().enumerate() {
+            let kept = lanes::select(&inv, &prev[c], &acc[c]);
+            let zc = lanes::select(&none, &input[c], &kept);
+            let n = LANES.min(w - x0);
+            zr[x0..x0 + n].copy_from_slice(&zc[..n]);
+        }
+    }
+}
+
+/// A model reset to colour `c` with `P = p I` ([`super::Model::reset`]) where `m` is set.
+#[inline(always)]
+fn reset_where(m: &Mask, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: &[Lanes; 3], p: f32) {
+    let init = rls::init_information(p);
+    for ch in 0..3 {
+        beta[ch][0] = lanes::select(m, &c[ch], &beta[ch][0]);
+        for j in 1..D {
+            beta[ch][j] = lanes::select(m, &[0.0; LANES], &beta[ch][j]);
+        }
+    }
+    for k in 0..P_LEN {
+        r[k] = lanes::select(m, &[init[k]; LANES], &r[k]);
+    }
+}
+
+/// Stage `model` of one row: Algorithm 1 lines 11-22 (000) on blocks of eight pixels: the
+/// fetched model (or a new one), its prediction tested against the 3x3 box and clipped
+/// toward the input with a reset, the RLS update, the output; writes the state texels.
+#[allow(clippy::too_many_arguments)]
+fn model_row(
+    stats: &RowStats,
+    working: [&[f32]; 3],
+    ycocg: [&[f32]; 3],
+    fetched: &[&[f32]; TEXEL],
+    nothing: &[bool],
+    z: [&[f32]; 3],
+    invalid: Option<&[bool]>,
+    plan: &Plan,
+    w: usize,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> Counts {
+    let p = plan.p;
+    let [or, og, ob] = out;
+    let mut counts = Counts::default();
+    for x0 in (0..w).step_by(LANES) {
+        let n = LANES.min(w - x0);
+        let real: Mask = std::array::from_fn(|l| l < n);
+        let [min, max, _] = stats.block(x0);
+        let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
+        let cur: [Lanes; 3] = ycocg.map(|c| lanes_of(c, x0, w, 0.0));
+        let zl: [Lanes; 3] = z.map(|c| lanes_of(c, x0, w, 0.0));
+        let none: Mask = lanes_of(nothing, x0, w, true);
+        let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
+        let mut beta: [[Lanes; D]; 3] =
+            std::array::from_fn(|c| std::array::from_fn(|j| lanes_of(fetched[BETA + c * D + j], x0, w, 0.0)));
+        let mut r: [Lanes; P_LEN] = std::array::from_fn(|k| lanes_of(fetched[R + k], x0, w, 0.0));
+        reset_where(&none, &mut beta, &mut r, &input, p.p0);
+        let fresh: Mask = std::array::from_fn(|l| none[l] && real[l]);
+        let x: [Lanes; D] = [lanes::splat(1.0), zl[0], zl[1], zl[2]];
+        // Lines 12-19: predict; outside the 3x3 box -> clip toward the input and reset.
+        let active: Mask = std::array::from_fn(|l| !inv[l]);
+        let pred = rls::predict_lanes(&beta, &x);
+        let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &min, &max);
+        let moved: Mask = std::array::from_fn(|l| moved[l] && active[l]);
+        reset_where(
+            &moved,
+            &mut beta,
+            &mut r,
+            &lanes::ycocg_to_rgb(&clipped),
+            p.clip_p,
+        );
+        // Lines 19-21: error of the (possibly reset) model, RLS update.
+        let pred = rls::predict_lanes(&beta, &x);
+        let e: [Lanes; 3] = std::array::from_fn(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
+        let (trace, failed) =
+            rls::update_information_lanes(&mut beta, &mut r, &x, &e, p.lambda, plan.prior, &active);
+        reset_where(&failed, &mut beta, &mut r, &input, p.p0);
+        let broken: Mask =
+            std::array::from_fn(|l| active[l] && !beta.iter().flatten().all(|b| b[l].is_finite()));
+        reset_where(&broken, &mut beta, &mut r, &input, p.p0);
+        // Line 22: the output.
+        let o = rls::predict_lanes(&beta, &x);
+        for l in 0..n {
+            counts.pixels.history_reset += fresh[l] as u64;
+            counts.offscreen += (fresh[l] && plan.has_history) as u64;
+            counts.pixels.history_clipped += moved[l] as u64;
+            counts.repaired += failed[l] as u64 + broken[l] as u64;
+            counts.max_trace = counts.max_trace.max(trace[l]);
+        }
+        for (c, row) in [&mut *or, &mut *og, &mut *ob].into_iter().enumerate() {
+            for l in 0..n {
+                row[x0 + l] = o[c][l].clamp(0.0, plan.hi);
+            }
+        }
+        let texels: &mut [f32] = &mut next[TEXEL * x0..TEXEL * (x0 + n)];
+        for l in 0..n {
+            let t = &mut texels[TEXEL * l..TEXEL * (l + 1)];
+            for c in 0..3 {
+                for j in 0..D {
+                    t[BETA + c * D + j] = beta[c][j][l];
+                }
+                t[Z + c] = zl[c][l];
+            }
+            for k in 0..P_LEN {
+                t[R + k] = r[k][l];
+            }
+        }
+    }
+    counts
+}

@@ -1,0 +1,234 @@
+//! The scalar reference of `phlm`: whole-plane passes over planar state, exactly as the
+//! filter was first written (Algorithm 1 of Iglesias-Guitian et al. 2016 pixel by pixel).
+//! The fused band kernel ([`super::kernel`]) must give the same output (the tests compare
+//! them frame by frame); this stays the readable statement of what the filter computes.
+
+use super::super::passes::{
+    from_working, on_screen, slices_mut, to_working, to_ycocg, Conversion, TemporalState,
+};
+use super::rls::{self, D, P_LEN};
+use super::{convert_state, feature, fetch, Counts, From, Model, Params, Phlm, BETA, R, STATE_PLANES, Z};
+use crate::frame::{ChannelKind, Frame, Plane, Rgb};
+use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, ycocg_to_rgb};
+use crate::pipeline::exec::{for_rows, par_rows};
+use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, ModelHealth, Output, Recorder, Skip};
+
+/// `phlm` computed stage by stage over whole planes.
+#[derive(Debug)]
+pub struct ReferencePhlm {
+    params: Params,
+    hist: TemporalState,
+}
+
+impl ReferencePhlm {
+    /// A fresh reference filter.
+    pub fn new(params: Params) -> Self {
+        ReferencePhlm {
+            params,
+            hist: TemporalState::with_conversion(STATE_PLANES, Conversion::Custom(convert_state)),
+        }
+    }
+
+    /// Filters one frame.
+    pub fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
+        let p = self.params.clone();
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let facts = inp.facts;
+        let hdr = facts.hdr;
+        let has_history = self.hist.begin(frame, hdr)?;
+        let scratch = &mut self.hist.scratch;
+
+        let working = rec
+            .stage("tonemap", facts.tonemap(), || {
+                to_working(&inp.color, true, scratch)
+            })
+            .unwrap_or(std::borrow::Cow::Borrowed(&*inp.color));
+        let rgb = working.each_ref().map(|p| p.data());
+
+        let ycocg: Rgb = rec.run("ycocg", || to_ycocg(&working, scratch));
+        let cur = ycocg.each_ref().map(|p| p.data());
+
+        // Previous positions (pixel units); NaN marks off screen.
+        let skip = (!has_history)
+            .then_some(Skip::NoHistory)
+            .or_else(|| inp.require(ChannelKind::Motion))
+            .or_else(|| facts.reprojection());
+        let positions: Option<[Plane<f32>; 2]> = rec.stage("reproject", skip, || {
+            let m = inp
+                .motion
+                .as_deref()
+                .expect("required")
+                .each_ref()
+                .map(|p| p.data());
+            let mut out: [Plane<f32>; 2] = scratch.planes(w, h);
+            for_rows(slices_mut(&mut out), w, |y, [px, py]| {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let (qx, qy) = (x as f32 + 0.5 + m[0][i], y as f32 + 0.5 + m[1][i]);
+                    (px[x], py[x]) = if on_screen(qx, qy, w, h) {
+                        (qx, qy)
+                    } else {
+                        (f32::NAN, f32::NAN)
+                    };
+                }
+            });
+            out
+        });
+        let pos = positions.as_ref().map(|p| p.each_ref().map(|p| p.data()));
+        let motion = inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data()));
+
+        let (read, next) = self.hist.buffer.split();
+        let src: [&[f32]; STATE_PLANES] = std::array::from_fn(|k| read[k].data());
+        let from = |i: usize| -> From {
+            if !has_history {
+                return From::Nothing;
+            }
+            match pos {
+                None => From::Here(i),
+                Some([px, _]) if px[i].is_nan() => From::Nothing,
+                Some([px, py]) => From::At(px[i], py[i]),
+            }
+        };
+        let src_z: [&[f32]; 3] = std::array::from_fn(|k| src[Z + k]);
+        let src_model: [&[f32]; Z] = std::array::from_fn(|k| src[k]);
+
+        // Feature (sec. 5.1): written into next's z planes.
+        {
+            let (_, z_next) = next.split_at_mut(Z);
+            let zrows: [&mut [f32]; 3] = {
+                let mut it = z_next.iter_mut();
+                std::array::from_fn(|_| it.next().expect("z planes").data_mut())
+            };
+            rec.run("feature", || {
+                for_rows(zrows, w, |y, [zr, zg, zb]| {
+                    for_each_row_stats(cur, w, h, y, |x, stats| {
+                        let i = y * w + x;
+                        let input = [rgb[0][i], rgb[1][i], rgb[2][i]];
+                        let f = from(i);
+                        let z = if matches!(f, From::Nothing) {
+                            // Sec. 6: "Our temporal feature z is initialized with the input image".
+                            input
+                        } else {
+                            let prev = fetch(src_z, w, h, f, p.model_fetch);
+                            if inp.is_invalid(i) {
+                                prev
+                            } else {
+                                let v =
+                                    motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
+                                feature::accumulate(
+                                    prev,
+                                    ycocg_to_rgb(stats.mean),
+                                    stats.min[0],
+                                    stats.max[0],
+                                    v,
+                                    &p,
+                                )
+                            }
+                        };
+                        (zr[x], zg[x], zb[x]) = (z[0], z[1], z[2]);
+                    });
+                });
+            });
+        }
+
+        // Algorithm 1.
+        let mut out: Rgb = scratch.planes(w, h);
+        let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
+        // The prior R0 = I / p0 that forgetting relaxes toward (rls module docs).
+        let prior = 1.0 / p.p0;
+        let counts: Counts = rec.run("model", || {
+            let (model_next, z_next) = next.split_at_mut(Z);
+            let zs: [&[f32]; 3] = std::array::from_fn(|k| z_next[k].data());
+            let [o0, o1, o2] = slices_mut(&mut out);
+            let mut it = model_next.iter_mut();
+            let mrows: [&mut [f32]; Z] = std::array::from_fn(|_| it.next().expect("model planes").data_mut());
+            let mut all: Vec<&mut [f32]> = mrows.into_iter().collect();
+            all.extend([o0, o1, o2]);
+            let rows: [&mut [f32]; Z + 3] = all.try_into().expect("Z + 3 planes");
+            par_rows(rows, w, |y, mut r| {
+                let mut c = Counts::default();
+                for_each_row_stats(cur, w, h, y, |x, stats| {
+                    let i = y * w + x;
+                    let input = [rgb[0][i], rgb[1][i], rgb[2][i]];
+                    let z = [zs[0][i], zs[1][i], zs[2][i]];
+                    let f = from(i);
+                    let mut m = match f {
+                        From::Nothing => {
+                            c.pixels.history_reset += 1;
+                            if has_history {
+                                c.offscreen += 1;
+                            }
+                            Model::reset(input, z, p.p0)
+                        }
+                        _ => Model::from_state(&fetch(src_model, w, h, f, p.model_fetch), z),
+                    };
+                    let x_feat = m.x();
+                    if !inp.is_invalid(i) {
+                        // Lines 12-19: predict; outside the 3x3 box -> clip toward y and reset.
+                        let pred = rls::predict(&m.beta, &x_feat);
+                        let (clipped, moved) = clip_toward_point(
+                            rgb_to_ycocg(pred),
+                            [cur[0][i], cur[1][i], cur[2][i]],
+                            stats.min,
+                            stats.max,
+                        );
+                        if moved {
+                            c.pixels.history_clipped += 1;
+                            m = Model::reset(ycocg_to_rgb(clipped), z, p.clip_p);
+                        }
+                        // Lines 19-21: error of the (possibly reset) model, RLS update.
+                        let pred = rls::predict(&m.beta, &x_feat);
+                        let e = [0, 1, 2].map(|k| input[k] - pred[k]);
+                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, p.lambda, prior) {
+                            Some(trace) => c.max_trace = c.max_trace.max(trace),
+                            None => {
+                                c.repaired += 1;
+                                m = Model::reset(input, z, p.p0);
+                            }
+                        }
+                        if !m.beta.iter().flatten().all(|v| v.is_finite()) {
+                            c.repaired += 1;
+                            m = Model::reset(input, z, p.p0);
+                        }
+                    }
+                    // Line 22: the output.
+                    let o = rls::predict(&m.beta, &x_feat);
+                    for ch in 0..3 {
+                        for j in 0..D {
+                            r[BETA + ch * D + j][x] = m.beta[ch][j];
+                        }
+                    }
+                    for k in 0..P_LEN {
+                        r[R + k][x] = m.r[k];
+                    }
+                    // Rows Z.. of this pass are the output planes.
+                    for ch in 0..3 {
+                        r[Z + ch][x] = o[ch].clamp(0.0, hi);
+                    }
+                });
+                c
+            })
+        });
+
+        rec.stage("untonemap", facts.tonemap(), || from_working(&mut out, true));
+
+        let n = (w * h) as f64;
+        scratch.recycle(ycocg);
+        scratch.recycle(positions.into_iter().flatten());
+        if let std::borrow::Cow::Owned(w) = working {
+            scratch.recycle(w);
+        }
+        let bytes = self.hist.finish(hdr);
+        let mut record = rec.finish(Phlm::NAME, frame.meta.index, counts.pixels, inp.counts, bytes);
+        record.model = Some(ModelHealth {
+            reset_by_clip: counts.pixels.history_clipped as f64 / n,
+            reset_by_disocclusion: counts.offscreen as f64 / n,
+            max_trace_p: counts.max_trace as f64,
+            p_repaired: counts.repaired,
+        });
+        Ok(Output { color: out, record })
+    }
+}
