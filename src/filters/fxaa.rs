@@ -6,14 +6,25 @@
 //! tonemapped colour for HDR input; FXAA expects gamma-2 luma), `fxaa` (edge detection,
 //! edge-end search along the edge, sub-pixel blend; the output is a bilinear fetch of the
 //! input at the offset position).
+//!
+//! The filter runs one fused pass over bands of rows ([`par_bands`]): each band computes the
+//! luma of its rows and one row above and below into a buffer of its own, tests every row
+//! for FXAA's early exit in a vectorised loop, copies the colour rows, and runs the edge
+//! search and the bilinear fetch only for the pixels that passed the test (a small share
+//! of most frames). [`reference`] is the plain two-pass version it must match bit for bit.
+//! A frame with samples to repair goes through [`prepare`] first; a clean one (told by one
+//! vectorised read, [`color_max`]) is read in place.
 
 use super::passes::{planes, slices_mut};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
-use crate::kernels::{bilinear, luma, tonemap};
-use crate::pipeline::exec::for_rows;
+use crate::kernels::{bilinear, fmax, fmin, luma, tonemap};
+use crate::pipeline::clean::color_max;
+use crate::pipeline::exec::{for_rows, par_bands, StageClock};
+use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder,
+    check_needs, prepare, Filter, FilterError, FilterKind, FrameFacts, InputCounts, Output, ParamKind,
+    PixelCounts, Recorder, Scratch, Skip,
 };
 use serde_json::Value;
 
@@ -36,10 +47,12 @@ filter_params! {
 /// 1.0, 1.5, 2.0, 4.0, 12.0), in pixels along the edge.
 pub const PRESET_12_STEPS: [f32; 5] = [1.0, 1.5, 2.0, 4.0, 12.0];
 
-/// The FXAA filter (stateless).
+/// The FXAA filter (no history; it keeps the planes handed back by [`Filter::recycle`] to
+/// write the next output into).
 #[derive(Debug)]
 pub struct Fxaa {
     params: Params,
+    scratch: Scratch,
 }
 
 impl FilterKind for Fxaa {
@@ -58,7 +71,10 @@ impl FilterKind for Fxaa {
         0
     }
     fn new(params: Params) -> Self {
-        Fxaa { params }
+        Fxaa {
+            params,
+            scratch: Scratch::default(),
+        }
     }
 }
 
@@ -219,6 +235,345 @@ pub fn fxaa_position(l: &[f32], w: usize, h: usize, x: usize, y: usize, p: &Para
     }
 }
 
+/// The scalar reference of the filter, as it was first written: the `luma` pass writes the
+/// whole luma plane, then the `fxaa` pass runs [`fxaa_position`] and a bilinear fetch of the
+/// colour for every pixel. `src` is the repaired colour (finite, non-negative), `hdr`
+/// whether it exceeds 1 anywhere. The filter's fused band pass gives the same bits; its
+/// tests compare the two.
+pub fn reference(src: [&[f32]; 3], w: usize, h: usize, hdr: bool, p: &Params) -> Rgb {
+    let mut l = Plane::new(w, h);
+    for_rows([l.data_mut()], w, |y, [row]| {
+        for x in 0..w {
+            let i = y * w + x;
+            let c = [src[0][i], src[1][i], src[2][i]];
+            let c = if hdr { tonemap(c) } else { c.map(|v| v.min(1.0)) };
+            row[x] = luma(c).max(0.0).sqrt();
+        }
+    });
+    let mut out: Rgb = planes(w, h);
+    let l = l.data();
+    for_rows(slices_mut(&mut out), w, |y, [r, g, b]| {
+        for x in 0..w {
+            let pos = fxaa_position(l, w, h, x, y, p);
+            let c = bilinear(src, w, h, pos[0], pos[1]);
+            (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
+        }
+    });
+    out
+}
+
+/// FXAA's luma of one colour, as [`reference`] computes it: `sqrt` of the Rec. 709 luma of
+/// the tonemapped colour when `HDR`, else of the colour clamped to 1.
+#[inline(always)]
+fn luma_of<const HDR: bool>(c: [f32; 3]) -> f32 {
+    let c = if HDR { tonemap(c) } else { c.map(|v| v.min(1.0)) };
+    luma(c).max(0.0).sqrt()
+}
+
+/// [`luma_of`] over a row: `out[x]` from `c[k][x]` (all of one length; vectorised).
+fn luma_row<const HDR: bool>(c: [&[f32]; 3], out: &mut [f32]) {
+    let n = out.len();
+    let (r, g, b) = (&c[0][..n], &c[1][..n], &c[2][..n]);
+    for x in 0..n {
+        out[x] = luma_of::<HDR>([r[x], g[x], b[x]]);
+    }
+}
+
+/// FXAA's early exit over a row (Fxaa3_11.h: `range < max(fxaaQualityEdgeThresholdMin,
+/// rangeMax * fxaaQualityEdgeThreshold)` leaves the pixel as it is), vectorised: `edge[x]`
+/// is 1 where pixel `x` must be processed. `up`, `mid`, `down` are luma rows padded by one
+/// sample on each side (the row's edge repeated); `edge` has the row's width.
+fn contrast_row(up: &[f32], mid: &[f32], down: &[f32], edge: &mut [u8], p: &Params) {
+    let w = edge.len();
+    let (n, s) = (&up[1..w + 1], &down[1..w + 1]);
+    let (west, m, east) = (&mid[..w], &mid[1..w + 1], &mid[2..w + 2]);
+    for x in 0..w {
+        // Luma is finite (repaired colour), so the NaN-blind min and max are exact.
+        let range_max = fmax(fmax(fmax(fmax(s[x], m[x]), east[x]), n[x]), west[x]);
+        let range_min = fmin(fmin(fmin(fmin(s[x], m[x]), east[x]), n[x]), west[x]);
+        let range = range_max - range_min;
+        // `!(range < t)` in the header; the same for finite values.
+        edge[x] = (range >= fmax(p.edge_threshold_min, range_max * p.edge_threshold)) as u8;
+    }
+}
+
+/// Calls `f(x)` for every `x` with `flags[x] != 0`, eight flags at a time.
+#[inline(always)]
+fn for_each_set(flags: &[u8], mut f: impl FnMut(usize)) {
+    let mut chunks = flags.chunks_exact(8);
+    for (c, chunk) in (&mut chunks).enumerate() {
+        if u64::from_le_bytes(chunk.try_into().expect("8 flags")) != 0 {
+            for (i, &e) in chunk.iter().enumerate() {
+                if e != 0 {
+                    f(c * 8 + i);
+                }
+            }
+        }
+    }
+    let base = flags.len() - chunks.remainder().len();
+    for (i, &e) in chunks.remainder().iter().enumerate() {
+        if e != 0 {
+            f(base + i);
+        }
+    }
+}
+
+/// The luma a band's edge search reads: rows `lo..hi` from the band's buffer (rows of
+/// `w + 2`, padded), the rows beyond computed from the colour when a vertical search
+/// reaches them (edge-end samples go up to 9 rows away, the band buffer holds one).
+struct LumaView<'a> {
+    band: &'a [f32],
+    lo: usize,
+    hi: usize,
+    w: usize,
+    h: usize,
+    src: [&'a [f32]; 3],
+    hdr: bool,
+}
+
+impl LumaView<'_> {
+    /// Luma of pixel `(x, y)` (inside the image).
+    #[inline(always)]
+    fn at(&self, x: usize, y: usize) -> f32 {
+        if (self.lo..self.hi).contains(&y) {
+            self.band[(y - self.lo) * (self.w + 2) + x + 1]
+        } else {
+            let i = y * self.w + x;
+            let c = [self.src[0][i], self.src[1][i], self.src[2][i]];
+            if self.hdr {
+                luma_of::<true>(c)
+            } else {
+                luma_of::<false>(c)
+            }
+        }
+    }
+
+    /// Bilinear luma at `(x, y)`, computed as [`bilinear`] does.
+    #[inline]
+    fn bilinear(&self, x: f32, y: f32) -> f32 {
+        let clamp_index = |i: f32, n: usize| (i.max(0.0) as usize).min(n - 1);
+        let fx = x - 0.5;
+        let fy = y - 0.5;
+        let x0 = fx.floor();
+        let y0 = fy.floor();
+        let tx = fx - x0;
+        let ty = fy - y0;
+        let xa = clamp_index(x0, self.w);
+        let xb = clamp_index(x0 + 1.0, self.w);
+        let ya = clamp_index(y0, self.h);
+        let yb = clamp_index(y0 + 1.0, self.h);
+        let (aa, ab) = (self.at(xa, ya), self.at(xb, ya));
+        let (ba, bb) = (self.at(xa, yb), self.at(xb, yb));
+        let top = aa + (ab - aa) * tx;
+        let bottom = ba + (bb - ba) * tx;
+        top + (bottom - top) * ty
+    }
+
+    /// [`edge_search`] on this luma with the preset's steps.
+    fn edge_search(&self, pos_b: [f32; 2], off: [f32; 2], luma_avg: f32, gradient_scaled: f32) -> EdgeEnds {
+        let steps = &PRESET_12_STEPS;
+        let at = |p: [f32; 2]| self.bilinear(p[0], p[1]) - luma_avg;
+        let mut pos_n = [pos_b[0] - off[0] * steps[0], pos_b[1] - off[1] * steps[0]];
+        let mut pos_p = [pos_b[0] + off[0] * steps[0], pos_b[1] + off[1] * steps[0]];
+        let mut end_n = at(pos_n);
+        let mut end_p = at(pos_p);
+        let mut done_n = end_n.abs() >= gradient_scaled;
+        let mut done_p = end_p.abs() >= gradient_scaled;
+        for (k, &step) in steps.iter().enumerate().skip(1) {
+            if !done_n {
+                pos_n = [pos_n[0] - off[0] * step, pos_n[1] - off[1] * step];
+            }
+            if !done_p {
+                pos_p = [pos_p[0] + off[0] * step, pos_p[1] + off[1] * step];
+            }
+            if done_n && done_p || k + 1 == steps.len() {
+                break;
+            }
+            if !done_n {
+                end_n = at(pos_n);
+                done_n = end_n.abs() >= gradient_scaled;
+            }
+            if !done_p {
+                end_p = at(pos_p);
+                done_p = end_p.abs() >= gradient_scaled;
+            }
+        }
+        EdgeEnds {
+            pos_n,
+            pos_p,
+            end_n,
+            end_p,
+        }
+    }
+
+    /// [`fxaa_position`] of pixel `(x, y)` of row `y` (whose luma row and the rows above
+    /// and below it are `rows`, padded), for a pixel that passed [`contrast_row`]. The
+    /// same operations in the same order as the reference; the constants are Fxaa3_11.h's
+    /// (`FxaaPixelShader`, quality path).
+    fn position(&self, rows: [&[f32]; 3], x: usize, y: usize, p: &Params) -> [f32; 2] {
+        let [up, mid, down] = rows;
+        let pos_m = [x as f32 + 0.5, y as f32 + 0.5];
+        let luma_m = mid[x + 1];
+        let mut luma_s = down[x + 1];
+        let luma_e = mid[x + 2];
+        let mut luma_n = up[x + 1];
+        let luma_w = mid[x];
+        let range_max = luma_s.max(luma_m).max(luma_e).max(luma_n).max(luma_w);
+        let range_min = luma_s.min(luma_m).min(luma_e).min(luma_n).min(luma_w);
+        let range = range_max - range_min;
+        let luma_nw = up[x];
+        let luma_se = down[x + 2];
+        let luma_ne = up[x + 2];
+        let luma_sw = down[x];
+        let luma_ns = luma_n + luma_s;
+        let luma_we = luma_w + luma_e;
+        let subpix_nswe = luma_ns + luma_we;
+        let edge_horz1 = -2.0 * luma_m + luma_ns;
+        let edge_vert1 = -2.0 * luma_m + luma_we;
+        let luma_nese = luma_ne + luma_se;
+        let luma_nwne = luma_nw + luma_ne;
+        let edge_horz2 = -2.0 * luma_e + luma_nese;
+        let edge_vert2 = -2.0 * luma_n + luma_nwne;
+        let luma_nwsw = luma_nw + luma_sw;
+        let luma_swse = luma_sw + luma_se;
+        let edge_horz4 = edge_horz1.abs() * 2.0 + edge_horz2.abs();
+        let edge_vert4 = edge_vert1.abs() * 2.0 + edge_vert2.abs();
+        let edge_horz3 = -2.0 * luma_w + luma_nwsw;
+        let edge_vert3 = -2.0 * luma_s + luma_swse;
+        let edge_horz = edge_horz3.abs() + edge_horz4;
+        let edge_vert = edge_vert3.abs() + edge_vert4;
+        let subpix_nwswnese = luma_nwsw + luma_nese;
+        let horz_span = edge_horz >= edge_vert;
+        let subpix_a = subpix_nswe * 2.0 + subpix_nwswnese;
+        if !horz_span {
+            luma_n = luma_w;
+            luma_s = luma_e;
+        }
+        let subpix_b = subpix_a * (1.0 / 12.0) - luma_m;
+        let gradient_n = luma_n - luma_m;
+        let gradient_s = luma_s - luma_m;
+        let pair_n = gradient_n.abs() >= gradient_s.abs();
+        let gradient = gradient_n.abs().max(gradient_s.abs());
+        let length_sign = if pair_n { -1.0 } else { 1.0 };
+        let subpix_c = (subpix_b.abs() / range).clamp(0.0, 1.0);
+        let (pos_b, off) = if horz_span {
+            ([pos_m[0], pos_m[1] + length_sign * 0.5], [1.0, 0.0])
+        } else {
+            ([pos_m[0] + length_sign * 0.5, pos_m[1]], [0.0, 1.0])
+        };
+        let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
+        let gradient_scaled = gradient * 0.25;
+        let luma_mm = luma_m - luma_nn * 0.5;
+        let ends = self.edge_search(pos_b, off, luma_nn * 0.5, gradient_scaled);
+        let (dst_n, dst_p) = if horz_span {
+            (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
+        } else {
+            (pos_m[1] - ends.pos_n[1], ends.pos_p[1] - pos_m[1])
+        };
+        let luma_m_lt_zero = luma_mm < 0.0;
+        let good_span_n = (ends.end_n < 0.0) != luma_m_lt_zero;
+        let good_span_p = (ends.end_p < 0.0) != luma_m_lt_zero;
+        let span_length = dst_p + dst_n;
+        let direction_n = dst_n < dst_p;
+        let dst = dst_n.min(dst_p);
+        let good_span = if direction_n { good_span_n } else { good_span_p };
+        let subpix_d = -2.0 * subpix_c + 3.0;
+        let subpix_f = subpix_d * subpix_c * subpix_c;
+        let subpix_h = subpix_f * subpix_f * p.subpix;
+        let pixel_offset = -dst / span_length + 0.5;
+        let pixel_offset_good = if good_span { pixel_offset } else { 0.0 };
+        let offset = pixel_offset_good.max(subpix_h) * length_sign;
+        if horz_span {
+            [pos_m[0], pos_m[1] + offset]
+        } else {
+            [pos_m[0] + offset, pos_m[1]]
+        }
+    }
+}
+
+/// A band task's buffers: the luma of the band's rows and one row above and below (rows
+/// of `w + 2`, padded with the row's edge samples), and one row of edge flags.
+#[derive(Default)]
+struct BandScratch {
+    luma: Vec<f32>,
+    edge: Vec<u8>,
+}
+
+/// The filter's fused pass into `out`: per band of rows, `luma` of the band and its
+/// one-row halo into the band's buffer, then per row the vectorised early-exit test, a
+/// straight copy of the colour row, and FXAA proper for the pixels that passed the test.
+/// Returns how many pixels passed it.
+fn fused(
+    src: [&[f32]; 3],
+    w: usize,
+    h: usize,
+    hdr: bool,
+    p: &Params,
+    out: &mut Rgb,
+    clock: &StageClock<2>,
+) -> u64 {
+    let stride = w + 2;
+    par_bands(slices_mut(out), w, h, |s: &mut BandScratch, rows, [r, g, b]| {
+        let lo = rows.start.saturating_sub(1);
+        let hi = (rows.end + 1).min(h);
+        let n = (hi - lo) * stride;
+        if s.luma.len() < n {
+            s.luma.resize(n, 0.0);
+        }
+        if s.edge.len() < w {
+            s.edge.resize(w, 0);
+        }
+        let BandScratch { luma, edge } = s;
+        let (luma, edge) = (&mut luma[..n], &mut edge[..w]);
+        clock.time(0, || {
+            for (y, row) in (lo..hi).zip(luma.chunks_exact_mut(stride)) {
+                let c = src.map(|p| &p[y * w..(y + 1) * w]);
+                if hdr {
+                    luma_row::<true>(c, &mut row[1..w + 1]);
+                } else {
+                    luma_row::<false>(c, &mut row[1..w + 1]);
+                }
+                (row[0], row[w + 1]) = (row[1], row[w]);
+            }
+        });
+        let luma = &*luma;
+        let view = LumaView {
+            band: luma,
+            lo,
+            hi,
+            w,
+            h,
+            src,
+            hdr,
+        };
+        let row_of = |y: usize| &luma[(y - lo) * stride..(y - lo + 1) * stride];
+        clock.time(1, || {
+            let mut passed = 0u64;
+            for (k, y) in rows.enumerate() {
+                let lrows = [row_of(y.saturating_sub(1)), row_of(y), row_of((y + 1).min(h - 1))];
+                contrast_row(lrows[0], lrows[1], lrows[2], edge, p);
+                let span = y * w..(y + 1) * w;
+                let dst = [
+                    &mut r[k * w..(k + 1) * w],
+                    &mut g[k * w..(k + 1) * w],
+                    &mut b[k * w..(k + 1) * w],
+                ];
+                for (d, s) in dst.into_iter().zip(src) {
+                    d.copy_from_slice(&s[span.clone()]);
+                }
+                let row = k * w;
+                for_each_set(edge, |x| {
+                    passed += 1;
+                    let pos = view.position(lrows, x, y, p);
+                    let c = bilinear(src, w, h, pos[0], pos[1]);
+                    (r[row + x], g[row + x], b[row + x]) = (c[0], c[1], c[2]);
+                });
+            }
+            passed
+        })
+    })
+}
+
 impl Filter for Fxaa {
     fn name(&self) -> &'static str {
         Self::NAME
@@ -231,43 +586,33 @@ impl Filter for Fxaa {
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         check_needs(Self::NAME, Self::needs(), frame)?;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Self::uses(), &mut rec)?;
-        let (w, h) = (inp.width, inp.height);
-        let hdr = inp.facts.hdr;
-        let src = inp.color_slices();
-        let luma_plane = rec.run("luma", || {
-            let mut l = Plane::new(w, h);
-            for_rows([l.data_mut()], w, |y, [row]| {
-                for x in 0..w {
-                    let i = y * w + x;
-                    let c = [src[0][i], src[1][i], src[2][i]];
-                    let c = if hdr { tonemap(c) } else { c.map(|v| v.min(1.0)) };
-                    row[x] = luma(c).max(0.0).sqrt();
-                }
-            });
-            l
-        });
-        let p = self.params.clone();
-        let mut out: Rgb = planes(w, h);
-        rec.run("fxaa", || {
-            let l = luma_plane.data();
-            for_rows(slices_mut(&mut out), w, |y, [r, g, b]| {
-                for x in 0..w {
-                    let pos = fxaa_position(l, w, h, x, y, &p);
-                    let c = bilinear(src, w, h, pos[0], pos[1]);
-                    (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
-                }
-            });
+        let (w, h) = (frame.width(), frame.height());
+        // One vectorised read decides whether `repair` has anything to do; when it has,
+        // `prepare` counts and repairs exactly.
+        let repaired;
+        let (src, hdr, counts) = match color_max(frame.color()).max() {
+            Some(max) => {
+                rec.skip(REPAIR_STAGE, Skip::CleanInput);
+                let hdr = FrameFacts::new(frame, None, max).hdr;
+                (
+                    frame.color().each_ref().map(|p| p.data()),
+                    hdr,
+                    InputCounts::default(),
+                )
+            }
+            None => {
+                repaired = prepare(frame, Self::uses(), &mut rec)?;
+                (repaired.color_slices(), repaired.facts.hdr, repaired.counts)
+            }
+        };
+        let mut out: Rgb = self.scratch.planes(w, h);
+        let p = &self.params;
+        rec.run_fused(["luma", "fxaa"], |clock| {
+            fused(src, w, h, hdr, p, &mut out, clock)
         });
         Ok(Output {
             color: out,
-            record: rec.finish(
-                Self::NAME,
-                frame.meta.index,
-                PixelCounts::default(),
-                inp.counts,
-                0,
-            ),
+            record: rec.finish(Self::NAME, frame.meta.index, PixelCounts::default(), counts, 0),
         })
     }
 
@@ -275,6 +620,10 @@ impl Filter for Fxaa {
 
     fn state_bytes(&self) -> usize {
         0
+    }
+
+    fn recycle(&mut self, planes: Rgb) {
+        self.scratch.recycle(planes);
     }
 }
 
@@ -284,6 +633,7 @@ mod tests {
     use crate::filters::create;
     use crate::pipeline::params::parse_assignments;
     use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
 
     /// f64 reference of the search: each side walks on its own, sampling after every step
     /// but the last.
@@ -355,6 +705,228 @@ mod tests {
             assert_eq!(got.pos_p.map(|v| v as f64), pp);
             assert_eq!(got.end_n as f64, en);
             assert_eq!(got.end_p as f64, ep);
+        }
+    }
+
+    /// Runs the fused pass and [`reference`] on `color` (already repaired) with `p` and
+    /// compares them bit for bit (as values: -0 and +0 agree); returns how many pixels took
+    /// the edge search.
+    fn compare(color: &Rgb, p: &Params, what: &str) -> u64 {
+        let (w, h) = color[0].size();
+        let src = color.each_ref().map(|p| p.data());
+        // As `prepare` decides it.
+        let hdr = src.iter().any(|p| p.iter().any(|&v| v > 1.0));
+        let want = reference(src, w, h, hdr, p);
+        // NaN where nothing was written yet.
+        let mut got: Rgb = std::array::from_fn(|_| Plane::filled(w, h, f32::NAN));
+        let passed = fused(src, w, h, hdr, p, &mut got, &StageClock::default());
+        for (k, (g, r)) in got.iter().zip(&want).enumerate() {
+            Tolerance::EXACT
+                .check_slices(&format!("{what}, plane {k}"), g.data(), r.data())
+                .unwrap();
+        }
+        passed
+    }
+
+    /// The test images: name and colour of `w` x `h`.
+    fn images(w: usize, h: usize, rng: &mut SplitMix64) -> Vec<(&'static str, Rgb)> {
+        let (a, b, c) = (rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-0.5, 0.5));
+        let mut rgb = |f: &mut dyn FnMut(usize, usize, usize, &mut SplitMix64) -> f32| -> Rgb {
+            std::array::from_fn(|k| Plane::from_fn(w, h, |x, y| f(k, x, y, rng)))
+        };
+        let edge = move |x: usize, y: usize| {
+            let (u, v) = (
+                (x as f64 + 0.5) / w as f64 - 0.5,
+                (y as f64 + 0.5) / h as f64 - 0.5,
+            );
+            a * u + b * v > c * (a.abs() + b.abs())
+        };
+        vec![
+            ("random LDR", rgb(&mut |_, _, _, r| r.next_f64() as f32)),
+            (
+                "random HDR up to 1e6",
+                rgb(&mut |_, _, _, r| 10f64.powf(r.range(-6.0, 6.0)) as f32),
+            ),
+            ("zeros", rgb(&mut |_, _, _, _| 0.0)),
+            (
+                "negative zeros and zeros",
+                rgb(&mut |_, x, y, _| if (x + y) % 3 == 0 { -0.0 } else { 0.0 }),
+            ),
+            ("flat", rgb(&mut |k, _, _, _| 0.3 + 0.1 * k as f32)),
+            ("flat HDR", rgb(&mut |_, _, _, _| 5.0)),
+            ("hard edge", rgb(&mut |_, x, y, _| edge(x, y) as u8 as f32)),
+            (
+                "hard HDR edge",
+                rgb(&mut |k, x, y, _| if edge(x, y) { 1e6 } else { 0.01 * k as f32 }),
+            ),
+            (
+                "horizontal thin line",
+                rgb(&mut |_, _, y, _| (y == h / 2) as u8 as f32),
+            ),
+            (
+                "vertical thin line",
+                rgb(&mut |_, x, _, _| (x == w / 2) as u8 as f32),
+            ),
+            ("diagonal thin line", rgb(&mut |_, x, y, _| (x == y) as u8 as f32)),
+            ("checkerboard", rgb(&mut |_, x, y, _| ((x + y) % 2) as f32)),
+            (
+                "sparse spikes",
+                rgb(&mut |_, _, _, r| if r.next_f64() < 0.05 { 50.0 } else { 0.1 }),
+            ),
+            (
+                "smooth with HDR blocks",
+                rgb(&mut |k, x, y, _| {
+                    let v = 0.5 + 0.45 * ((x as f32 * 0.21 + k as f32).sin() * (y as f32 * 0.17).cos());
+                    v * if (x / 13 + y / 11) % 5 == 0 { 8.0 } else { 1.0 }
+                }),
+            ),
+        ]
+    }
+
+    /// The parameter sets tested: the defaults, every pixel processed (no early exit on
+    /// flat regions), and the bounds of each.
+    fn param_sets() -> Vec<Params> {
+        let d = Params::default();
+        vec![
+            d.clone(),
+            Params {
+                edge_threshold_min: 0.0,
+                ..d.clone()
+            },
+            Params {
+                subpix: 0.0,
+                edge_threshold: 0.333,
+                ..d.clone()
+            },
+            Params {
+                subpix: 1.0,
+                edge_threshold: 0.063,
+                edge_threshold_min: 0.0312,
+            },
+        ]
+    }
+
+    #[test]
+    fn fused_pass_matches_the_reference_bit_for_bit() {
+        let mut rng = SplitMix64::new(3);
+        let sizes = [
+            (1, 1),
+            (1, 2),
+            (2, 1),
+            (1, 9),
+            (9, 1),
+            (7, 5),
+            (8, 8),
+            (1919, 3),
+            (3, 50),
+            (37, 41),
+            (64, 64),
+        ];
+        let mut searched = std::collections::BTreeMap::new();
+        for (w, h) in sizes {
+            for (name, color) in images(w, h, &mut rng) {
+                for (i, p) in param_sets().iter().enumerate() {
+                    let n = compare(&color, p, &format!("{name} {w}x{h}, parameters {i}"));
+                    *searched.entry(name).or_insert(0) += n;
+                }
+            }
+        }
+        // The edge search ran on every kind of image with edges or zeros (those take it when
+        // the darkness threshold is 0), so the comparison covers it; flat regions of non-zero
+        // luma never take it.
+        for (name, n) in &searched {
+            assert_eq!(
+                *n > 0,
+                !name.starts_with("flat"),
+                "{name}: {n} pixels took the edge search"
+            );
+        }
+        let flat = Params::default();
+        for (w, h) in [(7, 5), (40, 30)] {
+            for (name, color) in images(w, h, &mut rng) {
+                if name.starts_with("flat") || name.contains("zeros") {
+                    assert_eq!(compare(&color, &flat, name), 0, "{name}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn long_vertical_edges_search_beyond_the_band() {
+        // Edge-end searches along a vertical edge reach 9 rows up and down, past the band's
+        // own luma rows: those rows come from the colour. Edges ending at various rows.
+        let mut rng = SplitMix64::new(8);
+        for (w, h) in [(6, 60), (33, 47), (5, 17)] {
+            for _ in 0..20 {
+                let (x0, y0, y1) = (
+                    (rng.next_f64() * w as f64) as usize,
+                    (rng.next_f64() * h as f64) as usize,
+                    (rng.next_f64() * h as f64) as usize,
+                );
+                let level = rng.range(0.2, 30.0) as f32;
+                let color: Rgb = std::array::from_fn(|k| {
+                    Plane::from_fn(w, h, |x, y| {
+                        let inside = x >= x0 && (y0.min(y1)..=y0.max(y1)).contains(&y);
+                        if inside {
+                            level * (1.0 + 0.1 * k as f32)
+                        } else {
+                            0.05
+                        }
+                    })
+                });
+                for p in param_sets() {
+                    compare(&color, &p, &format!("{w}x{h} edge x >= {x0}, rows {y0}..{y1}"));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn process_matches_the_reference_on_dirty_clean_and_recycled_frames() {
+        let mut rng = SplitMix64::new(12);
+        let mut f = Fxaa::new(Params::default());
+        for (w, h) in [(1, 1), (7, 5), (1919, 3), (23, 29)] {
+            for dirty in [false, true] {
+                let mut color: Rgb = std::array::from_fn(|_| {
+                    Plane::from_fn(w, h, |x, y| {
+                        ((x / 3 + y / 2) % 2) as f32 * rng.range(0.5, 3.0) as f32
+                    })
+                });
+                if dirty {
+                    let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -2.0];
+                    for (i, v) in bad.into_iter().enumerate() {
+                        let n = color[i % 3].data().len();
+                        color[i % 3].data_mut()[(i * 7) % n] = v;
+                    }
+                }
+                let frame = Frame::new(color).unwrap();
+                // What the plain path sees: the repaired colour and its facts.
+                let mut rec = Recorder::new();
+                let inp = prepare(&frame, Fxaa::uses(), &mut rec).unwrap();
+                let want = reference(inp.color_slices(), w, h, inp.facts.hdr, &Params::default());
+                let what = format!("{w}x{h}, dirty {dirty}");
+                // Twice: the second time into the planes handed back.
+                for _ in 0..2 {
+                    let out = f.process(&frame).unwrap();
+                    for (k, (g, r)) in out.color.iter().zip(&want).enumerate() {
+                        Tolerance::EXACT
+                            .check_slices(&format!("{what}, plane {k}"), g.data(), r.data())
+                            .unwrap();
+                    }
+                    assert_eq!(out.record.input, inp.counts, "{what}");
+                    assert_eq!(out.record.ran(REPAIR_STAGE), dirty, "{what}");
+                    if !dirty {
+                        assert_eq!(
+                            out.record.stage(REPAIR_STAGE).unwrap().skipped,
+                            Some(Skip::CleanInput)
+                        );
+                    }
+                    assert!(out.record.ran("luma") && out.record.ran("fxaa"), "{what}");
+                    let names: Vec<_> = out.record.stages.iter().map(|s| s.name).collect();
+                    assert_eq!(names, Fxaa::STAGES, "{what}");
+                    f.recycle(out.color);
+                }
+            }
         }
     }
 
