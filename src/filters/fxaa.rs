@@ -8,19 +8,21 @@
 //! input at the offset position).
 //!
 //! The filter runs one fused pass over bands of rows ([`par_bands`]): each band computes the
-//! luma of its rows and one row above and below into a buffer of its own, tests every row
-//! for FXAA's early exit in a vectorised loop, copies the colour rows, and runs the edge
-//! search and the bilinear fetch only for the pixels that passed the test (a small share
-//! of most frames). [`reference`] is the plain two-pass version it must match bit for bit.
-//! A frame with samples to repair goes through [`prepare`] first; a clean one (told by one
-//! vectorised read, [`color_max`]) is read in place.
+//! luma of its rows and one row above and below (into rows its task keeps for the next
+//! band), tests every row for FXAA's early exit in a vectorised loop, copies the colour
+//! rows, and runs the edge search and the bilinear fetch only for the pixels that passed
+//! the test (a small share of most frames). [`reference`] is the plain two-pass version it
+//! matches bit for bit. The pass also tests every colour sample it reads, so a clean frame
+//! (the usual case) is read once, in place: the pass assumes the last frame's LDR or HDR
+//! and runs again in the rare frame where that was wrong, and a frame with samples to
+//! repair goes through [`prepare`] and the pass again.
 
 use super::passes::{planes, slices_mut};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, fmax, fmin, luma, tonemap};
-use crate::pipeline::clean::color_max;
-use crate::pipeline::exec::{for_rows, par_bands, StageClock};
+use crate::pipeline::clean::{color_max, CleanMax};
+use crate::pipeline::exec::{for_rows, par_bands, StageClock, BAND_ROWS};
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
     check_needs, prepare, Filter, FilterError, FilterKind, FrameFacts, InputCounts, Output, ParamKind,
@@ -48,11 +50,12 @@ filter_params! {
 pub const PRESET_12_STEPS: [f32; 5] = [1.0, 1.5, 2.0, 4.0, 12.0];
 
 /// The FXAA filter (no history; it keeps the planes handed back by [`Filter::recycle`] to
-/// write the next output into).
+/// write the next output into, and whether the last frame was HDR as a guess for the next).
 #[derive(Debug)]
 pub struct Fxaa {
     params: Params,
     scratch: Scratch,
+    last_hdr: Option<bool>,
 }
 
 impl FilterKind for Fxaa {
@@ -74,6 +77,7 @@ impl FilterKind for Fxaa {
         Fxaa {
             params,
             scratch: Scratch::default(),
+            last_hdr: None,
         }
     }
 }
@@ -270,23 +274,33 @@ fn luma_of<const HDR: bool>(c: [f32; 3]) -> f32 {
     luma(c).max(0.0).sqrt()
 }
 
-/// [`luma_of`] over a row: `out[x]` from `c[k][x]` (all of one length; vectorised).
-fn luma_row<const HDR: bool>(c: [&[f32]; 3], out: &mut [f32]) {
+/// [`luma_of`] over a row: `out[x]` from `c[k][x]` (all of one length; vectorised). Tests
+/// the colour on the way: returns its largest
+/// [`clean_key`](crate::pipeline::clean::clean_key).
+fn luma_row<const HDR: bool>(c: [&[f32]; 3], out: &mut [f32]) -> CleanMax {
     let n = out.len();
     let (r, g, b) = (&c[0][..n], &c[1][..n], &c[2][..n]);
     for x in 0..n {
         out[x] = luma_of::<HDR>([r[x], g[x], b[x]]);
     }
+    // A loop of its own, over samples still in L1: one loop mixing the two does not
+    // vectorise.
+    let mut m = CleanMax::of(r);
+    m += CleanMax::of(g);
+    m += CleanMax::of(b);
+    m
 }
 
 /// FXAA's early exit over a row (Fxaa3_11.h: `range < max(fxaaQualityEdgeThresholdMin,
 /// rangeMax * fxaaQualityEdgeThreshold)` leaves the pixel as it is), vectorised: `edge[x]`
 /// is 1 where pixel `x` must be processed. `up`, `mid`, `down` are luma rows padded by one
-/// sample on each side (the row's edge repeated); `edge` has the row's width.
-fn contrast_row(up: &[f32], mid: &[f32], down: &[f32], edge: &mut [u8], p: &Params) {
+/// sample on each side (the row's edge repeated); `edge` has the row's width. Returns
+/// whether any pixel must be processed.
+fn contrast_row(up: &[f32], mid: &[f32], down: &[f32], edge: &mut [u8], p: &Params) -> bool {
     let w = edge.len();
     let (n, s) = (&up[1..w + 1], &down[1..w + 1]);
     let (west, m, east) = (&mid[..w], &mid[1..w + 1], &mid[2..w + 2]);
+    let mut any = 0;
     for x in 0..w {
         // Luma is finite (repaired colour), so the NaN-blind min and max are exact.
         let range_max = fmax(fmax(fmax(fmax(s[x], m[x]), east[x]), n[x]), west[x]);
@@ -294,7 +308,9 @@ fn contrast_row(up: &[f32], mid: &[f32], down: &[f32], edge: &mut [u8], p: &Para
         let range = range_max - range_min;
         // `!(range < t)` in the header; the same for finite values.
         edge[x] = (range >= fmax(p.edge_threshold_min, range_max * p.edge_threshold)) as u8;
+        any |= edge[x];
     }
+    any != 0
 }
 
 /// Calls `f(x)` for every `x` with `flags[x] != 0`, eight flags at a time.
@@ -318,89 +334,182 @@ fn for_each_set(flags: &[u8], mut f: impl FnMut(usize)) {
     }
 }
 
-/// The luma a band's edge search reads: rows `lo..hi` from the band's buffer (rows of
-/// `w + 2`, padded), the rows beyond computed from the colour when a vertical search
-/// reaches them (edge-end samples go up to 9 rows away, the band buffer holds one).
-struct LumaView<'a> {
-    band: &'a [f32],
-    lo: usize,
-    hi: usize,
+/// Rows of luma a band task has computed, kept while it moves on to the next band (rayon
+/// runs a task's bands in order, so one band's rows below are the next one's own): slot
+/// `y % LUMA_SLOTS` holds row `y`, `w + 2` samples padded with the row's edge samples.
+/// A band uses its rows and one above and below; where a row has pixels to process it also
+/// uses [`SEARCH_REACH`] rows above and below, for vertical edge searches.
+#[derive(Default)]
+struct LumaRows {
+    luma: Vec<f32>,
+    /// `y + 1` for the row `y` in each slot, 0 for none.
+    tag: Vec<usize>,
     w: usize,
     h: usize,
-    src: [&'a [f32]; 3],
-    hdr: bool,
+}
+
+/// Rows an edge search along a column reads above and below its pixel: preset 12 samples
+/// at 1, 2.5, 4.5 and 8.5 pixels from the pixel's centre (the last step of
+/// [`PRESET_12_STEPS`] is not sampled), so the last bilinear sample spans rows `y + 8` and
+/// `y + 9` (and `y - 9`, `y - 8`).
+const SEARCH_REACH: usize = 9;
+
+/// Slots of [`LumaRows`]: a band's rows and the search's reach on both sides fit, so
+/// nothing a band reads is evicted while it runs.
+const LUMA_SLOTS: usize = 32;
+const _: () = assert!(LUMA_SLOTS >= BAND_ROWS + 2 * SEARCH_REACH);
+
+impl LumaRows {
+    /// Sizes the buffers for `w` x `h` (forgetting every row when the size changes).
+    fn reset(&mut self, w: usize, h: usize) {
+        if (self.w, self.h) != (w, h) || self.tag.len() != LUMA_SLOTS {
+            self.luma.resize(LUMA_SLOTS * (w + 2), 0.0);
+            self.tag.clear();
+            self.tag.resize(LUMA_SLOTS, 0);
+            (self.w, self.h) = (w, h);
+        }
+    }
+
+    /// Computes rows `ys` (clamped to the image) where not held yet; returns the largest
+    /// [`clean_key`](crate::pipeline::clean::clean_key) of the colour read.
+    fn ensure(&mut self, ys: std::ops::RangeInclusive<isize>, src: [&[f32]; 3], hdr: bool) -> CleanMax {
+        let (w, h) = (self.w, self.h);
+        let stride = w + 2;
+        let mut seen = CleanMax::default();
+        for y in (*ys.start()).max(0)..=(*ys.end()).min(h as isize - 1) {
+            let y = y as usize;
+            let slot = y % LUMA_SLOTS;
+            if self.tag[slot] == y + 1 {
+                continue;
+            }
+            let row = &mut self.luma[slot * stride..(slot + 1) * stride];
+            let c = src.map(|p| &p[y * w..(y + 1) * w]);
+            seen += if hdr {
+                luma_row::<true>(c, &mut row[1..w + 1])
+            } else {
+                luma_row::<false>(c, &mut row[1..w + 1])
+            };
+            (row[0], row[w + 1]) = (row[1], row[w]);
+            self.tag[slot] = y + 1;
+        }
+        seen
+    }
+
+    /// Where pixel `(0, y)` of held row `y` (inside the image) is in `luma`.
+    #[inline(always)]
+    fn start(&self, y: usize) -> usize {
+        let slot = y % LUMA_SLOTS;
+        debug_assert_eq!(self.tag[slot], y + 1, "luma row {y} not computed");
+        slot * (self.w + 2) + 1
+    }
+
+    /// Row `y` (clamped to the image), padded; it must be held.
+    #[inline(always)]
+    fn row(&self, y: isize) -> &[f32] {
+        let y = y.clamp(0, self.h as isize - 1) as usize;
+        let slot = y % LUMA_SLOTS;
+        debug_assert_eq!(self.tag[slot], y + 1, "luma row {y} not computed");
+        let stride = self.w + 2;
+        &self.luma[slot * stride..(slot + 1) * stride]
+    }
+}
+
+/// A band task's buffers: its luma rows and the edge flags of a band's rows.
+#[derive(Default)]
+struct BandScratch {
+    luma: LumaRows,
+    /// `BAND_ROWS` rows of `w` flags.
+    edge: Vec<u8>,
+}
+
+/// What an edge search reads: the rows a task holds (those the search can reach are
+/// computed before it runs).
+struct LumaView<'a> {
+    rows: &'a LumaRows,
 }
 
 impl LumaView<'_> {
-    /// Luma of pixel `(x, y)` (inside the image).
-    #[inline(always)]
-    fn at(&self, x: usize, y: usize) -> f32 {
-        if (self.lo..self.hi).contains(&y) {
-            self.band[(y - self.lo) * (self.w + 2) + x + 1]
-        } else {
-            let i = y * self.w + x;
-            let c = [self.src[0][i], self.src[1][i], self.src[2][i]];
-            if self.hdr {
-                luma_of::<true>(c)
-            } else {
-                luma_of::<false>(c)
-            }
-        }
-    }
-
-    /// Bilinear luma at `(x, y)`, computed as [`bilinear`] does.
-    #[inline]
-    fn bilinear(&self, x: f32, y: f32) -> f32 {
-        let clamp_index = |i: f32, n: usize| (i.max(0.0) as usize).min(n - 1);
-        let fx = x - 0.5;
-        let fy = y - 0.5;
-        let x0 = fx.floor();
-        let y0 = fy.floor();
-        let tx = fx - x0;
-        let ty = fy - y0;
-        let xa = clamp_index(x0, self.w);
-        let xb = clamp_index(x0 + 1.0, self.w);
-        let ya = clamp_index(y0, self.h);
-        let yb = clamp_index(y0 + 1.0, self.h);
-        let (aa, ab) = (self.at(xa, ya), self.at(xb, ya));
-        let (ba, bb) = (self.at(xa, yb), self.at(xb, yb));
-        let top = aa + (ab - aa) * tx;
-        let bottom = ba + (bb - ba) * tx;
-        top + (bottom - top) * ty
-    }
-
-    /// [`edge_search`] on this luma with the preset's steps.
-    fn edge_search(&self, pos_b: [f32; 2], off: [f32; 2], luma_avg: f32, gradient_scaled: f32) -> EdgeEnds {
+    /// [`edge_search`] with the preset's steps along a row (`horizontal`, the span FXAA
+    /// calls horizontal) or a column, from `pos_b`. The coordinate across the edge stays
+    /// fixed (the reference's `off` is 0 there), so its half of each bilinear sample, rows
+    /// or columns and weight, is found once; each sample is then computed as [`bilinear`]
+    /// computes it, and the search takes the reference's steps.
+    fn edge_search(
+        &self,
+        pos_b: [f32; 2],
+        horizontal: bool,
+        luma_avg: f32,
+        gradient_scaled: f32,
+    ) -> EdgeEnds {
+        let (w, h) = (self.rows.w, self.rows.h);
+        // `bilinear`'s index clamp; the same for the finite whole numbers it gets here.
+        let clamp_index = |i: f32, n: usize| (i as isize).max(0).min(n as isize - 1) as usize;
+        let (along, across) = if horizontal { (0, 1) } else { (1, 0) };
+        let (n_along, n_across) = if horizontal { (w, h) } else { (h, w) };
+        let f = pos_b[across] - 0.5;
+        let f0 = f.floor();
+        let t_across = f - f0;
+        let (ia, ib) = (clamp_index(f0, n_across), clamp_index(f0 + 1.0, n_across));
+        // Both sides' positions after each step, by the reference's additions.
         let steps = &PRESET_12_STEPS;
-        let at = |p: [f32; 2]| self.bilinear(p[0], p[1]) - luma_avg;
-        let mut pos_n = [pos_b[0] - off[0] * steps[0], pos_b[1] - off[1] * steps[0]];
-        let mut pos_p = [pos_b[0] + off[0] * steps[0], pos_b[1] + off[1] * steps[0]];
-        let mut end_n = at(pos_n);
-        let mut end_p = at(pos_p);
-        let mut done_n = end_n.abs() >= gradient_scaled;
-        let mut done_p = end_p.abs() >= gradient_scaled;
-        for (k, &step) in steps.iter().enumerate().skip(1) {
-            if !done_n {
-                pos_n = [pos_n[0] - off[0] * step, pos_n[1] - off[1] * step];
+        let b = pos_b[along];
+        let (mut q_n, mut q_p) = ([b; 5], [b; 5]);
+        let (mut pos_n, mut pos_p) = (b, b);
+        for k in 0..5 {
+            pos_n -= steps[k];
+            pos_p += steps[k];
+            (q_n[k], q_p[k]) = (pos_n, pos_p);
+        }
+        // The luma at the four positions of each side that may be sampled: all eight, in
+        // straight loops (no branch on the data: which side stops where is a select below,
+        // not a jump the CPU could mispredict), each computed as `bilinear` computes it.
+        let q: [f32; 8] = std::array::from_fn(|k| if k < 4 { q_n[k] } else { q_p[k - 4] });
+        let mut t = [0.0f32; 8];
+        let mut qa = [0usize; 8];
+        let mut qb = [0usize; 8];
+        for k in 0..8 {
+            let f = q[k] - 0.5;
+            let f0 = f.floor();
+            t[k] = f - f0;
+            (qa[k], qb[k]) = (clamp_index(f0, n_along), clamp_index(f0 + 1.0, n_along));
+        }
+        let mut s = [0.0f32; 8];
+        let luma = &self.rows.luma;
+        if horizontal {
+            // x = q: rows `ia`, `ib` at weight `t_across`, columns `qa`, `qb` at `t`.
+            let (ra, rb) = (self.rows.start(ia), self.rows.start(ib));
+            for k in 0..8 {
+                let (a, b) = (qa[k], qb[k]);
+                let top = luma[ra + a] + (luma[ra + b] - luma[ra + a]) * t[k];
+                let bottom = luma[rb + a] + (luma[rb + b] - luma[rb + a]) * t[k];
+                s[k] = top + (bottom - top) * t_across - luma_avg;
             }
-            if !done_p {
-                pos_p = [pos_p[0] + off[0] * step, pos_p[1] + off[1] * step];
-            }
-            if done_n && done_p || k + 1 == steps.len() {
-                break;
-            }
-            if !done_n {
-                end_n = at(pos_n);
-                done_n = end_n.abs() >= gradient_scaled;
-            }
-            if !done_p {
-                end_p = at(pos_p);
-                done_p = end_p.abs() >= gradient_scaled;
+        } else {
+            // y = q: columns `ia`, `ib` at weight `t_across`, rows `qa`, `qb` at `t`.
+            for k in 0..8 {
+                let (ra, rb) = (self.rows.start(qa[k]), self.rows.start(qb[k]));
+                let top = luma[ra + ia] + (luma[ra + ib] - luma[ra + ia]) * t_across;
+                let bottom = luma[rb + ia] + (luma[rb + ib] - luma[rb + ia]) * t_across;
+                s[k] = top + (bottom - top) * t[k] - luma_avg;
             }
         }
+        // A side stops at its first sample at least `gradient_scaled` from the average;
+        // one that never does takes the last step unsampled, ending on the last sample.
+        let stop = |q: [f32; 5], s: &[f32]| {
+            let (mut pos, mut end) = (q[4], s[3]);
+            for k in (0..4).rev() {
+                if s[k].abs() >= gradient_scaled {
+                    (pos, end) = (q[k], s[k]);
+                }
+            }
+            (pos, end)
+        };
+        let ((pos_n, end_n), (pos_p, end_p)) = (stop(q_n, &s[..4]), stop(q_p, &s[4..]));
+        let fixed = pos_b[across];
+        let full = |q: f32| if horizontal { [q, fixed] } else { [fixed, q] };
         EdgeEnds {
-            pos_n,
-            pos_p,
+            pos_n: full(pos_n),
+            pos_p: full(pos_p),
             end_n,
             end_p,
         }
@@ -456,15 +565,16 @@ impl LumaView<'_> {
         let gradient = gradient_n.abs().max(gradient_s.abs());
         let length_sign = if pair_n { -1.0 } else { 1.0 };
         let subpix_c = (subpix_b.abs() / range).clamp(0.0, 1.0);
-        let (pos_b, off) = if horz_span {
-            ([pos_m[0], pos_m[1] + length_sign * 0.5], [1.0, 0.0])
+        // Across the edge by half a pixel toward the steeper neighbour; search along it.
+        let pos_b = if horz_span {
+            [pos_m[0], pos_m[1] + length_sign * 0.5]
         } else {
-            ([pos_m[0] + length_sign * 0.5, pos_m[1]], [0.0, 1.0])
+            [pos_m[0] + length_sign * 0.5, pos_m[1]]
         };
         let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
         let gradient_scaled = gradient * 0.25;
         let luma_mm = luma_m - luma_nn * 0.5;
-        let ends = self.edge_search(pos_b, off, luma_nn * 0.5, gradient_scaled);
+        let ends = self.edge_search(pos_b, horz_span, luma_nn * 0.5, gradient_scaled);
         let (dst_n, dst_p) = if horz_span {
             (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
         } else {
@@ -491,18 +601,30 @@ impl LumaView<'_> {
     }
 }
 
-/// A band task's buffers: the luma of the band's rows and one row above and below (rows
-/// of `w + 2`, padded with the row's edge samples), and one row of edge flags.
-#[derive(Default)]
-struct BandScratch {
-    luma: Vec<f32>,
-    edge: Vec<u8>,
+/// What the fused pass found, added up over its bands.
+#[derive(Clone, Copy, Debug, Default)]
+struct PassStats {
+    /// Pixels that passed the early-exit test (and took the edge search).
+    passed: u64,
+    /// The largest [`clean_key`](crate::pipeline::clean::clean_key) of the colour read:
+    /// whether it was clean, and its largest sample.
+    seen: CleanMax,
 }
 
-/// The filter's fused pass into `out`: per band of rows, `luma` of the band and its
-/// one-row halo into the band's buffer, then per row the vectorised early-exit test, a
-/// straight copy of the colour row, and FXAA proper for the pixels that passed the test.
-/// Returns how many pixels passed it.
+impl std::ops::AddAssign for PassStats {
+    fn add_assign(&mut self, o: PassStats) {
+        self.passed += o.passed;
+        self.seen += o.seen;
+    }
+}
+
+/// The filter's fused pass into `out`: per band of rows, `luma` of the band's rows and
+/// one row above and below (those not held from the task's previous band), the
+/// vectorised early-exit test of every row, a straight copy of the colour, and FXAA
+/// proper for the pixels that passed the test (after the luma rows their searches can
+/// reach). `src` need not be clean: the pass tests every sample it reads (see
+/// [`PassStats::seen`]), and its output is meaningless (but the pass does not fail) when
+/// the test fails.
 fn fused(
     src: [&[f32]; 3],
     w: usize,
@@ -511,66 +633,48 @@ fn fused(
     p: &Params,
     out: &mut Rgb,
     clock: &StageClock<2>,
-) -> u64 {
-    let stride = w + 2;
+) -> PassStats {
     par_bands(slices_mut(out), w, h, |s: &mut BandScratch, rows, [r, g, b]| {
-        let lo = rows.start.saturating_sub(1);
-        let hi = (rows.end + 1).min(h);
-        let n = (hi - lo) * stride;
-        if s.luma.len() < n {
-            s.luma.resize(n, 0.0);
-        }
-        if s.edge.len() < w {
-            s.edge.resize(w, 0);
-        }
         let BandScratch { luma, edge } = s;
-        let (luma, edge) = (&mut luma[..n], &mut edge[..w]);
-        clock.time(0, || {
-            for (y, row) in (lo..hi).zip(luma.chunks_exact_mut(stride)) {
-                let c = src.map(|p| &p[y * w..(y + 1) * w]);
-                if hdr {
-                    luma_row::<true>(c, &mut row[1..w + 1]);
-                } else {
-                    luma_row::<false>(c, &mut row[1..w + 1]);
+        luma.reset(w, h);
+        edge.resize(BAND_ROWS * w, 0);
+        let (y0, y1) = (rows.start as isize, rows.end as isize);
+        let mut seen = clock.time(0, || luma.ensure(y0 - 1..=y1, src, hdr));
+        // The test for every row, and the first and last rows with pixels to process.
+        let edge_rows = clock.time(1, || {
+            let mut edge_rows: Option<(isize, isize)> = None;
+            for (y, flags) in (y0..y1).zip(edge.chunks_exact_mut(w)) {
+                if contrast_row(luma.row(y - 1), luma.row(y), luma.row(y + 1), flags, p) {
+                    edge_rows = Some(edge_rows.map_or((y, y), |(a, _)| (a, y)));
                 }
-                (row[0], row[w + 1]) = (row[1], row[w]);
             }
+            for (dst, src) in [&mut *r, &mut *g, &mut *b].into_iter().zip(src) {
+                dst.copy_from_slice(&src[rows.start * w..rows.end * w]);
+            }
+            edge_rows
         });
-        let luma = &*luma;
-        let view = LumaView {
-            band: luma,
-            lo,
-            hi,
-            w,
-            h,
-            src,
-            hdr,
+        let Some((first, last)) = edge_rows else {
+            return PassStats { passed: 0, seen };
         };
-        let row_of = |y: usize| &luma[(y - lo) * stride..(y - lo + 1) * stride];
-        clock.time(1, || {
+        let reach = SEARCH_REACH as isize;
+        seen += clock.time(0, || luma.ensure(first - reach..=last + reach, src, hdr));
+        let passed = clock.time(1, || {
+            let view = LumaView { rows: luma };
             let mut passed = 0u64;
-            for (k, y) in rows.enumerate() {
-                let lrows = [row_of(y.saturating_sub(1)), row_of(y), row_of((y + 1).min(h - 1))];
-                contrast_row(lrows[0], lrows[1], lrows[2], edge, p);
-                let span = y * w..(y + 1) * w;
-                let dst = [
-                    &mut r[k * w..(k + 1) * w],
-                    &mut g[k * w..(k + 1) * w],
-                    &mut b[k * w..(k + 1) * w],
-                ];
-                for (d, s) in dst.into_iter().zip(src) {
-                    d.copy_from_slice(&s[span.clone()]);
-                }
+            for (k, flags) in edge.chunks_exact(w).take(rows.len()).enumerate() {
+                let y = y0 + k as isize;
+                let lrows = [luma.row(y - 1), luma.row(y), luma.row(y + 1)];
                 let row = k * w;
-                for_each_set(edge, |x| {
+                for_each_set(flags, |x| {
                     passed += 1;
-                    let pos = view.position(lrows, x, y, p);
+                    let pos = view.position(lrows, x, y as usize, p);
                     let c = bilinear(src, w, h, pos[0], pos[1]);
                     (r[row + x], g[row + x], b[row + x]) = (c[0], c[1], c[2]);
                 });
             }
             passed
-        })
+        });
+        PassStats { passed, seen }
     })
 }
 
@@ -587,36 +691,70 @@ impl Filter for Fxaa {
         check_needs(Self::NAME, Self::needs(), frame)?;
         let mut rec = Recorder::new();
         let (w, h) = (frame.width(), frame.height());
-        // One vectorised read decides whether `repair` has anything to do; when it has,
-        // `prepare` counts and repairs exactly.
-        let repaired;
-        let (src, hdr, counts) = match color_max(frame.color()).max() {
-            Some(max) => {
-                rec.skip(REPAIR_STAGE, Skip::CleanInput);
-                let hdr = FrameFacts::new(frame, None, max).hdr;
-                (
-                    frame.color().each_ref().map(|p| p.data()),
-                    hdr,
-                    InputCounts::default(),
-                )
-            }
-            None => {
-                repaired = prepare(frame, Self::uses(), &mut rec)?;
-                (repaired.color_slices(), repaired.facts.hdr, repaired.counts)
-            }
+        let Fxaa {
+            params: p,
+            scratch,
+            last_hdr,
+        } = self;
+        let mut out: Rgb = scratch.planes(w, h);
+        let color = frame.color().each_ref().map(|p| p.data());
+        // Whether `repair` has anything to do and whether the frame is HDR are told by the
+        // pass itself, which tests every sample it reads; it starts from the last frame's
+        // HDR (else one read of the colour, `color_max`, tells) and runs again in the rare
+        // frame where that was wrong.
+        let hdr = match *last_hdr {
+            Some(hdr) => Some(hdr),
+            None => color_max(frame.color())
+                .max()
+                .map(|max| FrameFacts::new(frame, None, max).hdr),
         };
-        let mut out: Rgb = self.scratch.planes(w, h);
-        let p = &self.params;
+        if let Some(guess) = hdr {
+            let clock = StageClock::default();
+            let t = std::time::Instant::now();
+            let mut stats = fused(color, w, h, guess, p, &mut out, &clock);
+            if let Some(max) = stats.seen.max() {
+                let hdr = FrameFacts::new(frame, None, max).hdr;
+                if hdr != guess {
+                    stats = fused(color, w, h, hdr, p, &mut out, &clock);
+                }
+                debug_assert_eq!(stats.seen.max(), Some(max));
+                *last_hdr = Some(hdr);
+                rec.skip(REPAIR_STAGE, Skip::CleanInput);
+                rec.fused(["luma", "fxaa"], &clock, t.elapsed().as_secs_f64() * 1e3);
+                return Ok(Output {
+                    color: out,
+                    record: rec.finish(
+                        Self::NAME,
+                        frame.meta.index,
+                        PixelCounts::default(),
+                        InputCounts::default(),
+                        0,
+                    ),
+                });
+            }
+        }
+        // Something to repair (rare): `prepare` counts and repairs exactly, and the pass
+        // runs on the repaired colour (a pass made before this was found is thrown away).
+        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        *last_hdr = Some(inp.facts.hdr);
         rec.run_fused(["luma", "fxaa"], |clock| {
-            fused(src, w, h, hdr, p, &mut out, clock)
+            fused(inp.color_slices(), w, h, inp.facts.hdr, p, &mut out, clock)
         });
         Ok(Output {
             color: out,
-            record: rec.finish(Self::NAME, frame.meta.index, PixelCounts::default(), counts, 0),
+            record: rec.finish(
+                Self::NAME,
+                frame.meta.index,
+                PixelCounts::default(),
+                inp.counts,
+                0,
+            ),
         })
     }
 
-    fn reset(&mut self) {}
+    fn reset(&mut self) {
+        self.last_hdr = None;
+    }
 
     fn state_bytes(&self) -> usize {
         0
@@ -719,13 +857,15 @@ mod tests {
         let want = reference(src, w, h, hdr, p);
         // NaN where nothing was written yet.
         let mut got: Rgb = std::array::from_fn(|_| Plane::filled(w, h, f32::NAN));
-        let passed = fused(src, w, h, hdr, p, &mut got, &StageClock::default());
+        let stats = fused(src, w, h, hdr, p, &mut got, &StageClock::default());
         for (k, (g, r)) in got.iter().zip(&want).enumerate() {
             Tolerance::EXACT
                 .check_slices(&format!("{what}, plane {k}"), g.data(), r.data())
                 .unwrap();
         }
-        passed
+        // The pass read and tested every sample.
+        assert_eq!(stats.seen, color_max(color), "{what}");
+        stats.passed
     }
 
     /// The test images: name and colour of `w` x `h`.
@@ -928,6 +1068,74 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_stream_switching_between_ldr_and_hdr_gets_the_luma_of_each_frame() {
+        // The pass starts from the last frame's HDR; where that is wrong it runs again.
+        let mut rng = SplitMix64::new(21);
+        let mut f = Fxaa::new(Params::default());
+        let (w, h) = (19, 23);
+        let kinds = [false, true, true, false, false, true, false, true];
+        for (i, hdr) in kinds.into_iter().enumerate() {
+            let scale = if hdr { 4.0 } else { 1.0 };
+            let color: Rgb = std::array::from_fn(|_| {
+                Plane::from_fn(w, h, |x, y| {
+                    (((x + i) / 2 + y / 3) % 2) as f32 * scale * rng.range(0.3, 1.0) as f32
+                })
+            });
+            let src = color.each_ref().map(|p| p.data());
+            let max = color_max(&color).max().unwrap();
+            assert_eq!(max > 1.0, hdr, "frame {i}");
+            let want = reference(src, w, h, hdr, &Params::default());
+            let out = f.process(&Frame::new(color.clone()).unwrap()).unwrap();
+            for (k, (g, r)) in out.color.iter().zip(&want).enumerate() {
+                Tolerance::EXACT
+                    .check_slices(&format!("frame {i} (HDR {hdr}), plane {k}"), g.data(), r.data())
+                    .unwrap();
+            }
+            // Each stage once, however many passes ran.
+            let names: Vec<_> = out.record.stages.iter().map(|s| s.name).collect();
+            assert_eq!(names, Fxaa::STAGES, "frame {i}");
+            assert_eq!(f.last_hdr, Some(hdr), "frame {i}");
+            f.recycle(out.color);
+        }
+    }
+
+    #[test]
+    fn the_pass_tests_what_it_reads_and_survives_unrepaired_colour() {
+        // Non-finite and negative samples give a meaningless output, but no panic, and the
+        // pass reports them.
+        let mut rng = SplitMix64::new(4);
+        let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0, -f32::MAX];
+        for (w, h) in [(1, 1), (9, 7), (40, 33)] {
+            for v in bad {
+                let mut color: Rgb = std::array::from_fn(|_| {
+                    Plane::from_fn(w, h, |x, y| ((x + y) % 3) as f32 * rng.range(0.1, 5.0) as f32)
+                });
+                let i = (rng.next_f64() * (w * h) as f64) as usize % (w * h);
+                color[i % 3].data_mut()[i] = v;
+                let src = color.each_ref().map(|p| p.data());
+                let mut out: Rgb = std::array::from_fn(|_| Plane::new(w, h));
+                for hdr in [false, true] {
+                    let p = Params {
+                        edge_threshold_min: 0.0,
+                        ..Params::default()
+                    };
+                    let stats = fused(src, w, h, hdr, &p, &mut out, &StageClock::default());
+                    assert_eq!(stats.seen.max(), None, "{v} at {i} of {w}x{h}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn search_reach_is_where_the_last_sample_of_preset_12_lands() {
+        // Samples after every step but the last, from the pixel centre; the last sample's
+        // bilinear footprint reaches one row past its position's floor.
+        let far: f32 = PRESET_12_STEPS[..PRESET_12_STEPS.len() - 1].iter().sum();
+        let reach = (far + 0.5 - 0.5).floor() as usize + 1;
+        assert_eq!(SEARCH_REACH, reach, "steps {PRESET_12_STEPS:?}");
     }
 
     #[test]
