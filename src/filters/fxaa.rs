@@ -50,7 +50,8 @@ filter_params! {
 pub const PRESET_12_STEPS: [f32; 5] = [1.0, 1.5, 2.0, 4.0, 12.0];
 
 /// The FXAA filter (no history; it keeps the planes handed back by [`Filter::recycle`] to
-/// write the next output into, and whether the last frame was HDR as a guess for the next).
+/// write the next output into, and whether the last frame was HDR as a guess for the next,
+/// `None` after a frame with samples to repair).
 #[derive(Debug)]
 pub struct Fxaa {
     params: Params,
@@ -734,9 +735,10 @@ impl Filter for Fxaa {
             }
         }
         // Something to repair (rare): `prepare` counts and repairs exactly, and the pass
-        // runs on the repaired colour (a pass made before this was found is thrown away).
+        // runs on the repaired colour (a pass made before this was found is thrown away;
+        // after a frame like this one the next is read once first, not passed over).
         let inp = prepare(frame, Self::uses(), &mut rec)?;
-        *last_hdr = Some(inp.facts.hdr);
+        *last_hdr = None;
         rec.run_fused(["luma", "fxaa"], |clock| {
             fused(inp.color_slices(), w, h, inp.facts.hdr, p, &mut out, clock)
         });
@@ -1055,6 +1057,9 @@ mod tests {
                     }
                     assert_eq!(out.record.input, inp.counts, "{what}");
                     assert_eq!(out.record.ran(REPAIR_STAGE), dirty, "{what}");
+                    // A clean frame's HDR is the next one's guess; after a dirty frame the
+                    // next is read first.
+                    assert_eq!(f.last_hdr, (!dirty).then_some(inp.facts.hdr), "{what}");
                     if !dirty {
                         assert_eq!(
                             out.record.stage(REPAIR_STAGE).unwrap().skipped,
