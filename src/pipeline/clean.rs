@@ -90,6 +90,7 @@ mod tests {
     use crate::frame::{ChannelKind, ChannelSet, Frame, Plane};
     use crate::pipeline::{prepare, Recorder};
     use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
 
     /// What `prepare` says of the same colour: clean or not, and its largest sample.
     fn prepared(color: &Rgb) -> (bool, f32) {
@@ -143,7 +144,13 @@ mod tests {
             let m = color_max(&color);
             assert_eq!(m.max().is_some(), clean, "case {case}: {color:?}");
             if clean {
-                assert_eq!(m.max(), Some(max), "case {case}");
+                Tolerance::EXACT
+                    .check(
+                        &format!("case {case}: largest sample"),
+                        m.max().unwrap() as f64,
+                        max as f64,
+                    )
+                    .unwrap();
             }
             // The copy tests the same and copies every bit.
             let mut dst: Rgb = std::array::from_fn(|_| Plane::filled(w, h, 7.0f32));
@@ -167,7 +174,10 @@ mod tests {
             .enumerate()
         {
             let mut color: Rgb = std::array::from_fn(|_| Plane::filled(w, h, 0.5f32));
-            assert_eq!(color_max(&color).max(), Some(0.5));
+            let clean = color_max(&color).max().expect("a clean plane");
+            Tolerance::EXACT
+                .check("largest sample", clean as f64, 0.5)
+                .unwrap();
             let i = (k * 7919 + 123_457) % (w * h);
             color[k % 3].data_mut()[i] = bad;
             assert_eq!(color_max(&color).max(), None, "{bad} at {i}");
