@@ -6,6 +6,7 @@
 //! order ([`Filter::process`]); each frame gives an output image and a [`FrameRecord`].
 //! Filters run on the crate's rayon pool ([`exec::pool`]), split by rows.
 
+pub mod clean;
 pub mod exec;
 pub mod history;
 pub mod input;
