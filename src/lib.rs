@@ -4,7 +4,7 @@
 //! scenes ([`scene`]), per-pixel kernels ([`kernels`]), the filters ([`filters`]) behind one
 //! interface ([`pipeline`]), and quality metrics ([`metrics`]); the binary (`src/main.rs` and its `cli` module) is a thin layer
 //! over them.
-//! See `DESIGN.md` of the project for the map.
+//! `docs/ARCHITECTURE.md` in the repository maps the layers and the path of a frame.
 
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
@@ -12,6 +12,7 @@
 // more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+pub mod echo;
 pub mod filters;
 pub mod frame;
 pub mod io;

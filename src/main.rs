@@ -1,4 +1,5 @@
 //! The `afterimage` command: parses the command line and dispatches to `cli`.
+#![forbid(unsafe_code)]
 
 mod cli;
 

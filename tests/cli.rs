@@ -16,14 +16,113 @@ fn run(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// The subcommands, as the top-level help lists them.
+fn commands() -> Vec<String> {
+    let (ok, out, _) = run(&["--help"]);
+    assert!(ok && out.contains("Usage"), "{out}");
+    out.lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next())
+        .filter(|c| *c != "help")
+        .map(str::to_string)
+        .collect()
+}
+
 #[test]
 fn help_on_every_command() {
-    for args in [&["--help"][..], &["info", "--help"], &["eval", "--help"]] {
-        let (ok, out, _) = run(args);
-        assert!(ok && out.contains("Usage"), "{args:?}: {out}");
+    let commands = commands();
+    assert_eq!(
+        commands,
+        ["info", "eval", "filter", "filters", "report", "serve", "stream", "scene", "keygen"]
+    );
+    for c in &commands {
+        let (ok, out, err) = run(&[c, "--help"]);
+        assert!(
+            ok && out.contains(&format!("Usage: afterimage {c}")),
+            "{c}: {out}{err}"
+        );
+        // One spelling of the common options everywhere.
+        assert!(out.contains("-j, --threads <N>"), "{c} --help has no -j: {out}");
+        assert!(!out.contains("--out "), "{c} --help still says --out: {out}");
+        let short: &[&str] = match c.as_str() {
+            "filter" | "stream" => &["-i, --input", "-o, --output"],
+            "eval" => &["-i, --input"],
+            "scene" | "report" => &["-o, --output"],
+            _ => &[],
+        };
+        for s in short {
+            assert!(out.contains(s), "{c} --help lacks {s}: {out}");
+        }
     }
     let (ok, out, _) = run(&["eval", "--help"]);
     assert!(ok && out.contains("--reference") && out.contains("--preset"));
+}
+
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    use std::process::Stdio;
+    // The reader goes away before the command writes (`afterimage ... | head -0`).
+    for args in [&["filters", "--json"][..], &["filters"], &["scene", "--list"]] {
+        let mut child = common::bin()
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success(),
+            "{args:?} after the reader left: {:?}, stderr {}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            out.stderr.is_empty(),
+            "{args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+#[test]
+fn threads_flag_is_checked() {
+    // tests/report.rs checks that `-j` sizes the pool.
+    let (ok, _, err) = run(&["filters", "--threads", "lots"]);
+    assert!(!ok && err.contains("--threads"), "{err}");
+}
+
+#[test]
+fn info_describes_many_files_and_sequences() {
+    let dir = common::fixture("blender-motion");
+    let d = dir.to_str().unwrap();
+    let first = format!("{d}/frame_0001.exr");
+    let second = format!("{d}/frame_0002.exr");
+    let pattern = format!("{d}/frame_%04d.exr");
+    let (ok, out, err) = run(&["info", &first, &second]);
+    assert!(ok, "{err}");
+    let files: Vec<&str> = out.lines().filter(|l| l.starts_with("file:")).collect();
+    assert_eq!(files.len(), 2, "{out}");
+    assert!(files[1].ends_with("frame_0002.exr"), "{out}");
+    for spec in [d, pattern.as_str()] {
+        let (ok, out, err) = run(&["info", spec, "--json"]);
+        assert!(ok, "{spec}: {err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        let all = v
+            .as_array()
+            .unwrap_or_else(|| panic!("{spec}: an array for a sequence"));
+        assert_eq!(all.len(), 3, "{spec}");
+        assert!(all.iter().all(|f| f["width"].as_u64() > Some(0)), "{spec}");
+    }
+    // One file: one object, as before.
+    let (ok, out, _) = run(&["info", &first, "--json"]);
+    assert!(
+        ok && serde_json::from_str::<serde_json::Value>(&out)
+            .unwrap()
+            .is_object()
+    );
 }
 
 #[test]

@@ -1,4 +1,4 @@
-//! `pixel_trace` (Shinya 1993, seed 002): the paper's two experiments on our scenes, flow
+//! `pixel_trace` (Shinya 1993): the paper's two experiments on our scenes, flow
 //! separation at silhouettes, and the windowed interface (latency, flush, cuts).
 
 use afterimage::filters::create;

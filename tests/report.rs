@@ -26,7 +26,8 @@ fn finite(v: &Value, what: &str) -> f64 {
 
 /// Runs the quick report once into `dir` and returns the parsed JSON and stdout.
 fn quick_report(dir: &Path) -> (Value, String) {
-    let (ok, out, err) = run(&["report", "--quick", "--out", dir.to_str().unwrap()]);
+    // `-j 2`: the pool's size is what the command line asked for, whatever the machine.
+    let (ok, out, err) = run(&["report", "--quick", "-j", "2", "-o", dir.to_str().unwrap()]);
     assert!(ok, "{err}");
     let json = std::fs::read_to_string(dir.join("report.json")).unwrap();
     (serde_json::from_str(&json).unwrap(), out)
@@ -132,6 +133,24 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
         stdout
     );
     assert!(stdout.contains("## All scenes") && stdout.contains("## Timing at 320x180"));
+    assert!(stdout.contains("(2 threads,"), "{stdout}");
+    // Each timing row quotes frames/s as 1000 over its median ms/frame (as printed).
+    let timing = stdout.split("## Timing at 320x180").nth(1).unwrap();
+    let rows: Vec<Vec<&str>> = timing
+        .lines()
+        .skip_while(|l| !l.starts_with("|---"))
+        .skip(1)
+        .take_while(|l| l.starts_with('|'))
+        .map(|l| l.split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), n, "timing rows");
+    for r in &rows {
+        let (ms, fps): (f64, f64) = (r[2].parse().unwrap(), r[8].parse().unwrap());
+        // ms is printed to 3 decimals and frames/s to 1.
+        Tolerance::new(0.05, 0.0006 / ms)
+            .check(&format!("{} frames/s", r[1]), fps, 1e3 / ms)
+            .unwrap();
+    }
 
     // Plots exist and decode.
     for name in ["error_vs_time.png", "psnr_per_frame.png"] {

@@ -1,4 +1,4 @@
-//! `upsample` (Herzog et al. 2010, seed 001) on sparsely shaded scenes: convergence on a
+//! `upsample` (Herzog et al. 2010) on sparsely shaded scenes: convergence on a
 //! still scene, sharp silhouettes, disocclusion, and the paper's comparison with the
 //! spatial-only, temporal-only and TAA-style baselines.
 
@@ -207,7 +207,7 @@ fn score(outs: impl Iterator<Item = Rgb>, frames: &[Frame]) -> (f64, f64) {
     (s.mean_psnr, s.trmse.unwrap())
 }
 
-/// The paper's comparison (seed 001, sec. 5, table 1): on dynamic scenes spatio-temporal
+/// The paper's comparison (Herzog et al. 2010, sec. 5, table 1): on dynamic scenes spatio-temporal
 /// upsampling beats spatial-only and temporal-only. Here, 2x2 sparse shading at 128x72 over
 /// 32 frames against the 16-spp box reference: it has the best mean PSNR on all three
 /// scenes and a lower tRMSE than spatial-only; against temporal-only its tRMSE is within

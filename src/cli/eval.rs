@@ -1,5 +1,6 @@
 //! `afterimage eval --input SEQ --reference SEQ`.
 
+use super::outln;
 use super::read_args::ReadArgs;
 use afterimage::io::{inferno, write_png_rgb8};
 use afterimage::metrics::{luma, ssim, Evaluator, FrameMetrics, SpaceChoice, Summary};
@@ -23,7 +24,7 @@ enum Space {
 #[derive(Args, Debug)]
 pub struct EvalArgs {
     /// Frames to measure: a directory, a pattern (frame_%04d.exr), a glob or a file.
-    #[arg(long)]
+    #[arg(short = 'i', long)]
     input: String,
     /// Ground truth, frame for frame (default: the input frames' own `reference` channel).
     #[arg(long)]
@@ -129,11 +130,11 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             frames: &eval.frames,
             summary,
         };
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        outln!("{}", serde_json::to_string_pretty(&report)?);
     } else if args.csv {
-        println!("frame,mse,rmse,psnr_db,ssim,temporal_mse");
+        outln!("frame,mse,rmse,psnr_db,ssim,temporal_mse");
         for f in &eval.frames {
-            println!(
+            outln!(
                 "{},{},{},{},{},{}",
                 f.index,
                 f.mse,
@@ -144,10 +145,10 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
             );
         }
     } else {
-        println!("| frame | PSNR dB | SSIM   | RMSE     | temporal RMSE |");
-        println!("|------:|--------:|-------:|---------:|--------------:|");
+        outln!("| frame | PSNR dB | SSIM   | RMSE     | temporal RMSE |");
+        outln!("|------:|--------:|-------:|---------:|--------------:|");
         for f in &eval.frames {
-            println!(
+            outln!(
                 "| {:>5} | {:>7.3} | {:.4} | {:.6} | {:>13} |",
                 f.index,
                 f.psnr,
@@ -156,8 +157,8 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
                 f.temporal_mse.map_or("-".into(), |t| format!("{:.6}", t.sqrt()))
             );
         }
-        println!();
-        println!(
+        outln!();
+        outln!(
             "{} frames, {:?} space: mean PSNR {:.3} dB, mean SSIM {:.4}, tRMSE {}",
             summary.frames,
             summary.space,

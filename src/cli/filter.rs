@@ -1,5 +1,6 @@
 //! `afterimage filter` (run a filter over a sequence) and `afterimage filters` (list them).
 
+use super::outln;
 use super::read_args::ReadArgs;
 use afterimage::filters;
 use afterimage::frame::{Frame, FrameMeta, Rgb};
@@ -25,10 +26,10 @@ pub struct FilterArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
-    #[arg(long)]
+    #[arg(short = 'i', long)]
     input: String,
     /// Output directory: frame_NNNN.exr (afterimage preset, colour only) and records.json.
-    #[arg(long)]
+    #[arg(short = 'o', long)]
     output: PathBuf,
     /// Ground truth, frame for frame: PSNR, SSIM and tRMSE are printed and recorded
     /// (default: the input frames' own reference channel, when they have one).
@@ -199,7 +200,7 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
 
     // Per-stage medians, then quality.
     let totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
-    println!(
+    outln!(
         "{}: {} frames -> {} (median {:.2} ms/frame)",
         args.filter,
         records.len(),
@@ -208,8 +209,8 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     );
     for s in summarize_stages(&records) {
         match s.timing {
-            Some(t) => println!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
-            None => println!(
+            Some(t) => outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
+            None => outln!(
                 "  {:<16} left out: {}",
                 s.name,
                 s.first_skip.as_deref().unwrap_or("-")
@@ -219,9 +220,9 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
     let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();
     let non_finite: u64 = records.iter().map(|r| r.input.non_finite).sum();
-    println!("  history: {reset} pixel restarts, {clipped} clipped; non-finite input samples: {non_finite}");
+    outln!("  history: {reset} pixel restarts, {clipped} clipped; non-finite input samples: {non_finite}");
     if let Some(s) = summary {
-        println!(
+        outln!(
             "  vs reference ({:?} space): mean PSNR {:.3} dB, mean SSIM {:.4}, tRMSE {}",
             s.space,
             s.mean_psnr,

@@ -1,17 +1,20 @@
-//! `afterimage info FILE`.
+//! `afterimage info FILE...`.
 
+use super::outln;
 use super::read_args::ReadArgs;
-use afterimage::io::{read_raw, ChannelStats};
+use afterimage::io::{read_raw, ChannelStats, ReadOptions, Sequence};
 use clap::Args;
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `info`.
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// The image file (.exr, .png, .jpg).
-    file: PathBuf,
-    /// Print JSON instead of text.
+    /// Image files (.exr, .png, .jpg), or sequences: a directory, a printf pattern
+    /// (frame_%04d.exr) or a glob. Files are described in order, sequences frame by frame.
+    #[arg(required = true, num_args = 1..)]
+    files: Vec<String>,
+    /// Print JSON instead of text: an object for a single file, else an array of them.
     #[arg(long)]
     json: bool,
     #[command(flatten)]
@@ -50,9 +53,41 @@ fn fmt_opt(v: Option<f64>) -> String {
 
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let opts = args.read.options()?;
-    let raw = read_raw(&args.file)?;
-    let preset = raw.preset(&opts).ok();
-    let (mapping, mapping_error) = match raw.mapping(&opts) {
+    let mut files: Vec<PathBuf> = Vec::new();
+    for spec in &args.files {
+        let path = Path::new(spec);
+        if path.is_file() {
+            files.push(path.to_path_buf());
+        } else {
+            files.extend(Sequence::open(spec)?.entries.into_iter().map(|e| e.path));
+        }
+    }
+    let infos = files
+        .iter()
+        .map(|f| describe(f, &opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    if args.json {
+        let text = match infos.as_slice() {
+            [one] => serde_json::to_string_pretty(one)?,
+            many => serde_json::to_string_pretty(many)?,
+        };
+        outln!("{text}");
+        return Ok(());
+    }
+    for (i, info) in infos.iter().enumerate() {
+        if i > 0 {
+            outln!();
+        }
+        print_text(info, args.read.preset == "auto")?;
+    }
+    Ok(())
+}
+
+/// What `info` says of one file.
+fn describe(file: &Path, opts: &ReadOptions) -> anyhow::Result<Info> {
+    let raw = read_raw(file)?;
+    let preset = raw.preset(opts).ok();
+    let (mapping, mapping_error) = match raw.mapping(opts) {
         Ok(m) => (
             m.into_iter().map(|(k, n)| (k.name().to_string(), n)).collect(),
             None,
@@ -68,36 +103,32 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             stats: c.stats(),
         })
         .collect();
-    let info = Info {
-        file: args.file.display().to_string(),
+    Ok(Info {
+        file: file.display().to_string(),
         width: raw.width,
         height: raw.height,
         preset: preset.as_ref().map(|p| p.to_string()),
-        motion_convention: raw.motion_convention(&opts).ok().map(|c| c.to_string()),
+        motion_convention: raw.motion_convention(opts).ok().map(|c| c.to_string()),
         mapping,
         mapping_error,
         non_finite_total: channels.iter().map(|c| c.stats.nan + c.stats.inf).sum(),
         channels,
         meta: raw.meta.clone(),
         shading: raw.shading,
-    };
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&info)?);
-        return Ok(());
-    }
-    println!("file:    {}", info.file);
-    println!("size:    {}x{}", info.width, info.height);
-    let how = if args.read.preset == "auto" {
-        " (detected)"
-    } else {
-        ""
-    };
-    println!("preset:  {}{how}", info.preset.as_deref().unwrap_or("none fits"));
+    })
+}
+
+/// `info` as text for people.
+fn print_text(info: &Info, detected: bool) -> anyhow::Result<()> {
+    outln!("file:    {}", info.file);
+    outln!("size:    {}x{}", info.width, info.height);
+    let how = if detected { " (detected)" } else { "" };
+    outln!("preset:  {}{how}", info.preset.as_deref().unwrap_or("none fits"));
     if let Some(m) = &info.motion_convention {
-        println!("motion convention: {m}");
+        outln!("motion convention: {m}");
     }
     let meta = &info.meta;
-    println!(
+    outln!(
         "frame:   index {}, jitter ({}, {}), reset {}, exposure {}, near/far {}",
         meta.index,
         meta.jitter[0],
@@ -108,20 +139,26 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     );
     let s = info.shading;
     if !s.is_full() {
-        println!(
+        outln!(
             "shading: one pixel per {f}x{f} block, at ({}, {}) of each: colour stored at those pixels, 0 elsewhere",
             s.phase[0],
             s.phase[1],
             f = s.factor
         );
     }
-    println!();
-    println!(
+    outln!();
+    outln!(
         "{:<28} {:<5} {:>14} {:>14} {:>14} {:>8} {:>8}",
-        "channel", "type", "min", "max", "mean", "NaN", "Inf"
+        "channel",
+        "type",
+        "min",
+        "max",
+        "mean",
+        "NaN",
+        "Inf"
     );
     for c in &info.channels {
-        println!(
+        outln!(
             "{:<28} {:<5} {:>14} {:>14} {:>14} {:>8} {:>8}",
             c.name,
             c.file_type,
@@ -132,17 +169,17 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             c.stats.inf
         );
     }
-    println!();
+    outln!();
     if let Some(e) = &info.mapping_error {
-        println!("frame channels: none ({e})");
+        outln!("frame channels: none ({e})");
     } else {
-        println!("frame channels:");
+        outln!("frame channels:");
         for (k, names) in &info.mapping {
-            println!("  {k:<10} <- {}", names.join(", "));
+            outln!("  {k:<10} <- {}", names.join(", "));
         }
     }
     if info.non_finite_total > 0 {
-        println!(
+        outln!(
             "warning: {} non-finite samples (see the NaN and Inf columns)",
             info.non_finite_total
         );

@@ -19,6 +19,9 @@ use clap::{Parser, Subcommand};
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// Filter threads (default: `AFTERIMAGE_THREADS`, else one per core).
+    #[arg(short = 'j', long, global = true, value_name = "N")]
+    threads: Option<usize>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -49,6 +52,10 @@ enum Command {
 
 /// Runs the parsed command.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    if let Some(n) = cli.threads {
+        afterimage::pipeline::exec::set_threads(n)
+            .map_err(|have| anyhow::anyhow!("--threads {n}: the filter pool already runs {have} threads"))?;
+    }
     match cli.command {
         Command::Info(a) => info::run(a),
         Command::Eval(a) => eval::run(a),
@@ -61,6 +68,18 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Keygen(a) => keygen::run(a),
     }
 }
+
+/// `println!` for results: through [`print_stdout`], so `| head` ends the output quietly;
+/// returns from the calling function on any other write error.
+macro_rules! outln {
+    () => {
+        $crate::cli::print_stdout("\n")?
+    };
+    ($($arg:tt)*) => {
+        $crate::cli::print_stdout(&format!("{}\n", format_args!($($arg)*)))?
+    };
+}
+pub(crate) use outln;
 
 /// Writes `text` to stdout; a reader that closes the pipe early (`| head`) is not an error.
 pub(crate) fn print_stdout(text: &str) -> anyhow::Result<()> {

@@ -50,8 +50,8 @@ pub struct ReportArgs {
     #[arg(long)]
     quick: bool,
     /// Output directory: report.md, report.json, report.csv and the plots.
-    #[arg(long, default_value = "report")]
-    out: PathBuf,
+    #[arg(short = 'o', long, alias = "out", default_value = "report")]
+    output: PathBuf,
 }
 
 /// `--timing-size`: a size, or `none` (a newtype, since clap reads `Option<Option<_>>` as
@@ -137,7 +137,7 @@ pub fn run(args: ReportArgs) -> anyhow::Result<()> {
         bar.set_message(p.what.clone());
     })?;
     bar.finish_and_clear();
-    let out = &args.out;
+    let out = &args.output;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let md = report::markdown(&report);
     let mut written = Vec::new();

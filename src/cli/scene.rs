@@ -1,5 +1,6 @@
 //! `afterimage scene NAME --out DIR`: render a catalogue scene to EXR.
 
+use super::outln;
 use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
 use afterimage::metrics::Timing;
 use afterimage::scene::{Jitter, Scene, Settings, BEHIND_CAMERA_MOTION, CATALOGUE, SKY_DEPTH};
@@ -51,8 +52,8 @@ pub struct SceneArgs {
     #[arg(long)]
     png: bool,
     /// Output directory (frame_NNNN.exr in the afterimage preset, plus scene.json).
-    #[arg(long, required_unless_present = "list")]
-    out: Option<PathBuf>,
+    #[arg(short = 'o', long, alias = "out", required_unless_present = "list")]
+    output: Option<PathBuf>,
 }
 
 pub(crate) fn parse_size(s: &str) -> Result<(usize, usize), String> {
@@ -82,12 +83,12 @@ fn parse_jitter(s: &str) -> Result<Jitter, String> {
 pub fn run(args: SceneArgs) -> anyhow::Result<()> {
     if args.list {
         for e in CATALOGUE {
-            println!("{:<14} {}", e.name, e.description);
+            outln!("{:<14} {}", e.name, e.description);
         }
         return Ok(());
     }
     let name = args.name.as_deref().expect("clap requires a name");
-    let out = args.out.as_ref().expect("clap requires --out");
+    let out = args.output.as_ref().expect("clap requires --output");
     let settings = Settings {
         width: args.size.0,
         height: args.size.1,
@@ -159,7 +160,7 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
     });
     std::fs::write(out.join("scene.json"), serde_json::to_string_pretty(&meta)?)
         .with_context(|| format!("writing {}", out.join("scene.json").display()))?;
-    eprintln!(
+    outln!(
         "{name}: {} frames of {}x{} ({} spp reference) in {}, median {median:.1} ms/frame",
         args.frames,
         settings.width,

@@ -20,7 +20,7 @@ pub struct ServeArgs {
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = Config::load(args.config.as_deref(), std::env::vars())?;
     if args.print_config {
-        print!("{}", toml::to_string(&config)?);
+        super::print_stdout(&toml::to_string(&config)?)?;
         return Ok(());
     }
     let rt = tokio::runtime::Builder::new_multi_thread()

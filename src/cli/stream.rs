@@ -2,6 +2,7 @@
 //! streams a sequence or a rendered scene to it over gRPC, writes the filtered frames, and
 //! reports round-trip time next to the in-process filter time.
 
+use super::outln;
 use super::read_args::ReadArgs;
 use afterimage::filters::create;
 use afterimage::frame::{Frame, Rgb};
@@ -41,7 +42,12 @@ pub struct StreamArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// Frames to send: a directory, pattern, glob or file.
-    #[arg(long, conflicts_with = "scene", required_unless_present = "scene")]
+    #[arg(
+        short = 'i',
+        long,
+        conflicts_with = "scene",
+        required_unless_present = "scene"
+    )]
     input: Option<String>,
     /// Or a catalogue scene rendered here.
     #[arg(long)]
@@ -68,7 +74,7 @@ pub struct StreamArgs {
     #[arg(long)]
     compare: bool,
     /// Where to write the filtered frames (frame_NNNN.exr); none: not written.
-    #[arg(long)]
+    #[arg(short = 'o', long)]
     output: Option<PathBuf>,
     #[command(flatten)]
     read: ReadArgs,
@@ -182,7 +188,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let transport: Vec<f64> = rtt.iter().zip(&server).map(|(r, s)| (r - s).max(1e-3)).collect();
     let transport_ms = Timing::of(&transport).median_ms;
     let per_frame_mb = bytes as f64 / 1e6 / replies.len().max(1) as f64;
-    println!(
+    outln!(
         "{} frames of {w}x{h} ({}{}) through {}: round trip median {:.2} ms (p95 {:.2}), server filter+decode median {:.2} ms; payload {:.1} MB, {:.0} MB/s over the round trips; transport (round trip less server time) median {transport_ms:.2} ms/frame for {per_frame_mb:.1} MB = {:.0} MB/s; wall {:.2} s",
         replies.len(),
         if args.f16 { "f16" } else { "f32" },
@@ -198,7 +204,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     );
     let psnr: Vec<f64> = replies.iter().filter_map(|r| r.report.psnr).collect();
     if !psnr.is_empty() {
-        println!(
+        outln!(
             "mean PSNR against the sent reference: {:.2} dB",
             psnr.iter().sum::<f64>() / psnr.len() as f64
         );
@@ -216,7 +222,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         }
         f.finish()?;
         let local = Timing::of(&ms).median_ms;
-        println!(
+        outln!(
             "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",
             Timing::of(&rtt).median_ms - local,
             Timing::of(&rtt).median_ms / local

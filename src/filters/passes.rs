@@ -71,7 +71,7 @@ pub fn from_working(rgb: &mut Rgb, on: bool) {
 
 /// Velocity dilation: each pixel takes the motion of the nearest (smallest depth) pixel of
 /// its 3x3 neighbourhood, so edges of moving foreground objects reproject with the object
-/// (Karis 2014; thesis 004 sec. 3.6.3).
+/// (Karis 2014; Oliveros 2018, sec. 3.6.3).
 pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>, scratch: &mut Scratch) -> [Plane<f32>; 2] {
     let (w, h) = depth.size();
     let d = depth.data();

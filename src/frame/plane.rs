@@ -124,12 +124,6 @@ impl<T: Copy> Plane<T> {
 }
 
 impl Plane<f32> {
-    /// Bilinear sample at continuous position `(x, y)` in pixel units, where pixel
-    /// `(i, j)` has its centre at `(i + 0.5, j + 0.5)`; edges are extended.
-    pub fn sample_bilinear(&self, x: f32, y: f32) -> f32 {
-        crate::kernels::bilinear([self.data()], self.width, self.height, x, y)[0]
-    }
-
     /// Number of samples that are NaN or infinite.
     pub fn count_non_finite(&self) -> u64 {
         self.data.iter().filter(|v| !v.is_finite()).count() as u64
@@ -139,7 +133,6 @@ impl Plane<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tolerance::Tolerance;
 
     #[test]
     fn from_vec_checks_length() {
@@ -154,37 +147,5 @@ mod tests {
         assert_eq!(p.get(3, 2), 23);
         assert_eq!(p.row(1), &[10, 11, 12, 13]);
         assert_eq!(p.get_clamped(-5, 7), 20);
-    }
-
-    #[test]
-    fn bilinear_matches_a_float64_reference() {
-        let p = Plane::from_fn(5, 4, |x, y| ((x * 7 + y * 3) % 5) as f32);
-        let reference = |x: f64, y: f64| -> f64 {
-            let fx = x - 0.5;
-            let fy = y - 0.5;
-            let (x0, y0) = (fx.floor(), fy.floor());
-            let (tx, ty) = (fx - x0, fy - y0);
-            let g = |i: f64, j: f64| {
-                let i = i.clamp(0.0, 4.0) as usize;
-                let j = j.clamp(0.0, 3.0) as usize;
-                p.get(i, j) as f64
-            };
-            (1.0 - ty) * ((1.0 - tx) * g(x0, y0) + tx * g(x0 + 1.0, y0))
-                + ty * ((1.0 - tx) * g(x0, y0 + 1.0) + tx * g(x0 + 1.0, y0 + 1.0))
-        };
-        let mut rng = crate::rng::SplitMix64::new(12345);
-        for _ in 0..1000 {
-            let x = rng.range(-1.0, 6.0);
-            let y = rng.range(-1.0, 5.0);
-            Tolerance::abs(1e-5)
-                .check(
-                    "bilinear",
-                    p.sample_bilinear(x as f32, y as f32) as f64,
-                    reference(x, y),
-                )
-                .unwrap();
-        }
-        // At a pixel centre it returns the sample itself.
-        assert_eq!(p.sample_bilinear(2.5, 1.5), p.get(2, 1));
     }
 }

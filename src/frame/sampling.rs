@@ -1,5 +1,5 @@
 //! Sparse shading: a frame whose colour is shaded at one pixel of every `factor x factor`
-//! block of the full-resolution grid (Herzog et al. 2010, seed 001, sec. 3.2 and fig. 2:
+//! block of the full-resolution grid (Herzog et al. 2010, sec. 3.2 and fig. 2:
 //! "regularly sampled shading", one sample set per frame in a rotating order).
 //!
 //! The colour plane then has its own size, `ceil(width / factor) x ceil(height / factor)`;
@@ -33,7 +33,7 @@ impl Sampling {
     /// The pattern of frame `index` for block size `factor`: the pixel of rank
     /// `index mod factor^2` in the Bayer ordered-dither matrix, so that consecutive frames
     /// are spread over the block and every pixel is shaded once per `factor^2` frames
-    /// (the "regular rotating order" of seed 001, fig. 2). For 2x2 the order is (0,0),
+    /// (the "regular rotating order" of Herzog et al. 2010, fig. 2). For 2x2 the order is (0,0),
     /// (1,1), (1,0), (0,1). `factor` must be a power of two.
     pub fn rotating(factor: u32, index: u64) -> Sampling {
         let rank = (index % (factor as u64 * factor as u64)) as u32;

@@ -157,7 +157,7 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
             .layer_name
             .as_ref()
             .map_or(format!("part {i}"), |n| {
-                format!("part {:?}", crate::session::clip(&n.to_string()))
+                format!("part {:?}", crate::echo::clip(&n.to_string()))
             });
         if h.deep {
             return Err(refuse(format!("{part} holds deep data, which is not supported")));
@@ -172,7 +172,7 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
         if let Some(ch) = h.channels.list.iter().find(|c| c.sampling != x::Vec2(1, 1)) {
             return Err(refuse(format!(
                 "{part}: channel {} is subsampled, which is not supported",
-                crate::session::clip(&ch.name.to_string())
+                crate::echo::clip(&ch.name.to_string())
             )));
         }
         channels += h.channels.list.len();

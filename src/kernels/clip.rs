@@ -7,7 +7,7 @@ pub(crate) const CLIP_EPS: f32 = 1.0e-8;
 /// Clips `q` toward the centre of the box `[min, max]`: if `q` lies outside, it is moved
 /// along the segment to the centre until it meets the box surface; inside, it is returned
 /// unchanged (Pedersen 2016, INSIDE's `clip_aabb`; Karis 2014). Unlike a per-axis clamp this
-/// keeps the history's hue instead of snapping it to a corner (thesis 004, fig. 3.9).
+/// keeps the history's hue instead of snapping it to a corner (Oliveros 2018, fig. 3.9).
 /// Returns the point and whether it moved.
 #[inline]
 pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {

@@ -2,8 +2,8 @@
 
 /// Sharpens centre `c` against its four cross neighbours `n` with strength `s`:
 /// `c + s * (c - (n0 + n1 + n2 + n3) / 4)`. Strength 4 is the kernel
-/// `[0 -1 0; -1 5 -1; 0 -1 0]` (thesis 004 eq. 3.1, after Xu 2016); strength 1 is the
-/// normalised `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]` (thesis 004 eq. 4.17).
+/// `[0 -1 0; -1 5 -1; 0 -1 0]` (Oliveros 2018, eq. 3.1, after Xu 2016); strength 1 is the
+/// normalised `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]` (Oliveros 2018, eq. 4.17).
 #[inline(always)]
 pub fn sharpen_cross(c: f32, n: [f32; 4], s: f32) -> f32 {
     c + s * (c - 0.25 * (n[0] + n[1] + n[2] + n[3]))

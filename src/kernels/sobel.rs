@@ -1,9 +1,9 @@
-//! The Sobel operator (thesis 004, sec. 3.8, eq. 3.5 and 3.6).
+//! The Sobel operator (Oliveros 2018, sec. 3.8, eq. 3.5 and 3.6).
 
 use super::neighborhood::gather3x3;
 
 /// Gradient magnitude `sqrt(gx^2 + gy^2)` of nine taps (row-major, centre 4) with the
-/// Sobel kernels of thesis 004 eq. 3.5 (x: [-1 0 1; -2 0 2; -1 0 1]) and eq. 3.6
+/// Sobel kernels of Oliveros 2018 eq. 3.5 (x: [-1 0 1; -2 0 2; -1 0 1]) and eq. 3.6
 /// (y: [1 2 1; 0 0 0; -1 -2 -1]).
 #[inline]
 pub fn sobel_magnitude(t: &[f32; 9]) -> f32 {

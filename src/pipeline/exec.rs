@@ -7,17 +7,33 @@ use std::sync::OnceLock;
 /// Environment variable that sets the number of filter threads (default: all cores).
 pub const THREADS_ENV: &str = "AFTERIMAGE_THREADS";
 
+static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
+static REQUESTED_THREADS: OnceLock<usize> = OnceLock::new();
+
+/// Asks for `threads` filter threads (0: one per core), overriding `AFTERIMAGE_THREADS`
+/// (the command line's `-j`). Only before the pool's first use: afterwards, or after an
+/// earlier request, the error carries the count that is in force.
+pub fn set_threads(threads: usize) -> Result<(), usize> {
+    if let Some(p) = POOL.get() {
+        return Err(p.current_num_threads());
+    }
+    REQUESTED_THREADS
+        .set(threads)
+        .map_err(|_| *REQUESTED_THREADS.get().unwrap_or(&0))
+}
+
 /// The crate's rayon pool: every filter runs its rows here, never on the caller's threads
-/// (an async server's workers stay free). Sized by `AFTERIMAGE_THREADS`, else one thread
-/// per core.
+/// (an async server's workers stay free). Sized by [`set_threads`], else by
+/// `AFTERIMAGE_THREADS`, else one thread per core.
 pub fn pool() -> &'static rayon::ThreadPool {
-    static POOL: OnceLock<rayon::ThreadPool> = OnceLock::new();
     POOL.get_or_init(|| {
-        let threads = std::env::var(THREADS_ENV)
-            .ok()
-            .and_then(|v| v.parse::<usize>().ok())
-            .filter(|&n| n > 0)
-            .unwrap_or(0);
+        let threads = REQUESTED_THREADS.get().copied().unwrap_or_else(|| {
+            std::env::var(THREADS_ENV)
+                .ok()
+                .and_then(|v| v.parse::<usize>().ok())
+                .filter(|&n| n > 0)
+                .unwrap_or(0)
+        });
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("afterimage-filter-{i}"))

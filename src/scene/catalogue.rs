@@ -160,7 +160,7 @@ fn pixel_camera(s: &Settings) -> Anim<Camera> {
     ))
 }
 
-/// Shinya's experiment 1 (seed 002, sec. 5): width 1/8 px, 1 degree from the horizon,
+/// Shinya's experiment 1 (Shinya 1993, sec. 5): width 1/8 px, 1 degree from the horizon,
 /// 0.22 = 11/50 px/frame vertical motion.
 pub const THIN_LINE_WIDTH_PX: f64 = 1.0 / 8.0;
 /// Angle of the thin line from the horizon, degrees (Shinya 1993, sec. 5).

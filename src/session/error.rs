@@ -1,26 +1,13 @@
 //! What can go wrong with a session request, sorted by whose fault it is, with the class
 //! that the transports map to a gRPC code and an HTTP status.
 
+pub use crate::echo::{clip, ECHO_CHARS};
 use crate::pipeline::FilterError;
-use std::borrow::Cow;
 use thiserror::Error;
 
-/// Longest piece of client input echoed in an error message; longer input is cut and its
-/// length said instead.
-pub const ECHO_CHARS: usize = 64;
-
 /// Longest error message a transport sends back, in bytes (every message is cut there as
-/// a last guard; [`clip`] keeps echoed input far below it).
+/// a last guard; [`crate::echo::clip`] keeps echoed input far below it).
 pub const MAX_MESSAGE_BYTES: usize = 1024;
-
-/// Client input as it may appear in an error message: at most [`ECHO_CHARS`] characters,
-/// with the full length said when it was cut.
-pub fn clip(input: &str) -> Cow<'_, str> {
-    match input.char_indices().nth(ECHO_CHARS) {
-        None => Cow::Borrowed(input),
-        Some((at, _)) => Cow::Owned(format!("{}... ({} bytes)", &input[..at], input.len())),
-    }
-}
 
 /// `message` cut to [`MAX_MESSAGE_BYTES`] on a character boundary.
 pub fn cap_message(message: String) -> String {
@@ -180,12 +167,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn clip_keeps_short_input_and_cuts_long_input_on_a_character() {
-        assert_eq!(clip("taa"), "taa");
-        let long = "é".repeat(100);
-        let c = clip(&long);
-        assert!(c.starts_with(&"é".repeat(ECHO_CHARS)), "{c}");
-        assert!(c.ends_with("(200 bytes)"), "{c}");
+    fn cap_message_cuts_on_a_character() {
         let m = cap_message("ü".repeat(3000));
         assert!(
             m.len() <= MAX_MESSAGE_BYTES && m.ends_with("(cut)"),

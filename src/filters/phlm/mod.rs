@@ -1,5 +1,5 @@
 //! `phlm`: Pixel History Linear Models (Iglesias-Guitian, Moon, Koniaris, Smolikowski and
-//! Mitchell 2016; seed 000), with an RLS that stays bounded forever ([`rls`]).
+//! Mitchell 2016), with an RLS that stays bounded forever ([`rls`]).
 //!
 //! Every pixel keeps a linear model `f = beta^T x` with `x = [1, z_r, z_g, z_b]` (eq. 3-4):
 //! `beta` is 3x4 (a row per colour channel) and one 4x4 inverse covariance `P` is shared by

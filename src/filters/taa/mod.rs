@@ -1,5 +1,5 @@
 //! `taa`: the industry TAA baseline (Karis 2014, "High quality temporal supersampling";
-//! Salvi 2016, "An excursion in temporal supersampling"; survey 003; the outline Bevy's TAA
+//! Salvi 2016, "An excursion in temporal supersampling"; Yang, Liu and Salvi 2020; the outline Bevy's TAA
 //! and FSR2's accumulate pass follow).
 //!
 //! Stages per frame:
@@ -66,9 +66,9 @@ filter_params! {
     }
 }
 
-/// Blend weight of the current frame: 0.1 (Karis 2014; DESIGN.md "alpha 0.1 default").
+/// Blend weight of the current frame: 0.1 (Karis 2014, the default blend of Unreal's TAA).
 pub const DEFAULT_ALPHA: f32 = 0.1;
-/// Variance-box width: 1.0 sigma (Salvi 2016; the survey 003 gives 0.75-1.25).
+/// Variance-box width: 1.0 sigma (Salvi 2016; the survey of Yang, Liu and Salvi 2020 gives 0.75-1.25).
 pub const DEFAULT_GAMMA: f32 = 1.0;
 /// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
 /// anyway, and a bounded count keeps the state bounded on endless still scenes.
