@@ -283,8 +283,13 @@ fn fence_motion_reprojects_static_geometry_onto_itself() {
                 }
                 if neighbours.iter().all(|&n| n == id) {
                     let depth = prev.depth().unwrap();
-                    let d =
-                        bilinear([depth.data()], depth.width, depth.height, px as f32, py as f32)[0] as f64;
+                    let d = bilinear(
+                        [depth.data()],
+                        depth.width(),
+                        depth.height(),
+                        px as f32,
+                        py as f32,
+                    )[0] as f64;
                     max_depth_rel_err = max_depth_rel_err.max((d - ed).abs() / ed);
                 }
             }
