@@ -66,6 +66,26 @@ pub fn box_stats(cols: &[&[f32; LANES + 2]; 12]) -> [[Lanes; 3]; 4] {
     out
 }
 
+/// The min and max of the 3x3 box and of its cross (+) of a block, per channel: `rows[c]`
+/// are channel `c`'s rows above, here and below, from one column left of the block to one
+/// right. Returns min, max, cross min and cross max, combined as
+/// [`super::for_each_row_stats`] does (per column first, then across).
+#[inline(always)]
+pub fn box_and_cross_bounds(rows: &[[&[f32; LANES + 2]; 3]; 3]) -> [[Lanes; 3]; 4] {
+    let mut out = [[[0.0; LANES]; 3]; 4];
+    for (c, [a, b, d]) in rows.iter().enumerate() {
+        let vmin: [f32; LANES + 2] = std::array::from_fn(|j| fmin(fmin(a[j], b[j]), d[j]));
+        let vmax: [f32; LANES + 2] = std::array::from_fn(|j| fmax(fmax(a[j], b[j]), d[j]));
+        out[0][c] = std::array::from_fn(|l| fmin(fmin(vmin[l], vmin[l + 1]), vmin[l + 2]));
+        out[1][c] = std::array::from_fn(|l| fmax(fmax(vmax[l], vmax[l + 1]), vmax[l + 2]));
+        out[2][c] =
+            std::array::from_fn(|l| fmin(fmin(fmin(b[l], b[l + 1]), b[l + 2]), fmin(a[l + 1], d[l + 1])));
+        out[3][c] =
+            std::array::from_fn(|l| fmax(fmax(fmax(b[l], b[l + 1]), b[l + 2]), fmax(a[l + 1], d[l + 1])));
+    }
+    out
+}
+
 /// [`super::variance_box`] in lanes: `mean +- gamma sigma` within `[min, max]`.
 #[inline(always)]
 pub fn variance_box(
@@ -167,7 +187,7 @@ pub fn ycocg_to_rgb(c: &[Lanes; 3]) -> [Lanes; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::{clip, color, neighborhood, NeighborhoodStats};
+    use crate::kernels::{clip, color, for_each_row_stats, neighborhood, NeighborhoodStats};
     use crate::rng::SplitMix64;
 
     /// Random blocks of values at several scales, with exact ties, zeros and flat boxes.
@@ -177,6 +197,47 @@ mod tests {
             1 => 0.25,
             _ => (rng.next_f64() * 2.0 - 0.5) as f32 * scale as f32,
         })
+    }
+
+    #[test]
+    fn box_and_cross_bounds_give_the_row_stats_bits() {
+        let mut rng = SplitMix64::new(72);
+        let (w, h) = (LANES + 2, 3);
+        for case in 0..500 {
+            let scale = [1.0, 1e-5, 1e4, 3.0][case % 4];
+            let planes: Vec<Vec<f32>> = (0..3)
+                .map(|_| {
+                    (0..h)
+                        .flat_map(|_| block(&mut rng, scale).into_iter().chain([0.5, -0.0]))
+                        .collect()
+                })
+                .collect();
+            let p = [&planes[0][..], &planes[1][..], &planes[2][..]];
+            let rows: [[&[f32; LANES + 2]; 3]; 3] = std::array::from_fn(|c| {
+                std::array::from_fn(|r| p[c][r * w..(r + 1) * w].try_into().unwrap())
+            });
+            let [min, max, min_cross, max_cross] = box_and_cross_bounds(&rows);
+            for_each_row_stats(p, w, h, 1, |x, s| {
+                if x == 0 || x == w - 1 {
+                    return;
+                }
+                let l = x - 1;
+                for c in 0..3 {
+                    assert_eq!(s.min[c].to_bits(), min[c][l].to_bits(), "case {case}: min");
+                    assert_eq!(s.max[c].to_bits(), max[c][l].to_bits(), "case {case}: max");
+                    assert_eq!(
+                        s.min_cross[c].to_bits(),
+                        min_cross[c][l].to_bits(),
+                        "case {case}: min+"
+                    );
+                    assert_eq!(
+                        s.max_cross[c].to_bits(),
+                        max_cross[c][l].to_bits(),
+                        "case {case}: max+"
+                    );
+                }
+            });
+        }
     }
 
     #[test]
