@@ -400,7 +400,7 @@ fn largest(d: &[f32]) -> f32 {
                 let mut m = [0.0f32; LANES];
                 let mut it = c.chunks_exact(LANES);
                 for b in &mut it {
-                    m = std::array::from_fn(|l| fmax(m[l], b[l]));
+                    m = lanes::each(|l| fmax(m[l], b[l]));
                 }
                 it.remainder()
                     .iter()
@@ -522,11 +522,18 @@ fn run_band<const N: usize>(
         }
     }
     hist.iter_mut().for_each(|b| b.hold(&r1, s));
+    // The Sobel history reads the history one row beyond the band; the resolve only the
+    // band's rows.
+    let fetch = if plan.sobel_history {
+        r1.clone()
+    } else {
+        rows.clone()
+    };
     match src.texels {
         None => r1.clone().for_each(|r| valid.row_mut(r).fill(false)),
         Some(texels) if plan.reproject => {
             motion.iter_mut().for_each(|b| b.hold(&r1, s));
-            for r in r1.clone() {
+            for r in fetch.clone() {
                 let m: [&[f32]; 2] = if plan.dilate {
                     let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
                     let [mx, my] = motion.each_mut().map(|b| &mut b.row_mut(r)[..w]);
@@ -540,26 +547,12 @@ fn run_band<const N: usize>(
                 let ok = &mut valid.row_mut(r)[..w];
                 let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
                 clock.time(REPROJECT, || {
-                    for x in 0..w {
-                        let px = x as f32 + 0.5 + m[0][x];
-                        let py = r as f32 + 0.5 + m[1][x];
-                        ok[x] = on_screen(px, py, w, h);
-                        if !ok[x] {
-                            continue;
-                        }
-                        let t = bilinear_texels::<N>(texels, w, h, px, py);
-                        for c in 0..N {
-                            hr[c][x] = t[c];
-                        }
-                        if let Some(prev) = prev {
-                            pd[x] = bilinear([prev], w, h, px, py)[0];
-                        }
-                    }
+                    reproject_row::<N>(texels, prev, w, h, r, m, ok, hr, pd)
                 });
             }
         }
         Some(texels) => clock.time(RESOLVE, || {
-            for r in r1.clone() {
+            for r in fetch.clone() {
                 valid.row_mut(r)[..w].fill(true);
                 let row = &texels[N * r * w..N * (r + 1) * w];
                 let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
@@ -650,6 +643,41 @@ fn run_band<const N: usize>(
     counts
 }
 
+/// Stage `reproject` of row `y`: each pixel's previous position `p + motion`, whether it is
+/// on screen (`ok`), and there the history's texels (bilinear, taken apart into `hist`) and
+/// the previous depth / far (`prev` into `pd`, when given).
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn reproject_row<const N: usize>(
+    texels: &[f32],
+    prev: Option<&[f32]>,
+    w: usize,
+    h: usize,
+    y: usize,
+    m: [&[f32]; 2],
+    ok: &mut [bool],
+    hist: [&mut [f32]; 4],
+    pd: &mut [f32],
+) {
+    let (mx, my, ok, pd) = (&m[0][..w], &m[1][..w], &mut ok[..w], &mut pd[..w]);
+    let hist = hist.map(|r| &mut r[..w]);
+    for x in 0..w {
+        let px = x as f32 + 0.5 + mx[x];
+        let py = y as f32 + 0.5 + my[x];
+        ok[x] = on_screen(px, py, w, h);
+        if !ok[x] {
+            continue;
+        }
+        let t = bilinear_texels::<N>(texels, w, h, px, py);
+        for c in 0..N {
+            hist[c][x] = t[c];
+        }
+        if let Some(prev) = prev {
+            pd[x] = bilinear([prev], w, h, px, py)[0];
+        }
+    }
+}
+
 fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
     if v.len() < n {
         v.resize(n, 0.0);
@@ -660,12 +688,13 @@ fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
 /// [`sobel_magnitude`] of each lane's 3x3 in three padded spans.
 #[inline(always)]
 fn sobel_lanes(t: &[&[f32; SPAN]; 3]) -> Lanes {
-    std::array::from_fn(|l| sobel_magnitude(&taps(t, l)))
+    lanes::each(|l| sobel_magnitude(&taps(t, l)))
 }
 
 /// Stage `sobel` of one row (eq. 4.9-4.10): the Sobel magnitudes of the lit luma, the
 /// albedo luma and depth / far (padded rows above, here and below), combined and shaped;
 /// into a padded row.
+#[inline(never)]
 fn sobel_row(
     lit: [&[f32]; 3],
     unlit: Option<[&[f32]; 3]>,
@@ -678,7 +707,7 @@ fn sobel_row(
         let surface: Lanes = match unlit {
             Some(u) => {
                 let u = sobel_lanes(&spans(&u, x0));
-                std::array::from_fn(|i| SOBEL_UNLIT_WEIGHT * u[i] + SOBEL_LIT_WEIGHT * l[i])
+                lanes::each(|i| SOBEL_UNLIT_WEIGHT * u[i] + SOBEL_LIT_WEIGHT * l[i])
             }
             None => l,
         };
@@ -686,7 +715,7 @@ fn sobel_row(
             Some(d) => sobel_lanes(&spans(&d, x0)),
             None => lanes::splat(0.0),
         };
-        let v: Lanes = std::array::from_fn(|i| {
+        let v: Lanes = lanes::each(|i| {
             let g = (surface[i] + d[i]).clamp(0.0, 1.0);
             (g * g * (3.0 - 2.0 * g)).sqrt()
         });
@@ -699,6 +728,7 @@ fn sobel_row(
 /// clamped into the averaged 3x3 and cross range of the raw Sobel (padded rows `raw`),
 /// blended with INSIDE's feedback; the raw Sobel where the history is not used, the history
 /// where the input was repaired. Into a padded row.
+#[inline(never)]
 fn sobel_history_row(
     raw: [&[f32]; 3],
     hist: &[f32],
@@ -714,7 +744,7 @@ fn sobel_history_row(
         let hs: &Lanes = block(hist, x0);
         let ok: &Mask = block(valid, x0);
         let iv: &Mask = block(invalid, x0);
-        let v: Lanes = std::array::from_fn(|l| {
+        let v: Lanes = lanes::each(|l| {
             let t = taps(&sp, l);
             // The reference's order: all nine taps, and the cross among them.
             let (mut lo3, mut hi3) = (t[0], t[0]);
@@ -756,6 +786,7 @@ fn model_average_at(id: &[u32], w: usize, h: usize, x: usize, y: usize) -> f32 {
 
 /// Stage `model_average` of row `y` (eq. 4.1): pixels with all eight neighbours in blocks
 /// of lanes, the others one by one ([`model_average_at`]).
+#[inline(never)]
 fn model_average_row(id: &[u32], w: usize, h: usize, y: usize, out: &mut [f32]) {
     let mut x = 0;
     if y >= 1 && y + 1 < h {
@@ -767,7 +798,7 @@ fn model_average_row(id: &[u32], w: usize, h: usize, y: usize, out: &mut [f32]) 
         x = 1;
         while x + LANES < w {
             let t: [&[u32; SPAN]; 3] = [block(up, x - 1), block(mid, x - 1), block(down, x - 1)];
-            let v: Lanes = std::array::from_fn(|l| {
+            let v: Lanes = lanes::each(|l| {
                 let me = t[1][l + 1];
                 let mut diff = 0u32;
                 for row in &t {
@@ -788,12 +819,13 @@ fn model_average_row(id: &[u32], w: usize, h: usize, y: usize, out: &mut [f32]) 
 
 /// Stage `depth_variance` of one row (eq. 4.4-4.6): from the padded depth / far rows
 /// around it and the reprojected previous depth / far `prev` where the history is used.
+#[inline(never)]
 fn depth_variance_row(d: [&[f32]; 3], prev: &[f32], valid: &[bool], w: usize, out: &mut [f32]) {
     for (x0, _) in blocks(w) {
         let sp = spans(&d, x0);
         let pv: &Lanes = block(prev, x0);
         let ok: &Mask = block(valid, x0);
-        let v: Lanes = std::array::from_fn(|l| {
+        let v: Lanes = lanes::each(|l| {
             let t = taps(&sp, l);
             let (mut lo, mut hi, mut sum) = (t[0], t[0], 0.0f32);
             for &v in &t {
@@ -822,13 +854,14 @@ fn depth_variance_row(d: [&[f32]; 3], prev: &[f32], valid: &[bool], w: usize, ou
 /// Stage `aliased` of one row (eq. 4.12-4.14): `clamp01(sobelAvg + depth terms +
 /// modelAverage)`, `sobelAvg` mixing the cross and 3x3 means of the (padded) Sobel rows by
 /// `clamp01(modelAverage + sobel)`; absent terms are 0.
+#[inline(never)]
 fn aliased_row(sobel: [&[f32]; 3], ma: Option<&[f32]>, dv: Option<&[f32]>, w: usize, out: &mut [f32]) {
     let zero = [0.0f32; LANES];
     for (x0, _) in blocks(w) {
         let sp = spans(&sobel, x0);
         let m: &Lanes = ma.map_or(&zero, |m| block(m, x0));
         let d: &Lanes = dv.map_or(&zero, |d| block(d, x0));
-        let v: Lanes = std::array::from_fn(|l| {
+        let v: Lanes = lanes::each(|l| {
             let t = taps(&sp, l);
             let avg3 = (t[0] + t[1] + t[2] + t[3] + t[4] + t[5] + t[6] + t[7] + t[8]) / 9.0;
             let avg_cross = (t[1] + t[3] + t[4] + t[5] + t[7]) / 5.0;
@@ -845,6 +878,7 @@ fn aliased_row(sobel: [&[f32]; 3], ma: Option<&[f32]>, dv: Option<&[f32]>, w: us
 /// feedback; writes the output (working space) and the new history's texels (`N = 4`: the
 /// Sobel history from `sobel`, padded, fourth).
 #[allow(clippy::too_many_arguments)]
+#[inline(never)]
 fn resolve_row<const N: usize>(
     cur: [[&[f32]; 3]; 3],
     hist: [&[f32]; 4],
@@ -862,8 +896,8 @@ fn resolve_row<const N: usize>(
     for (x0, n) in blocks(w) {
         let rows: [[&[f32; SPAN]; 3]; 3] = cur.map(|c| spans(&c, x0));
         let [min, max, min_cross, max_cross] = lanes::box_and_cross_bounds(&rows);
-        let current: [Lanes; 3] = std::array::from_fn(|c| std::array::from_fn(|l| rows[c][1][l + 1]));
-        let hs: [Lanes; 3] = std::array::from_fn(|c| *block(hist[c], x0));
+        let current: [Lanes; 3] = lanes::each(|c| lanes::each(|l| rows[c][1][l + 1]));
+        let hs: [Lanes; 3] = lanes::each(|c| *block(hist[c], x0));
         let ok: &Mask = block(valid, x0);
         let iv: &Mask = block(invalid, x0);
         let mut lo = [[0.0; LANES]; 3];
@@ -873,12 +907,8 @@ fn resolve_row<const N: usize>(
             Some(al) => {
                 let a: &Lanes = block(al, x0);
                 for k in 0..3 {
-                    lo[k] = std::array::from_fn(|l| {
-                        mix(current[k][l], mix(min_cross[k][l], min[k][l], a[l]), a[l])
-                    });
-                    hi[k] = std::array::from_fn(|l| {
-                        mix(current[k][l], mix(max_cross[k][l], max[k][l], a[l]), a[l])
-                    });
+                    lo[k] = lanes::each(|l| mix(current[k][l], mix(min_cross[k][l], min[k][l], a[l]), a[l]));
+                    hi[k] = lanes::each(|l| mix(current[k][l], mix(max_cross[k][l], max[k][l], a[l]), a[l]));
                 }
             }
             None => {
@@ -889,15 +919,15 @@ fn resolve_row<const N: usize>(
             }
         }
         let (hc, moved) = lanes::clip_toward_center(&hs, &lo, &hi);
-        let k: Lanes = std::array::from_fn(|l| {
+        let k: Lanes = lanes::each(|l| {
             let lc = luma([current[0][l], current[1][l], current[2][l]]);
             let lh = luma([hc[0][l], hc[1][l], hc[2][l]]);
             feedback(lc, lh, fb_min, fb_max)
         });
-        let keep: Mask = std::array::from_fn(|l| ok[l] && iv[l]);
-        let blend: Mask = std::array::from_fn(|l| ok[l] && !iv[l]);
-        let value: [Lanes; 3] = std::array::from_fn(|c| {
-            let b: Lanes = std::array::from_fn(|l| mix(current[c][l], hc[c][l], k[l]).max(0.0));
+        let keep: Mask = lanes::each(|l| ok[l] && iv[l]);
+        let blend: Mask = lanes::each(|l| ok[l] && !iv[l]);
+        let value: [Lanes; 3] = lanes::each(|c| {
+            let b: Lanes = lanes::each(|l| mix(current[c][l], hc[c][l], k[l]).max(0.0));
             let v = lanes::select(&blend, &b, &current[c]);
             lanes::select(&keep, &hs[c], &v)
         });
@@ -918,10 +948,15 @@ fn resolve_row<const N: usize>(
                 }
             }
         }
-        for l in 0..n {
-            resets += !ok[l] as u32;
-            clips += (blend[l] && moved[l]) as u32;
-        }
+        // The flags as bytes of a word: counted with one popcount per block.
+        let bits = |m: &Mask| u64::from_le_bytes(m.map(u8::from));
+        let pixels = if n == LANES {
+            u64::MAX
+        } else {
+            (1u64 << (8 * n)) - 1
+        };
+        resets += n as u32 - (bits(ok) & pixels).count_ones();
+        clips += (bits(&blend) & bits(&moved) & pixels).count_ones();
     }
     PixelCounts {
         history_reset: resets as u64,
