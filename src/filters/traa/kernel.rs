@@ -575,7 +575,7 @@ fn run_band<const N: usize>(
             for r in r1.clone() {
                 sobel_history_row(
                     raw.rows3(r, h),
-                    &hist[3].row(r)[..],
+                    hist[3].row(r),
                     valid.row(r),
                     invalid.row(r),
                     plan,

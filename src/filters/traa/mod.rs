@@ -178,12 +178,12 @@ impl FilterKind for Traa {
     fn new(params: Params) -> Self {
         // Texels [r, g, b] or [r, g, b, sobel] (one fetch per tap of the history), and
         // depth / far in a plane of its own: it is only written on frames with depth.
-        let (layout, conversion): (&[usize], fn(&mut [Plane<f32>], bool)) = match params.variant {
-            Variant::Baseline => (&[3], convert_rgb_texels::<3>),
-            Variant::Improved => (&[4, 1], convert_rgb_texels::<4>),
+        let (layout, conversion): (&[usize], Conversion) = match params.variant {
+            Variant::Baseline => (&[3], Conversion::Custom(convert_rgb_texels::<3>)),
+            Variant::Improved => (&[4, 1], Conversion::Custom(convert_rgb_texels::<4>)),
         };
         Traa {
-            hist: TemporalState::with_components(layout, Conversion::Custom(conversion)),
+            hist: TemporalState::with_components(layout, conversion),
             params,
         }
     }
