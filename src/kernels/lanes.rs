@@ -19,6 +19,18 @@ pub type Lanes = [f32; LANES];
 /// One flag for each pixel of a block.
 pub type Mask = [bool; LANES];
 
+/// An array of `f(i)` for each index `i`: what [`std::array::from_fn`] builds, as a plain
+/// loop, which the compiler inlines and vectorises where `from_fn`'s machinery can keep a
+/// large closure out of line (and then every lane is a call).
+#[inline(always)]
+pub fn each<T: Copy + Default, const N: usize>(mut f: impl FnMut(usize) -> T) -> [T; N] {
+    let mut out = [T::default(); N];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = f(i);
+    }
+    out
+}
+
 /// The same value in every lane.
 #[inline(always)]
 pub fn splat(v: f32) -> Lanes {
@@ -28,25 +40,25 @@ pub fn splat(v: f32) -> Lanes {
 /// `f` applied lane by lane.
 #[inline(always)]
 pub fn map(a: &Lanes, f: impl Fn(f32) -> f32) -> Lanes {
-    std::array::from_fn(|l| f(a[l]))
+    each(|l| f(a[l]))
 }
 
 /// `f` applied lane by lane to two values.
 #[inline(always)]
 pub fn map2(a: &Lanes, b: &Lanes, f: impl Fn(f32, f32) -> f32) -> Lanes {
-    std::array::from_fn(|l| f(a[l], b[l]))
+    each(|l| f(a[l], b[l]))
 }
 
 /// `f` applied lane by lane to three values.
 #[inline(always)]
 pub fn map3(a: &Lanes, b: &Lanes, c: &Lanes, f: impl Fn(f32, f32, f32) -> f32) -> Lanes {
-    std::array::from_fn(|l| f(a[l], b[l], c[l]))
+    each(|l| f(a[l], b[l], c[l]))
 }
 
 /// `a` where `m` is set, else `b`.
 #[inline(always)]
 pub fn select(m: &Mask, a: &Lanes, b: &Lanes) -> Lanes {
-    std::array::from_fn(|l| if m[l] { a[l] } else { b[l] })
+    each(|l| if m[l] { a[l] } else { b[l] })
 }
 
 /// The 3x3 statistics of a block from per-column statistics of three rows: `cols[4c..4c+4]`
@@ -58,10 +70,28 @@ pub fn box_stats(cols: &[&[f32; LANES + 2]; 12]) -> [[Lanes; 3]; 4] {
     let mut out = [[[0.0; LANES]; 3]; 4];
     for c in 0..3 {
         let [vmin, vmax, vsum, vsq] = [cols[4 * c], cols[4 * c + 1], cols[4 * c + 2], cols[4 * c + 3]];
-        out[0][c] = std::array::from_fn(|l| fmin(fmin(vmin[l], vmin[l + 1]), vmin[l + 2]));
-        out[1][c] = std::array::from_fn(|l| fmax(fmax(vmax[l], vmax[l + 1]), vmax[l + 2]));
-        out[2][c] = std::array::from_fn(|l| (vsum[l] + vsum[l + 1] + vsum[l + 2]) * (1.0 / 9.0));
-        out[3][c] = std::array::from_fn(|l| (vsq[l] + vsq[l + 1] + vsq[l + 2]) * (1.0 / 9.0));
+        out[0][c] = each(|l| fmin(fmin(vmin[l], vmin[l + 1]), vmin[l + 2]));
+        out[1][c] = each(|l| fmax(fmax(vmax[l], vmax[l + 1]), vmax[l + 2]));
+        out[2][c] = each(|l| (vsum[l] + vsum[l + 1] + vsum[l + 2]) * (1.0 / 9.0));
+        out[3][c] = each(|l| (vsq[l] + vsq[l + 1] + vsq[l + 2]) * (1.0 / 9.0));
+    }
+    out
+}
+
+/// The min and max of the 3x3 box and of its cross (+) of a block, per channel: `rows[c]`
+/// are channel `c`'s rows above, here and below, from one column left of the block to one
+/// right. Returns min, max, cross min and cross max, combined as
+/// [`super::for_each_row_stats`] does (per column first, then across).
+#[inline(always)]
+pub fn box_and_cross_bounds(rows: &[[&[f32; LANES + 2]; 3]; 3]) -> [[Lanes; 3]; 4] {
+    let mut out = [[[0.0; LANES]; 3]; 4];
+    for (c, [a, b, d]) in rows.iter().enumerate() {
+        let vmin: [f32; LANES + 2] = each(|j| fmin(fmin(a[j], b[j]), d[j]));
+        let vmax: [f32; LANES + 2] = each(|j| fmax(fmax(a[j], b[j]), d[j]));
+        out[0][c] = each(|l| fmin(fmin(vmin[l], vmin[l + 1]), vmin[l + 2]));
+        out[1][c] = each(|l| fmax(fmax(vmax[l], vmax[l + 1]), vmax[l + 2]));
+        out[2][c] = each(|l| fmin(fmin(fmin(b[l], b[l + 1]), b[l + 2]), fmin(a[l + 1], d[l + 1])));
+        out[3][c] = each(|l| fmax(fmax(fmax(b[l], b[l + 1]), b[l + 2]), fmax(a[l + 1], d[l + 1])));
     }
     out
 }
@@ -99,7 +129,7 @@ pub fn clip_toward_center(q: &[Lanes; 3], min: &[Lanes; 3], max: &[Lanes; 3]) ->
         let r = map2(&v[k], &extent, |a, b| (a / b).abs());
         worst = map2(&worst, &r, f32::max);
     }
-    let moved: Mask = std::array::from_fn(|l| worst[l] > 1.0);
+    let moved: Mask = each(|l| worst[l] > 1.0);
     let s = map(&worst, |w| 1.0 / w);
     let mut p = [[0.0; LANES]; 3];
     for k in 0..3 {
@@ -124,16 +154,16 @@ pub fn clip_toward_point(
     let mut tgt = [[0.0; LANES]; 3];
     for k in 0..3 {
         tgt[k] = map3(&target[k], &min[k], &max[k], |t, mn, mx| t.max(mn).min(mx));
-        let below: Mask = std::array::from_fn(|l| q[k][l] < min[k][l]);
-        let out: Mask = std::array::from_fn(|l| below[l] || q[k][l] > max[k][l]);
+        let below: Mask = each(|l| q[k][l] < min[k][l]);
+        let out: Mask = each(|l| below[l] || q[k][l] > max[k][l]);
         let bound = select(&below, &min[k], &max[k]);
-        let step: Lanes = std::array::from_fn(|l| ((bound[l] - q[k][l]) / (tgt[k][l] - q[k][l])).min(1.0));
-        t = std::array::from_fn(|l| if out[l] { t[l].max(step[l]) } else { t[l] });
-        outside = std::array::from_fn(|l| outside[l] || out[l]);
+        let step: Lanes = each(|l| ((bound[l] - q[k][l]) / (tgt[k][l] - q[k][l])).min(1.0));
+        t = each(|l| if out[l] { t[l].max(step[l]) } else { t[l] });
+        outside = each(|l| outside[l] || out[l]);
     }
     let mut p = [[0.0; LANES]; 3];
     for k in 0..3 {
-        let moved: Lanes = std::array::from_fn(|l| {
+        let moved: Lanes = each(|l| {
             (q[k][l] + t[l] * (tgt[k][l] - q[k][l]))
                 .max(min[k][l])
                 .min(max[k][l])
@@ -167,7 +197,7 @@ pub fn ycocg_to_rgb(c: &[Lanes; 3]) -> [Lanes; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::{clip, color, neighborhood, NeighborhoodStats};
+    use crate::kernels::{clip, color, for_each_row_stats, neighborhood, NeighborhoodStats};
     use crate::rng::SplitMix64;
 
     /// Random blocks of values at several scales, with exact ties, zeros and flat boxes.
@@ -177,6 +207,47 @@ mod tests {
             1 => 0.25,
             _ => (rng.next_f64() * 2.0 - 0.5) as f32 * scale as f32,
         })
+    }
+
+    #[test]
+    fn box_and_cross_bounds_give_the_row_stats_bits() {
+        let mut rng = SplitMix64::new(72);
+        let (w, h) = (LANES + 2, 3);
+        for case in 0..500 {
+            let scale = [1.0, 1e-5, 1e4, 3.0][case % 4];
+            let planes: Vec<Vec<f32>> = (0..3)
+                .map(|_| {
+                    (0..h)
+                        .flat_map(|_| block(&mut rng, scale).into_iter().chain([0.5, -0.0]))
+                        .collect()
+                })
+                .collect();
+            let p = [&planes[0][..], &planes[1][..], &planes[2][..]];
+            let rows: [[&[f32; LANES + 2]; 3]; 3] = std::array::from_fn(|c| {
+                std::array::from_fn(|r| p[c][r * w..(r + 1) * w].try_into().unwrap())
+            });
+            let [min, max, min_cross, max_cross] = box_and_cross_bounds(&rows);
+            for_each_row_stats(p, w, h, 1, |x, s| {
+                if x == 0 || x == w - 1 {
+                    return;
+                }
+                let l = x - 1;
+                for c in 0..3 {
+                    assert_eq!(s.min[c].to_bits(), min[c][l].to_bits(), "case {case}: min");
+                    assert_eq!(s.max[c].to_bits(), max[c][l].to_bits(), "case {case}: max");
+                    assert_eq!(
+                        s.min_cross[c].to_bits(),
+                        min_cross[c][l].to_bits(),
+                        "case {case}: min+"
+                    );
+                    assert_eq!(
+                        s.max_cross[c].to_bits(),
+                        max_cross[c][l].to_bits(),
+                        "case {case}: max+"
+                    );
+                }
+            });
+        }
     }
 
     #[test]

@@ -15,6 +15,19 @@ pub fn bilinear<const N: usize>(
     let y0 = fy.floor();
     let tx = fx - x0;
     let ty = fy - y0;
+    if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
+        // The 2x2 footprint is inside: no clamping.
+        let a = y0 as usize * width + x0 as usize;
+        let b = a + width;
+        let mut out = [0.0; N];
+        for (o, p) in out.iter_mut().zip(planes) {
+            let (r0, r1) = (&p[a..a + 2], &p[b..b + 2]);
+            let top = r0[0] + (r0[1] - r0[0]) * tx;
+            let bottom = r1[0] + (r1[1] - r1[0]) * tx;
+            *o = top + (bottom - top) * ty;
+        }
+        return out;
+    }
     let xa = clamp_index(x0, width);
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
@@ -216,6 +229,20 @@ pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize,
     let y0 = fy.floor();
     let tx = fx - x0;
     let ty = fy - y0;
+    if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
+        // The 2x2 footprint is inside: no clamping, each row's two texels in one bounds
+        // check.
+        let a = (y0 as usize * width + x0 as usize) * N;
+        let b = a + width * N;
+        let (r0, r1) = (&tex[a..a + 2 * N], &tex[b..b + 2 * N]);
+        let mut out = [0.0; N];
+        for (c, o) in out.iter_mut().enumerate() {
+            let top = r0[c] + (r0[N + c] - r0[c]) * tx;
+            let bottom = r1[c] + (r1[N + c] - r1[c]) * tx;
+            *o = top + (bottom - top) * ty;
+        }
+        return out;
+    }
     let xa = clamp_index(x0, width);
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;

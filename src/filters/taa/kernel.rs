@@ -11,12 +11,14 @@
 //! them frame by frame.
 
 use super::{HistoryFilter, Params, MAX_COUNT};
-use crate::filters::passes::{from_working, on_screen, sharpen, FrameContext, FrameResult};
+use crate::filters::passes::{
+    dilate_row, from_working, on_screen, sharpen, tonemap_row, untonemap_row, FrameContext, FrameResult,
+};
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear, bilinear_texels, catmull_rom_texels, clip_toward_center, fmax, fmin, rgb_to_ycocg, tonemap,
-    tonemap_inverse, variance_box, ycocg_to_rgb, NeighborhoodStats,
+    bilinear, bilinear_texels, catmull_rom_texels, clip_toward_center, fmax, fmin, rgb_to_ycocg,
+    variance_box, ycocg_to_rgb, NeighborhoodStats,
 };
 use crate::pipeline::exec::{par_bands_strided, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
@@ -330,18 +332,6 @@ fn run_band(
     counts
 }
 
-/// Stage `tonemap` of one row: `c / (1 + max c)` ([`tonemap`]).
-fn tonemap_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
-    let [r, g, b] = src;
-    let [a, c, d] = dst;
-    let n = a.len();
-    let (r, g, b, c, d) = (&r[..n], &g[..n], &b[..n], &mut c[..n], &mut d[..n]);
-    for x in 0..n {
-        let t = tonemap([r[x], g[x], b[x]]);
-        (a[x], c[x], d[x]) = (t[0], t[1], t[2]);
-    }
-}
-
 /// Stage `ycocg` of one row ([`rgb_to_ycocg`]).
 fn ycocg_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
     let [r, g, b] = src;
@@ -350,78 +340,6 @@ fn ycocg_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
     let (r, g, b, c, d) = (&r[..n], &g[..n], &b[..n], &mut c[..n], &mut d[..n]);
     for x in 0..n {
         [a[x], c[x], d[x]] = rgb_to_ycocg([r[x], g[x], b[x]]);
-    }
-}
-
-/// Stage `untonemap` of one row, in place ([`tonemap_inverse`]).
-fn untonemap_row(rgb: [&mut [f32]; 3]) {
-    let [r, g, b] = rgb;
-    let n = r.len();
-    let (g, b) = (&mut g[..n], &mut b[..n]);
-    for x in 0..n {
-        let c = tonemap_inverse([r[x], g[x], b[x]]);
-        (r[x], g[x], b[x]) = (c[0], c[1], c[2]);
-    }
-}
-
-/// The motion of the nearest (smallest depth) pixel of `(x, y)`'s 3x3 neighbourhood,
-/// rows top to bottom and columns left to right, the first of equal depths winning; the
-/// centre starts as the best (as [`crate::filters::passes::dilate_motion`]).
-#[inline(always)]
-fn nearest_motion(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
-    let mut best = y * w + x;
-    let mut best_d = d[best];
-    for yy in y.saturating_sub(1)..(y + 2).min(h) {
-        for xx in x.saturating_sub(1)..(x + 2).min(w) {
-            let i = yy * w + xx;
-            if d[i] < best_d {
-                best_d = d[i];
-                best = i;
-            }
-        }
-    }
-    (m[0][best], m[1][best])
-}
-
-/// Stage `dilate` of row `y`: each pixel takes the motion of the nearest pixel of its 3x3
-/// (Karis 2014). Pixels with all eight neighbours (not on the image's border) run in a
-/// branch-free loop over the row; the border ones as [`nearest_motion`].
-fn dilate_row(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, y: usize, mx: &mut [f32], my: &mut [f32]) {
-    let border = |x: usize, mx: &mut [f32], my: &mut [f32]| {
-        (mx[x], my[x]) = nearest_motion(d, m, w, h, x, y);
-    };
-    if y == 0 || y + 1 >= h || w < 3 {
-        for x in 0..w {
-            border(x, mx, my);
-        }
-        return;
-    }
-    border(0, mx, my);
-    border(w - 1, mx, my);
-    let n = w - 2;
-    // Rows above, here and below, each starting at column 0: pixel x (1..w-1) reads
-    // columns x-1, x, x+1 of each.
-    let rows = [y - 1, y, y + 1].map(|r| r * w..r * w + w);
-    let dr = rows.clone().map(|r| &d[r]);
-    let xr = rows.clone().map(|r| &m[0][r]);
-    let yr = rows.map(|r| &m[1][r]);
-    let (mx, my) = (&mut mx[1..w - 1], &mut my[1..w - 1]);
-    for i in 0..n {
-        // Candidates in the reference's order; the centre (row 1, column i + 1) first.
-        let mut bd = dr[1][i + 1];
-        let mut bx = xr[1][i + 1];
-        let mut by = yr[1][i + 1];
-        for r in 0..3 {
-            for c in 0..3 {
-                let dv = dr[r][i + c];
-                let take = dv < bd;
-                bd = if take { dv } else { bd };
-                bx = if take { xr[r][i + c] } else { bx };
-                by = if take { yr[r][i + c] } else { by };
-            }
-        }
-        mx[i] = bx;
-        my[i] = by;
     }
 }
 

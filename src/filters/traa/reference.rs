@@ -1,236 +1,46 @@
-//! `traa`: temporal reprojection anti-aliasing after the thesis 004 (Oliveros 2018,
-//! *Improved sampling for temporal anti-aliasing*).
-//!
-//! `variant = baseline` is the thesis's starting point, the INSIDE / Uncharted 4 TRAA
-//! (Pedersen 2016 = thesis ref. [6]; Xu 2016 = ref. [19]), sec. 3.6:
-//! velocity of the nearest pixel of the 3x3 (3.6.3); history fetched bilinearly; min/max of
-//! the 3x3 and of the cross (+) averaged into the colour box (3.6.3); history clipped toward
-//! the box centre (3.6.4); feedback from the luminance difference of clipped history and
-//! current, biased toward history (3.6.3); the sharpen of eq. 3.1 on the output (3.6.5).
-//!
-//! `variant = improved` adds chapter 4.3 (each term is left out when its channel is):
-//! - `sobel`: Sobel magnitudes of the lit luma l, the albedo luma u and the linear depth d,
-//!   `g = 0.3 u + 0.7 l + d` (eq. 4.9), clamped to [0, 1], `sobel = sqrt(g^2 (3 - 2 g))`
-//!   (eq. 4.10);
-//! - `sobel_history`: the Sobel image's own one-channel TRAA (clamp instead of clip, no
-//!   sharpen; sec. 4.3.3) kept in the state, so the edge mask is stable over time;
-//! - `model_average`: share of the 3x3 with another object id (eq. 4.1);
-//! - `depth_variance`: depth pseudo-variance and temporal pseudo-variance (eq. 4.4-4.6), zero when the
-//!   normalising distance is below 0.002;
-//! - `aliased`: aliasedValue = clamp01(sobelAvg + depthPV + depthTPV + modelAverage) (eq. 4.12-4.14)
-//!   mixes the cross and 3x3 boxes (eq. 4.15) and shrinks the box toward the current colour
-//!   (eq. 4.16);
-//! - the normalised sharpen of eq. 4.17.
-//!
-//! Choices where the thesis is silent, and why:
-//! - The feedback formula and its bounds 0.88 / 0.97 are INSIDE's (`_FeedbackMin`,
-//!   `_FeedbackMax` of Playdead's TemporalReprojection shader, which sec. 3.6.3 describes
-//!   in words): `k = lerp(0.88, 0.97, (1 - |l0 - l1| / max(l0, l1, 0.2))^2)`.
-//! - Linear depth is used as `depth / far` (Unity's Linear01Depth, the depth the thesis's
-//!   0.002 threshold of sec. 4.3.2 is stated in): `far` from the frame's near/far planes,
-//!   else the largest depth in the frame.
-//! - Without albedo, `g = l + d` (the lit and unlit weights of eq. 4.9 summed).
-//! - The box is clipped toward its centre, as INSIDE's `clip_aabb` does; the thesis's
-//!   figure draws the current colour at the centre, which eq. 4.16 makes true when the box
-//!   shrinks.
-//! - Sharpening is applied to the displayed output only, never fed back into history.
-//! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
-//!   3.1's "colour peak" cannot reach extreme values.
+//! The scalar reference of `traa`: one whole-plane pass per stage, exactly as the filter
+//! was first written. The fused band kernel ([`super::kernel`]) must give the same output
+//! (the tests compare them frame by frame); this stays the readable statement of what the
+//! filter computes.
 
-use super::passes::{from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState};
-use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use super::super::passes::{
+    from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState,
+};
+use super::{
+    feedback, mix, Params, Traa, Variant, DEPTH01, DEPTH_DISTANCE_MIN, SHARPEN_BASELINE, SHARPEN_IMPROVED,
+    SOBEL, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
+};
+use crate::frame::{ChannelKind, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts, Recorder, Skip,
-};
-use serde::{Deserialize, Serialize};
-use serde_json::Value;
+use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
 use std::borrow::Cow;
 
-/// Which TRAA of the thesis.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Variant {
-    /// INSIDE / Uncharted 4 (thesis sec. 3.6).
-    Baseline,
-    /// The thesis's improvements (sec. 4.3).
-    Improved,
-}
-
-impl Variant {
-    fn name(self) -> &'static str {
-        match self {
-            Variant::Baseline => "baseline",
-            Variant::Improved => "improved",
-        }
-    }
-}
-
-filter_params! {
-    /// Parameters of `traa`.
-    pub struct Params {
-        variant: Variant = Variant::Improved,
-            ParamKind::Choice { options: &["baseline", "improved"], },
-            "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)";
-        feedback_min: f32 = FEEDBACK_MIN,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting";
-        feedback_max: f32 = FEEDBACK_MAX,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response";
-        sharpen: bool = true,
-            ParamKind::Bool,
-            "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved";
-    }
-}
-
-/// INSIDE's `_FeedbackMin` (Pedersen 2016; the feedback of thesis sec. 3.6.3).
-pub const FEEDBACK_MIN: f32 = 0.88;
-/// INSIDE's `_FeedbackMax` (Pedersen 2016).
-pub const FEEDBACK_MAX: f32 = 0.97;
-/// Floor of the luma normaliser in the feedback (INSIDE: `max(lum0, max(lum1, 0.2))`).
-const FEEDBACK_LUMA_FLOOR: f32 = 0.2;
-/// Sharpen strength of eq. 3.1, `[0 -1 0; -1 5 -1; 0 -1 0]` (thesis 004, after Xu 2016).
-const SHARPEN_BASELINE: f32 = 4.0;
-/// Sharpen strength of eq. 4.17, `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]`.
-const SHARPEN_IMPROVED: f32 = 1.0;
-/// Eq. 4.9: weight of the albedo ("unlit") luma Sobel.
-const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
-/// Eq. 4.9: weight of the lit luma Sobel.
-const SOBEL_LIT_WEIGHT: f32 = 0.7;
-/// Sec. 4.3.2: below this normalising depth distance the pseudo-variances are zero.
-const DEPTH_DISTANCE_MIN: f32 = 0.002;
-
-/// History planes: working RGB, then (improved) the Sobel history and depth / far.
-const SOBEL: usize = 3;
-const DEPTH01: usize = 4;
-
-/// The TRAA filter with its history.
+/// `traa` computed stage by stage over whole planes.
 #[derive(Debug)]
-pub struct Traa {
+pub struct ReferenceTraa {
     params: Params,
     hist: TemporalState,
 }
 
-impl Traa {
-    fn history_planes(p: &Params) -> usize {
-        match p.variant {
-            Variant::Baseline => 3,
-            Variant::Improved => 5,
-        }
-    }
-}
-
-impl FilterKind for Traa {
-    const NAME: &'static str = "traa";
-    const SUMMARY: &'static str =
-        "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "tonemap",
-        "dilate",
-        "reproject",
-        "sobel",
-        "sobel_history",
-        "model_average",
-        "depth_variance",
-        "aliased",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
-    type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
-    fn uses() -> ChannelSet {
-        ChannelSet::of(&[
-            ChannelKind::Color,
-            ChannelKind::Motion,
-            ChannelKind::Depth,
-            ChannelKind::Albedo,
-            ChannelKind::ObjectId,
-        ])
-    }
-    fn state_bytes_per_pixel(p: &Params) -> usize {
-        2 * 4 * Self::history_planes(p)
-    }
-    fn new(params: Params) -> Self {
-        Traa {
-            hist: TemporalState::new(Self::history_planes(&params), false),
+impl ReferenceTraa {
+    /// A fresh reference filter.
+    pub fn new(params: Params) -> Self {
+        ReferenceTraa {
+            hist: TemporalState::new(Traa::history_planes(&params), false),
             params,
         }
     }
-}
 
-/// INSIDE's feedback: the history weight from the difference of two lumas.
-#[inline]
-fn feedback(l0: f32, l1: f32, min: f32, max: f32) -> f32 {
-    let diff = (l0 - l1).abs() / l0.max(l1).max(FEEDBACK_LUMA_FLOOR);
-    let w = (1.0 - diff).max(0.0);
-    min + (max - min) * w * w
-}
-
-#[inline]
-fn mix(x: f32, y: f32, t: f32) -> f32 {
-    x * (1.0 - t) + y * t
-}
-
-/// Raw Sobel edge value per pixel (eq. 4.9-4.10) from the working colour, the albedo and
-/// depth / far, each optional but the colour.
-fn sobel_edges(working: &Rgb, albedo: Option<&Rgb>, depth01: Option<&Plane<f32>>) -> Plane<f32> {
-    let (w, h) = working[0].size();
-    let luma_of = |rgb: &Rgb| {
-        let [r, g, b] = rgb.each_ref().map(|p| p.data());
-        Plane::from_vec(w, h, (0..w * h).map(|i| luma([r[i], g[i], b[i]])).collect()).expect("sized")
-    };
-    let lit = luma_of(working);
-    let unlit = albedo.map(luma_of);
-    let mut out = Plane::new(w, h);
-    for_rows([out.data_mut()], w, |y, [row]| {
-        let mut l = vec![0.0; w];
-        sobel_plane(lit.data(), w, h, y, &mut l);
-        let u = unlit.as_ref().map(|p| {
-            let mut u = vec![0.0; w];
-            sobel_plane(p.data(), w, h, y, &mut u);
-            u
-        });
-        let d = depth01.map(|p| {
-            let mut d = vec![0.0; w];
-            sobel_plane(p.data(), w, h, y, &mut d);
-            d
-        });
-        for x in 0..w {
-            let surface = match &u {
-                Some(u) => SOBEL_UNLIT_WEIGHT * u[x] + SOBEL_LIT_WEIGHT * l[x],
-                None => l[x],
-            };
-            let g = (surface + d.as_ref().map_or(0.0, |d| d[x])).clamp(0.0, 1.0);
-            row[x] = (g * g * (3.0 - 2.0 * g)).sqrt();
-        }
-    });
-    out
-}
-
-impl Filter for Traa {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        check_needs(Self::NAME, Self::needs(), frame)?;
+    /// Filters one frame.
+    pub fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_needs(Traa::NAME, Traa::needs(), frame)?;
         let p = self.params.clone();
         let improved = p.variant == Variant::Improved;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Self::uses(), &mut rec)?;
+        let inp = prepare(frame, Traa::uses(), &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
@@ -457,21 +267,45 @@ impl Filter for Traa {
         let bytes = self.hist.finish(hdr);
         Ok(Output {
             color: out,
-            record: rec.finish(Self::NAME, frame.meta.index, counts, inp.counts, bytes),
+            record: rec.finish(Traa::NAME, frame.meta.index, counts, inp.counts, bytes),
         })
     }
+}
 
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
-    }
+/// Raw Sobel edge value per pixel (eq. 4.9-4.10) from the working colour, the albedo and
+/// depth / far, each optional but the colour.
+fn sobel_edges(working: &Rgb, albedo: Option<&Rgb>, depth01: Option<&Plane<f32>>) -> Plane<f32> {
+    let (w, h) = working[0].size();
+    let luma_of = |rgb: &Rgb| {
+        let [r, g, b] = rgb.each_ref().map(|p| p.data());
+        Plane::from_vec(w, h, (0..w * h).map(|i| luma([r[i], g[i], b[i]])).collect()).expect("sized")
+    };
+    let lit = luma_of(working);
+    let unlit = albedo.map(luma_of);
+    let mut out = Plane::new(w, h);
+    for_rows([out.data_mut()], w, |y, [row]| {
+        let mut l = vec![0.0; w];
+        sobel_plane(lit.data(), w, h, y, &mut l);
+        let u = unlit.as_ref().map(|p| {
+            let mut u = vec![0.0; w];
+            sobel_plane(p.data(), w, h, y, &mut u);
+            u
+        });
+        let d = depth01.map(|p| {
+            let mut d = vec![0.0; w];
+            sobel_plane(p.data(), w, h, y, &mut d);
+            d
+        });
+        for x in 0..w {
+            let surface = match &u {
+                Some(u) => SOBEL_UNLIT_WEIGHT * u[x] + SOBEL_LIT_WEIGHT * l[x],
+                None => l[x],
+            };
+            let g = (surface + d.as_ref().map_or(0.0, |d| d[x])).clamp(0.0, 1.0);
+            row[x] = (g * g * (3.0 - 2.0 * g)).sqrt();
+        }
+    });
+    out
 }
 
 /// Eq. 4.1: per pixel, the share of its 3x3 (centre included, so at most 8/9) whose

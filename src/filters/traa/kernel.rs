@@ -1,0 +1,1017 @@
+//! `traa`'s stages fused into one pass over bands of rows ([`par_bands_strided`]), and the
+//! sharpen in a second band pass (it reads the finished output of the rows around it).
+//!
+//! A band task computes each stage for its rows, plus the halo of rows that the next
+//! stage's 3x3 reads, into band-local buffers: the working colour, the lumas and depth /
+//! far three rows beyond the band (the Sobel of a row reads the rows next to it, the Sobel
+//! history the raw Sobel around it, and the aliased value the Sobel history around it), the
+//! raw Sobel two rows beyond, the dilated motion, the history fetch and the Sobel history
+//! one row beyond. The reference's 25-odd full-plane temporaries are gone. Buffers that a
+//! 3x3 reads hold each row with one column of edge padding on each side, so the clamped
+//! 3x3 of every pixel, border included, is one block of [`LANES`] pixels read at fixed
+//! offsets: every stage but the dilation and the history fetch (a gather at each pixel's
+//! own position) runs in lanes.
+//!
+//! Every stage computes what the reference ([`super::reference`]) computes, with the same
+//! float operations in the same order, so the outputs are the same bits; the tests compare
+//! them frame by frame. Minima and maxima use [`fmin`] / [`fmax`], which agree with the
+//! reference's `f32::min` / `max` on the repaired, finite input (the values they see are
+//! never NaN, and a sign of zero cannot change what follows them).
+
+use super::{feedback, mix, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT};
+use crate::filters::passes::{dilate_row, on_screen, tonemap_row, untonemap_row, FrameContext, FrameResult};
+use crate::frame::{ChannelKind, Rgb};
+use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::{
+    bilinear, bilinear_texels, clamp_to_box, fmax, fmin, luma, sharpen_cross, sobel_magnitude,
+};
+use crate::pipeline::exec::{par_bands, par_bands_strided, StageClock};
+use crate::pipeline::{FilterError, PixelCounts, Skip};
+use std::ops::Range;
+
+/// Stages of the fused pass, in order (indices into its [`StageClock`]).
+const STAGES: [&str; 10] = [
+    "tonemap",
+    "dilate",
+    "reproject",
+    "sobel",
+    "sobel_history",
+    "model_average",
+    "depth_variance",
+    "aliased",
+    "resolve",
+    "untonemap",
+];
+const TONEMAP: usize = 0;
+const DILATE: usize = 1;
+const REPROJECT: usize = 2;
+const SOBEL: usize = 3;
+const SOBEL_HISTORY: usize = 4;
+const MODEL_AVERAGE: usize = 5;
+const DEPTH_VARIANCE: usize = 6;
+const ALIASED: usize = 7;
+const RESOLVE: usize = 8;
+const UNTONEMAP: usize = 9;
+
+/// What the pass reads for one frame.
+struct Sources<'a> {
+    w: usize,
+    h: usize,
+    color: [&'a [f32]; 3],
+    /// Albedo (improved only).
+    albedo: Option<[&'a [f32]; 3]>,
+    /// Object ids (improved only).
+    ids: Option<&'a [u32]>,
+    /// Linear depth (for the dilation, and depth / far when improved).
+    depth: Option<&'a [f32]>,
+    /// The far distance that depth is divided by (improved with depth).
+    far: f32,
+    motion: Option<[&'a [f32]; 2]>,
+    invalid: Option<&'a [bool]>,
+    /// The history's texels, when there is one.
+    texels: Option<&'a [f32]>,
+    /// The history's depth / far (improved with depth and history).
+    prev_depth: Option<&'a [f32]>,
+}
+
+/// Which stages run, and the knobs.
+#[derive(Clone, Copy)]
+struct Plan {
+    improved: bool,
+    tonemap: bool,
+    dilate: bool,
+    reproject: bool,
+    /// The Sobel history's own TRAA (improved, with history).
+    sobel_history: bool,
+    /// Depth / far, its Sobel and the depth pseudo-variances (improved, with depth).
+    depth: bool,
+    /// Eq. 4.1 (improved, with object ids).
+    model_average: bool,
+    /// Colour goes back to linear in this pass (without a sharpen).
+    untonemap: bool,
+    feedback_min: f32,
+    feedback_max: f32,
+}
+
+/// Rows `first..` of an image, `stride` samples each, in a buffer reused across bands.
+#[derive(Default)]
+struct Rows<T> {
+    v: Vec<T>,
+    first: usize,
+    stride: usize,
+}
+
+impl<T: Copy + Default> Rows<T> {
+    /// Holds rows `rows` from now on (contents unspecified).
+    fn hold(&mut self, rows: &Range<usize>, stride: usize) {
+        self.first = rows.start;
+        self.stride = stride;
+        let n = rows.len() * stride;
+        if self.v.len() < n {
+            self.v.resize(n, T::default());
+        }
+    }
+
+    fn row(&self, r: usize) -> &[T] {
+        let at = (r - self.first) * self.stride;
+        &self.v[at..at + self.stride]
+    }
+
+    fn row_mut(&mut self, r: usize) -> &mut [T] {
+        let at = (r - self.first) * self.stride;
+        &mut self.v[at..at + self.stride]
+    }
+
+    /// Rows `r - 1`, `r`, `r + 1`, clamped into the image of height `h`.
+    fn rows3(&self, r: usize, h: usize) -> [&[T]; 3] {
+        [
+            self.row(r.saturating_sub(1)),
+            self.row(r),
+            self.row((r + 1).min(h - 1)),
+        ]
+    }
+}
+
+/// One band task's buffers, reused across the bands it runs and across frames' tasks.
+/// Padded rows (pixel `x` at `x + 1`, edges repeated) for what a 3x3 reads; the others hold
+/// pixel `x` at `x`.
+#[derive(Default)]
+struct Band {
+    /// The working colour (padded).
+    work: [Rows<f32>; 3],
+    /// Luma of the working colour, of the albedo, and depth / far (padded).
+    lit: Rows<f32>,
+    unlit: Rows<f32>,
+    depth01: Rows<f32>,
+    /// Raw and stabilised Sobel (padded).
+    raw: Rows<f32>,
+    stable: Rows<f32>,
+    /// Dilated motion.
+    motion: [Rows<f32>; 2],
+    /// Reprojected history: r, g, b and (improved) the Sobel history.
+    hist: [Rows<f32>; 4],
+    /// Reprojected depth / far of the history (the band's rows).
+    prev_depth: Rows<f32>,
+    /// Whether the history is used here (there is one, and the previous position is on
+    /// screen), and whether the input was repaired here.
+    valid: Rows<bool>,
+    invalid: Rows<bool>,
+    /// One row each: eq. 4.1, eq. 4.4-4.6, eq. 4.12-4.14.
+    model_average: Vec<f32>,
+    depth_variance: Vec<f32>,
+    aliased: Vec<f32>,
+}
+
+/// Samples per band row: the width in whole blocks, and a column of padding each side.
+fn stride(w: usize) -> usize {
+    w.next_multiple_of(LANES) + 2
+}
+
+/// The columns a block of [`LANES`] pixels reads in a padded row: one more on each side.
+const SPAN: usize = LANES + 2;
+
+/// `s[at..at + N]` as an array (one bounds check for the block, none inside it).
+#[inline(always)]
+fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
+    s[at..at + N].try_into().expect("N elements")
+}
+
+/// The blocks of [`LANES`] pixels covering a row of `w`: the first pixel and how many of
+/// the block's lanes are pixels.
+fn blocks(w: usize) -> impl Iterator<Item = (usize, usize)> {
+    (0..w).step_by(LANES).map(move |x0| (x0, (w - x0).min(LANES)))
+}
+
+/// Repeats the edge pixels of a padded row of `w` pixels into its padding.
+fn pad(row: &mut [f32], w: usize) {
+    row[0] = row[1];
+    row[w + 1] = row[w];
+}
+
+/// The nine taps of the 3x3 of lane `l` from three padded spans, row-major.
+#[inline(always)]
+fn taps(t: &[&[f32; SPAN]; 3], l: usize) -> [f32; 9] {
+    [
+        t[0][l],
+        t[0][l + 1],
+        t[0][l + 2],
+        t[1][l],
+        t[1][l + 1],
+        t[1][l + 2],
+        t[2][l],
+        t[2][l + 1],
+        t[2][l + 2],
+    ]
+}
+
+/// The spans of a block in three padded rows.
+#[inline(always)]
+fn spans<'a>(rows: &[&'a [f32]; 3], x0: usize) -> [&'a [f32; SPAN]; 3] {
+    [block(rows[0], x0), block(rows[1], x0), block(rows[2], x0)]
+}
+
+/// Runs `traa`'s stages from `tonemap` to `untonemap` for one frame.
+pub(super) fn frame(
+    p: &Params,
+    near_far: Option<[f32; 2]>,
+    ctx: FrameContext<'_, '_>,
+) -> Result<FrameResult, FilterError> {
+    let FrameContext {
+        inp,
+        rec,
+        has_history,
+        read,
+        next,
+        scratch,
+    } = ctx;
+    let (w, h) = (inp.width, inp.height);
+    let facts = inp.facts;
+    let improved = p.variant == Variant::Improved;
+    // Why each stage is left out (None: it runs), as the reference plans them.
+    let tonemap_skip = facts.tonemap();
+    let reproject_skip = (!has_history)
+        .then_some(Skip::NoHistory)
+        .or_else(|| inp.require(ChannelKind::Motion))
+        .or_else(|| facts.reprojection());
+    let dilate_skip = reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth));
+    let variant_skip = (!improved).then_some(Skip::Variant {
+        variant: p.variant.name(),
+    });
+    let sobel_history_skip = (!has_history).then_some(Skip::NoHistory);
+    let model_skip = variant_skip
+        .clone()
+        .or_else(|| inp.require(ChannelKind::ObjectId));
+    let depth_skip = variant_skip.clone().or_else(|| inp.require(ChannelKind::Depth));
+    let sharpen_skip = (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" });
+    let plan = Plan {
+        improved,
+        tonemap: tonemap_skip.is_none(),
+        dilate: dilate_skip.is_none(),
+        reproject: reproject_skip.is_none(),
+        sobel_history: improved && has_history,
+        depth: depth_skip.is_none(),
+        model_average: model_skip.is_none(),
+        untonemap: tonemap_skip.is_none() && sharpen_skip.is_some(),
+        feedback_min: p.feedback_min,
+        feedback_max: p.feedback_max,
+    };
+    let depth = inp.depth.as_deref().map(|d| d.data());
+    // Depth / far (improved): far from the frame's planes, else its largest depth.
+    let far = match (plan.depth, depth) {
+        (true, Some(d)) => near_far
+            .map(|nf| nf[1])
+            .unwrap_or_else(|| largest(d))
+            .max(f32::MIN_POSITIVE),
+        _ => 1.0,
+    };
+    let src = Sources {
+        w,
+        h,
+        color: inp.color_slices(),
+        albedo: inp
+            .albedo
+            .as_deref()
+            .filter(|_| improved)
+            .map(|a| a.each_ref().map(|p| p.data())),
+        ids: inp.object_id.filter(|_| improved).map(|p| p.data()),
+        depth,
+        far,
+        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
+        invalid: inp.invalid.as_deref(),
+        texels: has_history.then(|| read[0].data()),
+        prev_depth: read
+            .get(1)
+            .filter(|_| has_history && plan.depth)
+            .map(|p| p.data()),
+    };
+    let mut out: Rgb = scratch.planes(w, h);
+    let clock = StageClock::<10>::default();
+    let t = std::time::Instant::now();
+    let pixels = {
+        let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+        match next {
+            [texels, depth01] => par_bands_strided(
+                [o0, o1, o2, texels.data_mut(), depth01.data_mut()],
+                [w, w, w, 4 * w, w],
+                h,
+                |band: &mut Band, rows, [or, og, ob, texels, depth01]| {
+                    run_band::<4>(
+                        &src,
+                        &plan,
+                        &clock,
+                        band,
+                        rows,
+                        [or, og, ob],
+                        texels,
+                        Some(depth01),
+                    )
+                },
+            ),
+            [texels] => par_bands_strided(
+                [o0, o1, o2, texels.data_mut()],
+                [w, w, w, 3 * w],
+                h,
+                |band: &mut Band, rows, [or, og, ob, texels]| {
+                    run_band::<3>(&src, &plan, &clock, band, rows, [or, og, ob], texels, None)
+                },
+            ),
+            _ => unreachable!("traa keeps one or two history planes"),
+        }
+    };
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let shares = clock.shares();
+    let mut stages = vec![
+        (TONEMAP, tonemap_skip.clone()),
+        (DILATE, dilate_skip),
+        (REPROJECT, reproject_skip),
+        (SOBEL, variant_skip.clone()),
+    ];
+    if improved {
+        stages.push((SOBEL_HISTORY, sobel_history_skip));
+    }
+    stages.extend([
+        (MODEL_AVERAGE, model_skip),
+        (DEPTH_VARIANCE, depth_skip),
+        (ALIASED, variant_skip),
+        (RESOLVE, None),
+    ]);
+    for (k, skip) in stages {
+        match skip {
+            Some(why) => rec.skip(STAGES[k], why),
+            None => rec.ran_for(STAGES[k], ms * shares[k]),
+        }
+    }
+    match sharpen_skip {
+        Some(why) => {
+            rec.skip("sharpen", why);
+            match tonemap_skip {
+                Some(why) => rec.skip("untonemap", why),
+                None => rec.ran_for("untonemap", ms * shares[UNTONEMAP]),
+            }
+        }
+        None => {
+            let strength = Traa::sharpen_strength(p);
+            let mut sharp: Rgb = scratch.planes(w, h);
+            let clock = StageClock::<2>::default();
+            let t = std::time::Instant::now();
+            {
+                let src = out.each_ref().map(|p| p.data());
+                let [s0, s1, s2] = sharp.each_mut().map(|p| p.data_mut());
+                let untonemap = plan.tonemap;
+                par_bands([s0, s1, s2], w, h, |_: &mut (), rows, band| {
+                    sharpen_band(
+                        src,
+                        w,
+                        h,
+                        strength,
+                        facts.hdr,
+                        untonemap,
+                        &clock,
+                        rows.clone(),
+                        band,
+                    );
+                    rows.len()
+                });
+            }
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            let shares = clock.shares();
+            rec.ran_for("sharpen", ms * shares[0]);
+            match tonemap_skip {
+                Some(why) => rec.skip("untonemap", why),
+                None => rec.ran_for("untonemap", ms * shares[1]),
+            }
+            scratch.recycle(std::mem::replace(&mut out, sharp));
+        }
+    }
+    Ok(FrameResult {
+        color: out,
+        pixels,
+        model: None,
+    })
+}
+
+/// The largest sample of a plane, at least 0 (the reference's fold of `f32::max` from 0,
+/// in lanes: the same value for finite samples).
+fn largest(d: &[f32]) -> f32 {
+    use rayon::prelude::*;
+    crate::pipeline::exec::pool().install(|| {
+        d.par_chunks(1 << 16)
+            .map(|c| {
+                let mut m = [0.0f32; LANES];
+                let mut it = c.chunks_exact(LANES);
+                for b in &mut it {
+                    m = lanes::each(|l| fmax(m[l], b[l]));
+                }
+                it.remainder()
+                    .iter()
+                    .fold(m.into_iter().fold(0.0, f32::max), |a, &v| a.max(v))
+            })
+            .reduce(|| 0.0, f32::max)
+    })
+}
+
+/// One band: the stages over the band's rows and their halos, into the band buffers, then
+/// row by row the model average, depth variance, aliased value and resolve. `N`: channels
+/// of the history texels (3: baseline, 4: improved, the Sobel history fourth).
+#[allow(clippy::too_many_arguments)]
+fn run_band<const N: usize>(
+    src: &Sources,
+    plan: &Plan,
+    clock: &StageClock<10>,
+    band: &mut Band,
+    rows: Range<usize>,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+    next_depth: Option<&mut [f32]>,
+) -> PixelCounts {
+    let (w, h) = (src.w, src.h);
+    let s = stride(w);
+    let grow = |k: usize| rows.start.saturating_sub(k)..(rows.end + k).min(h);
+    // Rows with a halo of 1 (what the resolve's and the aliased value's 3x3 read), 2 (the
+    // raw Sobel the Sobel history's 3x3 reads) and 3 (what the raw Sobel reads).
+    let (r1, r2, r3) = (grow(1), grow(2), grow(3));
+    let Band {
+        work,
+        lit,
+        unlit,
+        depth01,
+        raw,
+        stable,
+        motion,
+        hist,
+        prev_depth,
+        valid,
+        invalid,
+        model_average,
+        depth_variance,
+        aliased,
+    } = band;
+
+    // The working colour (and its luma, the albedo's and depth / far for the Sobel).
+    let prep = if plan.improved { r3.clone() } else { r1.clone() };
+    work.iter_mut().for_each(|b| b.hold(&prep, s));
+    clock.time(TONEMAP, || {
+        for r in prep.clone() {
+            let at = r * w..(r + 1) * w;
+            let input = src.color.map(|c| &c[at.clone()]);
+            let [a, b, c] = work.each_mut().map(|b| &mut b.row_mut(r)[1..w + 1]);
+            if plan.tonemap {
+                tonemap_row(input, [a, b, c]);
+            } else {
+                a.copy_from_slice(input[0]);
+                b.copy_from_slice(input[1]);
+                c.copy_from_slice(input[2]);
+            }
+            work.iter_mut().for_each(|b| pad(b.row_mut(r), w));
+        }
+    });
+    if plan.improved {
+        clock.time(SOBEL, || {
+            lit.hold(&prep, s);
+            for r in prep.clone() {
+                let [a, b, c] = work.each_ref().map(|b| &b.row(r)[1..w + 1]);
+                let l = &mut lit.row_mut(r)[1..w + 1];
+                for x in 0..w {
+                    l[x] = luma([a[x], b[x], c[x]]);
+                }
+                pad(lit.row_mut(r), w);
+            }
+            if let Some(alb) = src.albedo {
+                unlit.hold(&prep, s);
+                for r in prep.clone() {
+                    let at = r * w..(r + 1) * w;
+                    let [a, b, c] = alb.map(|c| &c[at.clone()]);
+                    let u = &mut unlit.row_mut(r)[1..w + 1];
+                    for x in 0..w {
+                        u[x] = luma([a[x], b[x], c[x]]);
+                    }
+                    pad(unlit.row_mut(r), w);
+                }
+            }
+            if plan.depth {
+                let d = src.depth.expect("planned");
+                depth01.hold(&prep, s);
+                for r in prep.clone() {
+                    let dr = &d[r * w..(r + 1) * w];
+                    let o = &mut depth01.row_mut(r)[1..w + 1];
+                    for x in 0..w {
+                        o[x] = dr[x] / src.far;
+                    }
+                    pad(depth01.row_mut(r), w);
+                }
+            }
+            raw.hold(&r2, s);
+            for r in r2.clone() {
+                let l = lit.rows3(r, h);
+                let u = src.albedo.map(|_| unlit.rows3(r, h));
+                let d = plan.depth.then(|| depth01.rows3(r, h));
+                sobel_row(l, u, d, w, raw.row_mut(r));
+            }
+        });
+    }
+
+    // The history at each pixel's previous position (or in place when nothing moves).
+    valid.hold(&r1, s);
+    invalid.hold(&r1, s);
+    prev_depth.hold(&rows, s);
+    for r in r1.clone() {
+        let iv = &mut invalid.row_mut(r)[..w];
+        match src.invalid {
+            Some(v) => iv.copy_from_slice(&v[r * w..(r + 1) * w]),
+            None => iv.fill(false),
+        }
+    }
+    hist.iter_mut().for_each(|b| b.hold(&r1, s));
+    // The Sobel history reads the history one row beyond the band; the resolve only the
+    // band's rows.
+    let fetch = if plan.sobel_history {
+        r1.clone()
+    } else {
+        rows.clone()
+    };
+    match src.texels {
+        None => r1.clone().for_each(|r| valid.row_mut(r).fill(false)),
+        Some(texels) if plan.reproject => {
+            motion.iter_mut().for_each(|b| b.hold(&r1, s));
+            for r in fetch.clone() {
+                let m: [&[f32]; 2] = if plan.dilate {
+                    let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
+                    let [mx, my] = motion.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                    clock.time(DILATE, || dilate_row(d, mv, w, h, r, mx, my));
+                    motion.each_ref().map(|b| &b.row(r)[..w])
+                } else {
+                    src.motion.expect("planned").map(|m| &m[r * w..(r + 1) * w])
+                };
+                let prev = src.prev_depth.filter(|_| rows.contains(&r));
+                let pd = &mut prev_depth.row_mut(r.clamp(rows.start, rows.end - 1))[..w];
+                let ok = &mut valid.row_mut(r)[..w];
+                let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                clock.time(REPROJECT, || {
+                    reproject_row::<N>(texels, prev, w, h, r, m, ok, hr, pd)
+                });
+            }
+        }
+        Some(texels) => clock.time(RESOLVE, || {
+            for r in fetch.clone() {
+                valid.row_mut(r)[..w].fill(true);
+                let row = &texels[N * r * w..N * (r + 1) * w];
+                let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                for (x, t) in row.chunks_exact(N).enumerate() {
+                    for c in 0..N {
+                        hr[c][x] = t[c];
+                    }
+                }
+                if let (Some(prev), true) = (src.prev_depth, rows.contains(&r)) {
+                    prev_depth.row_mut(r)[..w].copy_from_slice(&prev[r * w..(r + 1) * w]);
+                }
+            }
+        }),
+    }
+
+    // The Sobel image's own TRAA (sec. 4.3.3); without history, the raw Sobel.
+    let sobel: &Rows<f32> = if plan.sobel_history {
+        stable.hold(&r1, s);
+        clock.time(SOBEL_HISTORY, || {
+            for r in r1.clone() {
+                sobel_history_row(
+                    raw.rows3(r, h),
+                    hist[3].row(r),
+                    valid.row(r),
+                    invalid.row(r),
+                    plan,
+                    w,
+                    stable.row_mut(r),
+                );
+            }
+        });
+        stable
+    } else {
+        raw
+    };
+
+    let [or, og, ob] = out;
+    let mut next_depth = next_depth;
+    let mut counts = PixelCounts::default();
+    for y in rows.clone() {
+        let k = y - rows.start;
+        if plan.improved {
+            let ma: Option<&[f32]> = if plan.model_average {
+                let ma = sized(model_average, s);
+                clock.time(MODEL_AVERAGE, || {
+                    model_average_row(src.ids.expect("planned"), w, h, y, ma)
+                });
+                Some(ma)
+            } else {
+                None
+            };
+            let dv: Option<&[f32]> = if plan.depth {
+                let dv = sized(depth_variance, s);
+                clock.time(DEPTH_VARIANCE, || {
+                    depth_variance_row(depth01.rows3(y, h), prev_depth.row(y), valid.row(y), w, dv)
+                });
+                Some(dv)
+            } else {
+                None
+            };
+            let al = sized(aliased, s);
+            clock.time(ALIASED, || aliased_row(sobel.rows3(y, h), ma, dv, w, al));
+            if let (true, Some(nd)) = (plan.depth, next_depth.as_deref_mut()) {
+                nd[k * w..(k + 1) * w].copy_from_slice(&depth01.row(y)[1..w + 1]);
+            }
+        }
+        let o = k * w..(k + 1) * w;
+        let mut dst = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
+        let c = clock.time(RESOLVE, || {
+            resolve_row::<N>(
+                work.each_ref().map(|b| b.rows3(y, h)),
+                hist.each_ref().map(|b| b.row(y)),
+                valid.row(y),
+                invalid.row(y),
+                plan.improved.then_some(&aliased[..]),
+                plan.improved.then(|| sobel.row(y)),
+                plan,
+                w,
+                &mut dst,
+                &mut next[N * o.start..N * o.end],
+            )
+        });
+        counts += c;
+        if plan.untonemap {
+            clock.time(UNTONEMAP, || untonemap_row(dst));
+        }
+    }
+    counts
+}
+
+/// Stage `reproject` of row `y`: each pixel's previous position `p + motion`, whether it is
+/// on screen (`ok`), and there the history's texels (bilinear, taken apart into `hist`) and
+/// the previous depth / far (`prev` into `pd`, when given).
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn reproject_row<const N: usize>(
+    texels: &[f32],
+    prev: Option<&[f32]>,
+    w: usize,
+    h: usize,
+    y: usize,
+    m: [&[f32]; 2],
+    ok: &mut [bool],
+    hist: [&mut [f32]; 4],
+    pd: &mut [f32],
+) {
+    let (mx, my, ok, pd) = (&m[0][..w], &m[1][..w], &mut ok[..w], &mut pd[..w]);
+    let hist = hist.map(|r| &mut r[..w]);
+    for x in 0..w {
+        let px = x as f32 + 0.5 + mx[x];
+        let py = y as f32 + 0.5 + my[x];
+        ok[x] = on_screen(px, py, w, h);
+        if !ok[x] {
+            continue;
+        }
+        let t = bilinear_texels::<N>(texels, w, h, px, py);
+        for c in 0..N {
+            hist[c][x] = t[c];
+        }
+        if let Some(prev) = prev {
+            pd[x] = bilinear([prev], w, h, px, py)[0];
+        }
+    }
+}
+
+fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
+    if v.len() < n {
+        v.resize(n, 0.0);
+    }
+    &mut v[..n]
+}
+
+/// [`sobel_magnitude`] of each lane's 3x3 in three padded spans.
+#[inline(always)]
+fn sobel_lanes(t: &[&[f32; SPAN]; 3]) -> Lanes {
+    lanes::each(|l| sobel_magnitude(&taps(t, l)))
+}
+
+/// Stage `sobel` of one row (eq. 4.9-4.10): the Sobel magnitudes of the lit luma, the
+/// albedo luma and depth / far (padded rows above, here and below), combined and shaped;
+/// into a padded row.
+#[inline(never)]
+fn sobel_row(
+    lit: [&[f32]; 3],
+    unlit: Option<[&[f32]; 3]>,
+    depth01: Option<[&[f32]; 3]>,
+    w: usize,
+    out: &mut [f32],
+) {
+    for (x0, _) in blocks(w) {
+        let l = sobel_lanes(&spans(&lit, x0));
+        let surface: Lanes = match unlit {
+            Some(u) => {
+                let u = sobel_lanes(&spans(&u, x0));
+                lanes::each(|i| SOBEL_UNLIT_WEIGHT * u[i] + SOBEL_LIT_WEIGHT * l[i])
+            }
+            None => l,
+        };
+        let d = match depth01 {
+            Some(d) => sobel_lanes(&spans(&d, x0)),
+            None => lanes::splat(0.0),
+        };
+        let v: Lanes = lanes::each(|i| {
+            let g = (surface[i] + d[i]).clamp(0.0, 1.0);
+            (g * g * (3.0 - 2.0 * g)).sqrt()
+        });
+        *<&mut [f32; LANES]>::try_from(&mut out[x0 + 1..x0 + 1 + LANES]).expect("a block") = v;
+    }
+    pad(out, w);
+}
+
+/// Stage `sobel_history` of one row (sec. 4.3.3): the reprojected Sobel history `hist`
+/// clamped into the averaged 3x3 and cross range of the raw Sobel (padded rows `raw`),
+/// blended with INSIDE's feedback; the raw Sobel where the history is not used, the history
+/// where the input was repaired. Into a padded row.
+#[inline(never)]
+fn sobel_history_row(
+    raw: [&[f32]; 3],
+    hist: &[f32],
+    valid: &[bool],
+    invalid: &[bool],
+    plan: &Plan,
+    w: usize,
+    out: &mut [f32],
+) {
+    let (fmin_k, fmax_k) = (plan.feedback_min, plan.feedback_max);
+    for (x0, _) in blocks(w) {
+        let sp = spans(&raw, x0);
+        let hs: &Lanes = block(hist, x0);
+        let ok: &Mask = block(valid, x0);
+        let iv: &Mask = block(invalid, x0);
+        let v: Lanes = lanes::each(|l| {
+            let t = taps(&sp, l);
+            // The reference's order: all nine taps, and the cross among them.
+            let (mut lo3, mut hi3) = (t[0], t[0]);
+            for &v in &t[1..] {
+                lo3 = fmin(lo3, v);
+                hi3 = fmax(hi3, v);
+            }
+            let lo_x = fmin(fmin(fmin(fmin(t[1], t[3]), t[4]), t[5]), t[7]);
+            let hi_x = fmax(fmax(fmax(fmax(t[1], t[3]), t[4]), t[5]), t[7]);
+            let r = t[4];
+            let (hv, _) = clamp_to_box(hs[l], 0.5 * (lo3 + lo_x), 0.5 * (hi3 + hi_x));
+            let k = feedback(r, hv, fmin_k, fmax_k);
+            let blend = mix(r, hv, k);
+            if !ok[l] {
+                r
+            } else if iv[l] {
+                hs[l]
+            } else {
+                blend
+            }
+        });
+        *<&mut [f32; LANES]>::try_from(&mut out[x0 + 1..x0 + 1 + LANES]).expect("a block") = v;
+    }
+    pad(out, w);
+}
+
+/// Eq. 4.1 at one pixel: the share of its 3x3 (centre included, neighbours outside the
+/// image count as the same object) whose object id differs from its own.
+fn model_average_at(id: &[u32], w: usize, h: usize, x: usize, y: usize) -> f32 {
+    let me = id[y * w + x];
+    let mut diff = 0u32;
+    for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+        for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+            diff += (id[yy * w + xx] != me) as u32;
+        }
+    }
+    diff as f32 / 9.0
+}
+
+/// Stage `model_average` of row `y` (eq. 4.1): pixels with all eight neighbours in blocks
+/// of lanes, the others one by one ([`model_average_at`]).
+#[inline(never)]
+fn model_average_row(id: &[u32], w: usize, h: usize, y: usize, out: &mut [f32]) {
+    let mut x = 0;
+    if y >= 1 && y + 1 < h {
+        let up = &id[(y - 1) * w..y * w];
+        let mid = &id[y * w..(y + 1) * w];
+        let down = &id[(y + 1) * w..(y + 2) * w];
+        // Pixel 0 first, then blocks of pixels 1.. whose right neighbours are inside.
+        out[0] = model_average_at(id, w, h, 0, y);
+        x = 1;
+        while x + LANES < w {
+            let t: [&[u32; SPAN]; 3] = [block(up, x - 1), block(mid, x - 1), block(down, x - 1)];
+            let v: Lanes = lanes::each(|l| {
+                let me = t[1][l + 1];
+                let mut diff = 0u32;
+                for row in &t {
+                    for c in 0..3 {
+                        diff += (row[l + c] != me) as u32;
+                    }
+                }
+                diff as f32 / 9.0
+            });
+            out[x..x + LANES].copy_from_slice(&v);
+            x += LANES;
+        }
+    }
+    for x in x..w {
+        out[x] = model_average_at(id, w, h, x, y);
+    }
+}
+
+/// Stage `depth_variance` of one row (eq. 4.4-4.6): from the padded depth / far rows
+/// around it and the reprojected previous depth / far `prev` where the history is used.
+#[inline(never)]
+fn depth_variance_row(d: [&[f32]; 3], prev: &[f32], valid: &[bool], w: usize, out: &mut [f32]) {
+    for (x0, _) in blocks(w) {
+        let sp = spans(&d, x0);
+        let pv: &Lanes = block(prev, x0);
+        let ok: &Mask = block(valid, x0);
+        let v: Lanes = lanes::each(|l| {
+            let t = taps(&sp, l);
+            let (mut lo, mut hi, mut sum) = (t[0], t[0], 0.0f32);
+            for &v in &t {
+                lo = fmin(lo, v);
+                hi = fmax(hi, v);
+                sum += v;
+            }
+            let avg = sum / 9.0;
+            let max_dist = (lo - avg).abs().min((hi - avg).abs());
+            let pv_ = ((t[4] - avg).abs() / max_dist).powi(2);
+            let tpv = if ok[l] {
+                ((pv[l] - avg).abs() / max_dist).powi(4)
+            } else {
+                0.0
+            };
+            if max_dist < DEPTH_DISTANCE_MIN {
+                0.0
+            } else {
+                (pv_ + tpv).min(1.0)
+            }
+        });
+        out[x0..x0 + LANES].copy_from_slice(&v);
+    }
+}
+
+/// Stage `aliased` of one row (eq. 4.12-4.14): `clamp01(sobelAvg + depth terms +
+/// modelAverage)`, `sobelAvg` mixing the cross and 3x3 means of the (padded) Sobel rows by
+/// `clamp01(modelAverage + sobel)`; absent terms are 0.
+#[inline(never)]
+fn aliased_row(sobel: [&[f32]; 3], ma: Option<&[f32]>, dv: Option<&[f32]>, w: usize, out: &mut [f32]) {
+    let zero = [0.0f32; LANES];
+    for (x0, _) in blocks(w) {
+        let sp = spans(&sobel, x0);
+        let m: &Lanes = ma.map_or(&zero, |m| block(m, x0));
+        let d: &Lanes = dv.map_or(&zero, |d| block(d, x0));
+        let v: Lanes = lanes::each(|l| {
+            let t = taps(&sp, l);
+            let avg3 = (t[0] + t[1] + t[2] + t[3] + t[4] + t[5] + t[6] + t[7] + t[8]) / 9.0;
+            let avg_cross = (t[1] + t[3] + t[4] + t[5] + t[7]) / 5.0;
+            let sobel_avg = mix(avg_cross, avg3, (m[l] + t[4]).clamp(0.0, 1.0));
+            (sobel_avg + d[l] + m[l]).clamp(0.0, 1.0)
+        });
+        out[x0..x0 + LANES].copy_from_slice(&v);
+    }
+}
+
+/// Stage `resolve` of one row: min/max of the 3x3 and the cross of the working colour
+/// (padded rows `cur[c]` of each channel), the box (averaged, or eq. 4.15-4.16 with the
+/// aliased value when improved), the history clipped toward its centre, INSIDE's
+/// feedback; writes the output (working space) and the new history's texels (`N = 4`: the
+/// Sobel history from `sobel`, padded, fourth).
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn resolve_row<const N: usize>(
+    cur: [[&[f32]; 3]; 3],
+    hist: [&[f32]; 4],
+    valid: &[bool],
+    invalid: &[bool],
+    aliased: Option<&[f32]>,
+    sobel: Option<&[f32]>,
+    plan: &Plan,
+    w: usize,
+    out: &mut [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let (fb_min, fb_max) = (plan.feedback_min, plan.feedback_max);
+    let (mut resets, mut clips) = (0u32, 0u32);
+    for (x0, n) in blocks(w) {
+        let rows: [[&[f32; SPAN]; 3]; 3] = cur.map(|c| spans(&c, x0));
+        let [min, max, min_cross, max_cross] = lanes::box_and_cross_bounds(&rows);
+        let current: [Lanes; 3] = lanes::each(|c| lanes::each(|l| rows[c][1][l + 1]));
+        let hs: [Lanes; 3] = lanes::each(|c| *block(hist[c], x0));
+        let ok: &Mask = block(valid, x0);
+        let iv: &Mask = block(invalid, x0);
+        let mut lo = [[0.0; LANES]; 3];
+        let mut hi = [[0.0; LANES]; 3];
+        match aliased {
+            // Eq. 4.15 then eq. 4.16 (where the history is not used the box is not either).
+            Some(al) => {
+                let a: &Lanes = block(al, x0);
+                for k in 0..3 {
+                    lo[k] = lanes::each(|l| mix(current[k][l], mix(min_cross[k][l], min[k][l], a[l]), a[l]));
+                    hi[k] = lanes::each(|l| mix(current[k][l], mix(max_cross[k][l], max[k][l], a[l]), a[l]));
+                }
+            }
+            None => {
+                for k in 0..3 {
+                    lo[k] = lanes::map2(&min[k], &min_cross[k], |a, b| 0.5 * (a + b));
+                    hi[k] = lanes::map2(&max[k], &max_cross[k], |a, b| 0.5 * (a + b));
+                }
+            }
+        }
+        let (hc, moved) = lanes::clip_toward_center(&hs, &lo, &hi);
+        let k: Lanes = lanes::each(|l| {
+            let lc = luma([current[0][l], current[1][l], current[2][l]]);
+            let lh = luma([hc[0][l], hc[1][l], hc[2][l]]);
+            feedback(lc, lh, fb_min, fb_max)
+        });
+        let keep: Mask = lanes::each(|l| ok[l] && iv[l]);
+        let blend: Mask = lanes::each(|l| ok[l] && !iv[l]);
+        let value: [Lanes; 3] = lanes::each(|c| {
+            let b: Lanes = lanes::each(|l| mix(current[c][l], hc[c][l], k[l]).max(0.0));
+            let v = lanes::select(&blend, &b, &current[c]);
+            lanes::select(&keep, &hs[c], &v)
+        });
+        for c in 0..3 {
+            out[c][x0..x0 + n].copy_from_slice(&value[c][..n]);
+        }
+        let texels = next[N * x0..N * (x0 + n)].chunks_exact_mut(N);
+        match sobel {
+            Some(s) => {
+                let s: &Lanes = block(s, x0 + 1);
+                for (l, t) in texels.enumerate() {
+                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l], s[l]][..N]);
+                }
+            }
+            None => {
+                for (l, t) in texels.enumerate() {
+                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l]][..N]);
+                }
+            }
+        }
+        // The flags as bytes of a word: counted with one popcount per block.
+        let bits = |m: &Mask| u64::from_le_bytes(m.map(u8::from));
+        let pixels = if n == LANES {
+            u64::MAX
+        } else {
+            (1u64 << (8 * n)) - 1
+        };
+        resets += n as u32 - (bits(ok) & pixels).count_ones();
+        clips += (bits(&blend) & bits(&moved) & pixels).count_ones();
+    }
+    PixelCounts {
+        history_reset: resets as u64,
+        history_clipped: clips as u64,
+        ..Default::default()
+    }
+}
+
+/// Stages `sharpen` and `untonemap` of one band: each channel sharpened against its cross
+/// neighbours in `src` (the resolved output, edges clamped) with [`sharpen_cross`], held in
+/// `[0, 1)` in the tonemapped working space (`bounded`), else at least 0; then back to
+/// linear colour when `untonemap`.
+#[allow(clippy::too_many_arguments)]
+fn sharpen_band(
+    src: [&[f32]; 3],
+    w: usize,
+    h: usize,
+    strength: f32,
+    bounded: bool,
+    untonemap: bool,
+    clock: &StageClock<2>,
+    rows: Range<usize>,
+    band: [&mut [f32]; 3],
+) {
+    let hi = if bounded { 1.0 - 1e-7 } else { f32::MAX };
+    let [b0, b1, b2] = band;
+    let mut band = [b0, b1, b2];
+    clock.time(0, || {
+        for (p, dst) in src.iter().zip(band.iter_mut()) {
+            for y in rows.clone() {
+                let row = |r: usize| &p[r * w..(r + 1) * w];
+                let (up, mid, down) = (row(y.saturating_sub(1)), row(y), row((y + 1).min(h - 1)));
+                let o = &mut dst[(y - rows.start) * w..(y - rows.start + 1) * w];
+                let at = |x: usize| {
+                    let n = [up[x], mid[x.saturating_sub(1)], mid[(x + 1).min(w - 1)], down[x]];
+                    sharpen_cross(mid[x], n, strength).clamp(0.0, hi)
+                };
+                o[0] = at(0);
+                if w > 2 {
+                    for (i, o) in o[1..w - 1].iter_mut().enumerate() {
+                        let n = [up[i + 1], mid[i], mid[i + 2], down[i + 1]];
+                        *o = sharpen_cross(mid[i + 1], n, strength).clamp(0.0, hi);
+                    }
+                }
+                o[w - 1] = at(w - 1);
+            }
+        }
+    });
+    if untonemap {
+        clock.time(1, || {
+            for k in 0..rows.len() {
+                let at = k * w..(k + 1) * w;
+                let [a, b, c] = &mut band;
+                untonemap_row([&mut a[at.clone()], &mut b[at.clone()], &mut c[at.clone()]]);
+            }
+        });
+    }
+}
