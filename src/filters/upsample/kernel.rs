@@ -22,7 +22,7 @@
 //! float operations in the same order, so the outputs are the same bits; the tests compare
 //! them frame by frame.
 
-use super::spatial::{falloff, Sparse};
+use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
 use super::temporal::{confidence, relative_gradient, GRADIENT_WEIGHTS};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen, FrameContext, FrameResult};
@@ -131,8 +131,10 @@ struct Setup<'a> {
     depth: Option<&'a [f32]>,
     ids: Option<&'a [u32]>,
     motion: Option<[&'a [f32]; 2]>,
-    /// Per lane of a block, whether the pixel sits on its cell's sample column.
+    /// Per lane of a block, whether the pixel sits on its cell's sample column, as a mask
+    /// and as 1 or 0.
     on_column: Mask,
+    column: Lanes,
     /// Per row offset `dy + f` and slot (left, own, right cell): the image-space weight of
     /// each lane (`spatial`, `temporal`: the falloff at `kernel_wide`; `taa`: the Gaussian)
     /// or its distance in block diagonals (`spatiotemporal`, whose width varies).
@@ -144,7 +146,49 @@ struct Setup<'a> {
 /// Which pixels of a block lie in the image (for the counters).
 #[inline(always)]
 fn inside(x0: usize, w: usize) -> Mask {
-    std::array::from_fn(|l| x0 + l < w)
+    lanes_of(|l| x0 + l < w)
+}
+
+/// [`falloff`] with `fmax` for `f32::max`: the same value for every input (NaN
+/// included: both give the other operand; a -0 or +0 `t` gives the clamp either way), in
+/// one vector instruction instead of three.
+#[inline(always)]
+fn falloff_lane(x: f32, sigma: f32) -> f32 {
+    let t = fmax(1.0 - x * (1.0 / sigma), 0.0);
+    fmax(t * t * t, WEIGHT_EPSILON)
+}
+
+/// `[f(0), .., f(7)]`: a plain loop that always inlines (`std::array::from_fn` goes through
+/// a closure wrapper the compiler does not always inline, which stops vectorisation).
+#[inline(always)]
+fn lanes_of<T: Copy + Default>(f: impl Fn(usize) -> T) -> [T; LANES] {
+    let mut o = [T::default(); LANES];
+    for (l, o) in o.iter_mut().enumerate() {
+        *o = f(l);
+    }
+    o
+}
+
+/// `[f(0), f(1), f(2)]`.
+#[inline(always)]
+fn three<T>(f: impl Fn(usize) -> T) -> [T; 3] {
+    [f(0), f(1), f(2)]
+}
+
+/// `a x b` lane by lane.
+#[inline(always)]
+fn mul(a: &Lanes, b: &Lanes) -> Lanes {
+    lanes_of(|l| a[l] * b[l])
+}
+
+/// How many lanes are set.
+#[inline(always)]
+fn set_lanes(m: &Mask) -> u64 {
+    let mut n = 0u32;
+    for &b in m {
+        n += b as u32;
+    }
+    n as u64
 }
 
 /// Lanes `x0..x0 + 8` of a row, zero past its end.
@@ -152,7 +196,7 @@ fn inside(x0: usize, w: usize) -> Mask {
 fn ld(s: &[f32], x0: usize) -> Lanes {
     match s.get(x0..x0 + LANES) {
         Some(b) => b.try_into().expect("a block"),
-        None => std::array::from_fn(|l| s.get(x0 + l).copied().unwrap_or(0.0)),
+        None => lanes_of(|l| s.get(x0 + l).copied().unwrap_or(0.0)),
     }
 }
 
@@ -160,8 +204,8 @@ fn ld(s: &[f32], x0: usize) -> Lanes {
 #[inline(always)]
 fn ld_texel(s: &[f32], n: usize, c: usize, x0: usize) -> Lanes {
     match s.get(n * x0..n * (x0 + LANES)) {
-        Some(b) => std::array::from_fn(|l| b[n * l + c]),
-        None => std::array::from_fn(|l| s.get(n * (x0 + l) + c).copied().unwrap_or(0.0)),
+        Some(b) => lanes_of(|l| b[n * l + c]),
+        None => lanes_of(|l| s.get(n * (x0 + l) + c).copied().unwrap_or(0.0)),
     }
 }
 
@@ -180,14 +224,16 @@ fn st_texels<const N: usize>(s: &mut [f32], x0: usize, v: &[Lanes; N]) {
         let t: &mut [f32; N] = (&mut s[N * (x0 + l)..N * (x0 + l + 1)])
             .try_into()
             .expect("a texel");
-        *t = std::array::from_fn(|c| v[c][l]);
+        for (c, t) in t.iter_mut().enumerate() {
+            *t = v[c][l];
+        }
     }
 }
 
 /// Luma (Rec. 709, [`crate::kernels::luma`]) in lanes.
 #[inline(always)]
 fn luma_lanes(c: &[Lanes; 3]) -> Lanes {
-    std::array::from_fn(|l| LUMA_REC709[0] * c[0][l] + LUMA_REC709[1] * c[1][l] + LUMA_REC709[2] * c[2][l])
+    lanes_of(|l| LUMA_REC709[0] * c[0][l] + LUMA_REC709[1] * c[1][l] + LUMA_REC709[2] * c[2][l])
 }
 
 /// The sample rows a band reads, expanded to full resolution: entry `x + f` of row `b`
@@ -201,6 +247,22 @@ struct SampleRows {
     /// Which held rows exist (inside the colour planes and the frame).
     present: Vec<bool>,
     data: [Vec<f32>; E_CH],
+}
+
+/// Writes `value(a)` to the `f` entries of each cell `a` of `cells` (`f` of 1, 2 or 4).
+#[inline(always)]
+fn expand(cells: &mut [f32], f: usize, value: impl Fn(usize) -> f32) {
+    fn by<const F: usize>(cells: &mut [f32], value: impl Fn(usize) -> f32) {
+        for (a, c) in cells.chunks_exact_mut(F).enumerate() {
+            let c: &mut [f32; F] = c.try_into().expect("a cell");
+            *c = [value(a); F];
+        }
+    }
+    match f {
+        1 => by::<1>(cells, value),
+        2 => by::<2>(cells, value),
+        _ => by::<4>(cells, value),
+    }
 }
 
 /// One sample row of a pixel's footprint: its expanded channels and its row offset.
@@ -238,33 +300,44 @@ impl SampleRows {
                 continue;
             }
             let (b, sy) = (b as usize, sy as usize);
-            for d in &mut self.data[..channels] {
-                d[k * s..(k + 1) * s].fill(0.0);
-            }
-            for a in 0..cw {
-                let sx = f * a + fr.px as usize;
-                let c = b * cw + a;
-                if sx >= fr.w || sp.invalid.is_some_and(|v| v[c]) {
-                    continue;
+            let row = k * s..(k + 1) * s;
+            // Entry `x + f` holds the sample of column x's cell: cell a's columns
+            // `f a + px .. f a + px + f` are entries `f a + px + f ..`; the entries before
+            // cell 0's and after the last cell's stay 0.
+            let first_at = f + fr.px as usize;
+            let tail = first_at + f * cw;
+            // Cells whose sample lies in the frame; the colour, depth and normal of the
+            // others (and of invalid samples) are left finite and carry weight 0.
+            let inside = fr.w.saturating_sub(fr.px as usize).div_ceil(f).min(cw);
+            for (c, d) in self.data[..channels].iter_mut().enumerate() {
+                let d = &mut d[row.clone()];
+                d[..first_at.min(s)].fill(0.0);
+                if tail < s {
+                    d[tail..].fill(0.0);
                 }
-                let j = sy * fr.w + sx;
-                let mut v = [0.0f32; E_CH];
-                for (ch, v) in v.iter_mut().enumerate().take(3) {
-                    *v = sp.color[ch][c];
-                }
-                v[E_VALID] = 1.0;
-                if geometry {
-                    v[E_DEPTH] = fr.geo_depth.map_or(0.0, |d| d[j]);
-                    if let Some(n) = fr.normal {
-                        for q in 0..3 {
-                            v[E_N + q] = n[q][j];
+                let cells = &mut d[first_at..tail.min(s)];
+                let (cells, outside) = cells.split_at_mut(f * inside);
+                outside.fill(0.0);
+                match c {
+                    E_R..=2 => expand(cells, f, |a| sp.color[c][b * cw + a]),
+                    E_VALID => match sp.invalid {
+                        Some(v) => expand(cells, f, |a| (!v[b * cw + a]) as u8 as f32),
+                        None => cells.fill(1.0),
+                    },
+                    _ => {
+                        let plane = if c == E_DEPTH {
+                            fr.geo_depth
+                        } else {
+                            fr.normal.map(|n| n[c - E_N])
+                        };
+                        match plane {
+                            Some(p) => {
+                                let src = &p[sy * fr.w..(sy + 1) * fr.w];
+                                expand(cells, f, |a| src[f * a + fr.px as usize])
+                            }
+                            None => cells.fill(0.0),
                         }
                     }
-                }
-                // Columns sx .. sx + f are the cell's: entries sx + f .. sx + 2f.
-                let at = k * s + sx + f;
-                for (ch, d) in self.data[..channels].iter_mut().enumerate() {
-                    d[at..at + f].fill(v[ch]);
                 }
             }
         }
@@ -325,37 +398,38 @@ fn gather_lanes<const D: bool, const N: bool>(
     slots: &[Option<Slot>; 3],
     x0: usize,
     g: &PixelGeo,
-    image: impl Fn(usize, usize) -> Lanes,
+    image: &[[Lanes; 3]; 3],
 ) -> ([Lanes; 3], Lanes) {
     let mut sum = [[0.0f32; LANES]; 3];
     let mut wsum = [0.0f32; LANES];
-    for slot in slots.iter().flatten() {
+    for (slot, image) in slots.iter().zip(image) {
+        let Some(slot) = slot else { continue };
         for s in 0..3 {
             let at = x0 + s * fr.f as usize;
             let e = |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
             let valid = e(E_VALID);
-            let img = image(slot.dyi, s);
+            let img = &image[s];
             let mut geo = [1.0f32; LANES];
             if D {
                 let sd = e(E_DEPTH);
-                geo = std::array::from_fn(|l| {
-                    geo[l] * falloff((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0)
-                });
+                geo =
+                    lanes_of(|l| geo[l] * falloff_lane((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0));
             }
             if N {
                 let (nx, ny, nz) = (e(E_N), e(E_N + 1), e(E_N + 2));
-                geo = std::array::from_fn(|l| {
+                geo = lanes_of(|l| {
                     let dot = g.normal[0][l] * nx[l] + g.normal[1][l] * ny[l] + g.normal[2][l] * nz[l];
-                    geo[l] * falloff((1.0 - dot).max(0.0), fr.normal_sigma)
+                    geo[l] * falloff_lane(fmax(1.0 - dot, 0.0), fr.normal_sigma)
                 });
             }
-            let keep: Mask = std::array::from_fn(|l| valid[l] != 0.0 && (s != 0 || fr.on_column[l]));
-            let wt: Lanes = std::array::from_fn(|l| if keep[l] { img[l] * geo[l] } else { 0.0 });
+            // 1 where the slot has a sample, else 0: the weight is exact or +0.
+            let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
+            let wt: Lanes = lanes_of(|l| img[l] * geo[l] * mask[l]);
             for (c, sum) in sum.iter_mut().enumerate() {
                 let v = e(E_R + c);
-                *sum = std::array::from_fn(|l| sum[l] + wt[l] * v[l]);
+                *sum = lanes_of(|l| sum[l] + wt[l] * v[l]);
             }
-            wsum = std::array::from_fn(|l| wsum[l] + wt[l]);
+            wsum = lanes_of(|l| wsum[l] + wt[l]);
         }
     }
     (sum, wsum)
@@ -364,7 +438,7 @@ fn gather_lanes<const D: bool, const N: bool>(
 /// [`super::spatial::Gathered::mean`] in lanes, 0 where no sample had weight.
 #[inline(always)]
 fn mean(sum: &[Lanes; 3], wsum: &Lanes) -> [Lanes; 3] {
-    sum.map(|s| std::array::from_fn(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
+    sum.map(|s| lanes_of(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
 }
 
 /// The colour of each lane's own sample, and which lanes have one (shaded this frame:
@@ -376,7 +450,7 @@ fn own_lanes(fr: &Setup, slots: &[Option<Slot>; 3], my: isize, x0: usize) -> ([L
             let at = x0 + fr.f as usize;
             let e = |c: usize| -> Lanes { slot.e[c][at..at + LANES].try_into().expect("a block") };
             let valid = e(E_VALID);
-            let own: Mask = std::array::from_fn(|l| fr.on_column[l] && valid[l] != 0.0);
+            let own: Mask = lanes_of(|l| fr.on_column[l] & (valid[l] != 0.0));
             ([e(0), e(1), e(2)], own)
         }
         _ => ([[0.0; LANES]; 3], [false; LANES]),
@@ -412,33 +486,34 @@ fn reproject_row<const N: usize>(
             let (fx, fy) = (px - 0.5, py - 0.5);
             let (x0, y0) = (fx.floor(), fy.floor());
             let (tx, ty) = (fx - x0, fy - y0);
-            let clamp = |v: f32, n: usize| (v.max(0.0) as usize).min(n - 1);
-            let (xa, xb) = (clamp(x0, w), clamp(x0 + 1.0, w));
-            let (ya, yb) = (clamp(y0, h) * w, clamp(y0 + 1.0, h) * w);
+            // On screen, `x0` lies in -1 ..= w - 1 (and y0 likewise): the clamps of the
+            // reference's `(v.max(0) as usize).min(n - 1)` on whole numbers.
+            let (xi, yi) = (x0 as isize, y0 as isize);
+            let (xa, xb) = (xi.max(0) as usize, (xi + 1).min(w as isize - 1) as usize);
+            let (ya, yb) = (yi.max(0) as usize * w, (yi + 1).min(h as isize - 1) as usize * w);
             let taps = [
                 (xa + ya, (1.0 - tx) * (1.0 - ty)),
                 (xb + ya, tx * (1.0 - ty)),
                 (xa + yb, (1.0 - tx) * ty),
                 (xb + yb, tx * ty),
             ];
+            let id = ids.map(|ids| ids[x] as f32);
+            let z = depth.map(|d| d[x]);
             for (t, wt) in taps {
                 if wt <= 0.0 || wt.is_nan() {
                     continue;
                 }
                 let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
-                if let Some(ids) = ids {
-                    if ids[x] as f32 != tex[ic] {
-                        continue;
-                    }
+                if id.is_some_and(|id| id != tex[ic]) {
+                    continue;
                 }
-                if let Some(d) = depth {
-                    let z = d[x];
-                    if (tex[dc] - z).abs() > tol * z.abs() {
-                        continue;
-                    }
+                if z.is_some_and(|z| (tex[dc] - z).abs() > tol * z.abs()) {
+                    continue;
                 }
                 total += wt;
-                acc = std::array::from_fn(|c| acc[c] + wt * tex[c]);
+                for (a, t) in acc.iter_mut().zip(tex) {
+                    *a += wt * t;
+                }
             }
         }
         let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
@@ -519,8 +594,7 @@ pub(super) fn frame(
     );
     let f = sampling.factor as isize;
     let side = 2 * f as usize + 1;
-    let on_column: Mask =
-        std::array::from_fn(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
+    let on_column: Mask = lanes_of(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
     // Per row offset and slot, each lane's offset index (`Sparse::dist` order) or none.
     let offset = |dyi: usize, s: usize, l: usize| -> usize {
         let m = (l as isize - sampling.phase[0] as isize).rem_euclid(f);
@@ -535,7 +609,7 @@ pub(super) fn frame(
     let table: Vec<[Lanes; 3]> = (0..side)
         .map(|dyi| {
             std::array::from_fn(|s| {
-                std::array::from_fn(|l| {
+                lanes_of(|l| {
                     let o = offset(dyi, s, l);
                     match method {
                         Method::Spatiotemporal => sparse.dist(o),
@@ -564,6 +638,7 @@ pub(super) fn frame(
         ids,
         motion: inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data)),
         on_column,
+        column: on_column.map(|b| b as u8 as f32),
         table,
         stride: w.next_multiple_of(LANES) + 2 * f as usize,
     };
@@ -708,6 +783,11 @@ pub(super) fn frame(
     })
 }
 
+/// The table entries of a row's slots (zeros for a missing slot).
+fn row_table(fr: &Setup, slots: &[Option<Slot>; 3]) -> [[Lanes; 3]; 3] {
+    three(|k| slots[k].as_ref().map_or([[0.0; LANES]; 3], |s| fr.table[s.dyi]))
+}
+
 /// `spatial` for row `y`: the gather at `kernel_wide`, its mean.
 fn spatial_row<const D: bool, const N: bool>(
     fr: &Setup,
@@ -716,10 +796,11 @@ fn spatial_row<const D: bool, const N: bool>(
     out: [&mut [f32]; 3],
 ) -> PixelCounts {
     let (slots, _) = band.samples.slots(fr, y);
+    let image = row_table(fr, &slots);
     let [or, og, ob] = out;
     for x0 in (0..fr.w).step_by(LANES) {
         let g = PixelGeo::load::<D, N>(fr, y, x0);
-        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, |dyi, s| fr.table[dyi][s]);
+        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
         let v = mean(&sum, &wsum);
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
@@ -735,7 +816,7 @@ fn depth_ids(fr: &Setup, y: usize, x0: usize) -> (Lanes, Lanes) {
     let d = fr.depth.map_or([0.0; LANES], |d| ld(&d[row.clone()], x0));
     let i = fr.ids.map_or([0.0; LANES], |ids| {
         let r = &ids[row];
-        std::array::from_fn(|l| r.get(x0 + l).map_or(0.0, |&v| v as f32))
+        lanes_of(|l| r.get(x0 + l).map_or(0.0, |&v| v as f32))
     });
     (d, i)
 }
@@ -753,6 +834,7 @@ fn temporal_row<const D: bool, const N: bool>(
     next: &mut [f32],
 ) -> PixelCounts {
     let (slots, my) = samples.slots(fr, y);
+    let image = row_table(fr, &slots);
     let [or, og, ob] = out;
     let mut holes = 0u64;
     for x0 in (0..fr.w).step_by(LANES) {
@@ -760,25 +842,21 @@ fn temporal_row<const D: bool, const N: bool>(
         let (hc, ok): ([Lanes; 3], Mask) = match hist {
             Some((t, fr_)) => {
                 let frac = ld(fr_, x0);
-                (
-                    std::array::from_fn(|c| ld_texel(t, TM, c, x0)),
-                    std::array::from_fn(|l| frac[l] >= 0.5),
-                )
+                (three(|c| ld_texel(t, TM, c, x0)), lanes_of(|l| frac[l] >= 0.5))
             }
             None => ([[0.0; LANES]; 3], [false; LANES]),
         };
-        let hole: Mask = std::array::from_fn(|l| !own[l] && !ok[l]);
-        let fill = if hole.iter().any(|&b| b) {
+        let hole: Mask = lanes_of(|l| !own[l] & !ok[l]);
+        let fill = if set_lanes(&hole) > 0 {
             let g = PixelGeo::load::<D, N>(fr, y, x0);
-            let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, |dyi, s| fr.table[dyi][s]);
+            let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
             mean(&sum, &wsum)
         } else {
             [[0.0; LANES]; 3]
         };
         let inside = inside(x0, fr.w);
-        holes += (0..LANES).filter(|&l| hole[l] && inside[l]).count() as u64;
-        let v: [Lanes; 3] =
-            std::array::from_fn(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
+        holes += set_lanes(&lanes_of(|l| hole[l] & inside[l]));
+        let v: [Lanes; 3] = three(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
         st(ob, x0, &v[2]);
@@ -817,16 +895,20 @@ fn taa_row(
                 let e =
                     |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
                 let valid = e(E_VALID);
-                let keep: Mask = std::array::from_fn(|l| valid[l] != 0.0 && (s != 0 || fr.on_column[l]));
+                let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
+                let keep: Mask = lanes_of(|l| mask[l] != 0.0);
                 let k = &fr.table[slot.dyi][s];
-                let wt: Lanes = std::array::from_fn(|l| if keep[l] { k[l] } else { 0.0 });
-                beta = std::array::from_fn(|l| if keep[l] { beta[l].max(wt[l]) } else { beta[l] });
-                wsum = std::array::from_fn(|l| wsum[l] + wt[l]);
+                let wt: Lanes = mul(k, &mask);
+                // `wt` is 0 where there is no sample and beta >= 0: no select needed. `fmax`
+                // and `fmin` give `f32::max` and `min` here (no NaN; a tie of +0 and -0
+                // changes neither the clamp's result nor the blend).
+                beta = lanes_of(|l| fmax(beta[l], wt[l]));
+                wsum = lanes_of(|l| wsum[l] + wt[l]);
                 for c in 0..3 {
                     let v = e(E_R + c);
-                    sum[c] = std::array::from_fn(|l| sum[c][l] + wt[l] * v[l]);
-                    lo[c] = std::array::from_fn(|l| if keep[l] { lo[c][l].min(v[l]) } else { lo[c][l] });
-                    hi[c] = std::array::from_fn(|l| if keep[l] { hi[c][l].max(v[l]) } else { hi[c][l] });
+                    sum[c] = lanes_of(|l| sum[c][l] + wt[l] * v[l]);
+                    lo[c] = lanes_of(|l| if keep[l] { fmin(lo[c][l], v[l]) } else { lo[c][l] });
+                    hi[c] = lanes_of(|l| if keep[l] { fmax(hi[c][l], v[l]) } else { hi[c][l] });
                 }
             }
         }
@@ -834,18 +916,18 @@ fn taa_row(
         let n: Lanes = match hist {
             Some((t, frac)) => {
                 let (fc, nn) = (ld(frac, x0), ld_texel(t, TA, W, x0));
-                std::array::from_fn(|l| if fc[l] > 0.0 && wsum[l] > 0.0 { nn[l] } else { 0.0 })
+                lanes_of(|l| if fc[l] > 0.0 && wsum[l] > 0.0 { nn[l] } else { 0.0 })
             }
             None => [0.0; LANES],
         };
-        let fresh: Mask = std::array::from_fn(|l| n[l] <= 0.0);
+        let fresh: Mask = lanes_of(|l| n[l] <= 0.0);
         let hv: [Lanes; 3] = match hist {
-            Some((t, _)) => std::array::from_fn(|c| ld_texel(t, TA, c, x0)),
+            Some((t, _)) => three(|c| ld_texel(t, TA, c, x0)),
             None => [[0.0; LANES]; 3],
         };
         // `f32::clamp` without its assertion (the reference clamps only where the box exists).
-        let hc: [Lanes; 3] = std::array::from_fn(|c| {
-            std::array::from_fn(|l| {
+        let hc: [Lanes; 3] = three(|c| {
+            lanes_of(|l| {
                 let v = if hv[c][l] < lo[c][l] { lo[c][l] } else { hv[c][l] };
                 if v > hi[c][l] {
                     hi[c][l]
@@ -854,10 +936,11 @@ fn taa_row(
                 }
             })
         });
-        let moved: Mask = std::array::from_fn(|l| (0..3).any(|c| hc[c][l] != hv[c][l]));
-        let a: Lanes = std::array::from_fn(|l| beta[l] * p.taa_alpha.max(1.0 / (n[l] + 1.0)));
-        let v: [Lanes; 3] = std::array::from_fn(|c| {
-            std::array::from_fn(|l| {
+        let moved: Mask =
+            lanes_of(|l| (hc[0][l] != hv[0][l]) | (hc[1][l] != hv[1][l]) | (hc[2][l] != hv[2][l]));
+        let a: Lanes = lanes_of(|l| beta[l] * p.taa_alpha.max(1.0 / (n[l] + 1.0)));
+        let v: [Lanes; 3] = three(|c| {
+            lanes_of(|l| {
                 if fresh[l] {
                     up[c][l]
                 } else {
@@ -865,15 +948,15 @@ fn taa_row(
                 }
             })
         });
-        let count: Lanes = std::array::from_fn(|l| {
+        let count: Lanes = lanes_of(|l| {
             if fresh[l] {
                 beta[l]
             } else {
-                (n[l] + beta[l]).min(TAA_MAX_COUNT)
+                fmin(n[l] + beta[l], TAA_MAX_COUNT)
             }
         });
         let inside = inside(x0, fr.w);
-        clipped += (0..LANES).filter(|&l| inside[l] && !fresh[l] && moved[l]).count() as u64;
+        clipped += set_lanes(&lanes_of(|l| inside[l] & !fresh[l] & moved[l]));
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
         st(ob, x0, &v[2]);
@@ -1004,42 +1087,51 @@ fn st_row<const D: bool, const N: bool>(
     // each side add +0 where the reference skips the tap); then the confidence.
     let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
     let conf = sized(&mut band.conf, w);
-    {
-        let filtered = &band.filtered;
-        let rows_in = (yb - ya) as isize;
-        for (x, c) in conf.iter_mut().enumerate() {
-            let cols = ((x + r).min(w - 1) - x.saturating_sub(r) + 1) as isize;
-            let mut sum = 0.0f32;
-            for yy in ya..yb {
-                let row = &filtered[(yy - ylo) * fstride + x..(yy - ylo) * fstride + x + 2 * r + 1];
-                for &v in row {
-                    sum += v;
+    let filtered = &band.filtered;
+    let rows_in = (yb - ya) as isize;
+    for x0 in (0..w).step_by(LANES) {
+        let mut sum = [0.0f32; LANES];
+        for yy in ya..yb {
+            let row = &filtered[(yy - ylo) * fstride..(yy - ylo + 1) * fstride];
+            for d in 0..=2 * r {
+                let v = ld(&row[d..], x0);
+                for (s, v) in sum.iter_mut().zip(v) {
+                    *s += v;
                 }
             }
-            *c = confidence(sum / (rows_in * cols) as f32, p.gradient_scale);
         }
+        let c = lanes_of(|l| {
+            let x = x0 + l;
+            let cols = ((x + r).min(w - 1) as isize - x.saturating_sub(r) as isize + 1).max(1);
+            confidence(sum[l] / (rows_in * cols) as f32, p.gradient_scale)
+        });
+        let n = LANES.min(w - x0);
+        conf[x0..x0 + n].copy_from_slice(&c[..n]);
     }
     let conf = &band.conf[..w];
     let now = &band.now[(y - ylo) * w..(y - ylo + 1) * w];
     let (slots, my) = band.samples.slots(fr, y);
+    let dist = row_table(fr, &slots);
     let [or, og, ob] = out;
     let row = rp.map(|rp| &rp[ST * y * w..ST * (y + 1) * w]);
     for x0 in (0..w).step_by(LANES) {
         let c = ld(conf, x0);
-        let sigma: Lanes =
-            std::array::from_fn(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
+        let sigma: Lanes = lanes_of(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
         let g = PixelGeo::load::<D, N>(fr, y, x0);
-        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, |dyi, s| {
-            let d = &fr.table[dyi][s];
-            std::array::from_fn(|l| falloff(d[l], sigma[l]))
+        let image: [[Lanes; 3]; 3] = three(|k| {
+            three(|s| {
+                let d = &dist[k][s];
+                lanes_of(|l| falloff_lane(d[l], sigma[l]))
+            })
         });
+        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
         let (prev, wh, pg, hk): ([Lanes; 3], Lanes, [Lanes; 2], [Lanes; 2]) = match row {
             Some(t) => {
                 let ch = |k: usize| ld_texel(t, ST, k, x0);
                 let (wgt, frac) = (ch(W), ch(DEPTH));
                 (
                     [ch(R), ch(R + 1), ch(R + 2)],
-                    std::array::from_fn(|l| c[l] * wgt[l] * frac[l]),
+                    lanes_of(|l| c[l] * wgt[l] * frac[l]),
                     [ch(G1), ch(G1 + 1)],
                     [ch(LK), ch(LK + 1)],
                 )
@@ -1051,9 +1143,9 @@ fn st_row<const D: bool, const N: bool>(
                 [[0.0; LANES]; 2],
             ),
         };
-        let total: Lanes = std::array::from_fn(|l| wsum[l] + wh[l]);
-        let v: [Lanes; 3] = std::array::from_fn(|k| {
-            std::array::from_fn(|l| {
+        let total: Lanes = lanes_of(|l| wsum[l] + wh[l]);
+        let v: [Lanes; 3] = three(|k| {
+            lanes_of(|l| {
                 if total[l] > 0.0 {
                     (sum[k][l] + wh[l] * prev[k][l]) / total[l]
                 } else {
