@@ -64,25 +64,27 @@ pub fn depth_range(depth: &[f32], ids: Option<&[u32]>, near_far: Option<[f32; 2]
     const CHUNK: usize = 1 << 15;
     let fold = |d: &[f32], ids: Option<&[u32]>| {
         let (mut lo, mut hi) = ([f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES]);
-        let mut one = |l: usize, v: f32, keep: bool| {
-            let keep = keep && v.abs() < f32::INFINITY;
-            lo[l] = fmin(lo[l], if keep { v } else { f32::INFINITY });
-            hi[l] = fmax(hi[l], if keep { v } else { f32::NEG_INFINITY });
+        let mut block = |dc: &[f32; LANES], keep: [bool; LANES]| {
+            for l in 0..LANES {
+                let (v, keep) = (dc[l], keep[l] & (dc[l].abs() < f32::INFINITY));
+                lo[l] = fmin(lo[l], if keep { v } else { f32::INFINITY });
+                hi[l] = fmax(hi[l], if keep { v } else { f32::NEG_INFINITY });
+            }
         };
+        let n = d.len() / LANES * LANES;
+        let pad = |s: &[f32]| -> [f32; LANES] { lanes_of(|l| s.get(n + l).copied().unwrap_or(f32::NAN)) };
         match ids {
             Some(ids) => {
-                for (dc, ic) in d.chunks(LANES).zip(ids.chunks(LANES)) {
-                    for l in 0..dc.len() {
-                        one(l, dc[l], ic[l] != 0);
-                    }
+                for (dc, ic) in d.chunks_exact(LANES).zip(ids.chunks_exact(LANES)) {
+                    block(dc.try_into().expect("a block"), lanes_of(|l| ic[l] != 0));
                 }
+                block(&pad(d), lanes_of(|l| ids.get(n + l).is_some_and(|&i| i != 0)));
             }
             None => {
-                for dc in d.chunks(LANES) {
-                    for l in 0..dc.len() {
-                        one(l, dc[l], true);
-                    }
+                for dc in d.chunks_exact(LANES) {
+                    block(dc.try_into().expect("a block"), [true; LANES]);
                 }
+                block(&pad(d), [true; LANES]);
             }
         }
         (
@@ -141,12 +143,6 @@ struct Setup<'a> {
     table: Vec<[Lanes; 3]>,
     /// Floats of an expanded sample row.
     stride: usize,
-}
-
-/// Which pixels of a block lie in the image (for the counters).
-#[inline(always)]
-fn inside(x0: usize, w: usize) -> Mask {
-    lanes_of(|l| x0 + l < w)
 }
 
 /// [`falloff`] with `fmax` for `f32::max`: the same value for every input (NaN
@@ -499,17 +495,19 @@ fn reproject_row<const N: usize>(
             ];
             let id = ids.map(|ids| ids[x] as f32);
             let z = depth.map(|d| d[x]);
+            // Branch-free: a tap that fails adds weight +0 (and +0 or -0 to each sum,
+            // which leaves sums that start at +0 and only grow as they were), so the sums
+            // are the reference's, which skips it.
             for (t, wt) in taps {
-                if wt <= 0.0 || wt.is_nan() {
-                    continue;
-                }
                 let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
-                if id.is_some_and(|id| id != tex[ic]) {
-                    continue;
+                let mut ok = wt > 0.0;
+                if let Some(id) = id {
+                    ok &= id == tex[ic];
                 }
-                if z.is_some_and(|z| (tex[dc] - z).abs() > tol * z.abs()) {
-                    continue;
+                if let Some(z) = z {
+                    ok &= !((tex[dc] - z).abs() > tol * z.abs());
                 }
+                let wt = if ok { wt } else { 0.0 };
                 total += wt;
                 for (a, t) in acc.iter_mut().zip(tex) {
                     *a += wt * t;
@@ -854,8 +852,11 @@ fn temporal_row<const D: bool, const N: bool>(
         } else {
             [[0.0; LANES]; 3]
         };
-        let inside = inside(x0, fr.w);
-        holes += set_lanes(&lanes_of(|l| hole[l] & inside[l]));
+        holes += if x0 + LANES <= fr.w {
+            set_lanes(&hole)
+        } else {
+            set_lanes(&lanes_of(|l| hole[l] & (x0 + l < fr.w)))
+        };
         let v: [Lanes; 3] = three(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
@@ -955,8 +956,12 @@ fn taa_row(
                 fmin(n[l] + beta[l], TAA_MAX_COUNT)
             }
         });
-        let inside = inside(x0, fr.w);
-        clipped += set_lanes(&lanes_of(|l| inside[l] & !fresh[l] & moved[l]));
+        let clip = lanes_of(|l| !fresh[l] & moved[l]);
+        clipped += if x0 + LANES <= fr.w {
+            set_lanes(&clip)
+        } else {
+            set_lanes(&lanes_of(|l| clip[l] & (x0 + l < fr.w)))
+        };
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
         st(ob, x0, &v[2]);
