@@ -505,7 +505,8 @@ fn reproject_row<const N: usize>(
                     ok &= id == tex[ic];
                 }
                 if let Some(z) = z {
-                    ok &= !((tex[dc] - z).abs() > tol * z.abs());
+                    let far = (tex[dc] - z).abs() > tol * z.abs();
+                    ok &= !far;
                 }
                 let wt = if ok { wt } else { 0.0 };
                 total += wt;
@@ -694,7 +695,7 @@ pub(super) fn frame(
         let mut counts = PixelCounts::default();
         match method {
             Method::Spatiotemporal => {
-                clock.time(GRADIENT, || gradient_band(&fr, p, rp, band, rows.clone()));
+                clock.time(GRADIENT, || gradient_band(&fr, rp, band, rows.clone()));
             }
             Method::Spatial | Method::Temporal | Method::Taa => {}
         }
@@ -725,7 +726,7 @@ pub(super) fn frame(
                     }
                     let hrow = hist.map(|_| (&band.hist[..TM * w], &band.frac[..w]));
                     c += clock.time(BLEND, || {
-                        with_geometry!(fr, temporal_row(&fr, p, &band.samples, hrow, y, out, nx))
+                        with_geometry!(fr, temporal_row(&fr, &band.samples, hrow, y, out, nx))
                     });
                     c
                 }
@@ -824,7 +825,6 @@ fn depth_ids(fr: &Setup, y: usize, x0: usize) -> (Lanes, Lanes) {
 #[allow(clippy::too_many_arguments)]
 fn temporal_row<const D: bool, const N: bool>(
     fr: &Setup,
-    _p: &Params,
     samples: &SampleRows,
     hist: Option<(&[f32], &[f32])>,
     y: usize,
@@ -981,8 +981,7 @@ fn box_radius(f: isize) -> usize {
 /// `spatiotemporal`'s stage `gradient` for a band: the raw gradient (Herzog et al. 2010,
 /// sec. 3.4; see [`super::reference`]) and its temporal filter for the band's rows and
 /// `r` rows each side, into the band's buffers.
-fn gradient_band(fr: &Setup, p: &Params, rp: Option<&[f32]>, band: &mut Band, rows: Range<usize>) {
-    let _ = p;
+fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<usize>) {
     let (w, h) = (fr.w, fr.h);
     let r = box_radius(fr.f);
     let (ylo, yhi) = (rows.start.saturating_sub(r), (rows.end + r).min(h));
