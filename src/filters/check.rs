@@ -113,3 +113,94 @@ pub fn assert_same_output(fast: &Output, reference: &Output, tol: Tolerance, wha
         "{what}: state bytes"
     );
 }
+
+/// The kinds of [`sequences`] shaded sparsely with `factor` (one pixel of every `factor x
+/// factor` block, in the rotating order of [`Sampling::rotating`]) for filters of sparse
+/// input, each with full-resolution normals and object ids (some of them 0, the sky) added,
+/// and besides: the synthetic scene's sparse G-buffer, a sequence without normals and ids,
+/// one whose frames give their near and far planes, and NaN and negative samples in the
+/// sparse colour itself.
+pub fn sparse_sequences(
+    w: usize,
+    h: usize,
+    n: u64,
+    seed: u64,
+    factor: u32,
+) -> Vec<(&'static str, Vec<Frame>)> {
+    let mut rng = SplitMix64::new(seed ^ 0x5eed);
+    let mut seqs: Vec<(&'static str, Vec<Frame>)> = sequences(w, h, n, seed)
+        .into_iter()
+        .filter(|(name, _)| *name != "pan" && *name != "nan and negative")
+        .map(|(name, frames)| {
+            let frames = frames
+                .into_iter()
+                .enumerate()
+                .map(|(i, f)| sparse_from(&mut rng, &f, factor, i as u64, true))
+                .collect();
+            (name, frames)
+        })
+        .collect();
+    let pan = (0..n)
+        .map(|i| crate::report::synthetic_sparse_frame(w, h, i, factor))
+        .collect();
+    let mut bare: Vec<Frame> = Vec::new();
+    let mut planes: Vec<Frame> = Vec::new();
+    let mut dirty: Vec<Frame> = Vec::new();
+    for i in 0..n {
+        let f = random_frame(&mut rng, w, h, 1.0, 1.2, i);
+        bare.push(sparse_from(&mut rng, &f, factor, i, false));
+        let mut p = sparse_from(&mut rng, &f, factor, i, true);
+        p.meta.near_far = Some([0.5, 6.0]);
+        planes.push(p);
+        let mut d = sparse_from(&mut rng, &f, factor, i, true);
+        let [r, g, b] = d.color_mut();
+        let at = (i as usize * 5) % r.len();
+        r[at] = f32::NAN;
+        g[(at + 1) % g.len()] = -2.0;
+        b[(at + 2) % b.len()] = f32::INFINITY;
+        dirty.push(d);
+    }
+    seqs.extend([
+        ("sparse pan", pan),
+        ("no normals or ids", bare),
+        ("near and far planes", planes),
+        ("nan and negative samples", dirty),
+    ]);
+    seqs
+}
+
+/// `f` shaded sparsely at frame `index`'s pattern of `factor`, with its depth and motion,
+/// and random normals and ids in patches when `extra`.
+fn sparse_from(rng: &mut SplitMix64, f: &Frame, factor: u32, index: u64, extra: bool) -> Frame {
+    let (w, h) = (f.width(), f.height());
+    let s = crate::frame::Sampling::rotating(factor, index);
+    let color = Frame::gather(f.color(), s).expect("a valid factor");
+    let mut out = Frame::subsampled(color, w, h, s).expect("gathered at the pattern's size");
+    for k in [ChannelKind::Depth, ChannelKind::Motion] {
+        if let Some(p) = f.planes(k) {
+            out.set_f32(k, p.to_vec()).expect("same size");
+        }
+    }
+    if extra {
+        let tilt: Vec<[f32; 2]> = (0..w * h)
+            .map(|_| [rng.next_f64() as f32 - 0.5, rng.next_f64() as f32 - 0.5])
+            .collect();
+        let normal = [0, 1, 2].map(|c| {
+            Plane::from_fn(w, h, |x, y| {
+                let patch = ((x / 3 + y / 2) % 3) as f32 * 0.4;
+                let t = tilt[y * w + x];
+                let v = [patch + 0.2 * t[0], 0.3 * t[1], 1.0];
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                v[c] / l
+            })
+        });
+        out.set_f32(ChannelKind::Normal, normal.to_vec())
+            .expect("same size");
+        out.set_object_id(Plane::from_fn(w, h, |x, y| {
+            ((x / 4 + y / 3 + index as usize / 3) % 3) as u32
+        }))
+        .expect("same size");
+    }
+    out.meta = f.meta.clone();
+    out
+}

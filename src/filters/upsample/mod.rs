@@ -1,5 +1,5 @@
 //! `upsample`: spatio-temporal upsampling (Herzog, Eisemann, Myszkowski, Seidel 2010,
-//! "Spatio-Temporal Upsampling on the GPU", seed 001), and the three baselines its claim is
+//! "Spatio-Temporal Upsampling on the GPU"), and the three baselines its claim is
 //! measured against, as `method`s of one filter.
 //!
 //! Input: a frame whose colour is shaded at one pixel of every 2x2 or 4x4 block in a
@@ -19,12 +19,12 @@
 //!   `kernel_wide` (c = 0: the whole block footprint, the spatial estimate). Disoccluded
 //!   pixels and the first frame count as maximal gradient (fig. 6).
 //! - `spatial`: the joint-bilateral upsampling alone, wide kernel (Yang et al.'s spatial
-//!   method as seed 001 compares it).
-//! - `temporal`: reverse reprojection with hole filling (seed 001, eq. 3-4; Nehab et al.):
+//!   method as Herzog et al. 2010 compare it).
+//! - `temporal`: reverse reprojection with hole filling (Herzog et al. 2010, eq. 3-4; Nehab et al.):
 //!   a shaded pixel takes its sample, another pixel its valid reprojected history, a hole
 //!   the spatial estimate.
-//! - `taa`: TAA-style upsampling with scaling-aware accumulation (survey 003, "Temporal
-//!   upsampling"; Unreal's temporal upscale): samples splatted with a Gaussian of the
+//! - `taa`: TAA-style upsampling with scaling-aware accumulation (Yang, Liu and Salvi 2020,
+//!   "A Survey of Temporal Antialiasing Techniques", "Temporal upsampling"; Unreal's temporal upscale): samples splatted with a Gaussian of the
 //!   distance, the blend weight scaled by the best sample's kernel value, history clamped
 //!   to the samples' min/max box.
 //!
@@ -52,21 +52,19 @@
 //!   nearest under continuous motion); the history weight is scaled by the passing taps'
 //!   share. Gradients live at full resolution: each pixel takes its block's sample's.
 
+mod kernel;
+pub mod reference;
 mod spatial;
 mod temporal;
 
+pub use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_WEIGHTS, LUMA_FLOOR};
 
-use super::passes::slices_mut;
+use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
-use crate::kernels::luma;
-use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{
-    bind_size, check_channels, prepare, DoubleBuffer, Filter, FilterError, FilterKind, Output, ParamKind,
-    PixelCounts, Recorder, Scratch, Skip,
-};
+use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -105,8 +103,10 @@ impl Method {
     }
 }
 
-/// History planes: colour, weight (spatiotemporal) or sample count (taa), then the
-/// previous frame's depth and ids for the validity test, then three past gradients.
+/// History planes of the reference (the filter keeps them as the channels of one plane of
+/// interleaved texels, in this order): colour, weight (spatiotemporal) or sample count
+/// (taa), then the previous frame's depth and ids for the validity test, then three past
+/// gradients.
 const R: usize = 0;
 const W: usize = 3;
 /// Depth and ids of `temporal` (which has no weight plane).
@@ -130,7 +130,7 @@ filter_params! {
             "history weight kept per frame (0 = auto: 1 - 1/(2 x pattern period), 0.875 for 2x2). Higher: smoother, more lag on changes the gradient misses; lower: faster, noisier";
         gradient_scale: f32 = 1.0,
             ParamKind::Float { min: 0.01, max: 100.0 },
-            "relative luma gradient at which history is no longer trusted (seed 001 eq. 8, 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag";
+            "relative luma gradient at which history is no longer trusted (Herzog et al. 2010, eq. 8: 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag";
         kernel_sharp: f32 = 0.1,
             ParamKind::Float { min: 0.01, max: 4.0 },
             "image-space kernel width at full confidence, in block diagonals: below 1/(factor x 1.41) (0.18 for 4x4) no other sample reaches it, so a still image converges to its own samples; higher blurs converged detail";
@@ -139,7 +139,7 @@ filter_params! {
             "image-space kernel width at no confidence and for the spatial method, in block diagonals (1: the block footprint). Higher: smoother fill, blurrier";
         depth_sigma: f32 = 0.03,
             ParamKind::Float { min: 1e-4, max: 10.0 },
-            "depth difference (fraction of the frame's depth range) at which a sample stops counting (seed 001: 3%). Lower: sharper silhouettes, grazing surfaces fill worse";
+            "depth difference (fraction of the frame's depth range) at which a sample stops counting (Herzog et al. 2010: 3%). Lower: sharper silhouettes, grazing surfaces fill worse";
         normal_sigma: f32 = 0.5,
             ParamKind::Float { min: 1e-3, max: 2.0 },
             "normal difference (1 - cos) at which a sample stops counting. Lower: sharper creases, curved surfaces fill worse";
@@ -154,7 +154,7 @@ filter_params! {
 
 /// Fit of the Blackman-Harris reconstruction kernel, `exp(-2.29 d^2)` with `d` in output
 /// pixels (Karis 2014, "High quality temporal supersampling", used by Unreal's temporal
-/// upscale that survey 003 cites for scaling-aware accumulation).
+/// upscale that Yang, Liu and Salvi 2020 cite for scaling-aware accumulation).
 const TAA_KERNEL: f32 = 2.29;
 /// Sample counts of the `taa` method are held here (as in `taa`): past 1/alpha the blend is
 /// alpha anyway.
@@ -164,9 +164,11 @@ const TAA_MAX_COUNT: f32 = 255.0;
 #[derive(Debug)]
 pub struct Upsample {
     params: Params,
-    hist: DoubleBuffer,
-    scratch: Scratch,
+    hist: TemporalState,
 }
+
+/// Upsample's history is linear colour whatever the frame's range: nothing to convert.
+fn keep_history(_: &mut [Plane<f32>], _: bool) {}
 
 impl FilterKind for Upsample {
     const NAME: &'static str = "upsample";
@@ -191,22 +193,30 @@ impl FilterKind for Upsample {
         2 * 4 * p.method.planes()
     }
     fn new(params: Params) -> Self {
+        // One plane of texels holding the reference's planes side by side (one load per
+        // tap of the history fetch); none for `spatial`.
+        let n = params.method.planes();
+        let layout: &[usize] = if n > 0 { &[n] } else { &[] };
         Upsample {
-            hist: DoubleBuffer::new(params.method.planes()),
-            scratch: Scratch::default(),
+            hist: TemporalState::with_components(layout, Conversion::Custom(keep_history)),
             params,
         }
+    }
+}
+
+/// The decay in effect for a pattern: `decay`, or when 0 `1 - 1 / (2 x period)`.
+fn decay_for(p: &Params, sampling: Sampling) -> f32 {
+    if p.decay > 0.0 {
+        p.decay
+    } else {
+        1.0 - 1.0 / (2.0 * sampling.period() as f32)
     }
 }
 
 impl Upsample {
     /// The decay in effect for a pattern.
     pub fn decay(&self, sampling: Sampling) -> f32 {
-        if self.params.decay > 0.0 {
-            self.params.decay
-        } else {
-            1.0 - 1.0 / (2.0 * sampling.period() as f32)
-        }
+        decay_for(&self.params, sampling)
     }
 }
 
@@ -220,419 +230,107 @@ impl Filter for Upsample {
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        check_channels(Self::NAME, Self::needs(), frame)?;
-        let p = self.params.clone();
-        let method = p.method;
-        let mut rec = Recorder::new();
-        let inp = prepare(frame, Self::uses(), &mut rec)?;
-        let (w, h) = (inp.width, inp.height);
-        let sampling = frame.sampling();
-        let stateful = method != Method::Spatial;
-        let has_history = if stateful {
-            bind_size(&mut self.hist, frame)?;
-            self.hist.valid() && !frame.meta.reset
-        } else {
-            false
-        };
-        let variant = Skip::Variant {
-            variant: method.name(),
-        };
-        let (cw, ch) = inp.color[0].size();
-        let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
-        let depth = inp.depth.as_deref().map(Plane::data);
-        let ids = inp.object_id.map(Plane::data);
-
-        let range = rec.stage(
-            "geometry",
-            (method == Method::Taa)
-                .then_some(variant.clone())
-                .or_else(|| inp.require(ChannelKind::Depth)),
-            || depth_range(depth.expect("required"), ids, frame.meta.near_far),
-        );
-        let geo = Geometry {
-            width: w,
-            height: h,
-            depth: depth.filter(|_| range.is_some()),
-            normal: inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)),
-            inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
-            normal_sigma: p.normal_sigma,
-        };
-
-        let mut pixels = PixelCounts::default();
-        let decay = self.decay(sampling);
-        let scratch = &mut self.scratch;
-        let (read, next) = self.hist.split();
-        let motion = inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data));
-        // Reprojected history: colour (+ weight or count, + the three past gradients) and
-        // the share of valid taps.
-        let mut frac = scratch.plane(w, h);
-        let reprojected: Option<Vec<Plane<f32>>> = rec.stage(
-            "reproject",
-            (!stateful)
-                .then_some(variant.clone())
-                .or_else(|| (!has_history).then_some(Skip::NoHistory)),
-            || {
-                let src = |k: usize| read[k].data();
-                let fr = frac.data_mut();
-                let (prev_depth, prev_ids) = match method {
-                    Method::Temporal => (src(T_DEPTH), src(T_ID)),
-                    _ if method.planes() > ID => (src(DEPTH), src(ID)),
-                    _ => (&[][..], &[][..]),
-                };
-                let validity = Validity {
-                    depth,
-                    prev_depth,
-                    ids,
-                    prev_ids,
-                    depth_tolerance: p.depth_tolerance,
-                };
-                match method {
-                    Method::Spatiotemporal => {
-                        let mut o: [Plane<f32>; 9] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [
-                                src(R),
-                                src(R + 1),
-                                src(R + 2),
-                                src(W),
-                                src(G1),
-                                src(G1 + 1),
-                                src(G1 + 2),
-                                src(LK),
-                                src(LK + 1),
-                            ],
-                            motion,
-                            Some(&validity),
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                        );
-                        pixels.history_rejected += lost;
-                        o.into()
-                    }
-                    Method::Temporal => {
-                        let mut o: [Plane<f32>; 3] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [src(R), src(R + 1), src(R + 2)],
-                            motion,
-                            Some(&validity),
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                        );
-                        pixels.history_rejected += lost;
-                        o.into()
-                    }
-                    Method::Taa | Method::Spatial => {
-                        let mut o: [Plane<f32>; 4] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [src(R), src(R + 1), src(R + 2), src(W)],
-                            motion,
-                            None,
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                        );
-                        pixels.history_reset += lost;
-                        o.into()
-                    }
-                }
-            },
-        );
-        if reprojected.is_none() && stateful {
-            pixels.history_reset += (w * h) as u64;
-        }
-
-        // Spatiotemporal: per-pixel confidence from the filtered gradient, and this frame's
-        // raw gradient (stored as the newest past gradient).
-        let mut conf = scratch.plane(w, h);
-        let mut grad_now = scratch.plane(w, h);
-        rec.stage(
-            "gradient",
-            (method != Method::Spatiotemporal).then_some(variant.clone()),
-            || {
-                gradients(
-                    &sparse,
-                    reprojected.as_deref(),
-                    frac.data(),
-                    w,
-                    h,
-                    p.gradient_scale,
-                    grad_now.data_mut(),
-                    conf.data_mut(),
-                    scratch,
-                )
-            },
-        );
-
-        let mut out: Rgb = scratch.planes(w, h);
-        rec.run("blend", || {
-            let hist = reprojected.as_deref();
-            let fr = frac.data();
-            match method {
-                Method::Spatial => spatial::upsample(&sparse, &geo, p.kernel_wide, &mut out),
-                Method::Spatiotemporal => {
-                    let (c, g0) = (conf.data(), grad_now.data());
-                    let [o0, o1, o2] = slices_mut(&mut out);
-                    let mut it = next.iter_mut();
-                    let n: [&mut [f32]; 11] =
-                        std::array::from_fn(|_| it.next().expect("11 planes").data_mut());
-                    let [n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk] = n;
-                    for_rows(
-                        [o0, o1, o2, n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk],
-                        w,
-                        |y, [or, og, ob, hr, hg, hb, hw, hd, hi, g1, g2, g3, lk, kn]| {
-                            for x in 0..w {
-                                let i = y * w + x;
-                                let sigma = p.kernel_sharp + (1.0 - c[i]) * (p.kernel_wide - p.kernel_sharp);
-                                let s = sparse.gather(&geo, x, y, sigma);
-                                let (prev, wh, pg) = match hist {
-                                    Some(hp) => (
-                                        [hp[0].data()[i], hp[1].data()[i], hp[2].data()[i]],
-                                        c[i] * hp[3].data()[i] * fr[i],
-                                        [hp[4].data()[i], hp[5].data()[i]],
-                                    ),
-                                    None => ([0.0; 3], 0.0, [1.0, 1.0]),
-                                };
-                                let total = s.weight + wh;
-                                let v = [0, 1, 2].map(|k| {
-                                    if total > 0.0 {
-                                        (s.sum[k] + wh * prev[k]) / total
-                                    } else {
-                                        0.0
-                                    }
-                                });
-                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
-                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
-                                hw[x] = decay * total;
-                                hd[x] = depth.map_or(0.0, |d| d[i]);
-                                hi[x] = ids.map_or(0.0, |d| d[i] as f32);
-                                (g1[x], g2[x], g3[x]) = (g0[i], pg[0], pg[1]);
-                                (lk[x], kn[x]) = match (sparse.own(x, y, w, h), hist) {
-                                    (Some(k), _) => (luma(sparse.color.map(|p| p[k])), 1.0),
-                                    (None, Some(hp)) => (hp[7].data()[i], hp[8].data()[i]),
-                                    (None, None) => (0.0, 0.0),
-                                };
-                            }
-                        },
-                    );
-                }
-                Method::Temporal => {
-                    let [o0, o1, o2] = slices_mut(&mut out);
-                    let mut it = next.iter_mut();
-                    let n: [&mut [f32]; 5] = std::array::from_fn(|_| it.next().expect("5 planes").data_mut());
-                    let [n0, n1, n2, nd, ni] = n;
-                    let holes: PixelCounts = par_rows(
-                        [o0, o1, o2, n0, n1, n2, nd, ni],
-                        w,
-                        |y, [or, og, ob, hr, hg, hb, hd, hi]| {
-                            let mut c = PixelCounts::default();
-                            for x in 0..w {
-                                let i = y * w + x;
-                                let v = match (sparse.own(x, y, w, h), hist) {
-                                    (Some(k), _) => sparse.color.map(|p| p[k]),
-                                    (None, Some(hp)) if fr[i] >= 0.5 => {
-                                        [hp[0].data()[i], hp[1].data()[i], hp[2].data()[i]]
-                                    }
-                                    _ => {
-                                        c.history_reset += 1;
-                                        sparse
-                                            .gather(&geo, x, y, p.kernel_wide)
-                                            .mean()
-                                            .unwrap_or([0.0; 3])
-                                    }
-                                };
-                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
-                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
-                                hd[x] = depth.map_or(0.0, |d| d[i]);
-                                hi[x] = ids.map_or(0.0, |d| d[i] as f32);
-                            }
-                            c
-                        },
-                    );
-                    pixels.history_reset += holes.history_reset;
-                }
-                Method::Taa => {
-                    let taa_kernel: Vec<f32> =
-                        (0..81).map(|o| (-TAA_KERNEL * sparse.dist2(o)).exp()).collect();
-                    let taa_kernel = &taa_kernel;
-                    let [o0, o1, o2] = slices_mut(&mut out);
-                    let mut it = next.iter_mut();
-                    let n: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
-                    let [n0, n1, n2, nn] = n;
-                    let clipped: PixelCounts = par_rows(
-                        [o0, o1, o2, n0, n1, n2, nn],
-                        w,
-                        |y, [or, og, ob, hr, hg, hb, hn]| {
-                            let mut counts = PixelCounts::default();
-                            for x in 0..w {
-                                let i = y * w + x;
-                                let (mut sum, mut wsum, mut beta) = ([0.0f32; 3], 0.0f32, 0.0f32);
-                                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-                                sparse.for_each_near(x, y, w, h, |k, _, o| {
-                                    let wt = taa_kernel[o];
-                                    beta = beta.max(wt);
-                                    wsum += wt;
-                                    for c in 0..3 {
-                                        let v = sparse.color[c][k];
-                                        sum[c] += wt * v;
-                                        lo[c] = lo[c].min(v);
-                                        hi[c] = hi[c].max(v);
-                                    }
-                                });
-                                let up = if wsum > 0.0 {
-                                    sum.map(|s| s / wsum)
-                                } else {
-                                    [0.0; 3]
-                                };
-                                let n = match hist {
-                                    Some(hp) if fr[i] > 0.0 && wsum > 0.0 => hp[3].data()[i],
-                                    _ => 0.0,
-                                };
-                                let (v, count) = if n <= 0.0 {
-                                    (up, beta)
-                                } else {
-                                    let hp = hist.expect("n > 0 needs history");
-                                    let mut moved = false;
-                                    let hv = [0, 1, 2].map(|c| {
-                                        let v = hp[c].data()[i];
-                                        let cl = v.clamp(lo[c], hi[c]);
-                                        moved |= cl != v;
-                                        cl
-                                    });
-                                    counts.history_clipped += moved as u64;
-                                    let a = beta * p.taa_alpha.max(1.0 / (n + 1.0));
-                                    (
-                                        [0, 1, 2].map(|c| a * up[c] + (1.0 - a) * hv[c]),
-                                        (n + beta).min(TAA_MAX_COUNT),
-                                    )
-                                };
-                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
-                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
-                                hn[x] = count;
-                            }
-                            counts
-                        },
-                    );
-                    pixels.history_clipped += clipped.history_clipped;
-                }
-            }
-        });
-
-        scratch.recycle([frac, conf, grad_now]);
-        scratch.recycle(reprojected.into_iter().flatten());
-        let bytes = if stateful {
-            self.hist.swap();
-            self.hist.bytes()
-        } else {
-            0
-        };
-        Ok(Output {
-            color: out,
-            record: rec.finish(Self::NAME, frame.meta.index, pixels, inp.counts, bytes),
-        })
+        let p = &self.params;
+        let decay = decay_for(p, frame.sampling());
+        let (sampling, near_far) = (frame.sampling(), frame.meta.near_far);
+        self.hist
+            .run(Self::NAME, Self::needs(), Self::uses(), true, frame, |ctx| {
+                kernel::frame(p, decay, sampling, near_far, ctx)
+            })
     }
 
     fn reset(&mut self) {
-        self.hist.reset();
+        self.hist.buffer.reset();
     }
 
     fn recycle(&mut self, planes: Rgb) {
-        self.scratch.recycle(planes);
+        self.hist.scratch.recycle(planes);
     }
 
     fn state_bytes(&self) -> usize {
-        self.hist.bytes()
+        self.hist.buffer.bytes()
     }
 }
 
-/// Seed 001, sec. 3.4: this frame's relative luma gradient at every shaded sample, against
-/// the luma of the same surface point's previous shaded sample (1 where there is none since
-/// a disocclusion or reset: unknown counts as maximal), spread to the pixels
-/// of its block (and 1 at any pixel whose own history is invalid), filtered over time with
-/// the three previous gradients (weights 4, 3, 2, 1; 1 where unknown) and over a box of
-/// `2r + 1` pixels, `r = max(1, factor / 2)`, slightly larger than the block; `conf` gets
-/// the confidence, `now` the unfiltered gradient to store.
-#[allow(clippy::too_many_arguments)]
-fn gradients(
-    sparse: &Sparse,
-    hist: Option<&[Plane<f32>]>,
-    frac: &[f32],
-    w: usize,
-    h: usize,
-    scale: f32,
-    now: &mut [f32],
-    conf: &mut [f32],
-    scratch: &mut Scratch,
-) {
-    let s = sparse.sampling;
-    let f = s.factor as usize;
-    // Raw gradient of each pixel: its block's sample's, or 1 where its own history is lost.
-    for_rows([&mut *now], w, |y, [row]| {
-        let b = sparse.cell(y, s.phase[1]).max(0);
-        for x in 0..w {
-            let i = y * w + x;
-            let a = sparse.cell(x, s.phase[0]).max(0);
-            row[x] = match (hist, sparse.sample(a, b, w, h)) {
-                (Some(hp), Some((k, j))) if frac[j] >= 0.5 && frac[i] >= 0.5 => {
-                    let l = luma(sparse.color.map(|p| p[k]));
-                    // The same point's last shaded luma when known, else the paper's
-                    // reconstruction of the previous frame.
-                    let known = hp[8].data()[j];
-                    let before = if known >= 0.5 {
-                        hp[7].data()[j] / known
-                    } else {
-                        luma([hp[0].data()[j], hp[1].data()[j], hp[2].data()[j]])
-                    };
-                    relative_gradient(l, before)
-                }
-                // A repaired (invalid) sample says nothing: keep trusting history.
-                (Some(_), None) if sparse.invalid.is_some() && frac[i] >= 0.5 => 0.0,
-                _ => 1.0,
-            };
-        }
-    });
-    // Temporal filter, weights 4, 3, 2, 1 over now and the three previous gradients.
-    let mut filtered = scratch.plane(w, h);
-    let total: f32 = GRADIENT_WEIGHTS.iter().sum();
-    let now_ro: &[f32] = now;
-    for_rows([filtered.data_mut()], w, |y, [row]| {
-        for x in 0..w {
-            let i = y * w + x;
-            // Unknown past gradients (no history) count as maximal.
-            let past = hist.map_or([1.0; 3], |hp| [hp[4].data()[i], hp[5].data()[i], hp[6].data()[i]]);
-            row[x] = (GRADIENT_WEIGHTS[0] * now_ro[i]
-                + GRADIENT_WEIGHTS[1] * past[0]
-                + GRADIENT_WEIGHTS[2] * past[1]
-                + GRADIENT_WEIGHTS[3] * past[2])
-                / total;
-        }
-    });
-    // Spatial box, then the confidence.
-    let r = (f / 2).max(1) as isize;
-    let src = filtered.data();
-    for_rows([conf], w, |y, [row]| {
-        for x in 0..w {
-            let (mut sum, mut n) = (0.0f32, 0u32);
-            for dy in -r..=r {
-                let yy = y as isize + dy;
-                if yy < 0 || yy >= h as isize {
-                    continue;
-                }
-                for dx in -r..=r {
-                    let xx = x as isize + dx;
-                    if xx < 0 || xx >= w as isize {
-                        continue;
+#[cfg(test)]
+mod tests {
+    use super::reference::ReferenceUpsample;
+    use super::*;
+    use crate::filters::check::{assert_same_output, sparse_sequences, ODD_SIZES};
+    use crate::pipeline::params::{build, parse_assignments};
+    use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
+
+    /// The fused kernels give the reference's output, bit for bit, for every method and
+    /// option, on every kind of sparse sequence (2x2, 4x4 and full shading), at odd sizes.
+    #[test]
+    fn fused_kernel_matches_the_reference() {
+        let variants: &[&[&str]] = &[
+            &["method=spatiotemporal"],
+            &[
+                "method=spatiotemporal",
+                "decay=0.5",
+                "gradient_scale=0.2",
+                "kernel_sharp=0.5",
+            ],
+            &[
+                "method=spatiotemporal",
+                "kernel_wide=2.5",
+                "depth_sigma=0.5",
+                "normal_sigma=0.05",
+            ],
+            &["method=spatial"],
+            &["method=spatial", "kernel_wide=0.3", "depth_sigma=0.001"],
+            &["method=temporal"],
+            &["method=temporal", "depth_tolerance=0.001", "kernel_wide=3"],
+            &["method=taa"],
+            &["method=taa", "taa_alpha=0.5"],
+        ];
+        let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
+        for (w, h) in sizes {
+            for factor in [2, 4, 1] {
+                let seed = (w * 31 + h) as u64 + factor as u64;
+                for (name, frames) in sparse_sequences(w, h, 7, seed, factor) {
+                    for set in variants {
+                        let params: Params = build("upsample", &parse_assignments(set).unwrap()).unwrap();
+                        let mut fast = Upsample::new(params.clone());
+                        let mut slow = ReferenceUpsample::new(params);
+                        for (i, f) in frames.iter().enumerate() {
+                            let a = fast.process(f).unwrap();
+                            let b = slow.process(f).unwrap();
+                            assert_same_output(
+                                &a,
+                                &b,
+                                Tolerance::EXACT,
+                                &format!("{w}x{h} {factor}x{factor} {name} {set:?} frame {i}"),
+                            );
+                            fast.recycle(a.color);
+                        }
                     }
-                    sum += src[yy as usize * w + xx as usize];
-                    n += 1;
                 }
             }
-            row[x] = confidence(sum / n as f32, scale);
         }
-    });
-    scratch.recycle([filtered]);
+    }
+
+    /// The vectorised depth range is the reference's, with and without ids and planes.
+    #[test]
+    fn depth_range_matches_the_reference() {
+        let mut rng = SplitMix64::new(3);
+        for n in [1usize, 7, 8, 9, 100, 70_001] {
+            let mut depth: Vec<f32> = (0..n).map(|_| (rng.next_f64() * 50.0 - 5.0) as f32).collect();
+            depth[n / 2] = f32::NAN;
+            depth[n / 3] = f32::INFINITY;
+            let ids: Vec<u32> = (0..n).map(|_| (rng.next_f64() * 3.0) as u32).collect();
+            for ids in [None, Some(&ids[..])] {
+                for nf in [None, Some([0.5, 20.0]), Some([3.0, 3.0])] {
+                    assert_eq!(
+                        depth_range_fast(&depth, ids, nf).to_bits(),
+                        depth_range(&depth, ids, nf).to_bits(),
+                        "{n} {nf:?}"
+                    );
+                }
+            }
+        }
+        assert_eq!(depth_range_fast(&[f32::NAN; 3], None, None), 1.0);
+    }
 }

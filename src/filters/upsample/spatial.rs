@@ -1,18 +1,18 @@
-//! Joint-bilateral upsampling of sparse shading (Herzog et al. 2010, seed 001, eq. 1-2,
+//! Joint-bilateral upsampling of sparse shading (Herzog et al. 2010, eq. 1-2,
 //! after Yang et al.): a full-resolution pixel takes the weighted mean of the four shaded
 //! samples around it, the weight being an image-space kernel times geometric terms on
 //! normal and depth that the full-resolution G-buffer gives for both ends.
 
 use crate::frame::{Plane, Sampling};
 
-/// Weights never fall below this: seed 001, sec. 3.1, "finite support, clamped to a small
+/// Weights never fall below this: Herzog et al. 2010, sec. 3.1, "finite support, clamped to a small
 /// epsilon to avoid zero weights", so that a pixel whose four samples all lie on other
 /// surfaces still gets a value (their plain mean) rather than a division by zero. Small
 /// enough that an epsilon-weighted sample moves a converged pixel by under 1e-3 of the
 /// difference (four neighbours, a period of 16 frames: 4 x 16 x 1e-5 = 6.4e-4).
 pub const WEIGHT_EPSILON: f32 = 1.0e-5;
 
-/// The finite-support falloff of seed 001, sec. 3.1 (fig. 4, left): `(1 - x / sigma)^3`
+/// The finite-support falloff of Herzog et al. 2010, sec. 3.1 (fig. 4, left): `(1 - x / sigma)^3`
 /// for `x < sigma`, clamped below at [`WEIGHT_EPSILON`]. It is 1 at 0 and falls smoothly
 /// to the clamp at `sigma`, a cheap stand-in for Yang et al.'s Gaussian.
 #[inline(always)]
@@ -33,7 +33,7 @@ pub struct Geometry<'a> {
     /// Normals, when the frame has them.
     pub normal: Option<[&'a [f32]; 3]>,
     /// `1 / (depth_sigma x depth range)`: depth differences are measured relative to the
-    /// frame's depth range (seed 001, sec. 3.1).
+    /// frame's depth range (Herzog et al. 2010, sec. 3.1).
     pub inv_depth_scale: f32,
     /// Falloff width on `1 - n_i . n_j`.
     pub normal_sigma: f32,
@@ -264,7 +264,7 @@ impl<'a> Sparse<'a> {
         }
     }
 
-    /// Joint-bilateral gather at pixel `(x, y)` (seed 001, eq. 1-2): weight = image-space
+    /// Joint-bilateral gather at pixel `(x, y)` (Herzog et al. 2010, eq. 1-2): weight = image-space
     /// falloff of the distance (in units of the block diagonal `factor x sqrt 2`, width
     /// `kernel_sigma`) times the geometric weight.
     #[inline(always)]

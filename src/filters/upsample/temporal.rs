@@ -1,4 +1,4 @@
-//! The temporal half of spatio-temporal upsampling (Herzog et al. 2010, seed 001, sec.
+//! The temporal half of spatio-temporal upsampling (Herzog et al. 2010, sec.
 //! 3.2-3.4): history fetched along the motion with a validity test per tap, and the
 //! relative temporal gradient of luma that steers how far history is trusted.
 
@@ -10,7 +10,7 @@ use rayon::prelude::*;
 /// of 0.001 on a pixel of luma 0.001 is noise, not a 100% change. 1% of display white.
 pub const LUMA_FLOOR: f32 = 0.01;
 
-/// History taps must show the same surface as the pixel: seed 001, sec. 3.2, "compare the
+/// History taps must show the same surface as the pixel: Herzog et al. 2010, sec. 3.2, "compare the
 /// warped depth with the depth of the previous frame ... also compare the material (object
 /// id), since depth alone misses contact points".
 pub struct Validity<'a> {
@@ -107,17 +107,17 @@ pub fn reproject<const N: usize>(
 }
 
 /// Relative temporal gradient of luma between a new sample and the history at its pixel
-/// (seed 001, sec. 3.4: `|L_t - L_t-1| / max(L_t, L_t-1)`, which measures contrast).
+/// (Herzog et al. 2010, sec. 3.4: `|L_t - L_t-1| / max(L_t, L_t-1)`, which measures contrast).
 #[inline(always)]
 pub fn relative_gradient(now: f32, before: f32) -> f32 {
     ((now - before).abs() / now.max(before).max(LUMA_FLOOR)).min(1.0)
 }
 
-/// The temporal filter of gradients, seed 001, sec. 3.4: the current and the three
+/// The temporal filter of gradients, Herzog et al. 2010, sec. 3.4: the current and the three
 /// previous gradients weighted 4, 3, 2, 1.
 pub const GRADIENT_WEIGHTS: [f32; 4] = [4.0, 3.0, 2.0, 1.0];
 
-/// Confidence in history from a filtered gradient: `(1 - min(1, g / scale))^2`. Seed 001,
+/// Confidence in history from a filtered gradient: `(1 - min(1, g / scale))^2`. Herzog et al. 2010,
 /// eq. 8 squares the term so that large gradients cut history fast while small ones
 /// barely do; `scale` is its sensitivity ("usually kept at 1").
 #[inline(always)]

@@ -1,0 +1,1172 @@
+//! `upsample`'s stages fused into passes over bands of rows ([`par_bands_strided`]).
+//!
+//! The joint-bilateral gather (Herzog et al. 2010, eq. 1-2), shared by `spatial`,
+//! `temporal` (hole filling) and `spatiotemporal`, and the splat of `taa` read the shaded
+//! samples around each pixel. A band first expands every sample row it needs to full
+//! resolution ([`SampleRows`]: each sample's colour, validity, depth and normal repeated
+//! over the `factor` columns of its cell), so that for a block of [`LANES`] pixels the
+//! sample left of, in and right of each pixel's cell are three contiguous loads at fixed
+//! offsets (`-factor`, `0`, `+factor`); the image-space distances form a pattern that is the
+//! same for every block of a row (a block starts at a multiple of 8, which `factor`
+//! divides). The weights and sums then run on 8-pixel lanes without branches: a slot with
+//! no sample gets weight 0, which adds `+0` to every sum, so the sums are the reference's.
+//!
+//! History is one plane of interleaved texels (the reference's planes side by side), one
+//! load per bilinear tap; it is reprojected row by row inside the band (`temporal`, `taa`).
+//! `spatiotemporal`'s gradient filter is a box over `r + factor - 1` rows around a pixel,
+//! reaching into other bands, so its reprojection is one band pass of its own (into a
+//! texel plane that holds the tap weight in place of the depth), and the gradient, the box
+//! and the blend a second.
+//!
+//! Every stage computes what the reference ([`super::reference`]) computes, with the same
+//! float operations in the same order, so the outputs are the same bits; the tests compare
+//! them frame by frame.
+
+use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
+use super::temporal::{confidence, relative_gradient, GRADIENT_WEIGHTS};
+use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
+use crate::filters::passes::{on_screen, FrameContext, FrameResult};
+use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
+use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::{fmax, fmin, LUMA_REC709};
+use crate::pipeline::exec::{par_bands_strided, pool, StageClock};
+use crate::pipeline::{FilterError, PixelCounts, Skip};
+use std::ops::Range;
+
+/// Stages of the fused passes timed by their clock, in record order.
+const STAGES: [&str; 3] = ["reproject", "gradient", "blend"];
+const REPROJECT: usize = 0;
+const GRADIENT: usize = 1;
+const BLEND: usize = 2;
+
+/// Texel sizes of the history: `spatiotemporal` [R, G, B, W, depth, id, G1, G2, G3, LK,
+/// K], `temporal` [R, G, B, depth, id], `taa` [R, G, B, count] (the reference's planes).
+const ST: usize = 11;
+const TM: usize = 5;
+const TA: usize = 4;
+
+/// Channels of an expanded sample row.
+const E_R: usize = 0;
+const E_VALID: usize = 3;
+const E_DEPTH: usize = 4;
+const E_N: usize = 5;
+const E_CH: usize = 8;
+
+/// The depth range of [`super::spatial::depth_range`], as a vectorised parallel reduction
+/// (min and max are exact, so any order gives the same range).
+pub fn depth_range(depth: &[f32], ids: Option<&[u32]>, near_far: Option<[f32; 2]>) -> f32 {
+    use rayon::prelude::*;
+    if let Some([n, f]) = near_far {
+        if (f - n).is_finite() && f > n {
+            return f - n;
+        }
+    }
+    const CHUNK: usize = 1 << 15;
+    let fold = |d: &[f32], ids: Option<&[u32]>| {
+        let (mut lo, mut hi) = ([f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES]);
+        let mut block = |dc: &[f32; LANES], keep: [bool; LANES]| {
+            for l in 0..LANES {
+                let (v, keep) = (dc[l], keep[l] & (dc[l].abs() < f32::INFINITY));
+                lo[l] = fmin(lo[l], if keep { v } else { f32::INFINITY });
+                hi[l] = fmax(hi[l], if keep { v } else { f32::NEG_INFINITY });
+            }
+        };
+        let n = d.len() / LANES * LANES;
+        let pad = |s: &[f32]| -> [f32; LANES] { lanes_of(|l| s.get(n + l).copied().unwrap_or(f32::NAN)) };
+        match ids {
+            Some(ids) => {
+                for (dc, ic) in d.chunks_exact(LANES).zip(ids.chunks_exact(LANES)) {
+                    block(dc.try_into().expect("a block"), lanes_of(|l| ic[l] != 0));
+                }
+                block(&pad(d), lanes_of(|l| ids.get(n + l).is_some_and(|&i| i != 0)));
+            }
+            None => {
+                for dc in d.chunks_exact(LANES) {
+                    block(dc.try_into().expect("a block"), [true; LANES]);
+                }
+                block(&pad(d), [true; LANES]);
+            }
+        }
+        (
+            lo.into_iter().fold(f32::INFINITY, fmin),
+            hi.into_iter().fold(f32::NEG_INFINITY, fmax),
+        )
+    };
+    let join = |a: (f32, f32), b: (f32, f32)| (fmin(a.0, b.0), fmax(a.1, b.1));
+    let (lo, hi) = pool().install(|| {
+        let none = (f32::INFINITY, f32::NEG_INFINITY);
+        match ids {
+            Some(ids) => depth
+                .par_chunks(CHUNK)
+                .zip(ids.par_chunks(CHUNK))
+                .map(|(d, i)| fold(d, Some(i)))
+                .reduce(|| none, join),
+            None => depth
+                .par_chunks(CHUNK)
+                .map(|d| fold(d, None))
+                .reduce(|| none, join),
+        }
+    });
+    if hi > lo {
+        hi - lo
+    } else {
+        1.0
+    }
+}
+
+/// What the passes read for one frame.
+struct Setup<'a> {
+    w: usize,
+    h: usize,
+    /// Block size, its log2, and the phase.
+    f: isize,
+    shift: u32,
+    px: isize,
+    py: isize,
+    sparse: &'a Sparse<'a>,
+    /// Depth and normals of the geometric weights (`None`: the term is 1).
+    geo_depth: Option<&'a [f32]>,
+    normal: Option<[&'a [f32]; 3]>,
+    inv_depth_scale: f32,
+    normal_sigma: f32,
+    /// This frame's depth, ids and motion (validity, the next history).
+    depth: Option<&'a [f32]>,
+    ids: Option<&'a [u32]>,
+    motion: Option<[&'a [f32]; 2]>,
+    /// Per lane of a block, whether the pixel sits on its cell's sample column, as a mask
+    /// and as 1 or 0.
+    on_column: Mask,
+    column: Lanes,
+    /// Per row offset `dy + f` and slot (left, own, right cell): the image-space weight of
+    /// each lane (`spatial`, `temporal`: the falloff at `kernel_wide`; `taa`: the Gaussian)
+    /// or its distance in block diagonals (`spatiotemporal`, whose width varies).
+    table: Vec<[Lanes; 3]>,
+    /// Floats of an expanded sample row.
+    stride: usize,
+}
+
+/// [`falloff`] with `fmax` for `f32::max`: the same value for every input (NaN
+/// included: both give the other operand; a -0 or +0 `t` gives the clamp either way), in
+/// one vector instruction instead of three.
+#[inline(always)]
+fn falloff_lane(x: f32, sigma: f32) -> f32 {
+    let t = fmax(1.0 - x * (1.0 / sigma), 0.0);
+    fmax(t * t * t, WEIGHT_EPSILON)
+}
+
+/// `[f(0), .., f(7)]`: a plain loop that always inlines (`std::array::from_fn` goes through
+/// a closure wrapper the compiler does not always inline, which stops vectorisation).
+#[inline(always)]
+fn lanes_of<T: Copy + Default>(f: impl Fn(usize) -> T) -> [T; LANES] {
+    let mut o = [T::default(); LANES];
+    for (l, o) in o.iter_mut().enumerate() {
+        *o = f(l);
+    }
+    o
+}
+
+/// `[f(0), f(1), f(2)]`.
+#[inline(always)]
+fn three<T>(f: impl Fn(usize) -> T) -> [T; 3] {
+    [f(0), f(1), f(2)]
+}
+
+/// `a x b` lane by lane.
+#[inline(always)]
+fn mul(a: &Lanes, b: &Lanes) -> Lanes {
+    lanes_of(|l| a[l] * b[l])
+}
+
+/// How many lanes are set.
+#[inline(always)]
+fn set_lanes(m: &Mask) -> u64 {
+    let mut n = 0u32;
+    for &b in m {
+        n += b as u32;
+    }
+    n as u64
+}
+
+/// Lanes `x0..x0 + 8` of a row, zero past its end.
+#[inline(always)]
+fn ld(s: &[f32], x0: usize) -> Lanes {
+    match s.get(x0..x0 + LANES) {
+        Some(b) => b.try_into().expect("a block"),
+        None => lanes_of(|l| s.get(x0 + l).copied().unwrap_or(0.0)),
+    }
+}
+
+/// Lanes `x0..x0 + 8` of channel `c` of a row of `n`-float texels, zero past its end.
+#[inline(always)]
+fn ld_texel(s: &[f32], n: usize, c: usize, x0: usize) -> Lanes {
+    match s.get(n * x0..n * (x0 + LANES)) {
+        Some(b) => lanes_of(|l| b[n * l + c]),
+        None => lanes_of(|l| s.get(n * (x0 + l) + c).copied().unwrap_or(0.0)),
+    }
+}
+
+/// Stores the lanes of a block that lie in the row.
+#[inline(always)]
+fn st(s: &mut [f32], x0: usize, v: &Lanes) {
+    let n = LANES.min(s.len() - x0);
+    s[x0..x0 + n].copy_from_slice(&v[..n]);
+}
+
+/// Stores texels of `N` channels for the lanes of a block that lie in the row.
+#[inline(always)]
+fn st_texels<const N: usize>(s: &mut [f32], x0: usize, v: &[Lanes; N]) {
+    let n = LANES.min(s.len() / N - x0);
+    for l in 0..n {
+        let t: &mut [f32; N] = (&mut s[N * (x0 + l)..N * (x0 + l + 1)])
+            .try_into()
+            .expect("a texel");
+        for (c, t) in t.iter_mut().enumerate() {
+            *t = v[c][l];
+        }
+    }
+}
+
+/// Luma (Rec. 709, [`crate::kernels::luma`]) in lanes.
+#[inline(always)]
+fn luma_lanes(c: &[Lanes; 3]) -> Lanes {
+    lanes_of(|l| LUMA_REC709[0] * c[0][l] + LUMA_REC709[1] * c[1][l] + LUMA_REC709[2] * c[2][l])
+}
+
+/// The sample rows a band reads, expanded to full resolution: entry `x + f` of row `b`
+/// holds the sample of the cell of column `x` (its colour, 1 when it exists and is valid
+/// else 0, its depth and normal), zero where there is none.
+#[derive(Default)]
+struct SampleRows {
+    /// The first cell row held, and how many.
+    first: isize,
+    rows: usize,
+    /// Which held rows exist (inside the colour planes and the frame).
+    present: Vec<bool>,
+    data: [Vec<f32>; E_CH],
+}
+
+/// Writes `value(a)` to the `f` entries of each cell `a` of `cells` (`f` of 1, 2 or 4).
+#[inline(always)]
+fn expand(cells: &mut [f32], f: usize, value: impl Fn(usize) -> f32) {
+    fn by<const F: usize>(cells: &mut [f32], value: impl Fn(usize) -> f32) {
+        for (a, c) in cells.chunks_exact_mut(F).enumerate() {
+            let c: &mut [f32; F] = c.try_into().expect("a cell");
+            *c = [value(a); F];
+        }
+    }
+    match f {
+        1 => by::<1>(cells, value),
+        2 => by::<2>(cells, value),
+        _ => by::<4>(cells, value),
+    }
+}
+
+/// One sample row of a pixel's footprint: its expanded channels and its row offset.
+struct Slot<'a> {
+    e: [&'a [f32]; E_CH],
+    /// `dy + f`.
+    dyi: usize,
+}
+
+impl SampleRows {
+    /// Expands the cell rows that rows `rows` read: one above the first's cell to one below
+    /// the last's.
+    fn build(&mut self, fr: &Setup, rows: Range<usize>, geometry: bool) {
+        let first = ((rows.start as isize - fr.py) >> fr.shift) - 1;
+        let last = ((rows.end as isize - 1 - fr.py) >> fr.shift) + 1;
+        self.first = first;
+        self.rows = (last - first + 1) as usize;
+        self.present.clear();
+        let s = fr.stride;
+        let channels = if geometry { E_CH } else { E_VALID + 1 };
+        for d in &mut self.data[..channels] {
+            if d.len() < self.rows * s {
+                d.resize(self.rows * s, 0.0);
+            }
+        }
+        let sp = fr.sparse;
+        let (cw, ch) = (sp.color_width, sp.color_height);
+        let f = fr.f as usize;
+        for k in 0..self.rows {
+            let b = first + k as isize;
+            let sy = fr.f * b + fr.py;
+            let present = b >= 0 && (b as usize) < ch && (sy as usize) < fr.h;
+            self.present.push(present);
+            if !present {
+                continue;
+            }
+            let (b, sy) = (b as usize, sy as usize);
+            let row = k * s..(k + 1) * s;
+            // Entry `x + f` holds the sample of column x's cell: cell a's columns
+            // `f a + px .. f a + px + f` are entries `f a + px + f ..`; the entries before
+            // cell 0's and after the last cell's stay 0.
+            let first_at = f + fr.px as usize;
+            let tail = first_at + f * cw;
+            // Cells whose sample lies in the frame; the colour, depth and normal of the
+            // others (and of invalid samples) are left finite and carry weight 0.
+            let inside = fr.w.saturating_sub(fr.px as usize).div_ceil(f).min(cw);
+            for (c, d) in self.data[..channels].iter_mut().enumerate() {
+                let d = &mut d[row.clone()];
+                d[..first_at.min(s)].fill(0.0);
+                if tail < s {
+                    d[tail..].fill(0.0);
+                }
+                let cells = &mut d[first_at..tail.min(s)];
+                let (cells, outside) = cells.split_at_mut(f * inside);
+                outside.fill(0.0);
+                match c {
+                    E_R..=2 => expand(cells, f, |a| sp.color[c][b * cw + a]),
+                    E_VALID => match sp.invalid {
+                        Some(v) => expand(cells, f, |a| (!v[b * cw + a]) as u8 as f32),
+                        None => cells.fill(1.0),
+                    },
+                    _ => {
+                        let plane = if c == E_DEPTH {
+                            fr.geo_depth
+                        } else {
+                            fr.normal.map(|n| n[c - E_N])
+                        };
+                        match plane {
+                            Some(p) => {
+                                let src = &p[sy * fr.w..(sy + 1) * fr.w];
+                                expand(cells, f, |a| src[f * a + fr.px as usize])
+                            }
+                            None => cells.fill(0.0),
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The sample rows of row `y`'s footprint, in the reference's order (cell rows above,
+    /// own, below): the row above only for a pixel on a sample row (at `dy = -f`).
+    #[inline(always)]
+    fn slots<'s>(&'s self, fr: &Setup, y: usize) -> ([Option<Slot<'s>>; 3], isize) {
+        let t = y as isize - fr.py;
+        let b0 = t >> fr.shift;
+        let my = t - (b0 << fr.shift);
+        let s = fr.stride;
+        let get = |b: isize, dy: isize| -> Option<Slot<'s>> {
+            let k = (b - self.first) as usize;
+            self.present[k].then(|| Slot {
+                e: std::array::from_fn(|c| self.data[c].get(k * s..(k + 1) * s).unwrap_or(&[])),
+                dyi: (dy + fr.f) as usize,
+            })
+        };
+        let up = if my == 0 { get(b0 - 1, -fr.f) } else { None };
+        ([up, get(b0, -my), get(b0 + 1, fr.f - my)], my)
+    }
+}
+
+/// A pixel block's own geometry.
+struct PixelGeo {
+    depth: Lanes,
+    normal: [Lanes; 3],
+}
+
+impl PixelGeo {
+    #[inline(always)]
+    fn load<const D: bool, const N: bool>(fr: &Setup, y: usize, x0: usize) -> Self {
+        let row = y * fr.w..(y + 1) * fr.w;
+        PixelGeo {
+            depth: if D {
+                ld(&fr.geo_depth.expect("D")[row.clone()], x0)
+            } else {
+                [0.0; LANES]
+            },
+            normal: if N {
+                fr.normal.expect("N").map(|n| ld(&n[row.clone()], x0))
+            } else {
+                [[0.0; LANES]; 3]
+            },
+        }
+    }
+}
+
+/// The joint-bilateral gather of a block ([`Sparse::gather`] in lanes): over the slots in
+/// order, weight = `image(slot)` times the geometric weight (normal term times depth term,
+/// [`super::spatial::Geometry::weight`]), 0 where the slot has no sample. Returns the sum of
+/// weight x colour and the sum of weights.
+#[inline(always)]
+fn gather_lanes<const D: bool, const N: bool>(
+    fr: &Setup,
+    slots: &[Option<Slot>; 3],
+    x0: usize,
+    g: &PixelGeo,
+    image: &[[Lanes; 3]; 3],
+) -> ([Lanes; 3], Lanes) {
+    let mut sum = [[0.0f32; LANES]; 3];
+    let mut wsum = [0.0f32; LANES];
+    for (slot, image) in slots.iter().zip(image) {
+        let Some(slot) = slot else { continue };
+        for s in 0..3 {
+            let at = x0 + s * fr.f as usize;
+            let e = |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
+            let valid = e(E_VALID);
+            let img = &image[s];
+            let mut geo = [1.0f32; LANES];
+            if D {
+                let sd = e(E_DEPTH);
+                geo =
+                    lanes_of(|l| geo[l] * falloff_lane((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0));
+            }
+            if N {
+                let (nx, ny, nz) = (e(E_N), e(E_N + 1), e(E_N + 2));
+                geo = lanes_of(|l| {
+                    let dot = g.normal[0][l] * nx[l] + g.normal[1][l] * ny[l] + g.normal[2][l] * nz[l];
+                    geo[l] * falloff_lane(fmax(1.0 - dot, 0.0), fr.normal_sigma)
+                });
+            }
+            // 1 where the slot has a sample, else 0: the weight is exact or +0.
+            let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
+            let wt: Lanes = lanes_of(|l| img[l] * geo[l] * mask[l]);
+            for (c, sum) in sum.iter_mut().enumerate() {
+                let v = e(E_R + c);
+                *sum = lanes_of(|l| sum[l] + wt[l] * v[l]);
+            }
+            wsum = lanes_of(|l| wsum[l] + wt[l]);
+        }
+    }
+    (sum, wsum)
+}
+
+/// [`super::spatial::Gathered::mean`] in lanes, 0 where no sample had weight.
+#[inline(always)]
+fn mean(sum: &[Lanes; 3], wsum: &Lanes) -> [Lanes; 3] {
+    sum.map(|s| lanes_of(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
+}
+
+/// The colour of each lane's own sample, and which lanes have one (shaded this frame:
+/// on a sample row and column, with a valid sample).
+#[inline(always)]
+fn own_lanes(fr: &Setup, slots: &[Option<Slot>; 3], my: isize, x0: usize) -> ([Lanes; 3], Mask) {
+    match (&slots[1], my == 0) {
+        (Some(slot), true) => {
+            let at = x0 + fr.f as usize;
+            let e = |c: usize| -> Lanes { slot.e[c][at..at + LANES].try_into().expect("a block") };
+            let valid = e(E_VALID);
+            let own: Mask = lanes_of(|l| fr.on_column[l] & (valid[l] != 0.0));
+            ([e(0), e(1), e(2)], own)
+        }
+        _ => ([[0.0; LANES]; 3], [false; LANES]),
+    }
+}
+
+/// The bilinear reprojection of [`super::temporal::reproject`] for row `y`, from a plane of
+/// `N`-float texels: each pixel's taps at `p + motion` that pass the validity test (this
+/// pixel's id against the tap's channel `id`, its depth against channel `depth`; all taps
+/// when `valid` is off), renormalised; calls `emit(x, texel, tap weight)`. Returns the
+/// pixels with less than half of the weight.
+#[inline(always)]
+fn reproject_row<const N: usize>(
+    fr: &Setup,
+    hist: &[f32],
+    y: usize,
+    valid: Option<(usize, usize, f32)>,
+    mut emit: impl FnMut(usize, [f32; N], f32),
+) -> u64 {
+    let (w, h) = (fr.w, fr.h);
+    let row = y * w..(y + 1) * w;
+    let motion = fr.motion.map(|m| m.map(|m| &m[row.clone()]));
+    let depth = valid.and(fr.depth).map(|d| &d[row.clone()]);
+    let ids = valid.and(fr.ids).map(|d| &d[row.clone()]);
+    let (dc, ic, tol) = valid.unwrap_or((0, 0, 0.0));
+    let mut lost = 0u64;
+    for x in 0..w {
+        let (mx, my) = motion.map_or((0.0, 0.0), |m| (m[0][x], m[1][x]));
+        let (px, py) = (x as f32 + 0.5 + mx, y as f32 + 0.5 + my);
+        let mut acc = [0.0f32; N];
+        let mut total = 0.0f32;
+        if on_screen(px, py, w, h) {
+            let (fx, fy) = (px - 0.5, py - 0.5);
+            let (x0, y0) = (fx.floor(), fy.floor());
+            let (tx, ty) = (fx - x0, fy - y0);
+            // On screen, `x0` lies in -1 ..= w - 1 (and y0 likewise): the clamps of the
+            // reference's `(v.max(0) as usize).min(n - 1)` on whole numbers.
+            let (xi, yi) = (x0 as isize, y0 as isize);
+            let (xa, xb) = (xi.max(0) as usize, (xi + 1).min(w as isize - 1) as usize);
+            let (ya, yb) = (yi.max(0) as usize * w, (yi + 1).min(h as isize - 1) as usize * w);
+            let taps = [
+                (xa + ya, (1.0 - tx) * (1.0 - ty)),
+                (xb + ya, tx * (1.0 - ty)),
+                (xa + yb, (1.0 - tx) * ty),
+                (xb + yb, tx * ty),
+            ];
+            let id = ids.map(|ids| ids[x] as f32);
+            let z = depth.map(|d| d[x]);
+            // Branch-free: a tap that fails adds weight +0 (and +0 or -0 to each sum,
+            // which leaves sums that start at +0 and only grow as they were), so the sums
+            // are the reference's, which skips it.
+            for (t, wt) in taps {
+                let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
+                let mut ok = wt > 0.0;
+                if let Some(id) = id {
+                    ok &= id == tex[ic];
+                }
+                if let Some(z) = z {
+                    let far = (tex[dc] - z).abs() > tol * z.abs();
+                    ok &= !far;
+                }
+                let wt = if ok { wt } else { 0.0 };
+                total += wt;
+                for (a, t) in acc.iter_mut().zip(tex) {
+                    *a += wt * t;
+                }
+            }
+        }
+        let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
+        emit(x, acc.map(|a| a * inv), total);
+        lost += (total < 0.5) as u64;
+    }
+    lost
+}
+
+/// One band task's buffers, reused across the bands it runs.
+#[derive(Default)]
+struct Band {
+    samples: SampleRows,
+    /// This row's reprojected history texels and tap weights.
+    hist: Vec<f32>,
+    frac: Vec<f32>,
+    /// `spatiotemporal`: per cell of a sample row, the gradient its pixels take; this
+    /// band's raw gradients and temporally filtered gradients (with `r` zero columns each
+    /// side), rows `ylo..yhi`; the confidence of one row.
+    cells: Vec<f32>,
+    now: Vec<f32>,
+    filtered: Vec<f32>,
+    conf: Vec<f32>,
+}
+
+fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
+    if v.len() < n {
+        v.resize(n, 0.0);
+    }
+    &mut v[..n]
+}
+
+/// Dispatches on which geometric terms exist.
+macro_rules! with_geometry {
+    ($fr:expr, $f:ident($($arg:expr),*)) => {
+        match ($fr.geo_depth.is_some(), $fr.normal.is_some()) {
+            (true, true) => $f::<true, true>($($arg),*),
+            (true, false) => $f::<true, false>($($arg),*),
+            (false, true) => $f::<false, true>($($arg),*),
+            (false, false) => $f::<false, false>($($arg),*),
+        }
+    };
+}
+
+/// Runs `upsample`'s stages from `geometry` to `blend` for one frame.
+pub(super) fn frame(
+    p: &Params,
+    decay: f32,
+    sampling: Sampling,
+    near_far: Option<[f32; 2]>,
+    ctx: FrameContext<'_, '_>,
+) -> Result<FrameResult, FilterError> {
+    let FrameContext {
+        inp,
+        rec,
+        has_history,
+        read,
+        next,
+        scratch,
+    } = ctx;
+    let method = p.method;
+    let (w, h) = (inp.width, inp.height);
+    let stateful = method != Method::Spatial;
+    let has_history = stateful && has_history;
+    let variant = Skip::Variant {
+        variant: method.name(),
+    };
+    let (cw, ch) = inp.color[0].size();
+    let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
+    let depth = inp.depth.as_deref().map(Plane::data);
+    let ids = inp.object_id.map(Plane::data);
+    let range = rec.stage(
+        "geometry",
+        (method == Method::Taa)
+            .then_some(variant.clone())
+            .or_else(|| inp.require(ChannelKind::Depth)),
+        || depth_range(depth.expect("required"), ids, near_far),
+    );
+    let f = sampling.factor as isize;
+    let side = 2 * f as usize + 1;
+    let on_column: Mask = lanes_of(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
+    // Per row offset and slot, each lane's offset index (`Sparse::dist` order) or none.
+    let offset = |dyi: usize, s: usize, l: usize| -> usize {
+        let m = (l as isize - sampling.phase[0] as isize).rem_euclid(f);
+        let dx = [-f, -m, f - m][s];
+        if s == 0 && m != 0 {
+            // Masked: any offset will do.
+            dyi * side
+        } else {
+            dyi * side + (dx + f) as usize
+        }
+    };
+    let table: Vec<[Lanes; 3]> = (0..side)
+        .map(|dyi| {
+            std::array::from_fn(|s| {
+                lanes_of(|l| {
+                    let o = offset(dyi, s, l);
+                    match method {
+                        Method::Spatiotemporal => sparse.dist(o),
+                        Method::Taa => (-TAA_KERNEL * sparse.dist2(o)).exp(),
+                        _ => falloff(sparse.dist(o), p.kernel_wide),
+                    }
+                })
+            })
+        })
+        .collect();
+    let fr = Setup {
+        w,
+        h,
+        f,
+        shift: sampling.factor.trailing_zeros(),
+        px: sampling.phase[0] as isize,
+        py: sampling.phase[1] as isize,
+        sparse: &sparse,
+        geo_depth: depth.filter(|_| range.is_some() && method != Method::Taa),
+        normal: (method != Method::Taa)
+            .then(|| inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)))
+            .flatten(),
+        inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
+        normal_sigma: p.normal_sigma,
+        depth,
+        ids,
+        motion: inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data)),
+        on_column,
+        column: on_column.map(|b| b as u8 as f32),
+        table,
+        stride: w.next_multiple_of(LANES) + 2 * f as usize,
+    };
+
+    let mut pixels = PixelCounts::default();
+    let mut out: Rgb = scratch.planes(w, h);
+    let hist = has_history.then(|| read[0].data());
+    let reproject_skip = (!stateful)
+        .then_some(variant.clone())
+        .or_else(|| (!has_history).then_some(Skip::NoHistory));
+    if stateful && !has_history {
+        pixels.history_reset += (w * h) as u64;
+    }
+    let gradient_skip = (method != Method::Spatiotemporal).then_some(variant);
+    let clock = StageClock::<3>::default();
+    let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+    let mut timed = 0.0;
+    // `spatiotemporal`: the reprojection as a pass of its own (the box of gradients reads
+    // other bands' rows).
+    let mut reprojected = None;
+    if let (Method::Spatiotemporal, Some(hist)) = (method, hist) {
+        let mut rp = scratch.plane(ST * w, h);
+        let t = std::time::Instant::now();
+        let lost: u64 = par_bands_strided([rp.data_mut()], [ST * w], h, |_: &mut (), rows, [band]| {
+            let mut lost = 0;
+            for y in rows.clone() {
+                let o = &mut band[ST * w * (y - rows.start)..ST * w * (y - rows.start + 1)];
+                let valid = Some((DEPTH, ID, p.depth_tolerance));
+                lost += clock.time(REPROJECT, || {
+                    reproject_row::<ST>(&fr, hist, y, valid, |x, t, total| {
+                        let dst: &mut [f32; ST] = (&mut o[ST * x..ST * x + ST]).try_into().expect("a texel");
+                        *dst = t;
+                        // The tap weight takes the depth's place.
+                        dst[DEPTH] = total;
+                    })
+                });
+            }
+            lost
+        });
+        timed += t.elapsed().as_secs_f64() * 1e3;
+        pixels.history_rejected += lost;
+        reprojected = Some(rp);
+    }
+    let t = std::time::Instant::now();
+    let texels = match method {
+        Method::Spatiotemporal => ST,
+        Method::Temporal => TM,
+        Method::Taa => TA,
+        Method::Spatial => 0,
+    };
+    let rp = reprojected.as_ref().map(|p| p.data());
+    let run_band = |band: &mut Band, rows: Range<usize>, [or, og, ob, nx]: [&mut [f32]; 4]| {
+        let geometry = method != Method::Taa;
+        band.samples.build(&fr, rows.clone(), geometry);
+        let mut counts = PixelCounts::default();
+        match method {
+            Method::Spatiotemporal => {
+                clock.time(GRADIENT, || gradient_band(&fr, rp, band, rows.clone()));
+            }
+            Method::Spatial | Method::Temporal | Method::Taa => {}
+        }
+        for y in rows.clone() {
+            let k = y - rows.start;
+            let o = k * w..(k + 1) * w;
+            let out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
+            let nx = &mut nx[texels * o.start..texels * o.end];
+            counts += match method {
+                Method::Spatial => clock.time(BLEND, || with_geometry!(fr, spatial_row(&fr, band, y, out))),
+                Method::Temporal => {
+                    let hrow = sized(&mut band.hist, TM * w);
+                    let frow = sized(&mut band.frac, w);
+                    let mut c = PixelCounts::default();
+                    if let Some(hist) = hist {
+                        c.history_rejected += clock.time(REPROJECT, || {
+                            reproject_row::<TM>(
+                                &fr,
+                                hist,
+                                y,
+                                Some((T_DEPTH, T_ID, p.depth_tolerance)),
+                                |x, t, total| {
+                                    hrow[TM * x..TM * x + TM].copy_from_slice(&t);
+                                    frow[x] = total;
+                                },
+                            )
+                        });
+                    }
+                    let hrow = hist.map(|_| (&band.hist[..TM * w], &band.frac[..w]));
+                    c += clock.time(BLEND, || {
+                        with_geometry!(fr, temporal_row(&fr, &band.samples, hrow, y, out, nx))
+                    });
+                    c
+                }
+                Method::Taa => {
+                    let hrow = sized(&mut band.hist, TA * w);
+                    let frow = sized(&mut band.frac, w);
+                    let mut c = PixelCounts::default();
+                    if let Some(hist) = hist {
+                        c.history_reset += clock.time(REPROJECT, || {
+                            reproject_row::<TA>(&fr, hist, y, None, |x, t, total| {
+                                hrow[TA * x..TA * x + TA].copy_from_slice(&t);
+                                frow[x] = total;
+                            })
+                        });
+                    }
+                    let hrow = hist.map(|_| (&band.hist[..TA * w], &band.frac[..w]));
+                    c += clock.time(BLEND, || taa_row(&fr, p, &band.samples, hrow, y, out, nx));
+                    c
+                }
+                Method::Spatiotemporal => clock.time(BLEND, || {
+                    with_geometry!(fr, st_row(&fr, p, decay, band, rp, rows.start, y, out, nx))
+                }),
+            };
+        }
+        counts
+    };
+    let counts: PixelCounts = match next.first_mut() {
+        Some(np) => par_bands_strided(
+            [o0, o1, o2, np.data_mut()],
+            [w, w, w, texels * w],
+            h,
+            |band: &mut Band, rows, planes| run_band(band, rows, planes),
+        ),
+        // `spatial` keeps no history.
+        None => par_bands_strided([o0, o1, o2], [w; 3], h, |band: &mut Band, rows, [or, og, ob]| {
+            run_band(band, rows, [or, og, ob, &mut []])
+        }),
+    };
+    let ms = timed + t.elapsed().as_secs_f64() * 1e3;
+    pixels += counts;
+    let shares = clock.shares();
+    for (k, skip) in [reproject_skip, gradient_skip, None].into_iter().enumerate() {
+        match skip {
+            Some(why) => rec.skip(STAGES[k], why),
+            None => rec.ran_for(STAGES[k], ms * shares[k]),
+        }
+    }
+    scratch.recycle(reprojected);
+    Ok(FrameResult {
+        color: out,
+        pixels,
+        model: None,
+    })
+}
+
+/// The table entries of a row's slots (zeros for a missing slot).
+fn row_table(fr: &Setup, slots: &[Option<Slot>; 3]) -> [[Lanes; 3]; 3] {
+    three(|k| slots[k].as_ref().map_or([[0.0; LANES]; 3], |s| fr.table[s.dyi]))
+}
+
+/// `spatial` for row `y`: the gather at `kernel_wide`, its mean.
+fn spatial_row<const D: bool, const N: bool>(
+    fr: &Setup,
+    band: &Band,
+    y: usize,
+    out: [&mut [f32]; 3],
+) -> PixelCounts {
+    let (slots, _) = band.samples.slots(fr, y);
+    let image = row_table(fr, &slots);
+    let [or, og, ob] = out;
+    for x0 in (0..fr.w).step_by(LANES) {
+        let g = PixelGeo::load::<D, N>(fr, y, x0);
+        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
+        let v = mean(&sum, &wsum);
+        st(or, x0, &v[0]);
+        st(og, x0, &v[1]);
+        st(ob, x0, &v[2]);
+    }
+    PixelCounts::default()
+}
+
+/// The next history's depth and id lanes of row `y` (0 where the frame has none).
+#[inline(always)]
+fn depth_ids(fr: &Setup, y: usize, x0: usize) -> (Lanes, Lanes) {
+    let row = y * fr.w..(y + 1) * fr.w;
+    let d = fr.depth.map_or([0.0; LANES], |d| ld(&d[row.clone()], x0));
+    let i = fr.ids.map_or([0.0; LANES], |ids| {
+        let r = &ids[row];
+        lanes_of(|l| r.get(x0 + l).map_or(0.0, |&v| v as f32))
+    });
+    (d, i)
+}
+
+/// `temporal` for row `y`: a shaded pixel takes its sample, another its valid reprojected
+/// history (`frac >= 0.5`), a hole the spatial estimate (counted as a reset).
+#[allow(clippy::too_many_arguments)]
+fn temporal_row<const D: bool, const N: bool>(
+    fr: &Setup,
+    samples: &SampleRows,
+    hist: Option<(&[f32], &[f32])>,
+    y: usize,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let (slots, my) = samples.slots(fr, y);
+    let image = row_table(fr, &slots);
+    let [or, og, ob] = out;
+    let mut holes = 0u64;
+    for x0 in (0..fr.w).step_by(LANES) {
+        let (own_c, own) = own_lanes(fr, &slots, my, x0);
+        let (hc, ok): ([Lanes; 3], Mask) = match hist {
+            Some((t, fr_)) => {
+                let frac = ld(fr_, x0);
+                (three(|c| ld_texel(t, TM, c, x0)), lanes_of(|l| frac[l] >= 0.5))
+            }
+            None => ([[0.0; LANES]; 3], [false; LANES]),
+        };
+        let hole: Mask = lanes_of(|l| !own[l] & !ok[l]);
+        let fill = if set_lanes(&hole) > 0 {
+            let g = PixelGeo::load::<D, N>(fr, y, x0);
+            let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
+            mean(&sum, &wsum)
+        } else {
+            [[0.0; LANES]; 3]
+        };
+        holes += if x0 + LANES <= fr.w {
+            set_lanes(&hole)
+        } else {
+            set_lanes(&lanes_of(|l| hole[l] & (x0 + l < fr.w)))
+        };
+        let v: [Lanes; 3] = three(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
+        st(or, x0, &v[0]);
+        st(og, x0, &v[1]);
+        st(ob, x0, &v[2]);
+        let (d, i) = depth_ids(fr, y, x0);
+        st_texels::<TM>(next, x0, &[v[0], v[1], v[2], d, i]);
+    }
+    PixelCounts {
+        history_reset: holes,
+        ..Default::default()
+    }
+}
+
+/// `taa` for row `y`: the samples splatted with the Gaussian of their distance, the blend
+/// weight scaled by the best sample's kernel value, history clamped to the samples'
+/// min/max box (as the reference).
+fn taa_row(
+    fr: &Setup,
+    p: &Params,
+    samples: &SampleRows,
+    hist: Option<(&[f32], &[f32])>,
+    y: usize,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let (slots, _) = samples.slots(fr, y);
+    let [or, og, ob] = out;
+    let mut clipped = 0u64;
+    for x0 in (0..fr.w).step_by(LANES) {
+        let mut sum = [[0.0f32; LANES]; 3];
+        let (mut wsum, mut beta) = ([0.0f32; LANES], [0.0f32; LANES]);
+        let mut lo = [[f32::INFINITY; LANES]; 3];
+        let mut hi = [[f32::NEG_INFINITY; LANES]; 3];
+        for slot in slots.iter().flatten() {
+            for s in 0..3 {
+                let at = x0 + s * fr.f as usize;
+                let e =
+                    |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
+                let valid = e(E_VALID);
+                let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
+                let keep: Mask = lanes_of(|l| mask[l] != 0.0);
+                let k = &fr.table[slot.dyi][s];
+                let wt: Lanes = mul(k, &mask);
+                // `wt` is 0 where there is no sample and beta >= 0: no select needed. `fmax`
+                // and `fmin` give `f32::max` and `min` here (no NaN; a tie of +0 and -0
+                // changes neither the clamp's result nor the blend).
+                beta = lanes_of(|l| fmax(beta[l], wt[l]));
+                wsum = lanes_of(|l| wsum[l] + wt[l]);
+                for c in 0..3 {
+                    let v = e(E_R + c);
+                    sum[c] = lanes_of(|l| sum[c][l] + wt[l] * v[l]);
+                    lo[c] = lanes_of(|l| if keep[l] { fmin(lo[c][l], v[l]) } else { lo[c][l] });
+                    hi[c] = lanes_of(|l| if keep[l] { fmax(hi[c][l], v[l]) } else { hi[c][l] });
+                }
+            }
+        }
+        let up = mean(&sum, &wsum);
+        let n: Lanes = match hist {
+            Some((t, frac)) => {
+                let (fc, nn) = (ld(frac, x0), ld_texel(t, TA, W, x0));
+                lanes_of(|l| if fc[l] > 0.0 && wsum[l] > 0.0 { nn[l] } else { 0.0 })
+            }
+            None => [0.0; LANES],
+        };
+        let fresh: Mask = lanes_of(|l| n[l] <= 0.0);
+        let hv: [Lanes; 3] = match hist {
+            Some((t, _)) => three(|c| ld_texel(t, TA, c, x0)),
+            None => [[0.0; LANES]; 3],
+        };
+        // `f32::clamp` without its assertion (the reference clamps only where the box exists).
+        let hc: [Lanes; 3] = three(|c| {
+            lanes_of(|l| {
+                let v = if hv[c][l] < lo[c][l] { lo[c][l] } else { hv[c][l] };
+                if v > hi[c][l] {
+                    hi[c][l]
+                } else {
+                    v
+                }
+            })
+        });
+        let moved: Mask =
+            lanes_of(|l| (hc[0][l] != hv[0][l]) | (hc[1][l] != hv[1][l]) | (hc[2][l] != hv[2][l]));
+        let a: Lanes = lanes_of(|l| beta[l] * p.taa_alpha.max(1.0 / (n[l] + 1.0)));
+        let v: [Lanes; 3] = three(|c| {
+            lanes_of(|l| {
+                if fresh[l] {
+                    up[c][l]
+                } else {
+                    a[l] * up[c][l] + (1.0 - a[l]) * hc[c][l]
+                }
+            })
+        });
+        let count: Lanes = lanes_of(|l| {
+            if fresh[l] {
+                beta[l]
+            } else {
+                fmin(n[l] + beta[l], TAA_MAX_COUNT)
+            }
+        });
+        let clip = lanes_of(|l| !fresh[l] & moved[l]);
+        clipped += if x0 + LANES <= fr.w {
+            set_lanes(&clip)
+        } else {
+            set_lanes(&lanes_of(|l| clip[l] & (x0 + l < fr.w)))
+        };
+        st(or, x0, &v[0]);
+        st(og, x0, &v[1]);
+        st(ob, x0, &v[2]);
+        st_texels::<TA>(next, x0, &[v[0], v[1], v[2], count]);
+    }
+    PixelCounts {
+        history_clipped: clipped,
+        ..Default::default()
+    }
+}
+
+/// Half-width of `spatiotemporal`'s box of gradients: `max(1, factor / 2)`.
+fn box_radius(f: isize) -> usize {
+    (f as usize / 2).max(1)
+}
+
+/// `spatiotemporal`'s stage `gradient` for a band: the raw gradient (Herzog et al. 2010,
+/// sec. 3.4; see [`super::reference`]) and its temporal filter for the band's rows and
+/// `r` rows each side, into the band's buffers.
+fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<usize>) {
+    let (w, h) = (fr.w, fr.h);
+    let r = box_radius(fr.f);
+    let (ylo, yhi) = (rows.start.saturating_sub(r), (rows.end + r).min(h));
+    let fstride = w + 2 * r;
+    let sp = fr.sparse;
+    let cw = sp.color_width;
+    let now = sized(&mut band.now, (yhi - ylo) * w);
+    let filtered = sized(&mut band.filtered, (yhi - ylo) * fstride);
+    let cells = sized(&mut band.cells, cw);
+    let total: f32 = GRADIENT_WEIGHTS.iter().sum();
+    let mut cells_of = None;
+    for y in ylo..yhi {
+        let k = y - ylo;
+        let nrow = &mut now[k * w..(k + 1) * w];
+        let frow = &mut filtered[k * fstride..(k + 1) * fstride];
+        let i0 = y * w;
+        match rp {
+            None => nrow.fill(1.0),
+            Some(rp) => {
+                // The gradient of each cell of this row's sample row (its pixels' when their
+                // own history is valid).
+                let b = ((y as isize - fr.py) >> fr.shift).max(0);
+                if cells_of != Some(b) {
+                    cells_of = Some(b);
+                    for (a, c) in cells.iter_mut().enumerate() {
+                        *c = match sp.sample(a as isize, b, w, h) {
+                            Some((kk, j)) => {
+                                let t: &[f32; ST] = rp[ST * j..ST * j + ST].try_into().expect("a texel");
+                                if t[DEPTH] >= 0.5 {
+                                    let l = crate::kernels::luma(sp.color.map(|p| p[kk]));
+                                    let known = t[LK + 1];
+                                    let before = if known >= 0.5 {
+                                        t[LK] / known
+                                    } else {
+                                        crate::kernels::luma([t[R], t[R + 1], t[R + 2]])
+                                    };
+                                    relative_gradient(l, before)
+                                } else {
+                                    1.0
+                                }
+                            }
+                            // A repaired (invalid) sample says nothing: keep trusting history.
+                            None if sp.invalid.is_some() => 0.0,
+                            None => 1.0,
+                        };
+                    }
+                }
+                let f = fr.f as usize;
+                let row = &rp[ST * i0..ST * (i0 + w)];
+                for (a, &c) in cells.iter().enumerate() {
+                    // Columns of cell a (cell 0 also takes the columns before the phase).
+                    let start = if a == 0 { 0 } else { f * a + fr.px as usize };
+                    let end = (f * (a + 1) + fr.px as usize).min(w);
+                    for x in start..end {
+                        nrow[x] = if row[ST * x + DEPTH] >= 0.5 { c } else { 1.0 };
+                    }
+                }
+            }
+        }
+        frow[..r].fill(0.0);
+        frow[r + w..].fill(0.0);
+        let fw = &mut frow[r..r + w];
+        match rp {
+            Some(rp) => {
+                let row = &rp[ST * i0..ST * (i0 + w)];
+                for (x, (o, &n)) in fw.iter_mut().zip(nrow.iter()).enumerate() {
+                    let t: &[f32; ST] = row[ST * x..ST * x + ST].try_into().expect("a texel");
+                    *o = (GRADIENT_WEIGHTS[0] * n
+                        + GRADIENT_WEIGHTS[1] * t[G1]
+                        + GRADIENT_WEIGHTS[2] * t[G1 + 1]
+                        + GRADIENT_WEIGHTS[3] * t[G1 + 2])
+                        / total;
+                }
+            }
+            None => {
+                for (o, &n) in fw.iter_mut().zip(nrow.iter()) {
+                    *o = (GRADIENT_WEIGHTS[0] * n
+                        + GRADIENT_WEIGHTS[1] * 1.0
+                        + GRADIENT_WEIGHTS[2] * 1.0
+                        + GRADIENT_WEIGHTS[3] * 1.0)
+                        / total;
+                }
+            }
+        }
+    }
+}
+
+/// `spatiotemporal` for row `y`: the box of filtered gradients and the confidence, the
+/// gather at the width the confidence sets, the blend with history, the next history.
+#[allow(clippy::too_many_arguments)]
+fn st_row<const D: bool, const N: bool>(
+    fr: &Setup,
+    p: &Params,
+    decay: f32,
+    band: &mut Band,
+    rp: Option<&[f32]>,
+    y0: usize,
+    y: usize,
+    out: [&mut [f32]; 3],
+    next: &mut [f32],
+) -> PixelCounts {
+    let (w, h) = (fr.w, fr.h);
+    let r = box_radius(fr.f);
+    let ylo = y0.saturating_sub(r);
+    let fstride = w + 2 * r;
+    // The box: rows y - r ..= y + r inside the image, columns likewise (the zero columns
+    // each side add +0 where the reference skips the tap); then the confidence.
+    let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
+    let conf = sized(&mut band.conf, w);
+    let filtered = &band.filtered;
+    let rows_in = (yb - ya) as isize;
+    for x0 in (0..w).step_by(LANES) {
+        let mut sum = [0.0f32; LANES];
+        for yy in ya..yb {
+            let row = &filtered[(yy - ylo) * fstride..(yy - ylo + 1) * fstride];
+            for d in 0..=2 * r {
+                let v = ld(&row[d..], x0);
+                for (s, v) in sum.iter_mut().zip(v) {
+                    *s += v;
+                }
+            }
+        }
+        let c = lanes_of(|l| {
+            let x = x0 + l;
+            let cols = ((x + r).min(w - 1) as isize - x.saturating_sub(r) as isize + 1).max(1);
+            confidence(sum[l] / (rows_in * cols) as f32, p.gradient_scale)
+        });
+        let n = LANES.min(w - x0);
+        conf[x0..x0 + n].copy_from_slice(&c[..n]);
+    }
+    let conf = &band.conf[..w];
+    let now = &band.now[(y - ylo) * w..(y - ylo + 1) * w];
+    let (slots, my) = band.samples.slots(fr, y);
+    let dist = row_table(fr, &slots);
+    let [or, og, ob] = out;
+    let row = rp.map(|rp| &rp[ST * y * w..ST * (y + 1) * w]);
+    for x0 in (0..w).step_by(LANES) {
+        let c = ld(conf, x0);
+        let sigma: Lanes = lanes_of(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
+        let g = PixelGeo::load::<D, N>(fr, y, x0);
+        let image: [[Lanes; 3]; 3] = three(|k| {
+            three(|s| {
+                let d = &dist[k][s];
+                lanes_of(|l| falloff_lane(d[l], sigma[l]))
+            })
+        });
+        let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
+        let (prev, wh, pg, hk): ([Lanes; 3], Lanes, [Lanes; 2], [Lanes; 2]) = match row {
+            Some(t) => {
+                let ch = |k: usize| ld_texel(t, ST, k, x0);
+                let (wgt, frac) = (ch(W), ch(DEPTH));
+                (
+                    [ch(R), ch(R + 1), ch(R + 2)],
+                    lanes_of(|l| c[l] * wgt[l] * frac[l]),
+                    [ch(G1), ch(G1 + 1)],
+                    [ch(LK), ch(LK + 1)],
+                )
+            }
+            None => (
+                [[0.0; LANES]; 3],
+                [0.0; LANES],
+                [[1.0; LANES]; 2],
+                [[0.0; LANES]; 2],
+            ),
+        };
+        let total: Lanes = lanes_of(|l| wsum[l] + wh[l]);
+        let v: [Lanes; 3] = three(|k| {
+            lanes_of(|l| {
+                if total[l] > 0.0 {
+                    (sum[k][l] + wh[l] * prev[k][l]) / total[l]
+                } else {
+                    0.0
+                }
+            })
+        });
+        let (own_c, own) = own_lanes(fr, &slots, my, x0);
+        let lk = lanes::select(&own, &luma_lanes(&own_c), &hk[0]);
+        let kn = lanes::select(&own, &[1.0; LANES], &hk[1]);
+        st(or, x0, &v[0]);
+        st(og, x0, &v[1]);
+        st(ob, x0, &v[2]);
+        let (d, i) = depth_ids(fr, y, x0);
+        let n = ld(now, x0);
+        let wn = lanes::map(&total, |t| decay * t);
+        st_texels::<ST>(next, x0, &[v[0], v[1], v[2], wn, d, i, n, pg[0], pg[1], lk, kn]);
+    }
+    PixelCounts::default()
+}

@@ -1,0 +1,443 @@
+//! The scalar reference of `upsample`: one whole-plane pass per stage, exactly as the
+//! filter was first written. The fused band kernels ([`super::kernel`]) must give the same
+//! output (the tests compare them frame by frame); this stays the readable statement of
+//! what the filter computes.
+
+use super::spatial::{self, depth_range, Geometry, Sparse};
+use super::temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_WEIGHTS};
+use super::{
+    decay_for, Method, Params, Upsample, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W,
+};
+use crate::filters::passes::slices_mut;
+use crate::frame::{ChannelKind, Frame, Plane, Rgb};
+use crate::kernels::luma;
+use crate::pipeline::exec::{for_rows, par_rows};
+use crate::pipeline::{
+    bind_size, check_channels, prepare, DoubleBuffer, FilterError, FilterKind, Output, PixelCounts, Recorder,
+    Scratch, Skip,
+};
+
+/// `upsample` computed stage by stage over whole planes.
+#[derive(Debug)]
+pub struct ReferenceUpsample {
+    params: Params,
+    hist: DoubleBuffer,
+    scratch: Scratch,
+}
+
+impl ReferenceUpsample {
+    /// A fresh reference filter.
+    pub fn new(params: Params) -> Self {
+        ReferenceUpsample {
+            hist: DoubleBuffer::new(params.method.planes()),
+            scratch: Scratch::default(),
+            params,
+        }
+    }
+
+    /// Filters one frame.
+    pub fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
+        let p = self.params.clone();
+        let method = p.method;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Upsample::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let sampling = frame.sampling();
+        let stateful = method != Method::Spatial;
+        let has_history = if stateful {
+            bind_size(&mut self.hist, frame)?;
+            self.hist.valid() && !frame.meta.reset
+        } else {
+            false
+        };
+        let variant = Skip::Variant {
+            variant: method.name(),
+        };
+        let (cw, ch) = inp.color[0].size();
+        let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
+        let depth = inp.depth.as_deref().map(Plane::data);
+        let ids = inp.object_id.map(Plane::data);
+
+        let range = rec.stage(
+            "geometry",
+            (method == Method::Taa)
+                .then_some(variant.clone())
+                .or_else(|| inp.require(ChannelKind::Depth)),
+            || depth_range(depth.expect("required"), ids, frame.meta.near_far),
+        );
+        let geo = Geometry {
+            width: w,
+            height: h,
+            depth: depth.filter(|_| range.is_some()),
+            normal: inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)),
+            inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
+            normal_sigma: p.normal_sigma,
+        };
+
+        let mut pixels = PixelCounts::default();
+        let decay = decay_for(&p, sampling);
+        let scratch = &mut self.scratch;
+        let (read, next) = self.hist.split();
+        let motion = inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data));
+        // Reprojected history: colour (+ weight or count, + the three past gradients) and
+        // the share of valid taps.
+        let mut frac = scratch.plane(w, h);
+        let reprojected: Option<Vec<Plane<f32>>> = rec.stage(
+            "reproject",
+            (!stateful)
+                .then_some(variant.clone())
+                .or_else(|| (!has_history).then_some(Skip::NoHistory)),
+            || {
+                let src = |k: usize| read[k].data();
+                let fr = frac.data_mut();
+                let (prev_depth, prev_ids) = match method {
+                    Method::Temporal => (src(T_DEPTH), src(T_ID)),
+                    _ if method.planes() > ID => (src(DEPTH), src(ID)),
+                    _ => (&[][..], &[][..]),
+                };
+                let validity = Validity {
+                    depth,
+                    prev_depth,
+                    ids,
+                    prev_ids,
+                    depth_tolerance: p.depth_tolerance,
+                };
+                match method {
+                    Method::Spatiotemporal => {
+                        let mut o: [Plane<f32>; 9] = scratch.planes(w, h);
+                        let lost = reproject(
+                            [
+                                src(R),
+                                src(R + 1),
+                                src(R + 2),
+                                src(W),
+                                src(G1),
+                                src(G1 + 1),
+                                src(G1 + 2),
+                                src(LK),
+                                src(LK + 1),
+                            ],
+                            motion,
+                            Some(&validity),
+                            w,
+                            h,
+                            slices_mut(&mut o),
+                            fr,
+                        );
+                        pixels.history_rejected += lost;
+                        o.into()
+                    }
+                    Method::Temporal => {
+                        let mut o: [Plane<f32>; 3] = scratch.planes(w, h);
+                        let lost = reproject(
+                            [src(R), src(R + 1), src(R + 2)],
+                            motion,
+                            Some(&validity),
+                            w,
+                            h,
+                            slices_mut(&mut o),
+                            fr,
+                        );
+                        pixels.history_rejected += lost;
+                        o.into()
+                    }
+                    Method::Taa | Method::Spatial => {
+                        let mut o: [Plane<f32>; 4] = scratch.planes(w, h);
+                        let lost = reproject(
+                            [src(R), src(R + 1), src(R + 2), src(W)],
+                            motion,
+                            None,
+                            w,
+                            h,
+                            slices_mut(&mut o),
+                            fr,
+                        );
+                        pixels.history_reset += lost;
+                        o.into()
+                    }
+                }
+            },
+        );
+        if reprojected.is_none() && stateful {
+            pixels.history_reset += (w * h) as u64;
+        }
+
+        // Spatiotemporal: per-pixel confidence from the filtered gradient, and this frame's
+        // raw gradient (stored as the newest past gradient).
+        let mut conf = scratch.plane(w, h);
+        let mut grad_now = scratch.plane(w, h);
+        rec.stage(
+            "gradient",
+            (method != Method::Spatiotemporal).then_some(variant.clone()),
+            || {
+                gradients(
+                    &sparse,
+                    reprojected.as_deref(),
+                    frac.data(),
+                    w,
+                    h,
+                    p.gradient_scale,
+                    grad_now.data_mut(),
+                    conf.data_mut(),
+                    scratch,
+                )
+            },
+        );
+
+        let mut out: Rgb = scratch.planes(w, h);
+        rec.run("blend", || {
+            let hist = reprojected.as_deref();
+            let fr = frac.data();
+            match method {
+                Method::Spatial => spatial::upsample(&sparse, &geo, p.kernel_wide, &mut out),
+                Method::Spatiotemporal => {
+                    let (c, g0) = (conf.data(), grad_now.data());
+                    let [o0, o1, o2] = slices_mut(&mut out);
+                    let mut it = next.iter_mut();
+                    let n: [&mut [f32]; 11] =
+                        std::array::from_fn(|_| it.next().expect("11 planes").data_mut());
+                    let [n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk] = n;
+                    for_rows(
+                        [o0, o1, o2, n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk],
+                        w,
+                        |y, [or, og, ob, hr, hg, hb, hw, hd, hi, g1, g2, g3, lk, kn]| {
+                            for x in 0..w {
+                                let i = y * w + x;
+                                let sigma = p.kernel_sharp + (1.0 - c[i]) * (p.kernel_wide - p.kernel_sharp);
+                                let s = sparse.gather(&geo, x, y, sigma);
+                                let (prev, wh, pg) = match hist {
+                                    Some(hp) => (
+                                        [hp[0].data()[i], hp[1].data()[i], hp[2].data()[i]],
+                                        c[i] * hp[3].data()[i] * fr[i],
+                                        [hp[4].data()[i], hp[5].data()[i]],
+                                    ),
+                                    None => ([0.0; 3], 0.0, [1.0, 1.0]),
+                                };
+                                let total = s.weight + wh;
+                                let v = [0, 1, 2].map(|k| {
+                                    if total > 0.0 {
+                                        (s.sum[k] + wh * prev[k]) / total
+                                    } else {
+                                        0.0
+                                    }
+                                });
+                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
+                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
+                                hw[x] = decay * total;
+                                hd[x] = depth.map_or(0.0, |d| d[i]);
+                                hi[x] = ids.map_or(0.0, |d| d[i] as f32);
+                                (g1[x], g2[x], g3[x]) = (g0[i], pg[0], pg[1]);
+                                (lk[x], kn[x]) = match (sparse.own(x, y, w, h), hist) {
+                                    (Some(k), _) => (luma(sparse.color.map(|p| p[k])), 1.0),
+                                    (None, Some(hp)) => (hp[7].data()[i], hp[8].data()[i]),
+                                    (None, None) => (0.0, 0.0),
+                                };
+                            }
+                        },
+                    );
+                }
+                Method::Temporal => {
+                    let [o0, o1, o2] = slices_mut(&mut out);
+                    let mut it = next.iter_mut();
+                    let n: [&mut [f32]; 5] = std::array::from_fn(|_| it.next().expect("5 planes").data_mut());
+                    let [n0, n1, n2, nd, ni] = n;
+                    let holes: PixelCounts = par_rows(
+                        [o0, o1, o2, n0, n1, n2, nd, ni],
+                        w,
+                        |y, [or, og, ob, hr, hg, hb, hd, hi]| {
+                            let mut c = PixelCounts::default();
+                            for x in 0..w {
+                                let i = y * w + x;
+                                let v = match (sparse.own(x, y, w, h), hist) {
+                                    (Some(k), _) => sparse.color.map(|p| p[k]),
+                                    (None, Some(hp)) if fr[i] >= 0.5 => {
+                                        [hp[0].data()[i], hp[1].data()[i], hp[2].data()[i]]
+                                    }
+                                    _ => {
+                                        c.history_reset += 1;
+                                        sparse
+                                            .gather(&geo, x, y, p.kernel_wide)
+                                            .mean()
+                                            .unwrap_or([0.0; 3])
+                                    }
+                                };
+                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
+                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
+                                hd[x] = depth.map_or(0.0, |d| d[i]);
+                                hi[x] = ids.map_or(0.0, |d| d[i] as f32);
+                            }
+                            c
+                        },
+                    );
+                    pixels.history_reset += holes.history_reset;
+                }
+                Method::Taa => {
+                    let taa_kernel: Vec<f32> =
+                        (0..81).map(|o| (-TAA_KERNEL * sparse.dist2(o)).exp()).collect();
+                    let taa_kernel = &taa_kernel;
+                    let [o0, o1, o2] = slices_mut(&mut out);
+                    let mut it = next.iter_mut();
+                    let n: [&mut [f32]; 4] = std::array::from_fn(|_| it.next().expect("4 planes").data_mut());
+                    let [n0, n1, n2, nn] = n;
+                    let clipped: PixelCounts = par_rows(
+                        [o0, o1, o2, n0, n1, n2, nn],
+                        w,
+                        |y, [or, og, ob, hr, hg, hb, hn]| {
+                            let mut counts = PixelCounts::default();
+                            for x in 0..w {
+                                let i = y * w + x;
+                                let (mut sum, mut wsum, mut beta) = ([0.0f32; 3], 0.0f32, 0.0f32);
+                                let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+                                sparse.for_each_near(x, y, w, h, |k, _, o| {
+                                    let wt = taa_kernel[o];
+                                    beta = beta.max(wt);
+                                    wsum += wt;
+                                    for c in 0..3 {
+                                        let v = sparse.color[c][k];
+                                        sum[c] += wt * v;
+                                        lo[c] = lo[c].min(v);
+                                        hi[c] = hi[c].max(v);
+                                    }
+                                });
+                                let up = if wsum > 0.0 {
+                                    sum.map(|s| s / wsum)
+                                } else {
+                                    [0.0; 3]
+                                };
+                                let n = match hist {
+                                    Some(hp) if fr[i] > 0.0 && wsum > 0.0 => hp[3].data()[i],
+                                    _ => 0.0,
+                                };
+                                let (v, count) = if n <= 0.0 {
+                                    (up, beta)
+                                } else {
+                                    let hp = hist.expect("n > 0 needs history");
+                                    let mut moved = false;
+                                    let hv = [0, 1, 2].map(|c| {
+                                        let v = hp[c].data()[i];
+                                        let cl = v.clamp(lo[c], hi[c]);
+                                        moved |= cl != v;
+                                        cl
+                                    });
+                                    counts.history_clipped += moved as u64;
+                                    let a = beta * p.taa_alpha.max(1.0 / (n + 1.0));
+                                    (
+                                        [0, 1, 2].map(|c| a * up[c] + (1.0 - a) * hv[c]),
+                                        (n + beta).min(TAA_MAX_COUNT),
+                                    )
+                                };
+                                (or[x], og[x], ob[x]) = (v[0], v[1], v[2]);
+                                (hr[x], hg[x], hb[x]) = (v[0], v[1], v[2]);
+                                hn[x] = count;
+                            }
+                            counts
+                        },
+                    );
+                    pixels.history_clipped += clipped.history_clipped;
+                }
+            }
+        });
+
+        scratch.recycle([frac, conf, grad_now]);
+        scratch.recycle(reprojected.into_iter().flatten());
+        let bytes = if stateful {
+            self.hist.swap();
+            self.hist.bytes()
+        } else {
+            0
+        };
+        Ok(Output {
+            color: out,
+            record: rec.finish(Upsample::NAME, frame.meta.index, pixels, inp.counts, bytes),
+        })
+    }
+}
+
+/// Herzog et al. 2010, sec. 3.4: this frame's relative luma gradient at every shaded sample, against
+/// the luma of the same surface point's previous shaded sample (1 where there is none since
+/// a disocclusion or reset: unknown counts as maximal), spread to the pixels
+/// of its block (and 1 at any pixel whose own history is invalid), filtered over time with
+/// the three previous gradients (weights 4, 3, 2, 1; 1 where unknown) and over a box of
+/// `2r + 1` pixels, `r = max(1, factor / 2)`, slightly larger than the block; `conf` gets
+/// the confidence, `now` the unfiltered gradient to store.
+#[allow(clippy::too_many_arguments)]
+fn gradients(
+    sparse: &Sparse,
+    hist: Option<&[Plane<f32>]>,
+    frac: &[f32],
+    w: usize,
+    h: usize,
+    scale: f32,
+    now: &mut [f32],
+    conf: &mut [f32],
+    scratch: &mut Scratch,
+) {
+    let s = sparse.sampling;
+    let f = s.factor as usize;
+    // Raw gradient of each pixel: its block's sample's, or 1 where its own history is lost.
+    for_rows([&mut *now], w, |y, [row]| {
+        let b = sparse.cell(y, s.phase[1]).max(0);
+        for x in 0..w {
+            let i = y * w + x;
+            let a = sparse.cell(x, s.phase[0]).max(0);
+            row[x] = match (hist, sparse.sample(a, b, w, h)) {
+                (Some(hp), Some((k, j))) if frac[j] >= 0.5 && frac[i] >= 0.5 => {
+                    let l = luma(sparse.color.map(|p| p[k]));
+                    // The same point's last shaded luma when known, else the paper's
+                    // reconstruction of the previous frame.
+                    let known = hp[8].data()[j];
+                    let before = if known >= 0.5 {
+                        hp[7].data()[j] / known
+                    } else {
+                        luma([hp[0].data()[j], hp[1].data()[j], hp[2].data()[j]])
+                    };
+                    relative_gradient(l, before)
+                }
+                // A repaired (invalid) sample says nothing: keep trusting history.
+                (Some(_), None) if sparse.invalid.is_some() && frac[i] >= 0.5 => 0.0,
+                _ => 1.0,
+            };
+        }
+    });
+    // Temporal filter, weights 4, 3, 2, 1 over now and the three previous gradients.
+    let mut filtered = scratch.plane(w, h);
+    let total: f32 = GRADIENT_WEIGHTS.iter().sum();
+    let now_ro: &[f32] = now;
+    for_rows([filtered.data_mut()], w, |y, [row]| {
+        for x in 0..w {
+            let i = y * w + x;
+            // Unknown past gradients (no history) count as maximal.
+            let past = hist.map_or([1.0; 3], |hp| [hp[4].data()[i], hp[5].data()[i], hp[6].data()[i]]);
+            row[x] = (GRADIENT_WEIGHTS[0] * now_ro[i]
+                + GRADIENT_WEIGHTS[1] * past[0]
+                + GRADIENT_WEIGHTS[2] * past[1]
+                + GRADIENT_WEIGHTS[3] * past[2])
+                / total;
+        }
+    });
+    // Spatial box, then the confidence.
+    let r = (f / 2).max(1) as isize;
+    let src = filtered.data();
+    for_rows([conf], w, |y, [row]| {
+        for x in 0..w {
+            let (mut sum, mut n) = (0.0f32, 0u32);
+            for dy in -r..=r {
+                let yy = y as isize + dy;
+                if yy < 0 || yy >= h as isize {
+                    continue;
+                }
+                for dx in -r..=r {
+                    let xx = x as isize + dx;
+                    if xx < 0 || xx >= w as isize {
+                        continue;
+                    }
+                    sum += src[yy as usize * w + xx as usize];
+                    n += 1;
+                }
+            }
+            row[x] = confidence(sum / n as f32, scale);
+        }
+    });
+    scratch.recycle([filtered]);
+}
