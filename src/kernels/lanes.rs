@@ -31,6 +31,12 @@ pub fn each<T: Copy + Default, const N: usize>(mut f: impl FnMut(usize) -> T) ->
     out
 }
 
+/// `s[at..at + N]` as an array (one bounds check for the block, none inside it).
+#[inline(always)]
+pub fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
+    s[at..at + N].try_into().expect("N elements")
+}
+
 /// The same value in every lane.
 #[inline(always)]
 pub fn splat(v: f32) -> Lanes {

@@ -4,6 +4,15 @@ use rayon::prelude::*;
 use std::ops::AddAssign;
 use std::sync::OnceLock;
 
+/// The first `n` entries of a per-task scratch buffer, grown (never shrunk) to hold them:
+/// band kernels keep one such buffer per row kind across bands and frames.
+pub fn sized<T: Clone + Default>(v: &mut Vec<T>, n: usize) -> &mut [T] {
+    if v.len() < n {
+        v.resize(n, T::default());
+    }
+    &mut v[..n]
+}
+
 /// Environment variable that sets the number of filter threads (default: all cores).
 pub const THREADS_ENV: &str = "AFTERIMAGE_THREADS";
 

@@ -17,7 +17,7 @@ use crate::filters::passes::{on_screen, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse};
-use crate::pipeline::exec::{par_bands_strided, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts, Skip};
 use std::ops::{AddAssign, Range};
 
@@ -93,13 +93,6 @@ struct Band {
     speed: Vec<f32>,
     /// This row's new feature.
     z: [Vec<f32>; 3],
-}
-
-fn sized<T: Clone + Default>(v: &mut Vec<T>, n: usize) -> &mut [T] {
-    if v.len() < n {
-        v.resize(n, T::default());
-    }
-    &mut v[..n]
 }
 
 /// Runs `phlm`'s stages from `tonemap` to `untonemap` for one frame.

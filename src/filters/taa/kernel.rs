@@ -15,12 +15,12 @@ use crate::filters::passes::{
     dilate_row, from_working, on_screen, sharpen, tonemap_row, untonemap_row, FrameContext, FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
-use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
     bilinear, bilinear_texels, catmull_rom_texels, clip_toward_center, fmax, fmin, rgb_to_ycocg,
     variance_box, ycocg_to_rgb, NeighborhoodStats,
 };
-use crate::pipeline::exec::{par_bands_strided, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
 
@@ -97,13 +97,6 @@ struct Band {
     reject: Vec<f32>,
     /// Per-column 3-row statistics of this row: min, max, sum, sum of squares, per channel.
     cols: [Vec<f32>; 12],
-}
-
-fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
-    if v.len() < n {
-        v.resize(n, 0.0);
-    }
-    &mut v[..n]
 }
 
 /// Runs `taa`'s stages from `tonemap` to `untonemap` for one frame.
@@ -506,12 +499,6 @@ impl Outs<'_> {
 
 /// The columns a block of [`LANES`] pixels reads: one more on each side.
 const SPAN: usize = LANES + 2;
-
-/// `s[at..at + N]` as an array (one bounds check for the block, none inside it).
-#[inline(always)]
-fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
-    s[at..at + N].try_into().expect("N elements")
-}
 
 /// [`resolve_pixel`] for a block of pixels in lanes: statistics from the block's columns
 /// `c`, the input `cur`, the history colour and count `n`, the repaired-input flags.

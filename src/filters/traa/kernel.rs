@@ -21,11 +21,11 @@
 use super::{feedback, mix, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT};
 use crate::filters::passes::{dilate_row, on_screen, tonemap_row, untonemap_row, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Rgb};
-use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
     bilinear, bilinear_texels, clamp_to_box, fmax, fmin, luma, sharpen_cross, sobel_magnitude,
 };
-use crate::pipeline::exec::{par_bands, par_bands_strided, StageClock};
+use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
 
@@ -169,12 +169,6 @@ fn stride(w: usize) -> usize {
 
 /// The columns a block of [`LANES`] pixels reads in a padded row: one more on each side.
 const SPAN: usize = LANES + 2;
-
-/// `s[at..at + N]` as an array (one bounds check for the block, none inside it).
-#[inline(always)]
-fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
-    s[at..at + N].try_into().expect("N elements")
-}
 
 /// The blocks of [`LANES`] pixels covering a row of `w`: the first pixel and how many of
 /// the block's lanes are pixels.
@@ -676,13 +670,6 @@ fn reproject_row<const N: usize>(
             pd[x] = bilinear([prev], w, h, px, py)[0];
         }
     }
-}
-
-fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
-    if v.len() < n {
-        v.resize(n, 0.0);
-    }
-    &mut v[..n]
 }
 
 /// [`sobel_magnitude`] of each lane's 3x3 in three padded spans.

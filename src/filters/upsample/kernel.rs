@@ -27,9 +27,9 @@ use super::temporal::{confidence, relative_gradient, GRADIENT_WEIGHTS};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
-use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
 use crate::kernels::{fmax, fmin, LUMA_REC709};
-use crate::pipeline::exec::{par_bands_strided, pool, StageClock};
+use crate::pipeline::exec::{par_bands_strided, pool, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
 
@@ -72,13 +72,13 @@ pub fn depth_range(depth: &[f32], ids: Option<&[u32]>, near_far: Option<[f32; 2]
             }
         };
         let n = d.len() / LANES * LANES;
-        let pad = |s: &[f32]| -> [f32; LANES] { lanes_of(|l| s.get(n + l).copied().unwrap_or(f32::NAN)) };
+        let pad = |s: &[f32]| -> [f32; LANES] { each(|l| s.get(n + l).copied().unwrap_or(f32::NAN)) };
         match ids {
             Some(ids) => {
                 for (dc, ic) in d.chunks_exact(LANES).zip(ids.chunks_exact(LANES)) {
-                    block(dc.try_into().expect("a block"), lanes_of(|l| ic[l] != 0));
+                    block(dc.try_into().expect("a block"), each(|l| ic[l] != 0));
                 }
-                block(&pad(d), lanes_of(|l| ids.get(n + l).is_some_and(|&i| i != 0)));
+                block(&pad(d), each(|l| ids.get(n + l).is_some_and(|&i| i != 0)));
             }
             None => {
                 for dc in d.chunks_exact(LANES) {
@@ -154,17 +154,6 @@ fn falloff_lane(x: f32, sigma: f32) -> f32 {
     fmax(t * t * t, WEIGHT_EPSILON)
 }
 
-/// `[f(0), .., f(7)]`: a plain loop that always inlines (`std::array::from_fn` goes through
-/// a closure wrapper the compiler does not always inline, which stops vectorisation).
-#[inline(always)]
-fn lanes_of<T: Copy + Default>(f: impl Fn(usize) -> T) -> [T; LANES] {
-    let mut o = [T::default(); LANES];
-    for (l, o) in o.iter_mut().enumerate() {
-        *o = f(l);
-    }
-    o
-}
-
 /// `[f(0), f(1), f(2)]`.
 #[inline(always)]
 fn three<T>(f: impl Fn(usize) -> T) -> [T; 3] {
@@ -174,7 +163,7 @@ fn three<T>(f: impl Fn(usize) -> T) -> [T; 3] {
 /// `a x b` lane by lane.
 #[inline(always)]
 fn mul(a: &Lanes, b: &Lanes) -> Lanes {
-    lanes_of(|l| a[l] * b[l])
+    each(|l| a[l] * b[l])
 }
 
 /// How many lanes are set.
@@ -192,7 +181,7 @@ fn set_lanes(m: &Mask) -> u64 {
 fn ld(s: &[f32], x0: usize) -> Lanes {
     match s.get(x0..x0 + LANES) {
         Some(b) => b.try_into().expect("a block"),
-        None => lanes_of(|l| s.get(x0 + l).copied().unwrap_or(0.0)),
+        None => each(|l| s.get(x0 + l).copied().unwrap_or(0.0)),
     }
 }
 
@@ -200,8 +189,8 @@ fn ld(s: &[f32], x0: usize) -> Lanes {
 #[inline(always)]
 fn ld_texel(s: &[f32], n: usize, c: usize, x0: usize) -> Lanes {
     match s.get(n * x0..n * (x0 + LANES)) {
-        Some(b) => lanes_of(|l| b[n * l + c]),
-        None => lanes_of(|l| s.get(n * (x0 + l) + c).copied().unwrap_or(0.0)),
+        Some(b) => each(|l| b[n * l + c]),
+        None => each(|l| s.get(n * (x0 + l) + c).copied().unwrap_or(0.0)),
     }
 }
 
@@ -229,7 +218,7 @@ fn st_texels<const N: usize>(s: &mut [f32], x0: usize, v: &[Lanes; N]) {
 /// Luma (Rec. 709, [`crate::kernels::luma`]) in lanes.
 #[inline(always)]
 fn luma_lanes(c: &[Lanes; 3]) -> Lanes {
-    lanes_of(|l| LUMA_REC709[0] * c[0][l] + LUMA_REC709[1] * c[1][l] + LUMA_REC709[2] * c[2][l])
+    each(|l| LUMA_REC709[0] * c[0][l] + LUMA_REC709[1] * c[1][l] + LUMA_REC709[2] * c[2][l])
 }
 
 /// The sample rows a band reads, expanded to full resolution: entry `x + f` of row `b`
@@ -408,24 +397,23 @@ fn gather_lanes<const D: bool, const N: bool>(
             let mut geo = [1.0f32; LANES];
             if D {
                 let sd = e(E_DEPTH);
-                geo =
-                    lanes_of(|l| geo[l] * falloff_lane((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0));
+                geo = each(|l| geo[l] * falloff_lane((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0));
             }
             if N {
                 let (nx, ny, nz) = (e(E_N), e(E_N + 1), e(E_N + 2));
-                geo = lanes_of(|l| {
+                geo = each(|l| {
                     let dot = g.normal[0][l] * nx[l] + g.normal[1][l] * ny[l] + g.normal[2][l] * nz[l];
                     geo[l] * falloff_lane(fmax(1.0 - dot, 0.0), fr.normal_sigma)
                 });
             }
             // 1 where the slot has a sample, else 0: the weight is exact or +0.
             let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
-            let wt: Lanes = lanes_of(|l| img[l] * geo[l] * mask[l]);
+            let wt: Lanes = each(|l| img[l] * geo[l] * mask[l]);
             for (c, sum) in sum.iter_mut().enumerate() {
                 let v = e(E_R + c);
-                *sum = lanes_of(|l| sum[l] + wt[l] * v[l]);
+                *sum = each(|l| sum[l] + wt[l] * v[l]);
             }
-            wsum = lanes_of(|l| wsum[l] + wt[l]);
+            wsum = each(|l| wsum[l] + wt[l]);
         }
     }
     (sum, wsum)
@@ -434,7 +422,7 @@ fn gather_lanes<const D: bool, const N: bool>(
 /// [`super::spatial::Gathered::mean`] in lanes, 0 where no sample had weight.
 #[inline(always)]
 fn mean(sum: &[Lanes; 3], wsum: &Lanes) -> [Lanes; 3] {
-    sum.map(|s| lanes_of(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
+    sum.map(|s| each(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
 }
 
 /// The colour of each lane's own sample, and which lanes have one (shaded this frame:
@@ -446,7 +434,7 @@ fn own_lanes(fr: &Setup, slots: &[Option<Slot>; 3], my: isize, x0: usize) -> ([L
             let at = x0 + fr.f as usize;
             let e = |c: usize| -> Lanes { slot.e[c][at..at + LANES].try_into().expect("a block") };
             let valid = e(E_VALID);
-            let own: Mask = lanes_of(|l| fr.on_column[l] & (valid[l] != 0.0));
+            let own: Mask = each(|l| fr.on_column[l] & (valid[l] != 0.0));
             ([e(0), e(1), e(2)], own)
         }
         _ => ([[0.0; LANES]; 3], [false; LANES]),
@@ -538,13 +526,6 @@ struct Band {
     conf: Vec<f32>,
 }
 
-fn sized(v: &mut Vec<f32>, n: usize) -> &mut [f32] {
-    if v.len() < n {
-        v.resize(n, 0.0);
-    }
-    &mut v[..n]
-}
-
 /// Dispatches on which geometric terms exist.
 macro_rules! with_geometry {
     ($fr:expr, $f:ident($($arg:expr),*)) => {
@@ -593,7 +574,7 @@ pub(super) fn frame(
     );
     let f = sampling.factor as isize;
     let side = 2 * f as usize + 1;
-    let on_column: Mask = lanes_of(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
+    let on_column: Mask = each(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
     // Per row offset and slot, each lane's offset index (`Sparse::dist` order) or none.
     let offset = |dyi: usize, s: usize, l: usize| -> usize {
         let m = (l as isize - sampling.phase[0] as isize).rem_euclid(f);
@@ -608,7 +589,7 @@ pub(super) fn frame(
     let table: Vec<[Lanes; 3]> = (0..side)
         .map(|dyi| {
             std::array::from_fn(|s| {
-                lanes_of(|l| {
+                each(|l| {
                     let o = offset(dyi, s, l);
                     match method {
                         Method::Spatiotemporal => sparse.dist(o),
@@ -815,7 +796,7 @@ fn depth_ids(fr: &Setup, y: usize, x0: usize) -> (Lanes, Lanes) {
     let d = fr.depth.map_or([0.0; LANES], |d| ld(&d[row.clone()], x0));
     let i = fr.ids.map_or([0.0; LANES], |ids| {
         let r = &ids[row];
-        lanes_of(|l| r.get(x0 + l).map_or(0.0, |&v| v as f32))
+        each(|l| r.get(x0 + l).map_or(0.0, |&v| v as f32))
     });
     (d, i)
 }
@@ -840,11 +821,11 @@ fn temporal_row<const D: bool, const N: bool>(
         let (hc, ok): ([Lanes; 3], Mask) = match hist {
             Some((t, fr_)) => {
                 let frac = ld(fr_, x0);
-                (three(|c| ld_texel(t, TM, c, x0)), lanes_of(|l| frac[l] >= 0.5))
+                (three(|c| ld_texel(t, TM, c, x0)), each(|l| frac[l] >= 0.5))
             }
             None => ([[0.0; LANES]; 3], [false; LANES]),
         };
-        let hole: Mask = lanes_of(|l| !own[l] & !ok[l]);
+        let hole: Mask = each(|l| !own[l] & !ok[l]);
         let fill = if set_lanes(&hole) > 0 {
             let g = PixelGeo::load::<D, N>(fr, y, x0);
             let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
@@ -855,7 +836,7 @@ fn temporal_row<const D: bool, const N: bool>(
         holes += if x0 + LANES <= fr.w {
             set_lanes(&hole)
         } else {
-            set_lanes(&lanes_of(|l| hole[l] & (x0 + l < fr.w)))
+            set_lanes(&each(|l| hole[l] & (x0 + l < fr.w)))
         };
         let v: [Lanes; 3] = three(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
         st(or, x0, &v[0]);
@@ -897,19 +878,19 @@ fn taa_row(
                     |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
                 let valid = e(E_VALID);
                 let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
-                let keep: Mask = lanes_of(|l| mask[l] != 0.0);
+                let keep: Mask = each(|l| mask[l] != 0.0);
                 let k = &fr.table[slot.dyi][s];
                 let wt: Lanes = mul(k, &mask);
                 // `wt` is 0 where there is no sample and beta >= 0: no select needed. `fmax`
                 // and `fmin` give `f32::max` and `min` here (no NaN; a tie of +0 and -0
                 // changes neither the clamp's result nor the blend).
-                beta = lanes_of(|l| fmax(beta[l], wt[l]));
-                wsum = lanes_of(|l| wsum[l] + wt[l]);
+                beta = each(|l| fmax(beta[l], wt[l]));
+                wsum = each(|l| wsum[l] + wt[l]);
                 for c in 0..3 {
                     let v = e(E_R + c);
-                    sum[c] = lanes_of(|l| sum[c][l] + wt[l] * v[l]);
-                    lo[c] = lanes_of(|l| if keep[l] { fmin(lo[c][l], v[l]) } else { lo[c][l] });
-                    hi[c] = lanes_of(|l| if keep[l] { fmax(hi[c][l], v[l]) } else { hi[c][l] });
+                    sum[c] = each(|l| sum[c][l] + wt[l] * v[l]);
+                    lo[c] = each(|l| if keep[l] { fmin(lo[c][l], v[l]) } else { lo[c][l] });
+                    hi[c] = each(|l| if keep[l] { fmax(hi[c][l], v[l]) } else { hi[c][l] });
                 }
             }
         }
@@ -917,18 +898,18 @@ fn taa_row(
         let n: Lanes = match hist {
             Some((t, frac)) => {
                 let (fc, nn) = (ld(frac, x0), ld_texel(t, TA, W, x0));
-                lanes_of(|l| if fc[l] > 0.0 && wsum[l] > 0.0 { nn[l] } else { 0.0 })
+                each(|l| if fc[l] > 0.0 && wsum[l] > 0.0 { nn[l] } else { 0.0 })
             }
             None => [0.0; LANES],
         };
-        let fresh: Mask = lanes_of(|l| n[l] <= 0.0);
+        let fresh: Mask = each(|l| n[l] <= 0.0);
         let hv: [Lanes; 3] = match hist {
             Some((t, _)) => three(|c| ld_texel(t, TA, c, x0)),
             None => [[0.0; LANES]; 3],
         };
         // `f32::clamp` without its assertion (the reference clamps only where the box exists).
         let hc: [Lanes; 3] = three(|c| {
-            lanes_of(|l| {
+            each(|l| {
                 let v = if hv[c][l] < lo[c][l] { lo[c][l] } else { hv[c][l] };
                 if v > hi[c][l] {
                     hi[c][l]
@@ -937,11 +918,10 @@ fn taa_row(
                 }
             })
         });
-        let moved: Mask =
-            lanes_of(|l| (hc[0][l] != hv[0][l]) | (hc[1][l] != hv[1][l]) | (hc[2][l] != hv[2][l]));
-        let a: Lanes = lanes_of(|l| beta[l] * p.taa_alpha.max(1.0 / (n[l] + 1.0)));
+        let moved: Mask = each(|l| (hc[0][l] != hv[0][l]) | (hc[1][l] != hv[1][l]) | (hc[2][l] != hv[2][l]));
+        let a: Lanes = each(|l| beta[l] * p.taa_alpha.max(1.0 / (n[l] + 1.0)));
         let v: [Lanes; 3] = three(|c| {
-            lanes_of(|l| {
+            each(|l| {
                 if fresh[l] {
                     up[c][l]
                 } else {
@@ -949,18 +929,18 @@ fn taa_row(
                 }
             })
         });
-        let count: Lanes = lanes_of(|l| {
+        let count: Lanes = each(|l| {
             if fresh[l] {
                 beta[l]
             } else {
                 fmin(n[l] + beta[l], TAA_MAX_COUNT)
             }
         });
-        let clip = lanes_of(|l| !fresh[l] & moved[l]);
+        let clip = each(|l| !fresh[l] & moved[l]);
         clipped += if x0 + LANES <= fr.w {
             set_lanes(&clip)
         } else {
-            set_lanes(&lanes_of(|l| clip[l] & (x0 + l < fr.w)))
+            set_lanes(&each(|l| clip[l] & (x0 + l < fr.w)))
         };
         st(or, x0, &v[0]);
         st(og, x0, &v[1]);
@@ -1104,7 +1084,7 @@ fn st_row<const D: bool, const N: bool>(
                 }
             }
         }
-        let c = lanes_of(|l| {
+        let c: Lanes = each(|l| {
             let x = x0 + l;
             let cols = ((x + r).min(w - 1) as isize - x.saturating_sub(r) as isize + 1).max(1);
             confidence(sum[l] / (rows_in * cols) as f32, p.gradient_scale)
@@ -1120,12 +1100,12 @@ fn st_row<const D: bool, const N: bool>(
     let row = rp.map(|rp| &rp[ST * y * w..ST * (y + 1) * w]);
     for x0 in (0..w).step_by(LANES) {
         let c = ld(conf, x0);
-        let sigma: Lanes = lanes_of(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
+        let sigma: Lanes = each(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
         let g = PixelGeo::load::<D, N>(fr, y, x0);
         let image: [[Lanes; 3]; 3] = three(|k| {
             three(|s| {
                 let d = &dist[k][s];
-                lanes_of(|l| falloff_lane(d[l], sigma[l]))
+                each(|l| falloff_lane(d[l], sigma[l]))
             })
         });
         let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
@@ -1135,7 +1115,7 @@ fn st_row<const D: bool, const N: bool>(
                 let (wgt, frac) = (ch(W), ch(DEPTH));
                 (
                     [ch(R), ch(R + 1), ch(R + 2)],
-                    lanes_of(|l| c[l] * wgt[l] * frac[l]),
+                    each(|l| c[l] * wgt[l] * frac[l]),
                     [ch(G1), ch(G1 + 1)],
                     [ch(LK), ch(LK + 1)],
                 )
@@ -1147,9 +1127,9 @@ fn st_row<const D: bool, const N: bool>(
                 [[0.0; LANES]; 2],
             ),
         };
-        let total: Lanes = lanes_of(|l| wsum[l] + wh[l]);
+        let total: Lanes = each(|l| wsum[l] + wh[l]);
         let v: [Lanes; 3] = three(|k| {
-            lanes_of(|l| {
+            each(|l| {
                 if total[l] > 0.0 {
                     (sum[k][l] + wh[l] * prev[k][l]) / total[l]
                 } else {
