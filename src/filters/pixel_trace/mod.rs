@@ -25,6 +25,7 @@
 //! - A reset frame (a cut) ends the window: paths do not cross it.
 //! - D_chi (eq. 9) is taken as 1, as the paper does for eq. 10.
 
+mod lanes;
 #[cfg(test)]
 mod reference;
 #[cfg(test)]
@@ -119,6 +120,11 @@ pub struct PixelTrace {
     base: usize,
     /// Position in the shot of the next frame to output.
     emitted: usize,
+    /// The first steps of each frame's pixels towards the output frame, computed when
+    /// first needed and kept with the frame.
+    steps: VecDeque<trace::FirstSteps>,
+    /// First steps of frames gone, for the frames to come (their buffers reused).
+    spare_steps: Vec<trace::FirstSteps>,
     /// The tracing's buffers, kept from one output to the next.
     scratch: trace::Scratch,
     /// Output planes handed back by [`Filter::recycle`], for the next outputs.
@@ -127,6 +133,9 @@ pub struct PixelTrace {
     /// tests compare the two.
     #[cfg(test)]
     reference: bool,
+    /// Whether the fast path keeps first steps (the tests run it without too).
+    #[cfg(test)]
+    first_steps: bool,
 }
 
 impl FilterKind for PixelTrace {
@@ -157,10 +166,14 @@ impl FilterKind for PixelTrace {
             repair_ms: VecDeque::new(),
             base: 0,
             emitted: 0,
+            steps: VecDeque::new(),
+            spare_steps: Vec::new(),
             scratch: trace::Scratch::default(),
             spare: Vec::new(),
             #[cfg(test)]
             reference: false,
+            #[cfg(test)]
+            first_steps: true,
         }
     }
 }
@@ -194,7 +207,10 @@ impl PixelTrace {
             let (color, counts) = reference::trace(&win, &self.params, &mut rec);
             return self.finish_output(rec, &win, pos, latency, color, counts);
         }
-        let (color, counts) = trace::trace(&win, &self.params, &mut rec, &mut self.scratch, out);
+        let steps = &mut self.steps.make_contiguous()[first - self.base..=last - self.base];
+        #[cfg(test)]
+        let steps = if self.first_steps { steps } else { &mut [] };
+        let (color, counts) = trace::trace(&win, &self.params, &mut rec, &mut self.scratch, steps, out);
         self.finish_output(rec, &win, pos, latency, color, counts)
     }
 
@@ -238,6 +254,9 @@ impl PixelTrace {
         }
         while self.base + half < self.emitted && !self.frames.is_empty() {
             self.frames.pop_front();
+            if let Some(steps) = self.steps.pop_front() {
+                self.spare_steps.push(steps);
+            }
             self.repaired.pop_front();
             self.repair_ms.pop_front();
             self.base += 1;
@@ -314,6 +333,9 @@ impl Filter for PixelTrace {
             }
         }
         self.frames.push_back(kept);
+        let mut steps = self.spare_steps.pop().unwrap_or_default();
+        steps.clear();
+        self.steps.push_back(steps);
         self.repaired.push_back(repaired);
         self.repair_ms.push_back(repair_ms);
         out.extend(self.drain(false));
@@ -328,6 +350,7 @@ impl Filter for PixelTrace {
     }
     fn reset(&mut self) {
         self.frames.clear();
+        self.spare_steps.extend(self.steps.drain(..));
         self.repaired.clear();
         self.repair_ms.clear();
         self.base = 0;

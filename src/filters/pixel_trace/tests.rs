@@ -10,9 +10,21 @@ use crate::rng::SplitMix64;
 use crate::scene::{Jitter, Scene, Settings};
 use crate::tolerance::Tolerance;
 
-fn run(params: &Params, frames: &[Frame], reference: bool) -> Vec<Output> {
+/// Which implementation a run uses.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Path {
+    /// The fast path.
+    Fast,
+    /// The fast path without first steps kept across outputs (as for huge images).
+    FastUncached,
+    /// The scalar reference.
+    Reference,
+}
+
+fn run(params: &Params, frames: &[Frame], path: Path) -> Vec<Output> {
     let mut f = PixelTrace::new(params.clone());
-    f.reference = reference;
+    f.reference = path == Path::Reference;
+    f.first_steps = path != Path::FastUncached;
     let mut out = Vec::new();
     for frame in frames {
         for o in f.push(frame).unwrap() {
@@ -30,11 +42,23 @@ fn run(params: &Params, frames: &[Frame], reference: bool) -> Vec<Output> {
 /// Runs both and compares every output; returns the flows the reference blended and
 /// dropped over the run (so a case can check that it reached the missed-flow code).
 fn same(what: &str, params: &Params, frames: &[Frame]) -> (u64, u64) {
-    let fast = run(params, frames, false);
-    let slow = run(params, frames, true);
+    let slow = run(params, frames, Path::Reference);
+    let (mut several, mut dropped) = (0, 0);
+    for path in [Path::Fast, Path::FastUncached] {
+        let fast = run(params, frames, path);
+        let what = format!("{what} ({path:?})");
+        let (s, d) = compare(&what, &fast, &slow);
+        several += s;
+        dropped += d;
+    }
+    (several, dropped)
+}
+
+/// Compares two runs output by output; returns the second's flows blended and dropped.
+fn compare(what: &str, fast: &[Output], slow: &[Output]) -> (u64, u64) {
     assert_eq!(fast.len(), slow.len(), "{what}: outputs");
     let (mut several, mut dropped) = (0, 0);
-    for (a, b) in fast.iter().zip(&slow) {
+    for (a, b) in fast.iter().zip(slow) {
         let i = b.record.index;
         for c in 0..3 {
             Tolerance::EXACT
@@ -390,10 +414,10 @@ fn fast_path_matches_the_reference_on_the_scenes() {
 #[test]
 fn the_comparison_sees_a_small_difference() {
     let frames = sequence(&Case::BASE, 5);
-    let slow = run(&params(8), &frames, true);
+    let slow = run(&params(8), &frames, Path::Reference);
     let mut changed = frames.clone();
     changed[4].color_mut()[1][100] += 1e-4;
-    let fast = run(&params(8), &changed, false);
+    let fast = run(&params(8), &changed, Path::Fast);
     let differs = fast.iter().zip(&slow).any(|(a, b)| {
         (0..3).any(|c| {
             Tolerance::EXACT

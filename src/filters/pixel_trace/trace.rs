@@ -20,6 +20,7 @@
 //!   missed flows live in one pool of list nodes and every buffer is kept in a [`Scratch`]
 //!   across frames (no allocation per pixel or, in steady state, per frame).
 
+use super::lanes::{self, Lanes, LANES, LANE_MAX_SIDE};
 use super::{Kernel, Params, BLEND, PATHS, SEPARATE};
 use crate::frame::{Frame, Rgb};
 use crate::pipeline::exec::{par_rows, pool, BAND_ROWS};
@@ -77,18 +78,62 @@ pub struct Scratch {
     failed: Vec<Vec<Failed>>,
     /// The missed flows of every pixel.
     missed: Missed,
+    /// Each pixel's velocity while its path is traced.
+    vel: Vec<Pos>,
+    /// Back step codes of frames that no longer need them, for frames to come.
+    codes: Vec<Vec<u32>>,
+}
+
+/// [`FirstSteps`] code of a pixel whose first step leaves the image.
+const OUTSIDE: u32 = u32::MAX;
+/// Set in a [`FirstSteps`] code when the pixel reached does not show the stepping object.
+const HIDDEN: u32 = 1 << 31;
+/// Set in a forward [`FirstSteps`] code when the step's velocity is not the pixel's first
+/// forward velocity (the inverted motion was taken): it is then position minus centre.
+const INVERTED: u32 = 1 << 30;
+/// The pixel in a [`FirstSteps`] code.
+const PIXEL: u32 = INVERTED - 1;
+/// Images of at most this many pixels keep [`FirstSteps`] (their codes hold the pixel).
+const FIRST_STEPS_MAX_PIXELS: usize = PIXEL as usize;
+
+/// Every pixel's first step from its frame towards l0 and the pixel it lands on, which
+/// depend on the frame and its neighbour only, not on l0: kept while the frame is in the
+/// window, so that each output's maps (see [`map_to_centre`]) and paths (see
+/// [`paths_band`]) start from them instead of stepping again. Forward for a frame before
+/// l0 and for l0 (a step to the next frame, the motion inverted where there is no
+/// `motion_next`: the dearest step), back for a frame after l0 and for l0 (its own
+/// motion: recomputed, only the pixel reached is kept).
+#[derive(Debug, Default)]
+pub struct FirstSteps {
+    /// Where each pixel's forward step lands.
+    fwd_pos: Vec<Pos>,
+    /// The pixel there, with [`HIDDEN`] when it does not show the pixel's object and
+    /// [`INVERTED`] as said there, or [`OUTSIDE`].
+    fwd_code: Vec<u32>,
+    /// The pixel the back step lands on, with [`HIDDEN`], or [`OUTSIDE`].
+    back_code: Vec<u32>,
+    fwd: bool,
+    back: bool,
+}
+
+impl FirstSteps {
+    /// Ready for another frame (buffers kept).
+    pub fn clear(&mut self) {
+        self.fwd = false;
+        self.back = false;
+    }
 }
 
 /// The slices of one frame that the tracing reads.
 #[derive(Clone, Copy)]
-struct View<'a> {
-    mx: &'a [f32],
-    my: &'a [f32],
-    next: Option<[&'a [f32]; 2]>,
-    ids: Option<&'a [u32]>,
-    depth: Option<&'a [f32]>,
-    rgb: [&'a [f32]; 3],
-    jitter: Pos,
+pub(super) struct View<'a> {
+    pub(super) mx: &'a [f32],
+    pub(super) my: &'a [f32],
+    pub(super) next: Option<[&'a [f32]; 2]>,
+    pub(super) ids: Option<&'a [u32]>,
+    pub(super) depth: Option<&'a [f32]>,
+    pub(super) rgb: [&'a [f32]; 3],
+    pub(super) jitter: Pos,
 }
 
 impl<'a> View<'a> {
@@ -106,7 +151,7 @@ impl<'a> View<'a> {
     }
 
     #[inline(always)]
-    fn motion(&self, i: usize) -> Pos {
+    pub(super) fn motion(&self, i: usize) -> Pos {
         [self.mx[i], self.my[i]]
     }
 
@@ -127,7 +172,7 @@ impl<'a> View<'a> {
     /// The first forward velocity of pixel `i`: its `motion_next`, else minus its motion
     /// (constant velocity).
     #[inline(always)]
-    fn first_forward(&self, i: usize) -> Pos {
+    pub(super) fn first_forward(&self, i: usize) -> Pos {
         match self.next {
             Some([nx, ny]) => [nx[i], ny[i]],
             None => [-self.mx[i], -self.my[i]],
@@ -136,23 +181,33 @@ impl<'a> View<'a> {
 }
 
 #[derive(Clone, Copy)]
-struct Grid {
-    w: usize,
-    h: usize,
-    wf: f32,
-    hf: f32,
+pub(super) struct Grid {
+    pub(super) w: usize,
+    pub(super) h: usize,
+    pub(super) wf: f32,
+    pub(super) hf: f32,
+    /// Whether the lane kernels apply (sides below [`LANE_MAX_SIDE`]).
+    pub(super) lanes: bool,
 }
 
 impl Grid {
     /// The pixel `(x, y)` holding position `p`, if any. `NAN` fails the tests; in the
-    /// image a position is below 2^31, so `as i32` truncates as `as usize` does.
+    /// image a position is >= 0, so its floor is its truncation, and below 2^31, so
+    /// `as i32` truncates as `as usize` does; below 2^22 [`lanes::whole_to_i32`] does it
+    /// without the saturation of `as`.
     #[inline(always)]
     fn cell(&self, p: Pos) -> Option<(usize, usize)> {
-        if p[0] >= 0.0 && p[1] >= 0.0 && p[0] < self.wf && p[1] < self.hf {
-            Some((p[0] as i32 as usize, p[1] as i32 as usize))
-        } else {
-            None
+        if !((p[0] >= 0.0) & (p[1] >= 0.0) & (p[0] < self.wf) & (p[1] < self.hf)) {
+            return None;
         }
+        Some(if self.lanes {
+            (
+                lanes::whole_to_i32(p[0].floor()) as usize,
+                lanes::whole_to_i32(p[1].floor()) as usize,
+            )
+        } else {
+            (p[0] as i32 as usize, p[1] as i32 as usize)
+        })
     }
 
     /// The index of the pixel holding `p`, if any.
@@ -163,7 +218,7 @@ impl Grid {
 }
 
 #[inline(always)]
-fn centre(x: usize, y: usize) -> Pos {
+pub(super) fn centre(x: usize, y: usize) -> Pos {
     [x as f32 + 0.5, y as f32 + 0.5]
 }
 
@@ -179,13 +234,13 @@ fn sub(a: Pos, b: Pos) -> Pos {
 
 /// The max norm: the box kernel's own, so `d_th` = its support diameter means "inside it".
 #[inline(always)]
-fn dist(a: Pos, b: Pos) -> f32 {
+pub(super) fn dist(a: Pos, b: Pos) -> f32 {
     (a[0] - b[0]).abs().max((a[1] - b[1]).abs())
 }
 
 /// The filter kernel w of eq. 7-11 as a type, so that the loops over samples are compiled
 /// once per kernel with no branch on it.
-trait Weight: Copy + Send + Sync {
+pub(super) trait Weight: Copy + Send + Sync {
     /// Weight of an offset `d` for support radius `r` (0 outside).
     fn weight(d: Pos, r: f32) -> f32;
 
@@ -201,7 +256,7 @@ trait Weight: Copy + Send + Sync {
 
 /// [`Kernel::Box`].
 #[derive(Clone, Copy)]
-struct BoxKernel;
+pub(super) struct BoxKernel;
 
 impl Weight for BoxKernel {
     #[inline(always)]
@@ -219,9 +274,8 @@ impl Weight for BoxKernel {
 #[derive(Clone, Copy)]
 struct UnitBox;
 
-/// Below this many pixels a side, `p - 0.5 - 0.5` and `p - 0.5 + 0.5` are exact for every
-/// `p` whose footprint can meet the image (the spacing of f32 there is 1/4 at most).
-const UNIT_BOX_MAX_SIDE: usize = 1 << 22;
+// Below LANE_MAX_SIDE pixels a side, `p - 0.5 - 0.5` and `p - 0.5 + 0.5` are exact for
+// every `p` whose footprint can meet the image (the spacing of f32 there is 1/4 at most).
 
 impl Weight for UnitBox {
     const UNIT: bool = true;
@@ -294,6 +348,14 @@ fn find(g: &Grid, f: &View, p: Pos, id: Option<u32>) -> Option<usize> {
     }
 }
 
+/// [`find`] where pixel `p` shows another object than `id`: its nearest neighbour that
+/// shows it, if any.
+#[inline(never)]
+pub(super) fn find_search(g: &Grid, ids: &[u32], p: Pos, id: u32) -> Option<usize> {
+    let (x, y) = g.cell(p)?;
+    search(g, ids, p, id, x, y)
+}
+
 /// The 8 neighbours of `(x, y)` in [`find`]: the nearest that shows `id`, the first of
 /// equals in row order.
 #[inline(never)]
@@ -322,9 +384,26 @@ fn search(g: &Grid, ids: &[u32], p: Pos, id: u32, x: usize, y: usize) -> Option<
 #[inline(always)]
 fn step_forward(g: &Grid, views: &[View], l: usize, p: Pos, v: Pos, id: Option<u32>) -> (Pos, Pos) {
     let Some(i) = g.pixel(p) else { return (LOST, v) };
+    step_forward_at(g, views, l, p, v, id, i, None)
+}
+
+/// [`step_forward`] from `p` in pixel `i`; `shows` whether frame `l` shows `id` there, if
+/// known.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn step_forward_at(
+    g: &Grid,
+    views: &[View],
+    l: usize,
+    p: Pos,
+    v: Pos,
+    id: Option<u32>,
+    i: usize,
+    shows: Option<bool>,
+) -> (Pos, Pos) {
     let here = &views[l];
     if let Some([nx, ny]) = here.next {
-        let v = find(g, here, p, id).map_or(v, |j| [nx[j], ny[j]]);
+        let v = find_at(g, here, p, id, i, shows).map_or(v, |j| [nx[j], ny[j]]);
         return (add(p, v), v);
     }
     let next = &views[l + 1];
@@ -351,6 +430,18 @@ fn step_forward(g: &Grid, views: &[View], l: usize, p: Pos, v: Pos, id: Option<u
     }
 }
 
+/// [`find`] for `p` in pixel `i`; `shows` whether `f` shows `id` there, if known.
+#[inline(always)]
+fn find_at(g: &Grid, f: &View, p: Pos, id: Option<u32>, i: usize, shows: Option<bool>) -> Option<usize> {
+    if shows.unwrap_or_else(|| f.shows(i, id)) {
+        return Some(i);
+    }
+    match (f.ids, id) {
+        (Some(ids), Some(id)) => find_search(g, ids, p, id),
+        _ => Some(i),
+    }
+}
+
 /// One step of a point of object `id` at position `p` of frame `f` to the frame before,
 /// whose last backward step was `v`: `f`'s motion where it shows the object (see
 /// [`find`]), else `v`.
@@ -363,22 +454,29 @@ fn step_back(g: &Grid, f: &View, p: Pos, v: Pos, id: Option<u32>) -> (Pos, Pos) 
     (add(p, v), v)
 }
 
+/// [`step_back`] from `p` in pixel `i`; `shows` whether `f` shows `id` there.
+#[inline(always)]
+fn step_back_at(g: &Grid, f: &View, p: Pos, v: Pos, id: Option<u32>, i: usize, shows: bool) -> (Pos, Pos) {
+    let v = find_at(g, f, p, id, i, Some(shows)).map_or(v, |j| f.motion(j));
+    (add(p, v), v)
+}
+
 /// Where path `l` of pixel `(x, y)` lives in [`Scratch::paths`]: bands of [`BAND_ROWS`]
 /// rows, in a band frame after frame, in a frame row after row. A band's pixels are traced
 /// together and their paths written there; the scatter and the blend read frame `l` of a
 /// band as one run.
 #[inline(always)]
-fn path_index(n: usize, w: usize, l: usize, x: usize, y: usize) -> usize {
+pub(super) fn path_index(n: usize, w: usize, l: usize, x: usize, y: usize) -> usize {
     ((y / BAND_ROWS) * n + l) * (BAND_ROWS * w) + (y % BAND_ROWS) * w + x
 }
 
 /// A sample `k` of one frame that failed the two-way test with pixel `k0` (eq. 13) and
 /// weighs `w` there.
 #[derive(Clone, Copy, Debug)]
-struct Failed {
-    k0: u32,
-    k: u32,
-    w: f32,
+pub(super) struct Failed {
+    pub(super) k0: u32,
+    pub(super) k: u32,
+    pub(super) w: f32,
 }
 
 /// One flow of a pixel: weighted colour sum, weight, nearest depth (eq. 16).
@@ -456,21 +554,23 @@ impl Missed {
 }
 
 /// Filters the centre frame of `win` into `out` (stages timed into `rec`, buffers from
-/// `scratch`); returns it and what happened.
+/// `scratch`, `steps` the first steps of `win`'s frames, kept from earlier outputs);
+/// returns it and what happened.
 pub fn trace(
     win: &Window,
     params: &Params,
     rec: &mut Recorder,
     scratch: &mut Scratch,
+    steps: &mut [FirstSteps],
     out: Rgb,
 ) -> (Rgb, TraceCounts) {
     let (w, h) = (win.frames[win.centre].width(), win.frames[win.centre].height());
     match params.kernel {
-        Kernel::Box if params.support == 0.5 && w.max(h) < UNIT_BOX_MAX_SIDE => {
-            trace_with::<UnitBox>(win, params, rec, scratch, out)
+        Kernel::Box if params.support == 0.5 && w.max(h) < LANE_MAX_SIDE => {
+            trace_with::<UnitBox>(win, params, rec, scratch, steps, out)
         }
-        Kernel::Box => trace_with::<BoxKernel>(win, params, rec, scratch, out),
-        Kernel::Gaussian => trace_with::<GaussianKernel>(win, params, rec, scratch, out),
+        Kernel::Box => trace_with::<BoxKernel>(win, params, rec, scratch, steps, out),
+        Kernel::Gaussian => trace_with::<GaussianKernel>(win, params, rec, scratch, steps, out),
     }
 }
 
@@ -479,6 +579,7 @@ fn trace_with<K: Weight>(
     params: &Params,
     rec: &mut Recorder,
     scratch: &mut Scratch,
+    steps: &mut [FirstSteps],
     mut out: Rgb,
 ) -> (Rgb, TraceCounts) {
     let views: Vec<View> = win.frames.iter().map(|f| View::of(f)).collect();
@@ -490,6 +591,7 @@ fn trace_with<K: Weight>(
         h,
         wf: w as f32,
         hf: h as f32,
+        lanes: w.max(h) < LANE_MAX_SIDE,
     };
     let n = views.len();
     let px = w * h;
@@ -499,9 +601,13 @@ fn trace_with<K: Weight>(
         maps,
         failed,
         missed,
+        vel,
+        codes,
     } = scratch;
     grow(paths, h.div_ceil(BAND_ROWS) * n * stride);
     grow(maps, n * px);
+    grow(vel, h.div_ceil(BAND_ROWS) * stride);
+    let mut steps = (px <= FIRST_STEPS_MAX_PIXELS && steps.len() == n).then_some(steps);
 
     // Paths chi(l; k0, l0) of every pixel centre of l0 (eq. 12 with motion vectors in place
     // of the transforms, local uniformity as in eq. 10), and maps chi(l0; k, l) of every
@@ -510,8 +616,13 @@ fn trace_with<K: Weight>(
     // is hidden there, or too thin for that pixel's sample) it carries on at its velocity.
     rec.run(PATHS, || {
         pool().install(|| {
-            trace_paths(&g, views, c, &mut paths[..h.div_ceil(BAND_ROWS) * n * stride]);
-            map_to_centre(&g, views, c, &mut maps[..n * px]);
+            if let Some(steps) = steps.as_deref_mut() {
+                first_steps(&g, views, c, steps, codes);
+            }
+            let steps = steps.as_deref();
+            let paths = &mut paths[..h.div_ceil(BAND_ROWS) * n * stride];
+            trace_paths(&g, views, c, steps.map(|s| &s[c]), paths, vel);
+            map_to_centre(&g, views, c, steps, &mut maps[..n * px]);
         })
     });
     let paths = &paths[..];
@@ -550,38 +661,151 @@ fn grow(v: &mut Vec<Pos>, len: usize) {
     }
 }
 
-/// Every pixel's path through the window: backwards from l0, then forwards, band by band.
-fn trace_paths(g: &Grid, views: &[View], c: usize, paths: &mut [Pos]) {
+/// Every pixel's path through the window: backwards from l0, then forwards, band by band
+/// (`vel` holds the velocities of a band's pixels); `steps` l0's first steps, if kept.
+fn trace_paths(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    steps: Option<&FirstSteps>,
+    paths: &mut [Pos],
+    vel: &mut [Pos],
+) {
     let n = views.len();
+    let stride = BAND_ROWS * g.w;
     paths
-        .par_chunks_mut(n * BAND_ROWS * g.w)
+        .par_chunks_mut(n * stride)
+        .zip(vel.par_chunks_mut(stride))
         .enumerate()
-        .for_each(|(b, band)| paths_band(g, views, c, b * BAND_ROWS..((b + 1) * BAND_ROWS).min(g.h), band));
+        .for_each(|(b, (band, vel))| {
+            let rows = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(g.h);
+            paths_band(g, views, c, steps, rows, band, vel)
+        });
 }
 
-/// The paths of the pixels of `rows` (one band) into `band`, frame after frame.
+/// The paths of the pixels of `rows` (one band) into `band`, frame after frame: each
+/// frame's step of every pixel of the band in one loop, the frame's planes at hand and the
+/// band's positions and velocities (`vel`) in cache. The first step each way and the pixel
+/// it lands on come from l0's first steps (`steps`) where kept.
 #[inline(never)]
-fn paths_band(g: &Grid, views: &[View], c: usize, rows: std::ops::Range<usize>, band: &mut [Pos]) {
+fn paths_band(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    steps: Option<&FirstSteps>,
+    rows: std::ops::Range<usize>,
+    band: &mut [Pos],
+    vel: &mut [Pos],
+) {
     let (w, n) = (g.w, views.len());
     let stride = BAND_ROWS * w;
+    let start = rows.start * w;
+    let bpx = rows.len() * w;
     let home = &views[c];
-    for y in rows {
-        let local = (y % BAND_ROWS) * w;
-        for x in 0..w {
-            let k0 = y * w + x;
-            let at = local + x;
-            let id = home.id(k0);
-            let start = centre(x, y);
-            band[c * stride + at] = start;
-            let (mut p, mut v) = (start, home.motion(k0));
-            for l in (0..c).rev() {
-                (p, v) = step_back(g, &views[l + 1], p, v, id);
-                band[l * stride + at] = p;
+    let ids = home.ids.map(|ids| &ids[start..start + bpx]);
+    let id = |k: usize| ids.map(|ids| ids[k]);
+    let vel = &mut vel[..bpx];
+    for (r, row) in band[c * stride..][..bpx].chunks_mut(w).enumerate() {
+        for (x, p) in row.iter_mut().enumerate() {
+            *p = centre(x, rows.start + r);
+        }
+    }
+    // Backwards from l0: first its own motion (its pixel shows its object).
+    if c > 0 {
+        let (lo, hi) = band.split_at_mut(c * stride);
+        let (home_pos, dst) = (&hi[..bpx], &mut lo[(c - 1) * stride..][..bpx]);
+        for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(home_pos).enumerate() {
+            *v = home.motion(start + k);
+            *d = add(p, *v);
+        }
+    }
+    for l in (0..c.saturating_sub(1)).rev() {
+        let f = &views[l + 1];
+        let (lo, hi) = band.split_at_mut((l + 1) * stride);
+        let (src, dst) = (&hi[..bpx], &mut lo[l * stride..][..bpx]);
+        match steps.filter(|s| s.back && l + 2 == c) {
+            // From frame l0 - 1, where l0's back steps say which pixel holds each path.
+            Some(st) => {
+                let code = &st.back_code[start..start + bpx];
+                for (k, ((d, v), (&p, &code))) in dst
+                    .iter_mut()
+                    .zip(vel.iter_mut())
+                    .zip(src.iter().zip(code))
+                    .enumerate()
+                {
+                    (*d, *v) = match code {
+                        OUTSIDE => (LOST, *v),
+                        code => step_back_at(g, f, p, *v, id(k), (code & PIXEL) as usize, code & HIDDEN == 0),
+                    };
+                }
             }
-            let (mut p, mut v) = (start, home.first_forward(k0));
-            for l in c + 1..n {
-                (p, v) = step_forward(g, views, l - 1, p, v, id);
-                band[l * stride + at] = p;
+            None => {
+                for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(src).enumerate() {
+                    (*d, *v) = step_back(g, f, p, *v, id(k));
+                }
+            }
+        }
+    }
+    // Forwards from l0.
+    if c + 1 < n {
+        let (lo, hi) = band.split_at_mut((c + 1) * stride);
+        let (home_pos, dst) = (&lo[c * stride..][..bpx], &mut hi[..bpx]);
+        match steps.filter(|s| s.fwd) {
+            Some(st) => {
+                let (pos, code) = (&st.fwd_pos[start..start + bpx], &st.fwd_code[start..start + bpx]);
+                for (k, ((d, v), ((&ctr, &p), &code))) in dst
+                    .iter_mut()
+                    .zip(vel.iter_mut())
+                    .zip(home_pos.iter().zip(pos).zip(code))
+                    .enumerate()
+                {
+                    *d = p;
+                    *v = if code != OUTSIDE && code & INVERTED != 0 {
+                        sub(p, ctr)
+                    } else {
+                        home.first_forward(start + k)
+                    };
+                }
+            }
+            None => {
+                for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(home_pos).enumerate() {
+                    (*d, *v) = step_forward(g, views, c, p, home.first_forward(start + k), id(k));
+                }
+            }
+        }
+    }
+    for l in c + 2..n {
+        let (lo, hi) = band.split_at_mut(l * stride);
+        let (src, dst) = (&lo[(l - 1) * stride..][..bpx], &mut hi[..bpx]);
+        match steps.filter(|s| s.fwd && l == c + 2) {
+            // From frame l0 + 1, where l0's forward steps say which pixel holds each path.
+            Some(st) => {
+                let code = &st.fwd_code[start..start + bpx];
+                for (k, ((d, v), (&p, &code))) in dst
+                    .iter_mut()
+                    .zip(vel.iter_mut())
+                    .zip(src.iter().zip(code))
+                    .enumerate()
+                {
+                    (*d, *v) = match code {
+                        OUTSIDE => (LOST, *v),
+                        code => step_forward_at(
+                            g,
+                            views,
+                            l - 1,
+                            p,
+                            *v,
+                            id(k),
+                            (code & PIXEL) as usize,
+                            Some(code & HIDDEN == 0),
+                        ),
+                    };
+                }
+            }
+            None => {
+                for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(src).enumerate() {
+                    (*d, *v) = step_forward(g, views, l - 1, p, *v, id(k));
+                }
             }
         }
     }
@@ -599,8 +823,9 @@ fn through(g: &Grid, mapped: Option<&[Pos]>, p: Pos, x: usize, y: usize) -> Pos 
 
 /// Every pixel of frame l to l0: steps towards l0 until a frame shows the object at the
 /// position reached, then that frame's map (already built); where no frame does, the steps
-/// reach l0 themselves. Frame by frame outwards from l0.
-fn map_to_centre(g: &Grid, views: &[View], c: usize, maps: &mut [Pos]) {
+/// reach l0 themselves. Frame by frame outwards from l0, from the frames' first steps
+/// (`steps`) where kept.
+fn map_to_centre(g: &Grid, views: &[View], c: usize, steps: Option<&[FirstSteps]>, maps: &mut [Pos]) {
     let (w, n) = (g.w, views.len());
     let px = w * g.h;
     for (i, p) in maps[c * px..(c + 1) * px].iter_mut().enumerate() {
@@ -609,19 +834,310 @@ fn map_to_centre(g: &Grid, views: &[View], c: usize, maps: &mut [Pos]) {
     for l in (0..c).rev() {
         let (done, rest) = maps.split_at_mut((l + 1) * px);
         let rest = &*rest;
-        done[l * px..]
-            .par_chunks_mut(BAND_ROWS * w)
-            .enumerate()
-            .for_each(|(b, chunk)| map_band_forward(g, views, c, l, rest, b * BAND_ROWS, chunk));
+        let chunks = done[l * px..].par_chunks_mut(BAND_ROWS * w).enumerate();
+        match steps.map(|s| &s[l]).filter(|s| s.fwd) {
+            Some(st) => chunks.for_each(|(b, chunk)| {
+                map_band_forward_cached(g, views, c, l, rest, st, b * BAND_ROWS, chunk)
+            }),
+            None => {
+                chunks.for_each(|(b, chunk)| map_band_forward(g, views, c, l, rest, b * BAND_ROWS, chunk))
+            }
+        }
     }
     for l in c + 1..n {
         let (done, rest) = maps.split_at_mut(l * px);
         let done = &*done;
-        rest[..px]
-            .par_chunks_mut(BAND_ROWS * w)
-            .enumerate()
-            .for_each(|(b, chunk)| map_band_back(g, views, c, l, done, b * BAND_ROWS, chunk));
+        let chunks = rest[..px].par_chunks_mut(BAND_ROWS * w).enumerate();
+        match steps.map(|s| &s[l]).filter(|s| s.back) {
+            Some(st) => chunks
+                .for_each(|(b, chunk)| map_band_back_cached(g, views, c, l, done, st, b * BAND_ROWS, chunk)),
+            None => chunks.for_each(|(b, chunk)| map_band_back(g, views, c, l, done, b * BAND_ROWS, chunk)),
+        }
     }
+}
+
+/// The first steps this output uses that its frames do not have yet: forward for l0 and
+/// the frames before it, back for l0 and the frames after it. The frames before l0 no
+/// longer need their back steps: their buffers go to `codes`, for frames to come.
+fn first_steps(g: &Grid, views: &[View], c: usize, steps: &mut [FirstSteps], codes: &mut Vec<Vec<u32>>) {
+    let n = views.len();
+    for (l, st) in steps.iter_mut().enumerate() {
+        if l < c && st.back {
+            st.back = false;
+            codes.push(std::mem::take(&mut st.back_code));
+        }
+        if l <= c && l + 1 < n && !st.fwd {
+            first_steps_forward(g, views, l, st);
+        }
+        if l >= c && l > 0 && !st.back {
+            if st.back_code.capacity() == 0 {
+                st.back_code = codes.pop().unwrap_or_default();
+            }
+            first_steps_back(g, views, l, st);
+        }
+    }
+}
+
+/// The [`FirstSteps`] code of a first step that reached `p`, for an object `id` whose
+/// frame there is `next`.
+#[inline(always)]
+fn step_code(g: &Grid, next: &View, p: Pos, id: Option<u32>) -> u32 {
+    match g.pixel(p) {
+        None => OUTSIDE,
+        Some(j) => j as u32 | if next.shows(j, id) { 0 } else { HIDDEN },
+    }
+}
+
+/// Frame `l`'s forward first steps (to frame `l + 1`).
+fn first_steps_forward(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) {
+    let (w, px) = (g.w, g.w * g.h);
+    st.fwd_pos.resize(px, LOST);
+    st.fwd_code.resize(px, OUTSIDE);
+    let chunk = BAND_ROWS * w;
+    st.fwd_pos
+        .par_chunks_mut(chunk)
+        .zip(st.fwd_code.par_chunks_mut(chunk))
+        .enumerate()
+        .for_each(|(b, (pos, code))| {
+            for (r, (pos, code)) in pos.chunks_mut(w).zip(code.chunks_mut(w)).enumerate() {
+                let y = b * BAND_ROWS + r;
+                for (x, (p, k)) in pos.iter_mut().zip(code.iter_mut()).enumerate() {
+                    (*p, *k) = first_step_forward(g, views, l, x, y);
+                }
+            }
+        });
+    st.fwd = true;
+}
+
+/// The forward first step of pixel `(x, y)` of frame `l` (see [`step_forward`], whose
+/// operations it repeats): the position reached and its [`FirstSteps`] code. Its own pixel
+/// shows its object, so with `motion_next` the step is that; where the inverted motion
+/// lands on the object, that pixel is the one the code needs.
+#[inline(always)]
+fn first_step_forward(g: &Grid, views: &[View], l: usize, x: usize, y: usize) -> (Pos, u32) {
+    let i = y * g.w + x;
+    let (f, next) = (&views[l], &views[l + 1]);
+    let id = f.id(i);
+    let p = centre(x, y);
+    let v = f.first_forward(i);
+    if f.next.is_none() {
+        let mut x = sub(p, next.motion(i));
+        let mut from = i;
+        let mut at = g.pixel(x);
+        let mut landed = false;
+        for _ in 0..INVERSE_ITERATIONS {
+            let Some(j) = at else { break };
+            landed = true;
+            if j == from {
+                break;
+            }
+            x = sub(p, next.motion(j));
+            from = j;
+            at = g.pixel(x);
+        }
+        if let Some(j) = at {
+            if landed && next.shows(j, id) {
+                return (x, j as u32 | INVERTED);
+            }
+        }
+    }
+    let p = add(p, v);
+    (p, step_code(g, next, p, id))
+}
+
+/// Frame `l`'s back first steps (to frame `l - 1`).
+fn first_steps_back(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) {
+    let (w, px) = (g.w, g.w * g.h);
+    let f = &views[l];
+    st.back_code.resize(px, OUTSIDE);
+    let chunk = BAND_ROWS * w;
+    st.back_code
+        .par_chunks_mut(chunk)
+        .enumerate()
+        .for_each(|(b, code)| {
+            for (r, code) in code.chunks_mut(w).enumerate() {
+                let y = b * BAND_ROWS + r;
+                for (x, k) in code.iter_mut().enumerate() {
+                    let i = y * w + x;
+                    let id = f.id(i);
+                    // Its own pixel shows its object: the step is its motion.
+                    let p = add(centre(x, y), f.motion(i));
+                    *k = step_code(g, &views[l - 1], p, id);
+                }
+            }
+        });
+    st.back = true;
+}
+
+/// [`map_band_forward`] from frame `l`'s forward first steps `st`: where the first step
+/// lands on the object (or on l0) the map is that frame's there, else the scalar steps.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn map_band_forward_cached(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    l: usize,
+    nearer: &[Pos],
+    st: &FirstSteps,
+    y0: usize,
+    chunk: &mut [Pos],
+) {
+    let w = g.w;
+    let px = w * g.h;
+    let next = (l + 1 != c).then(|| &nearer[..px]);
+    let start = y0 * w;
+    let (pos, code) = (
+        &st.fwd_pos[start..start + chunk.len()],
+        &st.fwd_code[start..start + chunk.len()],
+    );
+    let f = &views[l];
+    for (o, ((out, &p), &k)) in chunk.iter_mut().zip(pos).zip(code).enumerate() {
+        *out = if k == OUTSIDE {
+            LOST
+        } else if next.is_none() || k & HIDDEN == 0 {
+            through_cached(next, p, (k & PIXEL) as usize)
+        } else {
+            // Frame l + 1 (not l0) does not show the object there: steps on.
+            let i = start + o;
+            let v = if k & INVERTED != 0 {
+                sub(p, centre(i % w, i / w))
+            } else {
+                f.first_forward(i)
+            };
+            let id = f.id(i);
+            let (p, v) = step_forward_at(g, views, l + 1, p, v, id, (k & PIXEL) as usize, Some(false));
+            map_forward_on(g, views, c, l, l + 2, nearer, p, v, id)
+        };
+    }
+}
+
+/// [`map_band_back`] from frame `l`'s back first steps `st` (see
+/// [`map_band_forward_cached`]).
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn map_band_back_cached(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    l: usize,
+    nearer: &[Pos],
+    st: &FirstSteps,
+    y0: usize,
+    chunk: &mut [Pos],
+) {
+    let w = g.w;
+    let px = w * g.h;
+    let f = &views[l];
+    let next = (l - 1 != c).then(|| &nearer[(l - 1) * px..l * px]);
+    for (r, row) in chunk.chunks_mut(w).enumerate() {
+        let y = y0 + r;
+        let code = &st.back_code[y * w..(y + 1) * w];
+        let (mx, my) = (&f.mx[y * w..(y + 1) * w], &f.my[y * w..(y + 1) * w]);
+        for (x, (((out, &k), &vx), &vy)) in row.iter_mut().zip(code).zip(mx).zip(my).enumerate() {
+            *out = if k == OUTSIDE {
+                LOST
+            } else if next.is_none() || k & HIDDEN == 0 {
+                let p = add(centre(x, y), [vx, vy]);
+                through_cached(next, p, (k & PIXEL) as usize)
+            } else {
+                // Frame l - 1 (not l0) does not show the object there: steps on.
+                let (p, v) = (add(centre(x, y), [vx, vy]), [vx, vy]);
+                let id = f.id(y * w + x);
+                let (p, v) = step_back_at(g, &views[l - 1], p, v, id, (k & PIXEL) as usize, false);
+                map_back_on(g, views, c, l - 1, nearer, p, v, id)
+            };
+        }
+    }
+}
+
+/// [`through`] at pixel `j`, which holds `p` (in the image, so its centre is its floor
+/// plus a half); `mapped` `None` for l0's own map.
+#[inline(always)]
+fn through_cached(mapped: Option<&[Pos]>, p: Pos, j: usize) -> Pos {
+    let ctr = [p[0].floor() + 0.5, p[1].floor() + 0.5];
+    let base = mapped.map_or(ctr, |m| m[j]);
+    add(base, sub(p, ctr))
+}
+
+/// The map to l0 of pixel `(x, y)` of frame `l` < l0; `nearer` holds the maps of frames
+/// l + 1 ..= l0.
+fn map_pixel_forward(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    l: usize,
+    nearer: &[Pos],
+    x: usize,
+    y: usize,
+) -> Pos {
+    let f = &views[l];
+    let i = y * g.w + x;
+    let id = f.id(i);
+    let (p, v) = step_forward(g, views, l, centre(x, y), f.first_forward(i), id);
+    map_forward_on(g, views, c, l, l + 1, nearer, p, v, id)
+}
+
+/// The map to l0 of a point of object `id` from frame `l` < l0 that reached `p` in frame
+/// `m0` with velocity `v`: on through frames `m0 ..= l0` (see [`map_pixel_forward`]).
+#[allow(clippy::too_many_arguments)]
+fn map_forward_on(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    l: usize,
+    m0: usize,
+    nearer: &[Pos],
+    mut p: Pos,
+    mut v: Pos,
+    id: Option<u32>,
+) -> Pos {
+    let (w, px) = (g.w, g.w * g.h);
+    for m in m0..=c {
+        let Some((qx, qy)) = g.cell(p) else { return LOST };
+        if m == c || views[m].shows(qy * w + qx, id) {
+            let mapped = (m != c).then(|| &nearer[(m - l - 1) * px..(m - l) * px]);
+            return through(g, mapped, p, qx, qy);
+        }
+        (p, v) = step_forward(g, views, m, p, v, id);
+    }
+    LOST
+}
+
+/// The map to l0 of pixel `(x, y)` of frame `l` > l0; `nearer` holds the maps of frames
+/// 0 .. l.
+fn map_pixel_back(g: &Grid, views: &[View], c: usize, l: usize, nearer: &[Pos], x: usize, y: usize) -> Pos {
+    let f = &views[l];
+    let i = y * g.w + x;
+    let id = f.id(i);
+    let (p, v) = step_back(g, f, centre(x, y), f.motion(i), id);
+    map_back_on(g, views, c, l, nearer, p, v, id)
+}
+
+/// The map to l0 of a point of object `id` from a frame after l0 that reached `p` in frame
+/// `m0 - 1` with velocity `v`: on through frames `m0 - 1` down to l0 (see
+/// [`map_pixel_back`]).
+#[allow(clippy::too_many_arguments)]
+fn map_back_on(
+    g: &Grid,
+    views: &[View],
+    c: usize,
+    m0: usize,
+    nearer: &[Pos],
+    mut p: Pos,
+    mut v: Pos,
+    id: Option<u32>,
+) -> Pos {
+    let (w, px) = (g.w, g.w * g.h);
+    for m in (c..m0).rev() {
+        let Some((qx, qy)) = g.cell(p) else { return LOST };
+        if m == c || views[m].shows(qy * w + qx, id) {
+            let mapped = (m != c).then(|| &nearer[m * px..(m + 1) * px]);
+            return through(g, mapped, p, qx, qy);
+        }
+        (p, v) = step_back(g, &views[m], p, v, id);
+    }
+    LOST
 }
 
 /// The maps to l0 of the rows from `y0` of frame `l` < l0 into `chunk`; `nearer` holds the
@@ -637,24 +1153,10 @@ fn map_band_forward(
     chunk: &mut [Pos],
 ) {
     let w = g.w;
-    let px = w * g.h;
-    let f = &views[l];
     for (r, row) in chunk.chunks_mut(w).enumerate() {
         let y = y0 + r;
         for (x, out) in row.iter_mut().enumerate() {
-            let i = y * w + x;
-            let id = f.id(i);
-            let (mut p, mut v) = step_forward(g, views, l, centre(x, y), f.first_forward(i), id);
-            *out = LOST;
-            for m in l + 1..=c {
-                let Some((qx, qy)) = g.cell(p) else { break };
-                if m == c || views[m].shows(qy * w + qx, id) {
-                    let mapped = (m != c).then(|| &nearer[(m - l - 1) * px..(m - l) * px]);
-                    *out = through(g, mapped, p, qx, qy);
-                    break;
-                }
-                (p, v) = step_forward(g, views, m, p, v, id);
-            }
+            *out = map_pixel_forward(g, views, c, l, nearer, x, y);
         }
     }
 }
@@ -664,24 +1166,10 @@ fn map_band_forward(
 #[inline(never)]
 fn map_band_back(g: &Grid, views: &[View], c: usize, l: usize, nearer: &[Pos], y0: usize, chunk: &mut [Pos]) {
     let w = g.w;
-    let px = w * g.h;
-    let f = &views[l];
     for (r, row) in chunk.chunks_mut(w).enumerate() {
         let y = y0 + r;
         for (x, out) in row.iter_mut().enumerate() {
-            let i = y * w + x;
-            let id = f.id(i);
-            let (mut p, mut v) = step_back(g, f, centre(x, y), f.motion(i), id);
-            *out = LOST;
-            for m in (c..l).rev() {
-                let Some((qx, qy)) = g.cell(p) else { break };
-                if m == c || views[m].shows(qy * w + qx, id) {
-                    let mapped = (m != c).then(|| &nearer[m * px..(m + 1) * px]);
-                    *out = through(g, mapped, p, qx, qy);
-                    break;
-                }
-                (p, v) = step_back(g, &views[m], p, v, id);
-            }
+            *out = map_pixel_back(g, views, c, l, nearer, x, y);
         }
     }
 }
@@ -755,37 +1243,67 @@ fn scatter_band<K: Weight>(
     list: &mut Vec<Failed>,
 ) {
     let w = g.w;
-    let (r, d_th) = (params.support, params.threshold());
-    let j = f.jitter;
     list.clear();
+    let scalar = |x: usize, y: usize, m: Pos, list: &mut Vec<Failed>| {
+        scatter_sample::<K>(g, f, l, n, params, paths, x, y, m, list)
+    };
     for y in rows {
         let row = &map[y * w..(y + 1) * w];
-        for (x, &m) in row.iter().enumerate() {
-            // The sample's own position at l0 (its jitter carried along the flow).
-            let q = add(m, j);
-            if q[0].is_nan() {
+        let mut x0 = 0;
+        if K::UNIT && g.lanes {
+            for (x, m) in row.chunks_exact(LANES).enumerate() {
+                let m = m.try_into().expect("LANES maps");
+                let one = |x: usize, m: Pos, list: &mut Vec<Failed>| scalar(x, y, m, list);
+                lanes::scatter_lanes(g, f, l, n, params, paths, m, x * LANES, y, list, one);
+                x0 = (x + 1) * LANES;
+            }
+        }
+        for (x, &m) in row.iter().enumerate().skip(x0) {
+            scalar(x, y, m, list);
+        }
+    }
+}
+
+/// The scatter test of sample `(x, y)` of frame `l`, whose map to l0 is `m` (see
+/// [`scatter_band`]).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn scatter_sample<K: Weight>(
+    g: &Grid,
+    f: &View,
+    l: usize,
+    n: usize,
+    params: &Params,
+    paths: &[Pos],
+    x: usize,
+    y: usize,
+    m: Pos,
+    list: &mut Vec<Failed>,
+) {
+    let (r, d_th) = (params.support, params.threshold());
+    // The sample's own position at l0 (its jitter carried along the flow).
+    let q = add(m, f.jitter);
+    if q[0].is_nan() {
+        return;
+    }
+    let s = add(centre(x, y), f.jitter);
+    let Some([x0, x1, y0, y1]) = K::footprint(g, q, r) else {
+        return;
+    };
+    for ky in y0..=y1 {
+        for kx in x0..=x1 {
+            let ck = centre(kx, ky);
+            let wgt = K::weight(sub(ck, q), r);
+            // In k0's own flow when both eq. 14 and eq. 15 hold: counted there.
+            let own = dist(ck, q) < d_th && dist(s, paths[path_index(n, g.w, l, kx, ky)]) < d_th;
+            if wgt == 0.0 || own {
                 continue;
             }
-            let s = add(centre(x, y), j);
-            let Some([x0, x1, fy0, fy1]) = K::footprint(g, q, r) else {
-                continue;
-            };
-            for ky in fy0..=fy1 {
-                for kx in x0..=x1 {
-                    let ck = centre(kx, ky);
-                    let wgt = K::weight(sub(ck, q), r);
-                    // In k0's own flow when both eq. 14 and eq. 15 hold: counted there.
-                    let own = dist(ck, q) < d_th && dist(s, paths[path_index(n, w, l, kx, ky)]) < d_th;
-                    if wgt == 0.0 || own {
-                        continue;
-                    }
-                    list.push(Failed {
-                        k0: (ky * w + kx) as u32,
-                        k: (y * w + x) as u32,
-                        w: wgt,
-                    });
-                }
-            }
+            list.push(Failed {
+                k0: (ky * g.w + kx) as u32,
+                k: (y * g.w + x) as u32,
+                w: wgt,
+            });
         }
     }
 }
@@ -793,17 +1311,17 @@ fn scatter_band<K: Weight>(
 /// What a pixel's primary flow has gathered (eq. 11, 16): the weighted colour and weight
 /// of the samples in its flow, and the weight of all samples in its reconstruction area.
 #[derive(Clone, Copy, Default)]
-struct Gathered {
-    sum: [f32; 3],
-    sum_w: f32,
-    total: f32,
+pub(super) struct Gathered {
+    pub(super) sum: [f32; 3],
+    pub(super) sum_w: f32,
+    pub(super) total: f32,
 }
 
 /// The samples of frame `f` (map to l0 `map`) around the path position `p` of the pixel
 /// whose centre is `home`, gathered into `acc` (eq. 11, 14-15).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn gather_frame<K: Weight>(
+pub(super) fn gather_frame<K: Weight>(
     g: &Grid,
     f: &View,
     map: &[Pos],
@@ -864,14 +1382,19 @@ fn blend_row<K: Weight>(
     let mut counts = TraceCounts::default();
     let mut x = 0;
     while x < w {
-        let lanes = if K::UNIT && x + LANES <= w { LANES } else { 1 };
+        let lanes = if K::UNIT && g.lanes && x + LANES <= w {
+            LANES
+        } else {
+            1
+        };
         let mut acc = Lanes::default();
         let mut one = Gathered::default();
         for (l, f) in views.iter().enumerate() {
             let map = &maps[l * px..(l + 1) * px];
             let at = path_index(n, w, l, x, y);
             if lanes == LANES {
-                gather_lanes(g, f, map, &paths[at..at + LANES], x, y, params, &mut acc);
+                let p = paths[at..at + LANES].try_into().expect("LANES paths");
+                lanes::gather_lanes(g, f, map, p, x, y, params, &mut acc);
             } else {
                 gather_frame::<K>(g, f, map, paths[at], centre(x, y), params, &mut one);
             }
@@ -894,124 +1417,6 @@ fn blend_row<K: Weight>(
         x += lanes;
     }
     counts
-}
-
-/// Pixels handled together by the lane loops: 8 f32, one AVX2 register.
-const LANES: usize = 8;
-
-/// 1.5 x 2^23: a whole f32 `v` with |v| <= 2^22 plus this holds `v` in its low bits.
-const MAGIC: f32 = 12_582_912.0;
-
-/// The whole number `v` (|v| <= 2^22) as an i32, in operations that vectorise (`as i32`
-/// saturates, which does not).
-#[inline(always)]
-fn whole_to_i32(v: f32) -> i32 {
-    ((v + MAGIC).to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32)
-}
-
-/// [`gather_frame`] for the [`UnitBox`] kernel and `LANES` pixels `x..x + LANES` of row `y`
-/// at once (their paths at `paths`), in loops the compiler vectorises: the same operations,
-/// with a sample outside the image or of weight 0 adding +0 (which leaves sums of
-/// non-negative terms as they are) instead of being skipped. A lane whose footprint holds
-/// more than one sample (a path at a whole pixel coordinate) takes the scalar code.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn gather_lanes(
-    g: &Grid,
-    f: &View,
-    map: &[Pos],
-    paths: &[Pos],
-    x: usize,
-    y: usize,
-    params: &Params,
-    acc: &mut Lanes,
-) {
-    let d_th = params.threshold();
-    let separate = params.flow_separation;
-    let [j0, j1] = f.jitter;
-    let (w, h) = (g.w as i32, g.h as i32);
-    let (Some(last), Ok(paths)) = (map.len().checked_sub(1), <&[Pos; LANES]>::try_from(paths)) else {
-        return;
-    };
-    let map = &map[..=last];
-    let [cr, cg, cb] = f.rgb.map(|ch| &ch[..=last]);
-    let mut k = [0usize; LANES];
-    let mut wgt = [0.0f32; LANES];
-    let mut s = [[0.0f32; LANES]; 2];
-    let mut several = [false; LANES];
-    let (py, px) = (paths.map(|p| p[1]), paths.map(|p| p[0]));
-    for i in 0..LANES {
-        let q = [px[i] - j0, py[i] - j1];
-        let (fx, fy) = (q[0].floor(), q[1].floor());
-        several[i] = (fx == q[0]) | (fy == q[1]);
-        let kx = whole_to_i32(fx.max(-1.0).min(g.wf));
-        let ky = whole_to_i32(fy.max(-1.0).min(g.hf));
-        let inside = (kx >= 0) & (kx < w) & (ky >= 0) & (ky < h) & !several[i];
-        s[0][i] = fx + 0.5 + j0;
-        s[1][i] = fy + 0.5 + j1;
-        let d = [px[i] - s[0][i], py[i] - s[1][i]];
-        wgt[i] = if inside & (d[0].abs() < 0.5) & (d[1].abs() < 0.5) {
-            1.0
-        } else {
-            0.0
-        };
-        k[i] = if inside { (ky * w + kx) as usize } else { 0 };
-    }
-    let mut m = [[0.0f32; LANES]; 2];
-    let mut col = [[0.0f32; LANES]; 3];
-    for i in 0..LANES {
-        let ki = k[i].min(last);
-        [m[0][i], m[1][i]] = map[ki];
-        col[0][i] = cr[ki];
-        col[1][i] = cg[ki];
-        col[2][i] = cb[ki];
-    }
-    let hy = y as f32 + 0.5;
-    for i in 0..LANES {
-        let hx = (x + i) as f32 + 0.5;
-        let near_home = dist([hx, hy], [m[0][i] + j0, m[1][i] + j1]) < d_th;
-        let near_path = dist([s[0][i], s[1][i]], [px[i], py[i]]) < d_th;
-        let take = (wgt[i] != 0.0) & (!separate | (near_home & near_path));
-        acc.total[i] += wgt[i];
-        acc.sum_w[i] += if take { wgt[i] } else { 0.0 };
-        for c in 0..3 {
-            acc.sum[c][i] += if take { wgt[i] * col[c][i] } else { 0.0 };
-        }
-    }
-    for i in 0..LANES {
-        if several[i] {
-            let mut one = acc.get(i);
-            let home = [(x + i) as f32 + 0.5, y as f32 + 0.5];
-            gather_frame::<BoxKernel>(g, f, map, paths[i], home, params, &mut one);
-            acc.set(i, one);
-        }
-    }
-}
-
-/// [`Gathered`] of `LANES` pixels, one array per field.
-#[derive(Clone, Copy, Default)]
-struct Lanes {
-    sum: [[f32; LANES]; 3],
-    sum_w: [f32; LANES],
-    total: [f32; LANES],
-}
-
-impl Lanes {
-    fn get(&self, i: usize) -> Gathered {
-        Gathered {
-            sum: [self.sum[0][i], self.sum[1][i], self.sum[2][i]],
-            sum_w: self.sum_w[i],
-            total: self.total[i],
-        }
-    }
-
-    fn set(&mut self, i: usize, g: Gathered) {
-        for c in 0..3 {
-            self.sum[c][i] = g.sum[c];
-        }
-        self.sum_w[i] = g.sum_w;
-        self.total[i] = g.total;
-    }
 }
 
 /// Eq. 17: the pixel's flows sorted near to far, each with coverage alpha = its weight over
