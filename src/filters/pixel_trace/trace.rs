@@ -407,9 +407,20 @@ fn step_forward_at(
         return (add(p, v), v);
     }
     let next = &views[l + 1];
-    // Solve x + m(x) = p for x, starting from x = p - m(p). An iterate whose pixel is the
-    // previous one's repeats itself: the iterations left would change nothing, so they
-    // stop there (the reference runs them all, to the same x).
+    let (x, at, landed) = invert(g, next, p, i);
+    match at {
+        Some(j) if landed && next.shows(j, id) => (x, sub(x, p)),
+        _ => (add(p, v), v),
+    }
+}
+
+/// Solves x + m(x) = p for x, `m` frame `next`'s motion, by [`INVERSE_ITERATIONS`]
+/// fixed-point steps from x = p - m(i), `i` the pixel of `p`: returns x, its pixel and
+/// whether a step ran. An iterate in the previous one's pixel, or equal to the previous
+/// one, repeats itself: the steps left would change nothing, so they stop there (the
+/// reference runs them all, to the same x).
+#[inline(always)]
+fn invert(g: &Grid, next: &View, p: Pos, i: usize) -> (Pos, Option<usize>, bool) {
     let mut x = sub(p, next.motion(i));
     let mut from = i;
     let mut at = g.pixel(x);
@@ -420,14 +431,16 @@ fn step_forward_at(
         if j == from {
             break;
         }
-        x = sub(p, next.motion(j));
+        let nx = sub(p, next.motion(j));
         from = j;
+        if nx[0].to_bits() == x[0].to_bits() && nx[1].to_bits() == x[1].to_bits() {
+            // Still in pixel j: the next step would stop.
+            break;
+        }
+        x = nx;
         at = g.pixel(x);
     }
-    match at {
-        Some(j) if landed && next.shows(j, id) => (x, sub(x, p)),
-        _ => (add(p, v), v),
-    }
+    (x, at, landed)
 }
 
 /// [`find`] for `p` in pixel `i`; `shows` whether `f` shows `id` there, if known.
@@ -921,20 +934,7 @@ fn first_step_forward(g: &Grid, views: &[View], l: usize, x: usize, y: usize) ->
     let p = centre(x, y);
     let v = f.first_forward(i);
     if f.next.is_none() {
-        let mut x = sub(p, next.motion(i));
-        let mut from = i;
-        let mut at = g.pixel(x);
-        let mut landed = false;
-        for _ in 0..INVERSE_ITERATIONS {
-            let Some(j) = at else { break };
-            landed = true;
-            if j == from {
-                break;
-            }
-            x = sub(p, next.motion(j));
-            from = j;
-            at = g.pixel(x);
-        }
+        let (x, at, landed) = invert(g, next, p, i);
         if let Some(j) = at {
             if landed && next.shows(j, id) {
                 return (x, j as u32 | INVERTED);
