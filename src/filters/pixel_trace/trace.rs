@@ -20,7 +20,7 @@
 //!   missed flows live in one pool of list nodes and every buffer is kept in a [`Scratch`]
 //!   across frames (no allocation per pixel or, in steady state, per frame).
 
-use super::lanes::{self, Lanes, LANES, LANE_MAX_SIDE};
+use super::lanes::{self, At, Lanes, PathLanes, LANES, LANE_MAX_SIDE};
 use super::{Kernel, Params, BLEND, PATHS, SEPARATE};
 use crate::frame::{Frame, Rgb};
 use crate::pipeline::exec::{par_rows, pool, BAND_ROWS};
@@ -208,6 +208,12 @@ impl Grid {
         } else {
             (p[0] as i32 as usize, p[1] as i32 as usize)
         })
+    }
+
+    /// Whether paths step [`LANES`] at a time: sides below [`LANE_MAX_SIDE`] and pixel
+    /// indices in an `i32`.
+    pub(super) fn lane_steps(&self) -> bool {
+        self.lanes && self.w * self.h <= i32::MAX as usize
     }
 
     /// The index of the pixel holding `p`, if any.
@@ -732,6 +738,7 @@ fn paths_band(
             *d = add(p, *v);
         }
     }
+    let lanes = g.lane_steps();
     for l in (0..c.saturating_sub(1)).rev() {
         let f = &views[l + 1];
         let (lo, hi) = band.split_at_mut((l + 1) * stride);
@@ -740,22 +747,23 @@ fn paths_band(
             // From frame l0 - 1, where l0's back steps say which pixel holds each path.
             Some(st) => {
                 let code = &st.back_code[start..start + bpx];
-                for (k, ((d, v), (&p, &code))) in dst
-                    .iter_mut()
-                    .zip(vel.iter_mut())
-                    .zip(src.iter().zip(code))
-                    .enumerate()
-                {
-                    (*d, *v) = match code {
-                        OUTSIDE => (LOST, *v),
-                        code => step_back_at(g, f, p, *v, id(k), (code & PIXEL) as usize, code & HIDDEN == 0),
-                    };
-                }
+                let one = |k: usize, p: Pos, v: Pos| match code[k] {
+                    OUTSIDE => (LOST, v),
+                    code => step_back_at(g, f, p, v, id(k), (code & PIXEL) as usize, code & HIDDEN == 0),
+                };
+                band_steps(lanes, ids, src, dst, vel, one, |k, step| {
+                    let code = code[k..k + LANES].try_into().expect("LANES codes");
+                    let at = At::of_codes(code, OUTSIDE, PIXEL, HIDDEN);
+                    let pixel = at.pixel;
+                    step.back(f, &at, |i, p, v| step_back_at(g, f, p, v, id(k + i), pixel[i], false));
+                });
             }
             None => {
-                for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(src).enumerate() {
-                    (*d, *v) = step_back(g, f, p, *v, id(k));
-                }
+                let one = |k: usize, p: Pos, v: Pos| step_back(g, f, p, v, id(k));
+                band_steps(lanes, ids, src, dst, vel, one, |k, step| {
+                    let at = At::of(g, step.p);
+                    step.back(f, &at, |i, p, v| one(k + i, p, v));
+                });
             }
         }
     }
@@ -790,37 +798,74 @@ fn paths_band(
     for l in c + 2..n {
         let (lo, hi) = band.split_at_mut(l * stride);
         let (src, dst) = (&lo[(l - 1) * stride..][..bpx], &mut hi[..bpx]);
+        let (here, next) = (&views[l - 1], &views[l]);
         match steps.filter(|s| s.fwd && l == c + 2) {
             // From frame l0 + 1, where l0's forward steps say which pixel holds each path.
             Some(st) => {
                 let code = &st.fwd_code[start..start + bpx];
-                for (k, ((d, v), (&p, &code))) in dst
-                    .iter_mut()
-                    .zip(vel.iter_mut())
-                    .zip(src.iter().zip(code))
-                    .enumerate()
-                {
-                    (*d, *v) = match code {
-                        OUTSIDE => (LOST, *v),
-                        code => step_forward_at(
-                            g,
-                            views,
-                            l - 1,
-                            p,
-                            *v,
-                            id(k),
-                            (code & PIXEL) as usize,
-                            Some(code & HIDDEN == 0),
-                        ),
-                    };
-                }
+                let one = |k: usize, p: Pos, v: Pos| match code[k] {
+                    OUTSIDE => (LOST, v),
+                    code => step_forward_at(
+                        g,
+                        views,
+                        l - 1,
+                        p,
+                        v,
+                        id(k),
+                        (code & PIXEL) as usize,
+                        Some(code & HIDDEN == 0),
+                    ),
+                };
+                band_steps(lanes, ids, src, dst, vel, one, |k, step| {
+                    let code = code[k..k + LANES].try_into().expect("LANES codes");
+                    let at = At::of_codes(code, OUTSIDE, PIXEL, HIDDEN);
+                    step.forward(g, here, next, &at, |i, p, v| one(k + i, p, v));
+                });
             }
             None => {
-                for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(src).enumerate() {
-                    (*d, *v) = step_forward(g, views, l - 1, p, *v, id(k));
-                }
+                let one = |k: usize, p: Pos, v: Pos| step_forward(g, views, l - 1, p, v, id(k));
+                band_steps(lanes, ids, src, dst, vel, one, |k, step| {
+                    let at = At::of(g, step.p);
+                    step.forward(g, here, next, &at, |i, p, v| one(k + i, p, v));
+                });
             }
         }
+    }
+}
+
+/// One step of every path of a band, from `src` into `dst` with velocities `vel`: `lane`
+/// on [`LANES`] paths at a time (from pixel `k` of the band) where `lanes`, `one` on each
+/// of the rest (pixel, position, velocity; returns the new position and velocity); `ids`
+/// the objects of the band's pixels.
+#[inline(always)]
+fn band_steps(
+    lanes: bool,
+    ids: Option<&[u32]>,
+    src: &[Pos],
+    dst: &mut [Pos],
+    vel: &mut [Pos],
+    one: impl Fn(usize, Pos, Pos) -> (Pos, Pos),
+    lane: impl Fn(usize, PathLanes<'_>),
+) {
+    let mut k0 = 0;
+    if lanes {
+        for (((k, p), out), v) in src
+            .chunks_exact(LANES)
+            .enumerate()
+            .zip(dst.chunks_exact_mut(LANES))
+            .zip(vel.chunks_exact_mut(LANES))
+        {
+            let k = k * LANES;
+            let p = p.try_into().expect("LANES positions");
+            let out = out.try_into().expect("LANES positions");
+            let v = v.try_into().expect("LANES velocities");
+            let id = ids.map(|ids| ids[k..k + LANES].try_into().expect("LANES ids"));
+            lane(k, PathLanes { p, v, out, id });
+            k0 = k + LANES;
+        }
+    }
+    for (k, ((d, v), &p)) in dst.iter_mut().zip(vel.iter_mut()).zip(src).enumerate().skip(k0) {
+        (*d, *v) = one(k, p, *v);
     }
 }
 
@@ -992,8 +1037,8 @@ fn map_band_forward_cached(
         &st.fwd_code[start..start + chunk.len()],
     );
     let f = &views[l];
-    for (o, ((out, &p), &k)) in chunk.iter_mut().zip(pos).zip(code).enumerate() {
-        *out = if k == OUTSIDE {
+    let one = |o: usize, p: Pos, k: u32| {
+        if k == OUTSIDE {
             LOST
         } else if next.is_none() || k & HIDDEN == 0 {
             through_cached(next, p, (k & PIXEL) as usize)
@@ -1008,7 +1053,29 @@ fn map_band_forward_cached(
             let id = f.id(i);
             let (p, v) = step_forward_at(g, views, l + 1, p, v, id, (k & PIXEL) as usize, Some(false));
             map_forward_on(g, views, c, l, l + 2, nearer, p, v, id)
-        };
+        }
+    };
+    let mut o0 = 0;
+    if g.lanes {
+        for (o, ((out, p), k)) in chunk
+            .chunks_exact_mut(LANES)
+            .zip(pos.chunks_exact(LANES))
+            .zip(code.chunks_exact(LANES))
+            .enumerate()
+        {
+            let o = o * LANES;
+            let out: &mut [Pos; LANES] = out.try_into().expect("LANES maps");
+            let (p, k) = (p.try_into().expect("LANES positions"), k.try_into().expect("LANES codes"));
+            if lanes::through_lanes(next, p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
+                for i in 0..LANES {
+                    out[i] = one(o + i, p[i], k[i]);
+                }
+            }
+            o0 = o + LANES;
+        }
+    }
+    for (o, ((out, &p), &k)) in chunk.iter_mut().zip(pos).zip(code).enumerate().skip(o0) {
+        *out = one(o, p, k);
     }
 }
 
@@ -1034,19 +1101,43 @@ fn map_band_back_cached(
         let y = y0 + r;
         let code = &st.back_code[y * w..(y + 1) * w];
         let (mx, my) = (&f.mx[y * w..(y + 1) * w], &f.my[y * w..(y + 1) * w]);
-        for (x, (((out, &k), &vx), &vy)) in row.iter_mut().zip(code).zip(mx).zip(my).enumerate() {
-            *out = if k == OUTSIDE {
+        let one = |x: usize, k: u32, v: Pos| {
+            let p = add(centre(x, y), v);
+            if k == OUTSIDE {
                 LOST
             } else if next.is_none() || k & HIDDEN == 0 {
-                let p = add(centre(x, y), [vx, vy]);
                 through_cached(next, p, (k & PIXEL) as usize)
             } else {
                 // Frame l - 1 (not l0) does not show the object there: steps on.
-                let (p, v) = (add(centre(x, y), [vx, vy]), [vx, vy]);
                 let id = f.id(y * w + x);
                 let (p, v) = step_back_at(g, &views[l - 1], p, v, id, (k & PIXEL) as usize, false);
                 map_back_on(g, views, c, l - 1, nearer, p, v, id)
-            };
+            }
+        };
+        let mut x0 = 0;
+        if g.lanes {
+            for (x, (((out, k), vx), vy)) in row
+                .chunks_exact_mut(LANES)
+                .zip(code.chunks_exact(LANES))
+                .zip(mx.chunks_exact(LANES))
+                .zip(my.chunks_exact(LANES))
+                .enumerate()
+            {
+                let x = x * LANES;
+                let out: &mut [Pos; LANES] = out.try_into().expect("LANES maps");
+                let k: &[u32; LANES] = k.try_into().expect("LANES codes");
+                let (vx, vy) = (vx.try_into().expect("LANES"), vy.try_into().expect("LANES"));
+                let p = lanes::centres_plus(x, y, vx, vy);
+                if lanes::through_lanes(next, &p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
+                    for i in 0..LANES {
+                        out[i] = one(x + i, k[i], [vx[i], vy[i]]);
+                    }
+                }
+                x0 = x + LANES;
+            }
+        }
+        for (x, (((out, &k), &vx), &vy)) in row.iter_mut().zip(code).zip(mx).zip(my).enumerate().skip(x0) {
+            *out = one(x, k, [vx, vy]);
         }
     }
 }
