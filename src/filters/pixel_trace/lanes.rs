@@ -59,8 +59,9 @@ pub(super) fn whole_to_i32(v: f32) -> i32 {
     ((v + MAGIC).to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32)
 }
 
+/// Whether any lane is set.
 #[inline(always)]
-fn any(m: &Mask) -> bool {
+pub(super) fn any(m: &Mask) -> bool {
     m.iter().fold(false, |a, &b| a | b)
 }
 
@@ -380,37 +381,10 @@ impl PathLanes<'_> {
             self.finish(&at.valid, &take, m, &odd, scalar);
             return;
         }
-        // `invert` (trace.rs): x0 = p - m(i), x1 = p - m(pixel of x0); it stops at x0
-        // when x0 is in pixel i or x1 equals x0, at x1 when x1 is in x0's pixel; past
-        // the image it has no pixel and the step keeps its velocity.
-        const _: () = assert!(INVERSE_ITERATIONS >= 2);
         let p = Pts::of(self.p);
-        let r = run(&at.pixel);
-        let (mx, my) = (gather_run(next.mx, &at.pixel, r), gather_run(next.my, &at.pixel, r));
-        let x0 = Pts {
-            x: std::array::from_fn(|i| p.x[i] - mx[i]),
-            y: std::array::from_fn(|i| p.y[i] - my[i]),
-        };
-        let (a0, in0) = pixel_lanes(g, &x0);
-        let r0 = run(&a0);
-        let (mx, my) = (gather_run(next.mx, &a0, r0), gather_run(next.my, &a0, r0));
-        let x1 = Pts {
-            x: std::array::from_fn(|i| p.x[i] - mx[i]),
-            y: std::array::from_fn(|i| p.y[i] - my[i]),
-        };
-        let (a1, in1) = pixel_lanes(g, &x1);
-        let mut x = [[0.0f32; LANES]; 2];
-        let mut landed = [false; LANES];
-        let mut odd = [false; LANES];
-        for i in 0..LANES {
-            let stop0 = (a0[i] == at.pixel[i])
-                | ((x1.x[i].to_bits() == x0.x[i].to_bits()) & (x1.y[i].to_bits() == x0.y[i].to_bits()));
-            let stop1 = !stop0 & in1[i] & (a1[i] == a0[i]);
-            landed[i] = in0[i] & (stop0 | stop1);
-            x[0][i] = if stop0 { x0.x[i] } else { x1.x[i] };
-            x[1][i] = if stop0 { x0.y[i] } else { x1.y[i] };
-            odd[i] = at.valid[i] & in0[i] & !stop0 & in1[i] & !stop1;
-        }
+        let inv = Inverted::of(g, next, &p, &at.pixel);
+        let (x, a0, r0, landed) = (inv.x, inv.at, inv.run, inv.landed);
+        let odd: Mask = std::array::from_fn(|i| at.valid[i] & inv.odd[i]);
         let shows = shows_lanes(next, &a0, r0, self.id);
         let take: Mask = std::array::from_fn(|i| landed[i] & shows[i]);
         // Where the inversion lands on the object the velocity is x - p.
@@ -441,9 +415,9 @@ impl PathLanes<'_> {
 
 /// `through_cached` (trace.rs) of `LANES` positions `p` in the pixels of first-step codes
 /// `code` (the pixel in `pixel_bits`): `mapped` there (the pixel centre for l0's own
-/// map) plus each position's offset from its pixel's centre, into `out`. None when a
-/// lane's code is `outside`, or `hidden` for a frame other than l0 (the caller's scalar
-/// code steps on there).
+/// map) plus each position's offset from its pixel's centre, into `out`. Returns the
+/// lanes left to the caller's scalar code: those whose code is `outside`, or `hidden` for
+/// a frame other than l0 (the path steps on there).
 #[inline(always)]
 pub(super) fn through_lanes(
     mapped: Option<&[Pos]>,
@@ -451,12 +425,9 @@ pub(super) fn through_lanes(
     code: &[u32; LANES],
     [outside, pixel_bits, hidden]: [u32; 3],
     out: &mut [Pos; LANES],
-) -> Option<()> {
+) -> Mask {
     let stop = if mapped.is_some() { hidden } else { 0 };
-    let simple = code.iter().fold(true, |a, &k| a & (k != outside) & (k & stop == 0));
-    if !simple {
-        return None;
-    }
+    let odd = code.map(|k| (k == outside) | (k & stop != 0));
     let p = Pts::of(p);
     let ctr = Pts {
         x: p.x.map(|v| v.floor() + 0.5),
@@ -464,7 +435,7 @@ pub(super) fn through_lanes(
     };
     let base = match mapped {
         Some(m) => {
-            let j: Ix = code.map(|k| (k & pixel_bits) as usize);
+            let j: Ix = std::array::from_fn(|i| if odd[i] { 0 } else { (code[i] & pixel_bits) as usize });
             Pts::of(&gather(m, &j))
         }
         None => ctr,
@@ -472,7 +443,7 @@ pub(super) fn through_lanes(
     for i in 0..LANES {
         out[i] = [base.x[i] + (p.x[i] - ctr.x[i]), base.y[i] + (p.y[i] - ctr.y[i])];
     }
-    Some(())
+    odd
 }
 
 /// The pixel centres `x..x + LANES` of row `y` plus the velocities `vx`, `vy`, as
@@ -482,6 +453,140 @@ pub(super) fn centres_plus(x: usize, y: usize, vx: &[f32; LANES], vy: &[f32; LAN
     let xs = columns(x);
     let cy = y as f32 + 0.5;
     std::array::from_fn(|i| [xs[i] + 0.5 + vx[i], cy + vy[i]])
+}
+
+/// `invert` (trace.rs) of `LANES` positions `p` in pixels `i`, `next`'s motion: x0 = p -
+/// m(i), x1 = p - m(pixel of x0); it stops at x0 when x0 is in pixel i or x1 equals x0,
+/// at x1 when x1 is in x0's pixel; past the image it has no pixel. Lanes that go on
+/// further are `odd` (for the scalar code).
+pub(super) struct Inverted {
+    /// Where it stopped.
+    x: [Fl; 2],
+    /// The pixel there (that of x0), and [`run`] of them.
+    at: Ix,
+    run: Option<usize>,
+    /// Whether it stopped in the image.
+    landed: Mask,
+    odd: Mask,
+}
+
+impl Inverted {
+    #[inline(always)]
+    fn of(g: &Grid, next: &View, p: &Pts, i: &Ix) -> Self {
+        const _: () = assert!(INVERSE_ITERATIONS >= 2);
+        let r = run(i);
+        let (mx, my) = (gather_run(next.mx, i, r), gather_run(next.my, i, r));
+        let x0 = Pts {
+            x: std::array::from_fn(|k| p.x[k] - mx[k]),
+            y: std::array::from_fn(|k| p.y[k] - my[k]),
+        };
+        let (a0, in0) = pixel_lanes(g, &x0);
+        let r0 = run(&a0);
+        let (mx, my) = (gather_run(next.mx, &a0, r0), gather_run(next.my, &a0, r0));
+        let x1 = Pts {
+            x: std::array::from_fn(|k| p.x[k] - mx[k]),
+            y: std::array::from_fn(|k| p.y[k] - my[k]),
+        };
+        let (a1, in1) = pixel_lanes(g, &x1);
+        let mut x = [[0.0f32; LANES]; 2];
+        let mut landed = [false; LANES];
+        let mut odd = [false; LANES];
+        for k in 0..LANES {
+            let stop0 = (a0[k] == i[k])
+                | ((x1.x[k].to_bits() == x0.x[k].to_bits()) & (x1.y[k].to_bits() == x0.y[k].to_bits()));
+            let stop1 = !stop0 & in1[k] & (a1[k] == a0[k]);
+            landed[k] = in0[k] & (stop0 | stop1);
+            x[0][k] = if stop0 { x0.x[k] } else { x1.x[k] };
+            x[1][k] = if stop0 { x0.y[k] } else { x1.y[k] };
+            odd[k] = in0[k] & !stop0 & in1[k] & !stop1;
+        }
+        Inverted {
+            x,
+            at: a0,
+            run: r0,
+            landed,
+            odd,
+        }
+    }
+}
+
+/// `step_code` (trace.rs) of `LANES` first steps that reached `p`, for objects `id` whose
+/// frame there is `next`: the pixel, with `hidden` where `next` does not show the object,
+/// or `outside`.
+#[inline(always)]
+fn step_codes(g: &Grid, next: &View, p: &[Pos; LANES], id: Option<&[u32; LANES]>, [outside, hidden]: [u32; 2]) -> [u32; LANES] {
+    let (j, inside) = pixel_lanes(g, &Pts::of(p));
+    let shows = shows_lanes(next, &j, run(&j), id);
+    std::array::from_fn(|k| {
+        if inside[k] {
+            j[k] as u32 | if shows[k] { 0 } else { hidden }
+        } else {
+            outside
+        }
+    })
+}
+
+/// `first_steps_back` (trace.rs) of pixels `x..x + LANES` of row `y` of frame `f` to
+/// frame `prev`: the step is the pixel's motion (its own pixel shows its object).
+#[inline(always)]
+pub(super) fn first_steps_back(
+    g: &Grid,
+    f: &View,
+    prev: &View,
+    x: usize,
+    y: usize,
+    codes: [u32; 2],
+) -> [u32; LANES] {
+    let i = y * g.w + x;
+    let id = f.ids.map(|ids| ids[i..i + LANES].try_into().expect("LANES ids"));
+    let (mx, my) = (&f.mx[i..i + LANES], &f.my[i..i + LANES]);
+    let p = centres_plus(x, y, mx.try_into().expect("LANES"), my.try_into().expect("LANES"));
+    step_codes(g, prev, &p, id, codes)
+}
+
+/// `first_step_forward` (trace.rs) of pixels `x..x + LANES` of row `y` of frame `f` to
+/// frame `next`: positions and codes (`[outside, hidden, inverted]`), and the lanes left
+/// to the scalar code (an inversion that goes on past its second iterate).
+#[inline(always)]
+pub(super) fn first_steps_forward(
+    g: &Grid,
+    f: &View,
+    next: &View,
+    x: usize,
+    y: usize,
+    [outside, hidden, inverted]: [u32; 3],
+    pos: &mut [Pos; LANES],
+    code: &mut [u32; LANES],
+) -> Mask {
+    let i = y * g.w + x;
+    let id = f.ids.map(|ids| ids[i..i + LANES].try_into().expect("LANES ids"));
+    let (mx, my): (&[f32; LANES], &[f32; LANES]) = (
+        f.mx[i..i + LANES].try_into().expect("LANES"),
+        f.my[i..i + LANES].try_into().expect("LANES"),
+    );
+    let Some([nx, ny]) = f.next else {
+        let zero = [0.0f32; LANES];
+        let p = Pts::of(&centres_plus(x, y, &zero, &zero));
+        let here: Ix = std::array::from_fn(|k| i + k);
+        let inv = Inverted::of(g, next, &p, &here);
+        let shows = shows_lanes(next, &inv.at, inv.run, id);
+        // Elsewhere constant velocity: minus the motion.
+        let on: [Pos; LANES] = std::array::from_fn(|k| [p.x[k] + -mx[k], p.y[k] + -my[k]]);
+        let on_code = step_codes(g, next, &on, id, [outside, hidden]);
+        for k in 0..LANES {
+            let take = inv.landed[k] & shows[k];
+            pos[k] = if take { [inv.x[0][k], inv.x[1][k]] } else { on[k] };
+            code[k] = if take { inv.at[k] as u32 | inverted } else { on_code[k] };
+        }
+        return inv.odd;
+    };
+    let v: (&[f32; LANES], &[f32; LANES]) = (
+        nx[i..i + LANES].try_into().expect("LANES"),
+        ny[i..i + LANES].try_into().expect("LANES"),
+    );
+    *pos = centres_plus(x, y, v.0, v.1);
+    *code = step_codes(g, next, pos, id, [outside, hidden]);
+    [false; LANES]
 }
 
 /// [`Gathered`] of `LANES` pixels, one array per field.

@@ -959,7 +959,23 @@ fn first_steps_forward(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) 
         .for_each(|(b, (pos, code))| {
             for (r, (pos, code)) in pos.chunks_mut(w).zip(code.chunks_mut(w)).enumerate() {
                 let y = b * BAND_ROWS + r;
-                for (x, (p, k)) in pos.iter_mut().zip(code.iter_mut()).enumerate() {
+                let mut x0 = 0;
+                if g.lane_steps() {
+                    let (f, next) = (&views[l], &views[l + 1]);
+                    for (x, (p, k)) in pos.chunks_exact_mut(LANES).zip(code.chunks_exact_mut(LANES)).enumerate() {
+                        let x = x * LANES;
+                        let (p, k): (&mut [Pos; LANES], &mut [u32; LANES]) =
+                            (p.try_into().expect("LANES"), k.try_into().expect("LANES"));
+                        let odd = lanes::first_steps_forward(g, f, next, x, y, [OUTSIDE, HIDDEN, INVERTED], &mut *p, &mut *k);
+                        if lanes::any(&odd) {
+                            for i in (0..LANES).filter(|&i| odd[i]) {
+                                (p[i], k[i]) = first_step_forward(g, views, l, x + i, y);
+                            }
+                        }
+                        x0 = x + LANES;
+                    }
+                }
+                for (x, (p, k)) in pos.iter_mut().zip(code.iter_mut()).enumerate().skip(x0) {
                     (*p, *k) = first_step_forward(g, views, l, x, y);
                 }
             }
@@ -1002,7 +1018,15 @@ fn first_steps_back(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) {
         .for_each(|(b, code)| {
             for (r, code) in code.chunks_mut(w).enumerate() {
                 let y = b * BAND_ROWS + r;
-                for (x, k) in code.iter_mut().enumerate() {
+                let mut x0 = 0;
+                if g.lane_steps() {
+                    for (x, k) in code.chunks_exact_mut(LANES).enumerate() {
+                        let x = x * LANES;
+                        k.copy_from_slice(&lanes::first_steps_back(g, f, &views[l - 1], x, y, [OUTSIDE, HIDDEN]));
+                        x0 = x + LANES;
+                    }
+                }
+                for (x, k) in code.iter_mut().enumerate().skip(x0) {
                     let i = y * w + x;
                     let id = f.id(i);
                     // Its own pixel shows its object: the step is its motion.
@@ -1066,8 +1090,9 @@ fn map_band_forward_cached(
             let o = o * LANES;
             let out: &mut [Pos; LANES] = out.try_into().expect("LANES maps");
             let (p, k) = (p.try_into().expect("LANES positions"), k.try_into().expect("LANES codes"));
-            if lanes::through_lanes(next, p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
-                for i in 0..LANES {
+            let odd = lanes::through_lanes(next, p, k, [OUTSIDE, PIXEL, HIDDEN], out);
+            if lanes::any(&odd) {
+                for i in (0..LANES).filter(|&i| odd[i]) {
                     out[i] = one(o + i, p[i], k[i]);
                 }
             }
@@ -1128,8 +1153,9 @@ fn map_band_back_cached(
                 let k: &[u32; LANES] = k.try_into().expect("LANES codes");
                 let (vx, vy) = (vx.try_into().expect("LANES"), vy.try_into().expect("LANES"));
                 let p = lanes::centres_plus(x, y, vx, vy);
-                if lanes::through_lanes(next, &p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
-                    for i in 0..LANES {
+                let odd = lanes::through_lanes(next, &p, k, [OUTSIDE, PIXEL, HIDDEN], out);
+                if lanes::any(&odd) {
+                    for i in (0..LANES).filter(|&i| odd[i]) {
                         out[i] = one(x + i, k[i], [vx[i], vy[i]]);
                     }
                 }
