@@ -12,7 +12,8 @@
 //! 2^22 pixels a side; larger images take the scalar code ([`LANE_MAX_SIDE`]).
 
 use super::trace::{
-    centre, dist, gather_frame, path_index, BoxKernel, Failed, Gathered, Grid, Pos, View, INVERSE_ITERATIONS, LOST,
+    centre, dist, gather_frame, path_index, BoxKernel, Failed, Gathered, Grid, Pos, View, INVERSE_ITERATIONS,
+    LOST,
 };
 use super::Params;
 
@@ -257,7 +258,11 @@ fn pixel_lanes(g: &Grid, p: &Pts) -> (Ix, Mask) {
         inside[i] = (x >= 0.0) & (y >= 0.0) & (x < wf) & (y < hf);
         let kx = whole_to_i32(x.max(0.0).min(wf).floor());
         let ky = whole_to_i32(y.max(0.0).min(hf).floor());
-        j[i] = if inside[i] { (ky * w + kx) as u32 as usize } else { 0 };
+        j[i] = if inside[i] {
+            (ky * w + kx) as u32 as usize
+        } else {
+            0
+        };
     }
     (j, inside)
 }
@@ -302,7 +307,13 @@ impl At {
     pub(super) fn of_codes(code: &[u32; LANES], outside: u32, pixel_bits: u32, hidden: u32) -> Self {
         let valid = code.map(|k| k != outside);
         At {
-            pixel: std::array::from_fn(|i| if valid[i] { (code[i] & pixel_bits) as usize } else { 0 }),
+            pixel: std::array::from_fn(|i| {
+                if valid[i] {
+                    (code[i] & pixel_bits) as usize
+                } else {
+                    0
+                }
+            }),
             valid,
             shows: Some(code.map(|k| k & hidden == 0)),
         }
@@ -337,7 +348,11 @@ impl PathLanes<'_> {
         for i in 0..LANES {
             let v = if take[i] { [m[0][i], m[1][i]] } else { v0[i] };
             let p = self.p[i];
-            self.out[i] = if valid[i] { [p[0] + v[0], p[1] + v[1]] } else { LOST };
+            self.out[i] = if valid[i] {
+                [p[0] + v[0], p[1] + v[1]]
+            } else {
+                LOST
+            };
             self.v[i] = v;
         }
         if any(odd) {
@@ -374,17 +389,49 @@ impl PathLanes<'_> {
     ) {
         if let Some([nx, ny]) = here.next {
             let r = run(&at.pixel);
-            let shows = at.shows.unwrap_or_else(|| shows_lanes(here, &at.pixel, r, self.id));
+            let shows = at
+                .shows
+                .unwrap_or_else(|| shows_lanes(here, &at.pixel, r, self.id));
             let m = [gather_run(nx, &at.pixel, r), gather_run(ny, &at.pixel, r)];
             let take: Mask = std::array::from_fn(|i| at.valid[i] & shows[i]);
             let odd: Mask = std::array::from_fn(|i| at.valid[i] & !shows[i]);
             self.finish(&at.valid, &take, m, &odd, scalar);
             return;
         }
+        // `invert` (trace.rs): x0 = p - m(i), x1 = p - m(pixel of x0); it stops at x0
+        // when x0 is in pixel i or x1 equals x0, at x1 when x1 is in x0's pixel; past
+        // the image it has no pixel and the step keeps its velocity.
+        const _: () = assert!(INVERSE_ITERATIONS >= 2);
         let p = Pts::of(self.p);
-        let inv = Inverted::of(g, next, &p, &at.pixel);
-        let (x, a0, r0, landed) = (inv.x, inv.at, inv.run, inv.landed);
-        let odd: Mask = std::array::from_fn(|i| at.valid[i] & inv.odd[i]);
+        let r = run(&at.pixel);
+        let (mx, my) = (
+            gather_run(next.mx, &at.pixel, r),
+            gather_run(next.my, &at.pixel, r),
+        );
+        let x0 = Pts {
+            x: std::array::from_fn(|i| p.x[i] - mx[i]),
+            y: std::array::from_fn(|i| p.y[i] - my[i]),
+        };
+        let (a0, in0) = pixel_lanes(g, &x0);
+        let r0 = run(&a0);
+        let (mx, my) = (gather_run(next.mx, &a0, r0), gather_run(next.my, &a0, r0));
+        let x1 = Pts {
+            x: std::array::from_fn(|i| p.x[i] - mx[i]),
+            y: std::array::from_fn(|i| p.y[i] - my[i]),
+        };
+        let (a1, in1) = pixel_lanes(g, &x1);
+        let mut x = [[0.0f32; LANES]; 2];
+        let mut landed = [false; LANES];
+        let mut odd = [false; LANES];
+        for i in 0..LANES {
+            let stop0 = (a0[i] == at.pixel[i])
+                | ((x1.x[i].to_bits() == x0.x[i].to_bits()) & (x1.y[i].to_bits() == x0.y[i].to_bits()));
+            let stop1 = !stop0 & in1[i] & (a1[i] == a0[i]);
+            landed[i] = in0[i] & (stop0 | stop1);
+            x[0][i] = if stop0 { x0.x[i] } else { x1.x[i] };
+            x[1][i] = if stop0 { x0.y[i] } else { x1.y[i] };
+            odd[i] = at.valid[i] & in0[i] & !stop0 & in1[i] & !stop1;
+        }
         let shows = shows_lanes(next, &a0, r0, self.id);
         let take: Mask = std::array::from_fn(|i| landed[i] & shows[i]);
         // Where the inversion lands on the object the velocity is x - p.
@@ -415,9 +462,9 @@ impl PathLanes<'_> {
 
 /// `through_cached` (trace.rs) of `LANES` positions `p` in the pixels of first-step codes
 /// `code` (the pixel in `pixel_bits`): `mapped` there (the pixel centre for l0's own
-/// map) plus each position's offset from its pixel's centre, into `out`. Returns the
-/// lanes left to the caller's scalar code: those whose code is `outside`, or `hidden` for
-/// a frame other than l0 (the path steps on there).
+/// map) plus each position's offset from its pixel's centre, into `out`. None when a
+/// lane's code is `outside`, or `hidden` for a frame other than l0 (the caller's scalar
+/// code steps on there).
 #[inline(always)]
 pub(super) fn through_lanes(
     mapped: Option<&[Pos]>,
@@ -425,9 +472,14 @@ pub(super) fn through_lanes(
     code: &[u32; LANES],
     [outside, pixel_bits, hidden]: [u32; 3],
     out: &mut [Pos; LANES],
-) -> Mask {
+) -> Option<()> {
     let stop = if mapped.is_some() { hidden } else { 0 };
-    let odd = code.map(|k| (k == outside) | (k & stop != 0));
+    let simple = code
+        .iter()
+        .fold(true, |a, &k| a & (k != outside) & (k & stop == 0));
+    if !simple {
+        return None;
+    }
     let p = Pts::of(p);
     let ctr = Pts {
         x: p.x.map(|v| v.floor() + 0.5),
@@ -435,7 +487,7 @@ pub(super) fn through_lanes(
     };
     let base = match mapped {
         Some(m) => {
-            let j: Ix = std::array::from_fn(|i| if odd[i] { 0 } else { (code[i] & pixel_bits) as usize });
+            let j: Ix = code.map(|k| (k & pixel_bits) as usize);
             Pts::of(&gather(m, &j))
         }
         None => ctr,
@@ -443,7 +495,7 @@ pub(super) fn through_lanes(
     for i in 0..LANES {
         out[i] = [base.x[i] + (p.x[i] - ctr.x[i]), base.y[i] + (p.y[i] - ctr.y[i])];
     }
-    odd
+    Some(())
 }
 
 /// The pixel centres `x..x + LANES` of row `y` plus the velocities `vx`, `vy`, as
@@ -514,7 +566,13 @@ impl Inverted {
 /// frame there is `next`: the pixel, with `hidden` where `next` does not show the object,
 /// or `outside`.
 #[inline(always)]
-fn step_codes(g: &Grid, next: &View, p: &[Pos; LANES], id: Option<&[u32; LANES]>, [outside, hidden]: [u32; 2]) -> [u32; LANES] {
+fn step_codes(
+    g: &Grid,
+    next: &View,
+    p: &[Pos; LANES],
+    id: Option<&[u32; LANES]>,
+    [outside, hidden]: [u32; 2],
+) -> [u32; LANES] {
     let (j, inside) = pixel_lanes(g, &Pts::of(p));
     let shows = shows_lanes(next, &j, run(&j), id);
     std::array::from_fn(|k| {
@@ -576,7 +634,11 @@ pub(super) fn first_steps_forward(
         for k in 0..LANES {
             let take = inv.landed[k] & shows[k];
             pos[k] = if take { [inv.x[0][k], inv.x[1][k]] } else { on[k] };
-            code[k] = if take { inv.at[k] as u32 | inverted } else { on_code[k] };
+            code[k] = if take {
+                inv.at[k] as u32 | inverted
+            } else {
+                on_code[k]
+            };
         }
         return inv.odd;
     };

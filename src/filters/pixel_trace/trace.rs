@@ -755,7 +755,9 @@ fn paths_band(
                     let code = code[k..k + LANES].try_into().expect("LANES codes");
                     let at = At::of_codes(code, OUTSIDE, PIXEL, HIDDEN);
                     let pixel = at.pixel;
-                    step.back(f, &at, |i, p, v| step_back_at(g, f, p, v, id(k + i), pixel[i], false));
+                    step.back(f, &at, |i, p, v| {
+                        step_back_at(g, f, p, v, id(k + i), pixel[i], false)
+                    });
                 });
             }
             None => {
@@ -962,11 +964,24 @@ fn first_steps_forward(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) 
                 let mut x0 = 0;
                 if g.lane_steps() {
                     let (f, next) = (&views[l], &views[l + 1]);
-                    for (x, (p, k)) in pos.chunks_exact_mut(LANES).zip(code.chunks_exact_mut(LANES)).enumerate() {
+                    for (x, (p, k)) in pos
+                        .chunks_exact_mut(LANES)
+                        .zip(code.chunks_exact_mut(LANES))
+                        .enumerate()
+                    {
                         let x = x * LANES;
                         let (p, k): (&mut [Pos; LANES], &mut [u32; LANES]) =
                             (p.try_into().expect("LANES"), k.try_into().expect("LANES"));
-                        let odd = lanes::first_steps_forward(g, f, next, x, y, [OUTSIDE, HIDDEN, INVERTED], &mut *p, &mut *k);
+                        let odd = lanes::first_steps_forward(
+                            g,
+                            f,
+                            next,
+                            x,
+                            y,
+                            [OUTSIDE, HIDDEN, INVERTED],
+                            &mut *p,
+                            &mut *k,
+                        );
                         if lanes::any(&odd) {
                             for i in (0..LANES).filter(|&i| odd[i]) {
                                 (p[i], k[i]) = first_step_forward(g, views, l, x + i, y);
@@ -1022,7 +1037,14 @@ fn first_steps_back(g: &Grid, views: &[View], l: usize, st: &mut FirstSteps) {
                 if g.lane_steps() {
                     for (x, k) in code.chunks_exact_mut(LANES).enumerate() {
                         let x = x * LANES;
-                        k.copy_from_slice(&lanes::first_steps_back(g, f, &views[l - 1], x, y, [OUTSIDE, HIDDEN]));
+                        k.copy_from_slice(&lanes::first_steps_back(
+                            g,
+                            f,
+                            &views[l - 1],
+                            x,
+                            y,
+                            [OUTSIDE, HIDDEN],
+                        ));
                         x0 = x + LANES;
                     }
                 }
@@ -1089,10 +1111,12 @@ fn map_band_forward_cached(
         {
             let o = o * LANES;
             let out: &mut [Pos; LANES] = out.try_into().expect("LANES maps");
-            let (p, k) = (p.try_into().expect("LANES positions"), k.try_into().expect("LANES codes"));
-            let odd = lanes::through_lanes(next, p, k, [OUTSIDE, PIXEL, HIDDEN], out);
-            if lanes::any(&odd) {
-                for i in (0..LANES).filter(|&i| odd[i]) {
+            let (p, k) = (
+                p.try_into().expect("LANES positions"),
+                k.try_into().expect("LANES codes"),
+            );
+            if lanes::through_lanes(next, p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
+                for i in 0..LANES {
                     out[i] = one(o + i, p[i], k[i]);
                 }
             }
@@ -1153,9 +1177,8 @@ fn map_band_back_cached(
                 let k: &[u32; LANES] = k.try_into().expect("LANES codes");
                 let (vx, vy) = (vx.try_into().expect("LANES"), vy.try_into().expect("LANES"));
                 let p = lanes::centres_plus(x, y, vx, vy);
-                let odd = lanes::through_lanes(next, &p, k, [OUTSIDE, PIXEL, HIDDEN], out);
-                if lanes::any(&odd) {
-                    for i in (0..LANES).filter(|&i| odd[i]) {
+                if lanes::through_lanes(next, &p, k, [OUTSIDE, PIXEL, HIDDEN], out).is_none() {
+                    for i in 0..LANES {
                         out[i] = one(x + i, k[i], [vx[i], vy[i]]);
                     }
                 }
