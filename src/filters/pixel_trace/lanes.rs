@@ -511,7 +511,7 @@ pub(super) fn centres_plus(x: usize, y: usize, vx: &[f32; LANES], vy: &[f32; LAN
 /// m(i), x1 = p - m(pixel of x0); it stops at x0 when x0 is in pixel i or x1 equals x0,
 /// at x1 when x1 is in x0's pixel; past the image it has no pixel. Lanes that go on
 /// further are `odd` (for the scalar code).
-pub(super) struct Inverted {
+struct Inverted {
     /// Where it stopped.
     x: [Fl; 2],
     /// The pixel there (that of x0), and [`run`] of them.
@@ -605,6 +605,7 @@ pub(super) fn first_steps_back(
 /// `first_step_forward` (trace.rs) of pixels `x..x + LANES` of row `y` of frame `f` to
 /// frame `next`: positions and codes (`[outside, hidden, inverted]`), and the lanes left
 /// to the scalar code (an inversion that goes on past its second iterate).
+#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn first_steps_forward(
     g: &Grid,
