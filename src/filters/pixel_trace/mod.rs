@@ -25,10 +25,15 @@
 //! - A reset frame (a cut) ends the window: paths do not cross it.
 //! - D_chi (eq. 9) is taken as 1, as the paper does for eq. 10.
 
+mod lanes;
+#[cfg(test)]
+mod reference;
+#[cfg(test)]
+mod tests;
 mod trace;
 
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
     check_needs, prepare, Filter, FilterError, FilterKind, InputCounts, Output, ParamKind, PixelCounts,
@@ -115,6 +120,22 @@ pub struct PixelTrace {
     base: usize,
     /// Position in the shot of the next frame to output.
     emitted: usize,
+    /// The first steps of each frame's pixels towards the output frame, computed when
+    /// first needed and kept with the frame.
+    steps: VecDeque<trace::FirstSteps>,
+    /// First steps of frames gone, for the frames to come (their buffers reused).
+    spare_steps: Vec<trace::FirstSteps>,
+    /// The tracing's buffers, kept from one output to the next.
+    scratch: trace::Scratch,
+    /// Output planes handed back by [`Filter::recycle`], for the next outputs.
+    spare: Vec<Rgb>,
+    /// Outputs from the scalar reference (`reference.rs`) instead of the fast path: the
+    /// tests compare the two.
+    #[cfg(test)]
+    reference: bool,
+    /// Whether the fast path keeps first steps (the tests run it without too).
+    #[cfg(test)]
+    first_steps: bool,
 }
 
 impl FilterKind for PixelTrace {
@@ -145,13 +166,21 @@ impl FilterKind for PixelTrace {
             repair_ms: VecDeque::new(),
             base: 0,
             emitted: 0,
+            steps: VecDeque::new(),
+            spare_steps: Vec::new(),
+            scratch: trace::Scratch::default(),
+            spare: Vec::new(),
+            #[cfg(test)]
+            reference: false,
+            #[cfg(test)]
+            first_steps: true,
         }
     }
 }
 
 impl PixelTrace {
     /// The output of the frame at shot position `pos` from the frames held.
-    fn output(&self, pos: usize, latency: usize) -> Output {
+    fn output(&mut self, pos: usize, latency: usize) -> Output {
         let half = self.params.half();
         let first = pos.saturating_sub(half).max(self.base);
         let last = (pos + half).min(self.base + self.frames.len() - 1);
@@ -167,7 +196,35 @@ impl PixelTrace {
             Some(ms) => rec.ran_for(REPAIR_STAGE, ms),
             None => rec.skip(REPAIR_STAGE, Skip::CleanInput),
         }
-        let (color, counts) = trace::trace(&win, &self.params, &mut rec);
+        let (w, h) = (centre_frame.width(), centre_frame.height());
+        let out = match self.spare.pop() {
+            Some(rgb) if rgb[0].size() == (w, h) => rgb,
+            _ => std::array::from_fn(|_| Plane::new(w, h)),
+        };
+        #[cfg(test)]
+        if self.reference {
+            let _ = out;
+            let (color, counts) = reference::trace(&win, &self.params, &mut rec);
+            return self.finish_output(rec, &win, pos, latency, color, counts);
+        }
+        let steps = &mut self.steps.make_contiguous()[first - self.base..=last - self.base];
+        #[cfg(test)]
+        let steps = if self.first_steps { steps } else { &mut [] };
+        let (color, counts) = trace::trace(&win, &self.params, &mut rec, &mut self.scratch, steps, out);
+        self.finish_output(rec, &win, pos, latency, color, counts)
+    }
+
+    /// The output's record, with its window.
+    fn finish_output(
+        &self,
+        rec: Recorder,
+        win: &trace::Window,
+        pos: usize,
+        latency: usize,
+        color: Rgb,
+        counts: trace::TraceCounts,
+    ) -> Output {
+        let centre_frame = win.frames[win.centre];
         let mut record = rec.finish(
             Self::NAME,
             centre_frame.meta.index,
@@ -197,6 +254,9 @@ impl PixelTrace {
         }
         while self.base + half < self.emitted && !self.frames.is_empty() {
             self.frames.pop_front();
+            if let Some(steps) = self.steps.pop_front() {
+                self.spare_steps.push(steps);
+            }
             self.repaired.pop_front();
             self.repair_ms.pop_front();
             self.base += 1;
@@ -273,6 +333,9 @@ impl Filter for PixelTrace {
             }
         }
         self.frames.push_back(kept);
+        let mut steps = self.spare_steps.pop().unwrap_or_default();
+        steps.clear();
+        self.steps.push_back(steps);
         self.repaired.push_back(repaired);
         self.repair_ms.push_back(repair_ms);
         out.extend(self.drain(false));
@@ -287,10 +350,17 @@ impl Filter for PixelTrace {
     }
     fn reset(&mut self) {
         self.frames.clear();
+        self.spare_steps.extend(self.steps.drain(..));
         self.repaired.clear();
         self.repair_ms.clear();
         self.base = 0;
         self.emitted = 0;
+    }
+    fn recycle(&mut self, planes: Rgb) {
+        // Two sets cover a caller that hands each output back before the next.
+        if self.spare.len() < 2 {
+            self.spare.push(planes);
+        }
     }
     fn state_bytes(&self) -> usize {
         self.frames
