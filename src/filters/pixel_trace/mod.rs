@@ -1,4 +1,4 @@
-//! `pixel_trace`: Shinya 1993 (seed 002), the pixel-tracing filter. Offline: output frame
+//! `pixel_trace`: Shinya 1993, the pixel-tracing filter. Offline: output frame
 //! t0 is a weighted sum over the frames t0 - T/2 ..= t0 + T/2 of the samples along each
 //! pixel's motion path, explicitly normalised (eq. 11), with differently moving objects
 //! separated by the two-way flow test (eq. 14-15) and blended front to back by depth with
