@@ -321,6 +321,49 @@ fn eval_uses_the_reference_channel_and_checks_sizes() {
 }
 
 #[test]
+fn filter_cuts_drop_history_at_the_frames_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    let d = input.to_str().unwrap();
+    let (ok, _, err) = run(&[
+        "scene", "flyover", "--frames", "4", "--size", "40x24", "--spp", "1", "-o", d,
+    ]);
+    assert!(ok, "{err}");
+    // History restarts per frame, with and without a cut at frame 2 (short flags).
+    let resets = |cuts: &[&str]| -> Vec<u64> {
+        let out = dir.path().join(format!("out{}", cuts.len()));
+        let mut args = vec!["filter", "--filter", "taa", "-i", d, "-o", out.to_str().unwrap()];
+        args.extend_from_slice(cuts);
+        let (ok, _, err) = run(&args);
+        assert!(ok, "{err}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("records.json")).unwrap()).unwrap();
+        v["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["pixels"]["history_reset"].as_u64().unwrap())
+            .collect()
+    };
+    let plain = resets(&[]);
+    let cut = resets(&["--cuts", "2"]);
+    assert_eq!(plain[0], 40 * 24);
+    assert!(plain[2] < 40 * 24, "{plain:?}");
+    assert_eq!(cut[2], 40 * 24, "{cut:?}");
+    assert_eq!(
+        (cut[1], cut[3] < 40 * 24),
+        (plain[1], true),
+        "{cut:?} vs {plain:?}"
+    );
+    // A cut at a frame the input does not have is refused before anything runs.
+    let (ok, _, err) = run(&["filter", "--filter", "taa", "-i", d, "-o", d, "--cuts", "1,9"]);
+    assert!(
+        !ok && err.contains("--cuts 9: the input has no frame 9 (its frames are 0-3)"),
+        "{err}"
+    );
+}
+
+#[test]
 fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");

@@ -44,6 +44,10 @@ pub struct FilterArgs {
     /// Write half floats.
     #[arg(long)]
     f16: bool,
+    /// Frame numbers where a new shot starts, comma-separated (--cuts 1001,1050): the filter
+    /// drops its history there, as it does for a frame whose file says `afterimage.reset`.
+    #[arg(long, value_delimiter = ',', value_name = "FRAME")]
+    cuts: Vec<u64>,
     #[command(flatten)]
     read: ReadArgs,
 }
@@ -117,6 +121,14 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         args.reference.as_deref(),
         &args.reference_preset,
     )?;
+    if let Some(missing) = args
+        .cuts
+        .iter()
+        .find(|&&c| !input.entries.iter().any(|e| e.number == c))
+    {
+        let (first, last) = (input.entries[0].number, input.entries[input.len() - 1].number);
+        anyhow::bail!("--cuts {missing}: the input has no frame {missing} (its frames are {first}-{last})");
+    }
     std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
     let write = WriteOptions {
         precision: if args.f16 { Precision::F16 } else { Precision::F32 },
@@ -162,7 +174,10 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         };
     for (i, frame) in input.frames(&in_opts).enumerate() {
         let entry = &input.entries[i];
-        let frame = frame?;
+        let mut frame = frame?;
+        if args.cuts.contains(&entry.number) {
+            frame.meta.reset = true;
+        }
         let reference: Option<Rgb> = match ref_frames.as_mut() {
             Some(it) => Some(it.next().expect("same length")?.color().clone()),
             None => frame.reference().cloned(),
