@@ -95,6 +95,63 @@ fn threads_flag_is_checked() {
 }
 
 #[test]
+fn info_gives_windows_and_compression() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("crop.1001.exr");
+    // A cropped render: data 140x80 at (10, 5) inside a 160x90 display window, PIZ.
+    let (w, h) = (140usize, 80usize);
+    let mut attrs = LayerAttributes::named("beauty");
+    attrs.layer_position = Vec2(10, 5);
+    let layer = Layer::new(
+        (w, h),
+        attrs,
+        Encoding {
+            compression: exr::compression::Compression::PIZ,
+            ..Encoding::default()
+        },
+        AnyChannels::sort(smallvec::smallvec![
+            AnyChannel::new("R", FlatSamples::F32(vec![0.5; w * h])),
+            AnyChannel::new("G", FlatSamples::F32(vec![0.5; w * h])),
+            AnyChannel::new("B", FlatSamples::F32(vec![0.5; w * h])),
+        ]),
+    );
+    Image::from_layers(
+        ImageAttributes::new(IntegerBounds::from_dimensions((160, 90))),
+        vec![layer],
+    )
+    .write()
+    .to_file(&path)
+    .unwrap();
+    let p = path.to_str().unwrap();
+    let (ok, out, err) = run(&["info", p]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains(
+            "part 0 (beauty): data 140x80 at (10, 5), display 160x90 at (0, 0), PIZ compression, 3 channels"
+        ),
+        "{out}"
+    );
+    let (ok, out, _) = run(&["info", p, "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert!(ok);
+    let part = &v["parts"][0];
+    assert_eq!(
+        (
+            &part["data_window"]["x"],
+            &part["data_window"]["width"],
+            &part["display_window"]["height"]
+        ),
+        (
+            &serde_json::json!(10),
+            &serde_json::json!(140),
+            &serde_json::json!(90)
+        )
+    );
+    assert_eq!(part["compression"], "PIZ");
+}
+
+#[test]
 fn info_describes_many_files_and_sequences() {
     let dir = common::fixture("blender-motion");
     let d = dir.to_str().unwrap();

@@ -2,7 +2,7 @@
 
 use super::outln;
 use super::read_args::ReadArgs;
-use afterimage::io::{read_raw, ChannelStats, ReadOptions, Sequence};
+use afterimage::io::{read_exr_parts, read_raw, ChannelStats, ExrPart, PixelWindow, ReadOptions, Sequence};
 use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -45,6 +45,8 @@ struct Info {
     meta: afterimage::frame::FrameMeta,
     /// Sparse shading the file declares (factor 1: every pixel).
     shading: afterimage::frame::Sampling,
+    /// An EXR's parts: windows and compression (empty for other formats).
+    parts: Vec<ExrPart>,
 }
 
 fn fmt_opt(v: Option<f64>) -> String {
@@ -115,6 +117,11 @@ fn describe(file: &Path, opts: &ReadOptions) -> anyhow::Result<Info> {
         channels,
         meta: raw.meta.clone(),
         shading: raw.shading,
+        parts: if file.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")) {
+            read_exr_parts(file)?
+        } else {
+            Vec::new()
+        },
     })
 }
 
@@ -122,6 +129,17 @@ fn describe(file: &Path, opts: &ReadOptions) -> anyhow::Result<Info> {
 fn print_text(info: &Info, detected: bool) -> anyhow::Result<()> {
     outln!("file:    {}", info.file);
     outln!("size:    {}x{}", info.width, info.height);
+    let win = |w: &PixelWindow| format!("{}x{} at ({}, {})", w.width, w.height, w.x, w.y);
+    for (i, p) in info.parts.iter().enumerate() {
+        outln!(
+            "part {i}{}: data {}, display {}, {} compression, {} channels",
+            p.name.as_deref().map_or(String::new(), |n| format!(" ({n})")),
+            win(&p.data_window),
+            win(&p.display_window),
+            p.compression,
+            p.channels
+        );
+    }
     let how = if detected { " (detected)" } else { "" };
     outln!("preset:  {}{how}", info.preset.as_deref().unwrap_or("none fits"));
     if let Some(m) = &info.motion_convention {

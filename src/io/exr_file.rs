@@ -189,6 +189,81 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
     })
 }
 
+/// A rectangle of pixels in an EXR's coordinates: origin (may be negative) and size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct PixelWindow {
+    /// Left column.
+    pub x: i64,
+    /// Top row.
+    pub y: i64,
+    /// Width in pixels.
+    pub width: u64,
+    /// Height in pixels.
+    pub height: u64,
+}
+
+/// How one part of an EXR file is laid out, from its header alone.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct ExrPart {
+    /// The part's layer name, if it has one.
+    pub name: Option<String>,
+    /// Where its pixels are (the data window).
+    pub data_window: PixelWindow,
+    /// The frame it belongs to (the display window, shared by all parts).
+    pub display_window: PixelWindow,
+    /// Compression, as OpenEXR names it (`ZIP`, `PIZ`, `NONE`, ...).
+    pub compression: String,
+    /// Channels in the part.
+    pub channels: usize,
+}
+
+/// Reads only the headers of an EXR file: each part's windows and compression.
+pub fn read_exr_parts(path: &Path) -> Result<Vec<ExrPart>, IoError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| exr_error(path, e))?;
+    Ok(meta
+        .headers
+        .iter()
+        .map(|h| {
+            let display = h.shared_attributes.display_window;
+            ExrPart {
+                name: h.own_attributes.layer_name.as_ref().map(|n| n.to_string()),
+                data_window: PixelWindow {
+                    x: h.own_attributes.layer_position.0 as i64,
+                    y: h.own_attributes.layer_position.1 as i64,
+                    width: h.layer_size.0 as u64,
+                    height: h.layer_size.1 as u64,
+                },
+                display_window: PixelWindow {
+                    x: display.position.0 as i64,
+                    y: display.position.1 as i64,
+                    width: display.size.0 as u64,
+                    height: display.size.1 as u64,
+                },
+                compression: compression_name(h.compression).to_string(),
+                channels: h.channels.list.len(),
+            }
+        })
+        .collect())
+}
+
+/// OpenEXR's name for a compression method (as `exrheader` and `oiiotool` print it).
+fn compression_name(c: exr::compression::Compression) -> &'static str {
+    use exr::compression::Compression as C;
+    match c {
+        C::Uncompressed => "NONE",
+        C::RLE => "RLE",
+        C::ZIP1 => "ZIPS",
+        C::ZIP16 => "ZIP",
+        C::PIZ => "PIZ",
+        C::PXR24 => "PXR24",
+        C::B44 => "B44",
+        C::B44A => "B44A",
+        C::DWAA(_) => "DWAA",
+        C::DWAB(_) => "DWAB",
+        _ => "other",
+    }
+}
+
 /// Reads an EXR from an untrusted source: the header is checked against `limits` first
 /// ([`check_exr_header`]), then the pixels are decoded on the calling thread (no thread
 /// pool of the decoder's own).

@@ -12,8 +12,9 @@ mod sequence;
 
 pub use colormap::inferno;
 pub use exr_file::{
-    check_exr_header, read_raw_exr, read_raw_exr_bytes, read_raw_exr_bytes_limited, write_exr,
-    write_exr_bytes, Compression, ExrLayout, ExrLimits, ExrShape, Precision, WriteOptions,
+    check_exr_header, read_exr_parts, read_raw_exr, read_raw_exr_bytes, read_raw_exr_bytes_limited,
+    write_exr, write_exr_bytes, Compression, ExrLayout, ExrLimits, ExrPart, ExrShape, PixelWindow, Precision,
+    WriteOptions,
 };
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
