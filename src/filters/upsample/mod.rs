@@ -57,7 +57,8 @@ pub mod reference;
 mod spatial;
 mod temporal;
 
-pub use kernel::depth_range as depth_range_fast;
+#[cfg(test)]
+use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_WEIGHTS, LUMA_FLOOR};
 
