@@ -11,7 +11,7 @@
 //! luma of its rows and one row above and below (into rows its task keeps for the next
 //! band), tests every row for FXAA's early exit in a vectorised loop, copies the colour
 //! rows, and runs the edge search and the bilinear fetch only for the pixels that passed
-//! the test (a small share of most frames). [`reference`] is the plain two-pass version it
+//! the test (a small share of most frames). [`reference()`](fn@reference) is the plain two-pass version it
 //! matches bit for bit (but for the sign of a zero: a -0 input sample comes out -0, where
 //! the reference gives +0). The pass also tests every colour sample it reads, so a clean frame
 //! (the usual case) is read once, in place: the pass assumes the last frame's LDR or HDR

@@ -142,7 +142,7 @@ fn nearest_motion(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, x: usize, y: us
 
 /// [`dilate_motion`] of row `y` into `mx`, `my`: each pixel takes the motion of the nearest pixel of its 3x3
 /// (Karis 2014). Pixels with all eight neighbours (not on the image's border) run in a
-/// branch-free loop over the row; the border ones as [`nearest_motion`].
+/// branch-free loop over the row; the border ones as `nearest_motion`.
 pub fn dilate_row(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, y: usize, mx: &mut [f32], my: &mut [f32]) {
     let border = |x: usize, mx: &mut [f32], my: &mut [f32]| {
         (mx[x], my[x]) = nearest_motion(d, m, w, h, x, y);
@@ -355,7 +355,7 @@ impl TemporalState {
 }
 
 /// Converts a history whose first plane holds texels `[Y, Co, Cg, count]` between linear
-/// and tonemapped working space (as [`convert_history`] does for planar YCoCg).
+/// and tonemapped working space (as `convert_history` does for planar YCoCg).
 pub fn convert_texel_history(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     let w = planes[0].width();
     for_rows([planes[0].data_mut()], w, |_, [row]| {

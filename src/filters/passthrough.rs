@@ -3,7 +3,7 @@
 //!
 //! The fast path is one pass: each band of rows is copied into reused output planes and
 //! tested on the way ([`CleanMax::copy`]), one read and one write of the colour. A frame
-//! with something to repair (rare) is then done again by [`reference`], the plain path:
+//! with something to repair (rare) is then done again by [`reference()`](fn@reference), the plain path:
 //! [`prepare`] counts and repairs, the repaired colour is the output.
 
 use super::passes::slices_mut;

@@ -3,7 +3,7 @@
 //! [`run`] renders the catalogue scenes in process, runs each filter over each scene and
 //! measures, per filter and scene, mean PSNR and SSIM against the supersampled reference,
 //! tRMSE, ms/frame (median and p95, total and per stage), state bytes per megapixel and
-//! the ratio of ms/frame to the filter's memory floor ([`floor`]). An optional timing
+//! the ratio of ms/frame to the filter's memory floor (`floor.rs`). An optional timing
 //! section runs every filter on a synthetic full-size G-buffer ([`synthetic_frame`]),
 //! since rendering 1080p scenes would take far longer than filtering them.
 //! [`markdown`], [`csv`] and [`write_plots`] turn the result into a table, a CSV and

@@ -1,6 +1,6 @@
 //! The scalar reference of `phlm`: whole-plane passes over planar state, exactly as the
 //! filter was first written (Algorithm 1 of Iglesias-Guitian et al. 2016 pixel by pixel).
-//! The fused band kernel ([`super::kernel`]) must give the same output (the tests compare
+//! The fused band kernel (`kernel.rs`) must give the same output (the tests compare
 //! them frame by frame); this stays the readable statement of what the filter computes.
 
 use super::super::passes::{

@@ -1,5 +1,5 @@
 //! The scalar reference of `taa`: one whole-plane pass per stage, exactly as the filter
-//! was first written. The fused band kernel ([`super::kernel`]) must give the same output
+//! was first written. The fused band kernel (`kernel.rs`) must give the same output
 //! (the tests compare them frame by frame); this stays the readable statement of what the
 //! filter computes.
 

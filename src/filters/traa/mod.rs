@@ -2,7 +2,7 @@
 //! temporal anti-aliasing*, the thesis below).
 //!
 //! `variant = baseline` is the thesis's starting point, the INSIDE / Uncharted 4 TRAA
-//! (Pedersen 2016 = thesis ref. [6]; Xu 2016 = ref. [19]), sec. 3.6:
+//! (Pedersen 2016 = thesis ref. \[6\]; Xu 2016 = ref. \[19\]), sec. 3.6:
 //! velocity of the nearest pixel of the 3x3 (3.6.3); history fetched bilinearly; min/max of
 //! the 3x3 and of the cross (+) averaged into the colour box (3.6.3); history clipped toward
 //! the box centre (3.6.4); feedback from the luminance difference of clipped history and
@@ -37,7 +37,7 @@
 //! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
 //!   3.1's "colour peak" cannot reach extreme values.
 //!
-//! The filter runs as one fused pass over bands of rows ([`kernel`]), plus a second band
+//! The filter runs as one fused pass over bands of rows (`kernel.rs`), plus a second band
 //! pass for the sharpen, which reads its neighbours in the finished output; the stage by
 //! stage statement of the same function is kept as [`reference::ReferenceTraa`], and the
 //! tests check the two give the same bits.

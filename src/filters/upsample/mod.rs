@@ -9,7 +9,7 @@
 //!
 //! Methods:
 //! - `spatiotemporal` (the paper): joint-bilateral gather of this frame's samples (eq.
-//!   1-2; [`spatial`]) blended with an exponential history buffer (eq. 6-7) whose weight is
+//!   1-2; `spatial.rs`) blended with an exponential history buffer (eq. 6-7) whose weight is
 //!   the accumulated sample weight, decayed by `decay` each frame; the binary "shaded this
 //!   frame" weight is the image-space kernel at distance 0. The relative temporal gradient
 //!   of luma (sec. 3.4), filtered over the current and three previous gradients (4, 3, 2, 1)

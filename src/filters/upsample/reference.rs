@@ -1,5 +1,5 @@
 //! The scalar reference of `upsample`: one whole-plane pass per stage, exactly as the
-//! filter was first written. The fused band kernels ([`super::kernel`]) must give the same
+//! filter was first written. The fused band kernels (`kernel.rs`) must give the same
 //! output (the tests compare them frame by frame); this stays the readable statement of
 //! what the filter computes.
 
