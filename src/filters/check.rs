@@ -3,7 +3,7 @@
 //! helper, and the record's stages and counts).
 
 use crate::frame::{ChannelKind, Frame, Plane};
-use crate::pipeline::Output;
+use crate::pipeline::{Filter, Output};
 use crate::rng::SplitMix64;
 use crate::tolerance::Tolerance;
 
@@ -203,4 +203,24 @@ fn sparse_from(rng: &mut SplitMix64, f: &Frame, factor: u32, index: u64, extra: 
     }
     out.meta = f.meta.clone();
     out
+}
+
+/// Runs `frames` through a fast filter and its reference (`reference` filters one frame)
+/// side by side and panics at the first frame whose outputs differ at all
+/// ([`assert_same_output`] with [`Tolerance::EXACT`], and the same model health); `what`
+/// names the case.
+pub fn assert_filter_matches(
+    fast: &mut dyn Filter,
+    mut reference: impl FnMut(&Frame) -> Output,
+    frames: &[Frame],
+    what: &str,
+) {
+    for (i, f) in frames.iter().enumerate() {
+        let a = fast.process(f).unwrap();
+        let b = reference(f);
+        let what = format!("{what} frame {i}");
+        assert_same_output(&a, &b, Tolerance::EXACT, &what);
+        assert_eq!(a.record.model, b.record.model, "{what}: model health");
+        fast.recycle(a.color);
+    }
 }

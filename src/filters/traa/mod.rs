@@ -255,10 +255,9 @@ impl Filter for Traa {
 mod tests {
     use super::reference::ReferenceTraa;
     use super::*;
-    use crate::filters::check::{assert_same_output, sequences, ODD_SIZES};
+    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
-    use crate::tolerance::Tolerance;
 
     /// The channels `improved` reads beyond the shared sequences': albedo in [0, 1) and
     /// object ids in small blocks with some single-pixel objects; then left out again as
@@ -307,20 +306,15 @@ mod tests {
                         &channels[..]
                     };
                     for kind in kinds {
-                        let mut fast = Traa::new(p.clone());
+                        let frames: Vec<Frame> =
+                            frames.iter().map(|f| with_gbuffer(f, &mut rng, kind)).collect();
                         let mut slow = ReferenceTraa::new(p.clone());
-                        for (i, f) in frames.iter().enumerate() {
-                            let f = with_gbuffer(f, &mut rng, kind);
-                            let a = fast.process(&f).unwrap();
-                            let b = slow.process(&f).unwrap();
-                            assert_same_output(
-                                &a,
-                                &b,
-                                Tolerance::EXACT,
-                                &format!("{w}x{h} {name} {kind} {set:?} frame {i}"),
-                            );
-                            fast.recycle(a.color);
-                        }
+                        assert_filter_matches(
+                            &mut Traa::new(p.clone()),
+                            |f| slow.process(f).unwrap(),
+                            &frames,
+                            &format!("{w}x{h} {name} {kind} {set:?}"),
+                        );
                     }
                 }
             }
