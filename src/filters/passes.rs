@@ -407,6 +407,15 @@ pub struct Reprojection {
     pub dilated: Option<[Plane<f32>; 2]>,
 }
 
+/// Why reprojection is left out of a frame (None: it runs): it needs history, motion and
+/// some motion in the frame.
+pub fn reproject_skip(inp: &Inputs, has_history: bool) -> Option<Skip> {
+    (!has_history)
+        .then_some(Skip::NoHistory)
+        .or_else(|| inp.require(ChannelKind::Motion))
+        .or_else(|| inp.facts.reprojection())
+}
+
 impl Reprojection {
     /// Plans reprojection for a frame and runs the `dilate` stage: reprojection needs
     /// history, motion and some motion; dilation also needs depth and `dilation` on.
@@ -417,10 +426,7 @@ impl Reprojection {
         dilation: bool,
         scratch: &mut Scratch,
     ) -> Reprojection {
-        let skip = (!has_history)
-            .then_some(Skip::NoHistory)
-            .or_else(|| inp.require(ChannelKind::Motion))
-            .or_else(|| inp.facts.reprojection());
+        let skip = reproject_skip(inp, has_history);
         let dilate_skip = skip
             .clone()
             .or_else(|| inp.require(ChannelKind::Depth))

@@ -13,12 +13,12 @@
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
 use super::{ModelFetch, Params, BETA, R, STATE_PLANES, Z};
-use crate::filters::passes::{on_screen, FrameContext, FrameResult};
-use crate::frame::{ChannelKind, Rgb};
+use crate::filters::passes::{on_screen, reproject_skip, FrameContext, FrameResult};
+use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse};
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, ModelHealth, PixelCounts, Skip};
+use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
 use std::ops::{AddAssign, Range};
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
@@ -107,10 +107,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     } = ctx;
     let (w, h) = (inp.width, inp.height);
     let facts = inp.facts;
-    let reproject_skip = (!has_history)
-        .then_some(Skip::NoHistory)
-        .or_else(|| inp.require(ChannelKind::Motion))
-        .or_else(|| facts.reprojection());
+    let reproject_skip = reproject_skip(&inp, has_history);
     let tonemap_skip = facts.tonemap();
     let plan = Plan {
         tonemap: tonemap_skip.is_none(),

@@ -4,14 +4,14 @@
 //! them frame by frame); this stays the readable statement of what the filter computes.
 
 use super::super::passes::{
-    from_working, on_screen, slices_mut, to_working, to_ycocg, Conversion, TemporalState,
+    from_working, on_screen, reproject_skip, slices_mut, to_working, to_ycocg, Conversion, TemporalState,
 };
 use super::rls::{self, D, P_LEN};
 use super::{convert_state, feature, fetch, Counts, From, Model, Params, Phlm, BETA, R, STATE_PLANES, Z};
-use crate::frame::{ChannelKind, Frame, Plane, Rgb};
+use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, ycocg_to_rgb};
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, ModelHealth, Output, Recorder, Skip};
+use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, ModelHealth, Output, Recorder};
 
 /// `phlm` computed stage by stage over whole planes.
 #[derive(Debug)]
@@ -52,10 +52,7 @@ impl ReferencePhlm {
         let cur = ycocg.each_ref().map(|p| p.data());
 
         // Previous positions (pixel units); NaN marks off screen.
-        let skip = (!has_history)
-            .then_some(Skip::NoHistory)
-            .or_else(|| inp.require(ChannelKind::Motion))
-            .or_else(|| facts.reprojection());
+        let skip = reproject_skip(&inp, has_history);
         let positions: Option<[Plane<f32>; 2]> = rec.stage("reproject", skip, || {
             let m = inp
                 .motion

@@ -12,7 +12,8 @@
 
 use super::{HistoryFilter, Params, MAX_COUNT};
 use crate::filters::passes::{
-    dilate_row, from_working, on_screen, sharpen, tonemap_row, untonemap_row, FrameContext, FrameResult,
+    dilate_row, from_working, on_screen, reproject_skip, sharpen, tonemap_row, untonemap_row, FrameContext,
+    FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
@@ -112,10 +113,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     let (w, h) = (inp.width, inp.height);
     let facts = inp.facts;
     // Why each stage is left out (None: it runs), as the reference plans them.
-    let reproject_skip = (!has_history)
-        .then_some(Skip::NoHistory)
-        .or_else(|| inp.require(ChannelKind::Motion))
-        .or_else(|| facts.reprojection());
+    let reproject_skip = reproject_skip(&inp, has_history);
     let dilate_skip = reproject_skip
         .clone()
         .or_else(|| inp.require(ChannelKind::Depth))

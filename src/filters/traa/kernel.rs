@@ -19,7 +19,9 @@
 //! never NaN, and a sign of zero cannot change what follows them).
 
 use super::{feedback, mix, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT};
-use crate::filters::passes::{dilate_row, on_screen, tonemap_row, untonemap_row, FrameContext, FrameResult};
+use crate::filters::passes::{
+    dilate_row, on_screen, reproject_skip, tonemap_row, untonemap_row, FrameContext, FrameResult,
+};
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
@@ -223,10 +225,7 @@ pub(super) fn frame(
     let improved = p.variant == Variant::Improved;
     // Why each stage is left out (None: it runs), as the reference plans them.
     let tonemap_skip = facts.tonemap();
-    let reproject_skip = (!has_history)
-        .then_some(Skip::NoHistory)
-        .or_else(|| inp.require(ChannelKind::Motion))
-        .or_else(|| facts.reprojection());
+    let reproject_skip = reproject_skip(&inp, has_history);
     let dilate_skip = reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth));
     let variant_skip = (!improved).then_some(Skip::Variant {
         variant: p.variant.name(),
