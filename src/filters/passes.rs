@@ -79,19 +79,7 @@ pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>, scratch: &mut
     let mut out = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, [mx, my]| {
         for x in 0..w {
-            let mut best = y * w + x;
-            let mut best_d = d[best];
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    let i = yy * w + xx;
-                    if d[i] < best_d {
-                        best_d = d[i];
-                        best = i;
-                    }
-                }
-            }
-            mx[x] = m[0][best];
-            my[x] = m[1][best];
+            (mx[x], my[x]) = nearest_motion(d, m, w, h, x, y);
         }
     });
     out
@@ -123,7 +111,7 @@ pub fn untonemap_row(rgb: [&mut [f32]; 3]) {
 
 /// The motion of the nearest (smallest depth) pixel of `(x, y)`'s 3x3 neighbourhood,
 /// rows top to bottom and columns left to right, the first of equal depths winning; the
-/// centre starts as the best (as [`dilate_motion`]).
+/// centre starts as the best.
 #[inline(always)]
 fn nearest_motion(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, x: usize, y: usize) -> (f32, f32) {
     let mut best = y * w + x;

@@ -17,7 +17,8 @@ pub mod sobel;
 pub use clip::{clamp_to_box, clip_toward_center, clip_toward_point};
 pub use color::{luma, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
 pub use neighborhood::{
-    cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box, NeighborhoodStats, CROSS,
+    box_from_columns, cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box,
+    NeighborhoodStats, CROSS,
 };
 pub use sample::{
     bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texels, nearest_texel, TEXEL,

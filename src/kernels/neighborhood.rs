@@ -20,7 +20,7 @@ pub fn gather3x3(plane: &[f32], width: usize, height: usize, x: usize, y: usize)
 }
 
 /// Per-component statistics of nine colour taps.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct NeighborhoodStats {
     /// Minimum over the 3x3 box.
     pub min: [f32; 3],
@@ -112,6 +112,20 @@ thread_local! {
     static COLUMNS: RefCell<Vec<f32>> = const { RefCell::new(Vec::new()) };
 }
 
+/// The 3x3 box part of [`NeighborhoodStats`] (min, max, mean, mean of squares) for pixel
+/// `x` from per-column 3-row statistics of its row: `cols[4c..4c + 4]` hold channel `c`'s
+/// column min, max, sum and sum of squares; `xl` and `xr` are the (clamped) neighbours.
+#[inline(always)]
+pub fn box_from_columns(cols: &[&[f32]; 12], xl: usize, x: usize, xr: usize, s: &mut NeighborhoodStats) {
+    for c in 0..3 {
+        let [vmin, vmax, vsum, vsq] = [cols[4 * c], cols[4 * c + 1], cols[4 * c + 2], cols[4 * c + 3]];
+        s.min[c] = fmin(fmin(vmin[xl], vmin[x]), vmin[xr]);
+        s.max[c] = fmax(fmax(vmax[xl], vmax[x]), vmax[xr]);
+        s.mean[c] = (vsum[xl] + vsum[x] + vsum[xr]) * (1.0 / 9.0);
+        s.mean_sq[c] = (vsq[xl] + vsq[x] + vsq[xr]) * (1.0 / 9.0);
+    }
+}
+
 /// The statistics of [`cross_and_box_stats`] for every pixel of row `y` of three planes,
 /// computed separably: 3-tap vertical min/max/sum/sum of squares per column (a pass the
 /// compiler vectorises), then 3-tap horizontal per pixel. Calls `f(x, &stats)` for each
@@ -142,24 +156,12 @@ pub fn for_each_row_stats(
                 vsq[x] = u * u + v * v + t * t;
             }
         }
-        let mut s = NeighborhoodStats {
-            min: [0.0; 3],
-            max: [0.0; 3],
-            mean: [0.0; 3],
-            mean_sq: [0.0; 3],
-            min_cross: [0.0; 3],
-            max_cross: [0.0; 3],
-            mean_cross: [0.0; 3],
-        };
+        let columns: [&[f32]; 12] = std::array::from_fn(|i| &cols[i * w..(i + 1) * w]);
+        let mut s = NeighborhoodStats::default();
         for x in 0..w {
             let (xl, xr) = (x.saturating_sub(1), (x + 1).min(w - 1));
+            box_from_columns(&columns, xl, x, xr, &mut s);
             for (k, p) in planes.iter().enumerate() {
-                let col = &cols[k * 4 * w..(k + 1) * 4 * w];
-                let (vmin, vmax, vsum, vsq) = (&col[..w], &col[w..2 * w], &col[2 * w..3 * w], &col[3 * w..]);
-                s.min[k] = fmin(fmin(vmin[xl], vmin[x]), vmin[xr]);
-                s.max[k] = fmax(fmax(vmax[xl], vmax[x]), vmax[xr]);
-                s.mean[k] = (vsum[xl] + vsum[x] + vsum[xr]) * (1.0 / 9.0);
-                s.mean_sq[k] = (vsq[xl] + vsq[x] + vsq[xr]) * (1.0 / 9.0);
                 let (l, m, r, up, down) = (p[yb + xl], p[yb + x], p[yb + xr], p[ya + x], p[yc + x]);
                 s.min_cross[k] = fmin(fmin(fmin(l, m), r), fmin(up, down));
                 s.max_cross[k] = fmax(fmax(fmax(l, m), r), fmax(up, down));

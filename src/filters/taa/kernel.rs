@@ -18,8 +18,8 @@ use crate::filters::passes::{
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear, bilinear_texels, catmull_rom_texels, clip_toward_center, fmax, fmin, rgb_to_ycocg,
-    variance_box, ycocg_to_rgb, NeighborhoodStats,
+    bilinear, bilinear_texels, box_from_columns, catmull_rom_texels, clip_toward_center, fmax, fmin,
+    rgb_to_ycocg, variance_box, ycocg_to_rgb, NeighborhoodStats,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
@@ -458,22 +458,8 @@ fn resolve_pixel(
 /// [`crate::kernels::for_each_row_stats`] combines them).
 #[inline(always)]
 fn stats_at(cols: &[&[f32]; 12], xl: usize, x: usize, xr: usize) -> NeighborhoodStats {
-    let mut s = NeighborhoodStats {
-        min: [0.0; 3],
-        max: [0.0; 3],
-        mean: [0.0; 3],
-        mean_sq: [0.0; 3],
-        min_cross: [0.0; 3],
-        max_cross: [0.0; 3],
-        mean_cross: [0.0; 3],
-    };
-    for c in 0..3 {
-        let [vmin, vmax, vsum, vsq] = [cols[4 * c], cols[4 * c + 1], cols[4 * c + 2], cols[4 * c + 3]];
-        s.min[c] = fmin(fmin(vmin[xl], vmin[x]), vmin[xr]);
-        s.max[c] = fmax(fmax(vmax[xl], vmax[x]), vmax[xr]);
-        s.mean[c] = (vsum[xl] + vsum[x] + vsum[xr]) * (1.0 / 9.0);
-        s.mean_sq[c] = (vsq[xl] + vsq[x] + vsq[xr]) * (1.0 / 9.0);
-    }
+    let mut s = NeighborhoodStats::default();
+    box_from_columns(cols, xl, x, xr, &mut s);
     s
 }
 
