@@ -107,7 +107,10 @@ fn layers_of_different_sizes_are_refused() {
     .unwrap();
     let e = read_frame(&path, &ReadOptions::default()).unwrap_err();
     let s = one_line(&e);
-    assert!(s.contains("layer extra is 4x6 but layer beauty is 8x6"), "{s}");
+    assert!(
+        s.contains("layer extra has data window 4x6 at (0, 0) but layer beauty has 8x6 at (0, 0)"),
+        "{s}"
+    );
 }
 
 #[test]
@@ -169,8 +172,8 @@ fn nan_filled_colour_is_read_and_counted() {
 mod fuzz {
     use afterimage::frame::{ChannelKind, ChannelSet, Frame};
     use afterimage::io::{
-        read_exr_frame_bytes_limited, write_exr_bytes, Compression, ExrLayout, ExrLimits, Precision,
-        ReadOptions, WriteOptions,
+        read_exr_frame_bytes_limited, write_exr_bytes, Compression, ExrLimits, Precision, ReadOptions,
+        WriteOptions,
     };
     use afterimage::report::synthetic_frame;
     use afterimage::rng::SplitMix64;
@@ -301,16 +304,26 @@ mod fuzz {
     fn exr_seeds(w: usize, h: usize) -> Vec<Vec<u8>> {
         let frame = synthetic_frame(w, h, 3);
         let mut seeds = Vec::new();
-        for layout in [ExrLayout::Afterimage, ExrLayout::Plain] {
-            for precision in [Precision::F16, Precision::F32] {
-                for compression in [Compression::None, Compression::Zip, Compression::Piz] {
-                    let opts = WriteOptions {
-                        precision,
-                        compression,
-                        layout,
-                    };
-                    seeds.push(write_exr_bytes(&frame, &opts).unwrap());
-                }
+        for precision in [Precision::F16, Precision::F32] {
+            for compression in [Compression::None, Compression::Zip, Compression::Piz] {
+                let opts = WriteOptions {
+                    precision,
+                    compression,
+                };
+                seeds.push(write_exr_bytes(&frame, &opts).unwrap());
+                // Colour alone as R,G,B, as a filtered frame without an input is written.
+                let plain = afterimage::io::FilteredFrame {
+                    color: frame.color(),
+                    meta: &frame.meta,
+                    record: None,
+                    input: None,
+                };
+                let out = afterimage::io::OutputOptions {
+                    keep: afterimage::io::Keep::None,
+                    compression: Some(compression),
+                    precision: Some(precision),
+                };
+                seeds.push(afterimage::io::encode_filtered(&plain, &out).unwrap());
             }
         }
         seeds.extend(exr_layout_seeds(w, h));

@@ -6,6 +6,7 @@ use afterimage::frame::{ChannelKind, Frame, Plane};
 use afterimage::io::{read_frame, write_exr, ReadOptions, Sequence, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice};
 use afterimage::tolerance::Tolerance;
+use std::path::Path;
 
 fn run(args: &[&str]) -> (bool, String, String) {
     let out = common::bin().args(args).output().unwrap();
@@ -597,4 +598,314 @@ fn sparse_shading_from_scene_to_upsample() {
         !ok && err.contains("filter taa needs colour shaded at every pixel"),
         "{err}"
     );
+}
+
+/// One subimage as `oiiotool --info -v -a` describes it.
+#[derive(Debug, Default)]
+struct OiioPart {
+    channels: usize,
+    /// x, y, width, height.
+    data: [i64; 4],
+    display: [i64; 4],
+    compression: String,
+}
+
+/// `oiiotool --info -v -a` of `path`, parsed; None when oiiotool is not installed. It
+/// prints the data origin and the display window only where they differ from the
+/// defaults (origin 0, 0; display = data).
+fn oiiotool_info(path: &Path) -> Option<Vec<OiioPart>> {
+    let out = std::process::Command::new("oiiotool")
+        .args(["--info", "-v", "-a"])
+        .arg(path)
+        .output()
+        .ok()?;
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let nums = |s: &str| -> Vec<i64> {
+        s.split(|c: char| !(c.is_ascii_digit() || c == '-'))
+            .filter(|t| !t.is_empty() && *t != "-")
+            .map(|t| t.parse().unwrap())
+            .collect()
+    };
+    let mut parts: Vec<(OiioPart, bool, bool)> = Vec::new();
+    let multi = text.contains(" subimages: ");
+    for line in text.lines() {
+        let t = line.trim();
+        // The first line of a part: "<file> :  W x  H, N channel, ..." or " subimage  k:  W x  H, ...".
+        let head = if multi {
+            t.starts_with("subimage ")
+        } else {
+            !line.starts_with(' ') && t.contains(" channel, ")
+        };
+        if head {
+            let (_, dims) = t.split_once(':').unwrap();
+            let v = nums(dims.split(',').next().unwrap());
+            let channels = nums(dims.split(',').nth(1).unwrap())[0] as usize;
+            let p = OiioPart {
+                channels,
+                data: [0, 0, v[0], v[1]],
+                ..Default::default()
+            };
+            parts.push((p, false, false));
+            continue;
+        }
+        let Some((p, origin_seen, display_seen)) = parts.last_mut() else {
+            continue;
+        };
+        if let Some(v) = t.strip_prefix("pixel data origin: ") {
+            let v = nums(v);
+            (p.data[0], p.data[1]) = (v[0], v[1]);
+            *origin_seen = true;
+        } else if let Some(v) = t.strip_prefix("full/display size: ") {
+            let v = nums(v);
+            (p.display[2], p.display[3]) = (v[0], v[1]);
+            *display_seen = true;
+        } else if let Some(v) = t.strip_prefix("full/display origin: ") {
+            let v = nums(v);
+            (p.display[0], p.display[1]) = (v[0], v[1]);
+        } else if let Some(v) = t.strip_prefix("compression: ") {
+            p.compression = v.trim_matches('"').to_string();
+        }
+    }
+    Some(
+        parts
+            .into_iter()
+            .map(|(mut p, _, display_seen)| {
+                if !display_seen {
+                    p.display = p.data;
+                }
+                p
+            })
+            .collect(),
+    )
+}
+
+#[test]
+fn filter_output_replaces_its_input_in_every_layout() {
+    use common::{assert_replaces, passthrough_inputs, Expect};
+    let dir = tempfile::tempdir().unwrap();
+    let mut oiio_checked = 0;
+    for (name, input) in passthrough_inputs(&dir.path().join("in")) {
+        // A `####` pattern in and out keeps the frame numbers.
+        let out = dir.path().join("out").join(name);
+        let (ok, _, err) = run(&[
+            "filter",
+            "--filter",
+            "taa",
+            "-i",
+            input.join("frame_####.exr").to_str().unwrap(),
+            "-o",
+            out.join("shot_aa.####.exr").to_str().unwrap(),
+        ]);
+        assert!(ok, "{name}: {err}");
+        for n in 1..=3 {
+            let (i, o) = (
+                input.join(format!("frame_{n:04}.exr")),
+                out.join(format!("shot_aa.{n:04}.exr")),
+            );
+            assert_replaces(&i, &o, Expect::default());
+            // oiiotool reads the same channels, windows and compression as our reader.
+            let Some(oiio) = oiiotool_info(&o) else { continue };
+            let (_, text, err) = run(&["info", "--json", o.to_str().unwrap()]);
+            let ours: serde_json::Value = serde_json::from_str(&text).unwrap_or_else(|_| panic!("{err}"));
+            let parts = ours["parts"].as_array().unwrap();
+            assert_eq!(oiio.len(), parts.len(), "{name}: {oiio:?} vs {ours}");
+            for (p, o) in parts.iter().zip(&oiio) {
+                let window =
+                    |w: &serde_json::Value| ["x", "y", "width", "height"].map(|k| w[k].as_i64().unwrap());
+                assert_eq!(
+                    o.channels as u64,
+                    p["channels"].as_u64().unwrap(),
+                    "{name}: {o:?} vs {p}"
+                );
+                assert_eq!(o.data, window(&p["data_window"]), "{name}: {o:?} vs {p}");
+                assert_eq!(o.display, window(&p["display_window"]), "{name}: {o:?} vs {p}");
+                assert_eq!(
+                    o.compression.to_ascii_uppercase(),
+                    p["compression"].as_str().unwrap(),
+                    "{name}"
+                );
+            }
+            oiio_checked += 1;
+        }
+    }
+    if oiio_checked == 0 {
+        // CI installs oiiotool and sets this, so there the cross-check cannot be skipped.
+        assert!(
+            std::env::var_os("AFTERIMAGE_REQUIRE_OIIOTOOL").is_none(),
+            "AFTERIMAGE_REQUIRE_OIIOTOOL is set but oiiotool did not run"
+        );
+        eprintln!("SKIPPED: oiiotool is not installed (Debian: openimageio-tools); the outputs were not cross-checked with it");
+    }
+    // Options: the colour part alone, recompressed, colour in half floats.
+    let input = dir.path().join("in/multipart");
+    let out = dir.path().join("options");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--keep",
+        "filtered",
+        "--compression",
+        "zips",
+        "--half",
+    ]);
+    assert!(ok, "{err}");
+    let image = common::read_exr_all(&out.join("frame_0002.exr"));
+    assert_eq!(image.layer_data.len(), 1);
+    let l = &image.layer_data[0];
+    assert_eq!(
+        l.attributes.layer_name.as_ref().unwrap().to_string(),
+        "ViewLayer.Combined"
+    );
+    assert_eq!(l.encoding.compression, exr::compression::Compression::ZIP1);
+    let names: Vec<String> = l.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+    assert_eq!(names, ["A", "B", "G", "R"]);
+    assert!(matches!(
+        l.channel_data.list[3].sample_data,
+        exr::prelude::FlatSamples::F16(_)
+    ));
+    // Nothing kept: R,G,B in f32, windows still the input's.
+    let input = dir.path().join("in/overscan");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        input.to_str().unwrap(),
+        "-o",
+        out.join("none.%04d.exr").to_str().unwrap(),
+        "--keep",
+        "none",
+        "--float",
+    ]);
+    assert!(ok, "{err}");
+    let image = common::read_exr_all(&out.join("none.0003.exr"));
+    let l = &image.layer_data[0];
+    let names: Vec<String> = l.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+    assert_eq!(names, ["B", "G", "R"]);
+    assert_eq!(l.attributes.layer_position, exr::math::Vec2(-16, -8));
+    assert_eq!(image.attributes.display_window.size, exr::math::Vec2(288, 164));
+    // Writing over the input is refused before anything runs.
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        input.to_str().unwrap(),
+        "-o",
+        input.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("frame_0001.exr"), "{err}");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        input.to_str().unwrap(),
+        "-o",
+        "x",
+        "--compression",
+        "lzw",
+    ]);
+    assert!(!ok && err.contains("lzw") && err.contains("piz"), "{err}");
+}
+
+#[test]
+fn jitter_from_halton_or_a_file_overrides_the_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    let d = input.to_str().unwrap();
+    let (ok, _, err) = run(&[
+        "scene", "fence", "--frames", "4", "--size", "40x24", "--spp", "1", "--jitter", "8", "-o", d,
+    ]);
+    assert!(ok, "{err}");
+    let filtered = |extra: &[&str], name: &str| -> Vec<Frame> {
+        let out = dir.path().join(name);
+        // pixel_trace places each sample at its pixel centre plus the frame's jitter.
+        let mut args = vec![
+            "filter",
+            "--filter",
+            "pixel_trace",
+            "--set",
+            "window=4",
+            "-i",
+            d,
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = run(&args);
+        assert!(ok, "{err}");
+        (0..4)
+            .map(|i| read_frame(&out.join(format!("frame_{i:04}.exr")), &ReadOptions::default()).unwrap())
+            .collect()
+    };
+    // The scene's files carry Halton(2,3) jitter by frame index: the same table gives the
+    // same output; a table of zeros changes it, and the outputs say which jitter was used.
+    let files = filtered(&[], "files");
+    let halton = filtered(&["--jitter-from", "halton:8"], "halton");
+    assert_eq!(
+        files.iter().map(|f| f.color()).collect::<Vec<_>>(),
+        halton.iter().map(|f| f.color()).collect::<Vec<_>>()
+    );
+    let zeros = dir.path().join("zeros.json");
+    std::fs::write(
+        &zeros,
+        r#"{"0": [0, 0], "1": [0, 0], "2": [0, 0], "3": [0.25, -0.5]}"#,
+    )
+    .unwrap();
+    let still = filtered(&["--jitter-from", zeros.to_str().unwrap()], "zeros");
+    assert_ne!(still[2].color(), files[2].color());
+    assert_eq!(
+        (still[1].meta.jitter, still[3].meta.jitter),
+        ([0.0, 0.0], [0.25, -0.5])
+    );
+    let csv = dir.path().join("j.csv");
+    std::fs::write(&csv, "frame,x,y\n0,0,0\n1,0,0\n2,0,0\n3,0.25,-0.5\n").unwrap();
+    let from_csv = filtered(&["--jitter-from", csv.to_str().unwrap()], "csv");
+    assert_eq!(from_csv[3].color(), still[3].color());
+    // Gaps and out-of-range values are refused before anything runs.
+    std::fs::write(&zeros, "[[0, 0], [0, 0]]").unwrap();
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        d,
+        "-o",
+        "x",
+        "--jitter-from",
+        zeros.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("2 jitters for 4 frames"), "{err}");
+    std::fs::write(&csv, "0,0,0\n1,0,0\n2,0,0\n3,3,0\n").unwrap();
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        d,
+        "-o",
+        "x",
+        "--jitter-from",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("frame 3") && err.contains("-1..=1"), "{err}");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        d,
+        "-o",
+        "x",
+        "--jitter-from",
+        "halton:0",
+    ]);
+    assert!(!ok && err.contains("halton:N"), "{err}");
 }

@@ -5,7 +5,7 @@ mod common;
 
 use afterimage::frame::{ChannelKind, DepthKind, Frame, NormalSpace, Plane};
 use afterimage::io::{
-    read_frame, write_exr, write_png, Compression, ExrLayout, Precision, ReadOptions, Sequence, WriteOptions,
+    read_frame, write_exr, write_png, Compression, Precision, ReadOptions, Sequence, WriteOptions,
 };
 use afterimage::tolerance::Tolerance;
 
@@ -60,7 +60,6 @@ fn f32_round_trip_is_lossless_for_every_compression() {
         let opts = WriteOptions {
             precision: Precision::F32,
             compression,
-            layout: ExrLayout::Afterimage,
         };
         write_exr(&path, &f, &opts).unwrap();
         let back = read_frame(&path, &ReadOptions::default()).unwrap();
@@ -77,7 +76,6 @@ fn f16_round_trip_is_within_half_rounding() {
         let opts = WriteOptions {
             precision: Precision::F16,
             compression,
-            layout: ExrLayout::Afterimage,
         };
         write_exr(&path, &f, &opts).unwrap();
         let back = read_frame(&path, &ReadOptions::default()).unwrap();
@@ -97,15 +95,17 @@ fn f16_round_trip_is_within_half_rounding() {
 }
 
 #[test]
-fn plain_layout_writes_colour_only() {
+fn a_filtered_frame_without_an_input_is_written_as_plain_colour() {
     let dir = tempfile::tempdir().unwrap();
     let f = full_frame(3);
     let path = dir.path().join("plain.exr");
-    let opts = WriteOptions {
-        layout: ExrLayout::Plain,
-        ..WriteOptions::default()
+    let frame = afterimage::io::FilteredFrame {
+        color: f.color(),
+        meta: &f.meta,
+        record: Some(r#"{"filter":"taa"}"#),
+        input: None,
     };
-    write_exr(&path, &f, &opts).unwrap();
+    afterimage::io::write_filtered(&path, &frame, &Default::default()).unwrap();
     let raw = afterimage::io::read_raw(&path).unwrap();
     let names: Vec<_> = raw.channels.iter().map(|c| c.name.as_str()).collect();
     assert_eq!(names, ["B", "G", "R"]);

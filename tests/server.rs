@@ -3,9 +3,11 @@
 //! status with a message naming the problem and leaves the session working; the memory
 //! budget, idle eviction and reconnect-by-id hold.
 
+mod common;
+
 use afterimage::filters::create;
 use afterimage::frame::{Frame, Plane, Rgb};
-use afterimage::io::{write_exr_bytes, Compression, ExrLayout, Precision, WriteOptions};
+use afterimage::io::{write_exr_bytes, Compression, Precision, WriteOptions};
 use afterimage::pipeline::run_sequence;
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, SendOptions};
@@ -541,7 +543,6 @@ async fn http_frames_are_bit_identical_too() {
     let opts = WriteOptions {
         precision: Precision::F32,
         compression: Compression::Zip,
-        layout: ExrLayout::Afterimage,
     };
     for (i, f) in fr.iter().enumerate() {
         let exr = write_exr_bytes(f, &opts).unwrap();
@@ -709,6 +710,231 @@ async fn http_frames_are_bit_identical_too() {
             .await
             .0,
         404
+    );
+    r.shutdown().await.unwrap();
+}
+
+/// The EXR a reply carries, written to `path` for the pass-through check.
+fn save(path: &std::path::Path, body: &[u8]) {
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    std::fs::write(path, body).unwrap();
+}
+
+/// The frame record a reply's EXR carries in `afterimage.record`.
+fn exr_record(body: &[u8]) -> Value {
+    use exr::prelude::*;
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(body), false).unwrap();
+    let record = meta
+        .headers
+        .iter()
+        .find_map(
+            |h| match h.own_attributes.other.get(&Text::from("afterimage.record")) {
+                Some(AttributeValue::Text(t)) => Some(t.to_string()),
+                _ => None,
+            },
+        )
+        .expect("a record attribute");
+    serde_json::from_str(&record).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replies_and_stream_outputs_replace_their_inputs() {
+    use common::{assert_replaces, passthrough_inputs, Expect};
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    let dir = tempfile::tempdir().unwrap();
+    let variants = passthrough_inputs(&dir.path().join("in"));
+    let new_session = |filter: &'static str| async move {
+        let body = format!(r#"{{"filter":"{filter}","width":320,"height":180}}"#);
+        let (st, _, body) = http(addr, "POST", "/v1/sessions", body.as_bytes(), "application/json").await;
+        assert_eq!(st, 201, "{}", String::from_utf8_lossy(&body));
+        let s: Value = serde_json::from_slice(&body).unwrap();
+        s["id"].as_str().unwrap().to_string()
+    };
+    // HTTP: every layout, a causal and a windowed filter (whose output comes two frames
+    // later, with the input it replaces kept in the session meanwhile).
+    for (name, input) in &variants {
+        for filter in ["taa", "pixel_trace"] {
+            let id = new_session(filter).await;
+            let mut replies = Vec::new();
+            for n in 1..=3 {
+                let file = std::fs::read(input.join(format!("frame_{n:04}.exr"))).unwrap();
+                let (st, _, body) = http(
+                    addr,
+                    "POST",
+                    &format!("/v1/sessions/{id}/frames"),
+                    &file,
+                    "image/x-exr",
+                )
+                .await;
+                assert!(
+                    st == 200 || st == 202,
+                    "{name} {filter}: {st} {}",
+                    String::from_utf8_lossy(&body)
+                );
+                if st == 200 {
+                    replies.push(body);
+                }
+            }
+            loop {
+                let (st, _, body) = http(
+                    addr,
+                    "POST",
+                    &format!("/v1/sessions/{id}/flush"),
+                    b"",
+                    "text/plain",
+                )
+                .await;
+                if st == 204 {
+                    break;
+                }
+                assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+                replies.push(body);
+            }
+            assert_eq!(replies.len(), 3, "{name} {filter}");
+            for (k, body) in replies.iter().enumerate() {
+                let n = k + 1;
+                // Files without an index are numbered by the session in arrival order.
+                assert_eq!(exr_record(body)["index"], k as u64, "{name} {filter}");
+                let out = dir.path().join(format!("http/{name}-{filter}/frame_{n:04}.exr"));
+                save(&out, body);
+                assert_replaces(&input.join(format!("frame_{n:04}.exr")), &out, Expect::default());
+            }
+            http(addr, "DELETE", &format!("/v1/sessions/{id}"), b"", "text/plain").await;
+        }
+    }
+    // gRPC: `afterimage stream` writes what `filter` writes.
+    for (name, input) in &variants {
+        let url = format!("http://{}", r.grpc_addr);
+        let (input2, out) = (input.clone(), dir.path().join(format!("grpc/{name}")));
+        let out2 = out.clone();
+        let done = tokio::task::spawn_blocking(move || {
+            common::bin()
+                .args(["stream", "--server", &url, "--filter", "taa", "-i"])
+                .arg(&input2)
+                .arg("-o")
+                .arg(&out2)
+                .output()
+                .unwrap()
+        })
+        .await
+        .unwrap();
+        assert!(
+            done.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&done.stderr)
+        );
+        for n in 1..=3 {
+            let name = format!("frame_{n:04}.exr");
+            assert_replaces(&input.join(&name), &out.join(&name), Expect::default());
+        }
+    }
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn http_frame_values_come_from_headers() {
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        "/v1/sessions",
+        br#"{"filter":"taa","width":64,"height":36}"#,
+        "application/json",
+    )
+    .await;
+    assert_eq!(st, 201);
+    let id = serde_json::from_slice::<Value>(&body).unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    // Colour alone, no attributes at all (as a renderer without our attributes writes it).
+    let plain = |f: &Frame| {
+        use exr::prelude::*;
+        let list = f
+            .color()
+            .iter()
+            .zip(["R", "G", "B"])
+            .map(|(p, n)| AnyChannel::new(n, FlatSamples::F32(p.data().to_vec())))
+            .collect();
+        let image = Image::from_channels((64, 36), AnyChannels::sort(list));
+        let mut out = std::io::Cursor::new(Vec::new());
+        image.write().to_buffered(&mut out).unwrap();
+        out.into_inner()
+    };
+    let fr = frames("fence", 3, 1);
+    let post = |headers: String, body: Vec<u8>| {
+        let id = id.clone();
+        async move {
+            http_with(
+                addr,
+                "POST",
+                &format!("/v1/sessions/{id}/frames"),
+                &headers,
+                &body,
+            )
+            .await
+        }
+    };
+    // Index and jitter from headers; the reply's record and attributes say so.
+    let (st, _, body) = post(
+        "x-afterimage-index: 1001\r\nx-afterimage-jitter: 0.25,-0.125\r\n".into(),
+        plain(&fr[0]),
+    )
+    .await;
+    assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+    assert_eq!(exr_record(&body)["index"], 1001);
+    let f = afterimage::io::read_exr_frame_bytes(&body, std::path::Path::new("reply"), &Default::default())
+        .unwrap();
+    assert_eq!((f.meta.index, f.meta.jitter), (1001, [0.25, -0.125]));
+    // Without one, the next index follows the last.
+    let (_, _, body) = post(String::new(), plain(&fr[1])).await;
+    assert_eq!(exr_record(&body)["index"], 1002);
+    // A reset from a header drops the history.
+    let (_, _, body) = post("x-afterimage-reset: 1\r\n".into(), plain(&fr[2])).await;
+    assert_eq!(exr_record(&body)["pixels"]["history_reset"], 64 * 36);
+    // Bad values are refused, naming the header.
+    for (h, want) in [
+        ("x-afterimage-index: -3", "x-afterimage-index"),
+        ("x-afterimage-reset: maybe", "x-afterimage-reset"),
+        ("x-afterimage-jitter: 0.5", "x-afterimage-jitter"),
+        ("x-afterimage-jitter: 7,0", "-1..=1"),
+    ] {
+        let (st, _, body) = post(format!("{h}\r\n"), plain(&fr[0])).await;
+        let text = String::from_utf8_lossy(&body);
+        assert!(st == 400 && text.contains(want), "{h}: {st} {text}");
+    }
+    // Output options from the query string.
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames?keep=none&precision=half&compression=piz"),
+        &plain(&fr[0]),
+        "image/x-exr",
+    )
+    .await;
+    assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&body[..]), false).unwrap();
+    let h = &meta.headers[0];
+    assert_eq!(h.compression, exr::compression::Compression::PIZ);
+    let names: Vec<String> = h.channels.list.iter().map(|c| c.name.to_string()).collect();
+    assert_eq!(names, ["B", "G", "R"]);
+    assert_eq!(
+        h.channels.list[0].sample_type,
+        exr::meta::attribute::SampleType::F16
+    );
+    let (st, _, body) = http(
+        addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames?keep=most"),
+        &plain(&fr[0]),
+        "image/x-exr",
+    )
+    .await;
+    assert!(
+        st == 400 && String::from_utf8_lossy(&body).contains("filtered"),
+        "{st}"
     );
     r.shutdown().await.unwrap();
 }
@@ -918,7 +1144,6 @@ async fn concurrent_frames_to_one_session_are_refused_not_deadlocked() {
     let opts = WriteOptions {
         precision: Precision::F32,
         compression: Compression::Zip,
-        layout: ExrLayout::Afterimage,
     };
     let exr = write_exr_bytes(&frames("fence", 1, 1)[0], &opts).unwrap();
     let mut tasks = Vec::new();
@@ -1021,7 +1246,6 @@ async fn bodies_and_frames_larger_than_the_session_are_refused_before_reading() 
         let opts = WriteOptions {
             precision: Precision::F16,
             compression: Compression::Zip,
-            layout: ExrLayout::Plain,
         };
         write_exr_bytes(&f, &opts).unwrap()
     };
@@ -1214,7 +1438,6 @@ async fn shutdown_drains_readyz_503_while_a_frame_finishes() {
     let opts = WriteOptions {
         precision: Precision::F16,
         compression: Compression::Zip,
-        layout: ExrLayout::Afterimage,
     };
     for i in 0..16 {
         let exr = write_exr_bytes(&synthetic_frame(w, h, i), &opts).unwrap();

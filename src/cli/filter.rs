@@ -1,19 +1,22 @@
 //! `afterimage filter` (run a filter over a sequence) and `afterimage filters` (list them).
 
 use super::outln;
-use super::read_args::ReadArgs;
+use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters;
 use afterimage::frame::{Frame, FrameMeta, Rgb};
-use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
+use afterimage::io::{
+    refuse_overwrite, write_filtered, write_png, FilteredFrame, InputImage, OutputNaming, Sequence,
+};
 use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
 use afterimage::pipeline::{
     params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind,
 };
+use afterimage::scene::halton_jitter;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
 
 /// Arguments of `filter`.
@@ -28,9 +31,14 @@ pub struct FilterArgs {
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]
     input: String,
-    /// Output directory: frame_NNNN.exr (afterimage preset, colour only) and records.json.
-    #[arg(short = 'o', long)]
-    output: PathBuf,
+    /// Where to write: a directory (each output keeps its input's file name) or a pattern
+    /// with the frame number as `####`, `%04d`, `$F4` or `@@@@` (out/shot_aa.####.exr).
+    /// records.json goes into the directory.
+    #[arg(short = 'o', long, value_name = "DIR|PATTERN")]
+    output: String,
+    /// Where to write the per-frame records (default: records.json in the output directory).
+    #[arg(long, value_name = "FILE")]
+    records: Option<PathBuf>,
     /// Ground truth, frame for frame: PSNR, SSIM and tRMSE are printed and recorded
     /// (default: the input frames' own reference channel, when they have one).
     #[arg(long)]
@@ -41,15 +49,23 @@ pub struct FilterArgs {
     /// Also write PNG previews (tonemapped c/(1+c) when the input is HDR).
     #[arg(long)]
     png: bool,
-    /// Write half floats.
-    #[arg(long)]
-    f16: bool,
     /// Frame numbers where a new shot starts, comma-separated (--cuts 1001,1050): the filter
     /// drops its history there, as it does for a frame whose file says `afterimage.reset`.
     #[arg(long, value_delimiter = ',', value_name = "FRAME")]
     cuts: Vec<u64>,
+    /// Each frame's sub-pixel jitter, over what the files say (pixels, x right, y down):
+    /// `halton:8` (Halton 2,3 with 8 phases, indexed by frame number modulo 8, as
+    /// `afterimage scene` renders), or a file: JSON (`[[x, y], ...]` in frame order, or
+    /// `{"1001": [x, y], ...}` by frame number) or CSV lines `frame,x,y`.
+    #[arg(long, value_name = "halton:N|FILE")]
+    jitter_from: Option<String>,
     #[command(flatten)]
     read: ReadArgs,
+    #[command(flatten)]
+    write: WriteArgs,
+    /// Old name of --half.
+    #[arg(long, hide = true)]
+    f16: bool,
 }
 
 /// Arguments of `filters`.
@@ -107,9 +123,11 @@ pub fn list(args: FiltersArgs) -> anyhow::Result<()> {
 /// What the output of a pushed frame needs when it comes out.
 struct Pending {
     number: u64,
+    path: PathBuf,
     meta: FrameMeta,
     reference: Option<Rgb>,
     hdr: bool,
+    input: InputImage,
 }
 
 pub fn run(args: FilterArgs) -> anyhow::Result<()> {
@@ -129,12 +147,28 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         let (first, last) = (input.entries[0].number, input.entries[input.len() - 1].number);
         anyhow::bail!("--cuts {missing}: the input has no frame {missing} (its frames are {first}-{last})");
     }
-    std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
-    let write = WriteOptions {
-        precision: if args.f16 { Precision::F16 } else { Precision::F32 },
-        compression: Compression::Zip,
-        layout: ExrLayout::Afterimage,
-    };
+    let naming = OutputNaming::parse(&args.output)?;
+    let mut write = args.write.options()?;
+    if args.f16 {
+        write.precision = Some(afterimage::io::Precision::F16);
+    }
+    let mut outputs: Vec<PathBuf> = input
+        .entries
+        .iter()
+        .map(|e| naming.path(&e.path, e.number))
+        .collect();
+    if args.png {
+        outputs.extend(
+            input
+                .entries
+                .iter()
+                .map(|e| naming.preview_path(&e.path, e.number)),
+        );
+    }
+    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.path.clone()).collect();
+    refuse_overwrite(&outputs, &inputs)?;
+    let out_dir = naming.dir().to_path_buf();
+    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
     let bar = ProgressBar::new(input.len() as u64).with_style(
         ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
             .progress_chars("=> "),
@@ -153,28 +187,31 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
                 eval.push(p.number, &out.color, r, p.meta.reset)
                     .with_context(|| format!("measuring frame {} against its reference", p.number))?;
             }
-            let mut result = Frame::new(out.color)?;
-            result.meta = p.meta;
-            write_exr(
-                &args.output.join(format!("frame_{:04}.exr", p.number)),
-                &result,
-                &write,
-            )?;
+            let record = serde_json::to_string(&out.record)?;
+            let path = naming.path(&p.path, p.number);
+            let frame = FilteredFrame {
+                color: &out.color,
+                meta: &p.meta,
+                record: Some(&record),
+                input: Some(&p.input),
+            };
+            write_filtered(&path, &frame, &write).with_context(|| format!("writing {}", path.display()))?;
             if args.png {
-                write_png(
-                    &args.output.join(format!("frame_{:04}.png", p.number)),
-                    result.color(),
-                    p.hdr,
-                )?;
+                write_png(&naming.preview_path(&p.path, p.number), &out.color, p.hdr)?;
             }
             records.push(out.record);
-            filter.recycle(result.into_color());
+            filter.recycle(out.color);
             bar.inc(1);
             Ok(())
         };
-    for (i, frame) in input.frames(&in_opts).enumerate() {
+    let jitter = match &args.jitter_from {
+        Some(spec) => Some(jitter_table(spec, &input)?),
+        None => None,
+    };
+    let given = |n: u64| jitter.as_ref().and_then(|t| t.get(&n).copied());
+    for (i, read) in input.inputs_jittered(&in_opts, given).enumerate() {
         let entry = &input.entries[i];
-        let mut frame = frame?;
+        let (mut frame, kept) = read?;
         if args.cuts.contains(&entry.number) {
             frame.meta.reset = true;
         }
@@ -184,9 +221,11 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         };
         pending.push_back(Pending {
             number: entry.number,
+            path: entry.path.clone(),
             meta: frame.meta.clone(),
             reference,
             hdr: frame_is_hdr(&frame),
+            input: kept,
         });
         let outs = filter
             .push(&frame)
@@ -209,7 +248,10 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         "metrics": eval.frames,
         "summary": summary,
     });
-    let path = args.output.join("records.json");
+    let path = args
+        .records
+        .clone()
+        .unwrap_or_else(|| out_dir.join("records.json"));
     std::fs::write(&path, serde_json::to_string_pretty(&doc)?)
         .with_context(|| format!("writing {}", path.display()))?;
 
@@ -219,7 +261,7 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         "{}: {} frames -> {} (median {:.2} ms/frame)",
         args.filter,
         records.len(),
-        args.output.display(),
+        naming,
         Timing::of(&totals).median_ms
     );
     for s in summarize_stages(&records) {
@@ -246,6 +288,78 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// The jitter of every frame of `input` from `--jitter-from` (see [`FilterArgs`]), by
+/// frame number; every frame must get one.
+fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTreeMap<u64, [f32; 2]>> {
+    let numbers: Vec<u64> = input.entries.iter().map(|e| e.number).collect();
+    let table: BTreeMap<u64, [f32; 2]> = if let Some(n) = spec.strip_prefix("halton:") {
+        let phases: u32 = n
+            .parse()
+            .ok()
+            .filter(|&p| p > 0)
+            .with_context(|| format!("--jitter-from {spec}: expected halton:N with N phases > 0"))?;
+        numbers.iter().map(|&k| (k, halton_jitter(k, phases))).collect()
+    } else {
+        let text = std::fs::read_to_string(spec).with_context(|| format!("--jitter-from {spec}"))?;
+        let at = |what: String| format!("--jitter-from {spec}: {what}");
+        if spec.to_ascii_lowercase().ends_with(".csv") {
+            let mut t = BTreeMap::new();
+            for (line_no, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
+                let f: Vec<&str> = line.split(',').map(str::trim).collect();
+                let parsed = match f[..] {
+                    [k, x, y] => k
+                        .parse::<u64>()
+                        .ok()
+                        .zip(x.parse::<f32>().ok().zip(y.parse::<f32>().ok())),
+                    _ => None,
+                };
+                match parsed {
+                    Some((k, (x, y))) => t.insert(k, [x, y]),
+                    None if line_no == 0 => None, // a header line
+                    None => anyhow::bail!(at(format!(
+                        "line {}: expected frame,x,y, got {line:?}",
+                        line_no + 1
+                    ))),
+                };
+            }
+            t
+        } else {
+            match serde_json::from_str::<serde_json::Value>(&text).with_context(|| at("not JSON".into()))? {
+                serde_json::Value::Array(v) => {
+                    if v.len() != numbers.len() {
+                        anyhow::bail!(at(format!("{} jitters for {} frames", v.len(), numbers.len())));
+                    }
+                    let pairs: Vec<[f32; 2]> = serde_json::from_value(serde_json::Value::Array(v))
+                        .with_context(|| at("expected [[x, y], ...]".into()))?;
+                    numbers.iter().copied().zip(pairs).collect()
+                }
+                serde_json::Value::Object(m) => m
+                    .into_iter()
+                    .map(|(k, v)| {
+                        let n = k
+                            .parse::<u64>()
+                            .with_context(|| at(format!("key {k:?} is not a frame number")))?;
+                        let j: [f32; 2] = serde_json::from_value(v)
+                            .with_context(|| at(format!("frame {k}: expected [x, y]")))?;
+                        Ok((n, j))
+                    })
+                    .collect::<anyhow::Result<_>>()?,
+                _ => anyhow::bail!(at("expected a JSON array or object".into())),
+            }
+        }
+    };
+    if let Some(missing) = numbers.iter().find(|n| !table.contains_key(n)) {
+        anyhow::bail!("--jitter-from {spec}: no jitter for frame {missing}");
+    }
+    if let Some((k, j)) = table
+        .iter()
+        .find(|(_, j)| !j.iter().all(|v| v.is_finite() && v.abs() <= 1.0))
+    {
+        anyhow::bail!("--jitter-from {spec}: frame {k}: jitter {j:?} is not within -1..=1 pixels");
+    }
+    Ok(table)
 }
 
 fn frame_is_hdr(f: &Frame) -> bool {

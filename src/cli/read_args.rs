@@ -1,7 +1,10 @@
-//! Flags shared by every command that reads frames.
+//! Flags shared by every command that reads frames, and by every command that writes
+//! filtered frames.
 
 use afterimage::frame::MotionConvention;
-use afterimage::io::{ChannelSpec, PresetChoice, ReadOptions, Sequence};
+use afterimage::io::{
+    ChannelSpec, Compression, Keep, OutputOptions, Precision, PresetChoice, ReadOptions, Sequence,
+};
 use clap::Args;
 
 /// How to map file channels onto frame channels.
@@ -36,6 +39,45 @@ impl ReadArgs {
                 .as_deref()
                 .map(str::parse::<MotionConvention>)
                 .transpose()?,
+        })
+    }
+}
+
+/// How filtered frames are written (the same for `filter` and `stream --output`).
+#[derive(Args, Debug, Clone)]
+pub struct WriteArgs {
+    /// What of each input file the output keeps: all (every part, channel and attribute,
+    /// colour replaced in place: a drop-in replacement), filtered (the colour and its alpha),
+    /// none (the filtered colour alone as R,G,B).
+    #[arg(long, default_value = "all", value_name = "WHAT")]
+    pub keep: String,
+    /// EXR compression of the outputs (default: each input part's own; zip without an EXR
+    /// input): none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab.
+    #[arg(long, value_name = "METHOD")]
+    pub compression: Option<String>,
+    /// Write the filtered colour as half floats (default: the input colour's type).
+    #[arg(long, conflicts_with = "float")]
+    pub half: bool,
+    /// Write the filtered colour as 32-bit floats.
+    #[arg(long)]
+    pub float: bool,
+}
+
+impl WriteArgs {
+    /// The library's output options.
+    pub fn options(&self) -> anyhow::Result<OutputOptions> {
+        Ok(OutputOptions {
+            keep: self.keep.parse::<Keep>()?,
+            compression: self
+                .compression
+                .as_deref()
+                .map(str::parse::<Compression>)
+                .transpose()?,
+            precision: match (self.half, self.float) {
+                (true, _) => Some(Precision::F16),
+                (_, true) => Some(Precision::F32),
+                _ => None,
+            },
         })
     }
 }

@@ -1,7 +1,7 @@
 //! `afterimage scene NAME --out DIR`: render a catalogue scene to EXR.
 
 use super::outln;
-use afterimage::io::{write_exr, write_png, Compression, ExrLayout, Precision, WriteOptions};
+use afterimage::io::{write_exr, write_png, Compression, Precision, WriteOptions};
 use afterimage::metrics::Timing;
 use afterimage::scene::{Jitter, Scene, Settings, BEHIND_CAMERA_MOTION, CATALOGUE, SKY_DEPTH};
 use anyhow::Context;
@@ -104,7 +104,6 @@ pub fn run(args: SceneArgs) -> anyhow::Result<()> {
     let opts = WriteOptions {
         precision: if args.f16 { Precision::F16 } else { Precision::F32 },
         compression: Compression::Zip,
-        layout: ExrLayout::Afterimage,
     };
     let bar = ProgressBar::new(args.frames).with_style(
         ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?

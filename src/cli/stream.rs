@@ -3,10 +3,10 @@
 //! reports round-trip time next to the in-process filter time.
 
 use super::outln;
-use super::read_args::ReadArgs;
+use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters::create;
-use afterimage::frame::{Frame, Rgb};
-use afterimage::io::{write_exr, Compression, ExrLayout, Precision, Sequence, WriteOptions};
+use afterimage::frame::Frame;
+use afterimage::io::{write_filtered, FilteredFrame, InputImage, OutputNaming, Sequence};
 use afterimage::metrics::Timing;
 use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
@@ -73,14 +73,25 @@ pub struct StreamArgs {
     /// Also run the filter in this process on the same frames and compare the times.
     #[arg(long)]
     compare: bool,
-    /// Where to write the filtered frames (frame_NNNN.exr); none: not written.
-    #[arg(short = 'o', long)]
-    output: Option<PathBuf>,
+    /// Where to write the filtered frames, as `filter -o` does: a directory (each output
+    /// keeps its input's file name; frame_NNNN.exr for a scene) or a pattern with `####`;
+    /// none: not written.
+    #[arg(short = 'o', long, value_name = "DIR|PATTERN")]
+    output: Option<String>,
     #[command(flatten)]
     read: ReadArgs,
+    #[command(flatten)]
+    write: WriteArgs,
 }
 
-fn load(args: &StreamArgs) -> anyhow::Result<Vec<Frame>> {
+/// Where a frame that was sent came from: its file, and the decoded input its output
+/// replaces (None for a scene frame).
+struct Source {
+    path: PathBuf,
+    input: Option<InputImage>,
+}
+
+fn load(args: &StreamArgs) -> anyhow::Result<Vec<(Frame, Source)>> {
     if let Some(name) = &args.scene {
         let s = Settings {
             width: args.size.0,
@@ -93,15 +104,35 @@ fn load(args: &StreamArgs) -> anyhow::Result<Vec<Frame>> {
             shading: 1,
         };
         let scene = Scene::new(name, s)?;
-        return Ok((0..args.frames).map(|i| scene.frame(i)).collect());
+        return Ok((0..args.frames)
+            .map(|i| {
+                let source = Source {
+                    path: PathBuf::from(format!("frame_{i:04}.exr")),
+                    input: None,
+                };
+                (scene.frame(i), source)
+            })
+            .collect());
     }
     let seq = Sequence::open(args.input.as_deref().expect("clap requires input or scene"))?;
     let opts = args.read.options()?;
-    seq.frames(&opts).map(|f| Ok(f?)).collect()
+    seq.inputs(&opts)
+        .zip(&seq.entries)
+        .map(|(r, e)| {
+            let (frame, input) = r?;
+            let source = Source {
+                path: e.path.clone(),
+                input: Some(input),
+            };
+            Ok((frame, source))
+        })
+        .collect()
 }
 
 pub fn run(args: StreamArgs) -> anyhow::Result<()> {
-    let frames = load(&args)?;
+    let naming = args.output.as_deref().map(OutputNaming::parse).transpose()?;
+    let write = args.write.options()?;
+    let (frames, sources): (Vec<Frame>, Vec<Source>) = load(&args)?.into_iter().unzip();
     let first = frames.first().context("no frames to send")?;
     let (w, h) = (first.width() as u32, first.height() as u32);
     let values = parse_assignments(&args.set)?;
@@ -169,15 +200,20 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     })?;
     let wall_s = wall.elapsed().as_secs_f64();
     bar.finish_and_clear();
-    if let Some(dir) = &args.output {
-        let wopts = WriteOptions {
-            precision: if args.f16 { Precision::F16 } else { Precision::F32 },
-            compression: Compression::Zip,
-            layout: ExrLayout::Plain,
-        };
+    if let Some(naming) = &naming {
         for r in &replies {
-            let f = Frame::new(r.color.clone() as Rgb)?;
-            write_exr(&dir.join(format!("frame_{:04}.exr", r.index)), &f, &wopts)?;
+            let k = frames
+                .iter()
+                .position(|f| f.meta.index == r.index)
+                .with_context(|| format!("the server answered frame {}, which was not sent", r.index))?;
+            let path = naming.path(&sources[k].path, r.index);
+            let frame = FilteredFrame {
+                color: &r.color,
+                meta: &frames[k].meta,
+                record: Some(&r.report.record_json),
+                input: sources[k].input.as_ref(),
+            };
+            write_filtered(&path, &frame, &write).with_context(|| format!("writing {}", path.display()))?;
         }
     }
     let rtt: Vec<f64> = replies.iter().map(|r| r.round_trip_ms).collect();

@@ -3,7 +3,7 @@
 use super::preset::Preset;
 use super::raw::{RawChannel, RawData, RawImage};
 use super::IoError;
-use crate::frame::{ChannelKind, DepthKind, Frame, FrameMeta, NormalSpace, Plane, Sampling};
+use crate::frame::{ChannelKind, DepthKind, Frame, FrameMeta, NormalSpace, Sampling};
 use exr::prelude::{self as x, AttributeValue, ReadChannels, ReadLayers, Text, WritableImage};
 use std::path::Path;
 
@@ -18,6 +18,9 @@ mod attr {
     pub const SHADING: &str = "afterimage.shading";
 }
 
+/// The attribute declaring sparse shading (dropped from outputs, whose colour is dense).
+pub(crate) const SHADING_ATTRIBUTE: &str = attr::SHADING;
+
 /// Sample precision of written float channels (object ids are always u32).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Precision {
@@ -28,40 +31,112 @@ pub enum Precision {
     F32,
 }
 
-/// Compression of written files (all lossless).
+/// Compression of written files: the methods OpenEXR defines that the `exr` crate writes.
+/// `Pxr24` (f32 rounded to 24 bits), `B44`/`B44a` (f16 in 4x4 blocks) and `Dwaa`/`Dwab` (DCT)
+/// lose precision; the others are lossless.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Compression {
     /// None: largest, fastest.
     None,
+    /// Run-length: fast, small on flat areas.
+    Rle,
+    /// ZIP of single scan lines.
+    Zips,
     /// ZIP over 16 scan lines: the common default.
     #[default]
     Zip,
-    /// PIZ (wavelet): best on noisy renders.
+    /// PIZ (wavelet): best lossless method on noisy renders.
     Piz,
+    /// Lossy: f32 rounded to 24 bits, then ZIP.
+    Pxr24,
+    /// Lossy: f16 in 4x4 blocks (f32 channels are stored losslessly).
+    B44,
+    /// B44 with flat blocks stored in 3 bytes.
+    B44a,
+    /// Lossy DCT over 32 scan lines (DreamWorks).
+    Dwaa,
+    /// Lossy DCT over 256 scan lines.
+    Dwab,
 }
 
-/// Which channels a written file holds.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum ExrLayout {
-    /// Every channel of the frame, in the `afterimage` preset, with the frame values.
-    #[default]
-    Afterimage,
-    /// Colour only, as plain `R,G,B` (what compositing tools open by default).
-    Plain,
+impl Compression {
+    /// Every method, by the name [`Compression::name`] gives it.
+    pub const ALL: [Compression; 10] = [
+        Compression::None,
+        Compression::Rle,
+        Compression::Zips,
+        Compression::Zip,
+        Compression::Piz,
+        Compression::Pxr24,
+        Compression::B44,
+        Compression::B44a,
+        Compression::Dwaa,
+        Compression::Dwab,
+    ];
+
+    /// The name `--compression` takes (oiiotool's spelling, lower case).
+    pub fn name(self) -> &'static str {
+        match self {
+            Compression::None => "none",
+            Compression::Rle => "rle",
+            Compression::Zips => "zips",
+            Compression::Zip => "zip",
+            Compression::Piz => "piz",
+            Compression::Pxr24 => "pxr24",
+            Compression::B44 => "b44",
+            Compression::B44a => "b44a",
+            Compression::Dwaa => "dwaa",
+            Compression::Dwab => "dwab",
+        }
+    }
+
+    pub(crate) fn to_exr(self) -> x::Compression {
+        match self {
+            Compression::None => x::Compression::Uncompressed,
+            Compression::Rle => x::Compression::RLE,
+            Compression::Zips => x::Compression::ZIP1,
+            Compression::Zip => x::Compression::ZIP16,
+            Compression::Piz => x::Compression::PIZ,
+            Compression::Pxr24 => x::Compression::PXR24,
+            Compression::B44 => x::Compression::B44,
+            Compression::B44a => x::Compression::B44A,
+            Compression::Dwaa => x::Compression::DWAA(None),
+            Compression::Dwab => x::Compression::DWAB(None),
+        }
+    }
 }
 
-/// How to write a frame.
+impl std::str::FromStr for Compression {
+    type Err = IoError;
+
+    fn from_str(s: &str) -> Result<Self, IoError> {
+        let lower = s.to_ascii_lowercase();
+        Compression::ALL
+            .into_iter()
+            .find(|c| c.name() == lower)
+            .ok_or_else(|| {
+                let names: Vec<&str> = Compression::ALL.iter().map(|c| c.name()).collect();
+                IoError::Argument(format!("compression {s:?}: expected one of {}", names.join(", ")))
+            })
+    }
+}
+
+impl std::fmt::Display for Compression {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How [`write_exr`] writes a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct WriteOptions {
     /// Float precision.
     pub precision: Precision,
     /// Compression.
     pub compression: Compression,
-    /// Channel layout.
-    pub layout: ExrLayout,
 }
 
-fn exr_error(path: &Path, e: exr::error::Error) -> IoError {
+pub(crate) fn exr_error(path: &Path, e: exr::error::Error) -> IoError {
     match e {
         exr::error::Error::Io(source) if source.kind() != std::io::ErrorKind::UnexpectedEof => {
             IoError::os(path, source)
@@ -278,27 +353,90 @@ pub fn read_raw_exr_bytes_limited(
 
 type AnyImage = x::Image<x::Layers<x::AnyChannels<x::FlatSamples>>>;
 
+/// Everything in an EXR file but its samples: the shared header, and each part's attributes,
+/// windows, encoding and channel types. With the samples of a [`RawImage`] it rebuilds the
+/// file (see `io::output`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExrHeaders {
+    pub(crate) image: x::ImageAttributes,
+    pub(crate) parts: Vec<PartHeader>,
+}
+
+/// One part (layer) of an [`ExrHeaders`].
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct PartHeader {
+    pub(crate) attributes: x::LayerAttributes,
+    pub(crate) size: (usize, usize),
+    pub(crate) encoding: x::Encoding,
+    pub(crate) channels: Vec<ChannelHeader>,
+}
+
+/// One channel of a [`PartHeader`].
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct ChannelHeader {
+    /// The name inside its part.
+    pub(crate) name: Text,
+    /// The name in the [`RawImage`] (`part.channel` for named parts).
+    pub(crate) full_name: String,
+    pub(crate) sample_type: x::SampleType,
+    pub(crate) quantize_linearly: bool,
+}
+
+impl ExrHeaders {
+    /// The data window's origin (the same for every part).
+    pub fn data_origin(&self) -> (i64, i64) {
+        let p = self.parts[0].attributes.layer_position;
+        (p.0 as i64, p.1 as i64)
+    }
+
+    /// The frame index the file declares (`afterimage.index` in any part), if it does.
+    pub fn frame_index(&self) -> Option<u64> {
+        self.parts
+            .iter()
+            .find_map(|p| match p.attributes.other.get(&Text::from(attr::INDEX)) {
+                Some(AttributeValue::Text(t)) => t.to_string().parse().ok(),
+                _ => None,
+            })
+    }
+
+    /// The display window: origin and size.
+    pub fn display_window(&self) -> PixelWindow {
+        let d = self.image.display_window;
+        PixelWindow {
+            x: d.position.0 as i64,
+            y: d.position.1 as i64,
+            width: d.size.0 as u64,
+            height: d.size.1 as u64,
+        }
+    }
+}
+
 fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
-    let mut size = None;
+    let mut first: Option<(x::Vec2<usize>, x::Vec2<i32>, Option<String>)> = None;
     let mut channels = Vec::new();
+    let mut parts = Vec::new();
     let mut meta = FrameMeta::default();
     let mut shading = Sampling::FULL;
-    for layer in &image.layer_data {
+    for layer in image.layer_data {
         let lname = layer.attributes.layer_name.as_ref().map(|t| t.to_string());
-        let s = (layer.size.0, layer.size.1);
-        match size {
-            None => size = Some((s, lname.clone())),
-            Some((first, ref first_name)) if first != s => {
+        let position = layer.attributes.layer_position;
+        match &first {
+            None => first = Some((layer.size, position, lname.clone())),
+            Some((size, pos, first_name)) if *size != layer.size || *pos != position => {
                 return Err(IoError::Inconsistent {
                     path: path.to_path_buf(),
                     reason: format!(
-                        "layer {} is {}x{} but layer {} is {}x{}",
+                        "layer {} has data window {}x{} at ({}, {}) but layer {} has {}x{} at ({}, {})",
                         lname.as_deref().unwrap_or("(unnamed)"),
-                        s.0,
-                        s.1,
+                        layer.size.0,
+                        layer.size.1,
+                        position.0,
+                        position.1,
                         first_name.as_deref().unwrap_or("(unnamed)"),
-                        first.0,
-                        first.1
+                        size.0,
+                        size.1,
+                        pos.0,
+                        pos.1,
                     ),
                 })
             }
@@ -319,7 +457,8 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
                 reason: format!("attribute {}: {reason}", attr::SHADING),
             })?;
         }
-        for ch in &layer.channel_data.list {
+        let mut headers = Vec::new();
+        for ch in layer.channel_data.list {
             if ch.sampling != x::Vec2(1, 1) {
                 return Err(IoError::Format {
                     path: path.to_path_buf(),
@@ -331,31 +470,53 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
                 Some(l) if !l.is_empty() => format!("{l}.{}", ch.name),
                 _ => ch.name.to_string(),
             };
-            let (file_type, data) = match &ch.sample_data {
-                x::FlatSamples::F16(v) => ("f16", RawData::F32(v.iter().map(|h| h.to_f32()).collect())),
-                x::FlatSamples::F32(v) => ("f32", RawData::F32(v.clone())),
-                x::FlatSamples::U32(v) => ("u32", RawData::U32(v.clone())),
+            let (file_type, sample_type, data) = match ch.sample_data {
+                x::FlatSamples::F16(v) => (
+                    "f16",
+                    x::SampleType::F16,
+                    RawData::F32(v.iter().map(|h| h.to_f32()).collect()),
+                ),
+                x::FlatSamples::F32(v) => ("f32", x::SampleType::F32, RawData::F32(v)),
+                x::FlatSamples::U32(v) => ("u32", x::SampleType::U32, RawData::U32(v)),
             };
+            headers.push(ChannelHeader {
+                name: ch.name,
+                full_name: name.clone(),
+                sample_type,
+                quantize_linearly: ch.quantize_linearly,
+            });
             channels.push(RawChannel {
                 name,
                 file_type,
                 data,
             });
         }
+        parts.push(PartHeader {
+            attributes: layer.attributes,
+            size: (layer.size.0, layer.size.1),
+            encoding: layer.encoding,
+            channels: headers,
+        });
     }
-    let ((width, height), _) = size.ok_or_else(|| IoError::Format {
-        path: path.to_path_buf(),
-        format: "OpenEXR",
-        reason: "the file has no layers".into(),
-    })?;
+    let Some((size, _, _)) = first else {
+        return Err(IoError::Format {
+            path: path.to_path_buf(),
+            format: "OpenEXR",
+            reason: "the file has no layers".into(),
+        });
+    };
     channels.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(RawImage {
         path: path.to_path_buf(),
-        width,
-        height,
+        width: size.0,
+        height: size.1,
         channels,
         meta,
         shading,
+        exr: Some(ExrHeaders {
+            image: image.attributes,
+            parts,
+        }),
     })
 }
 
@@ -390,7 +551,7 @@ fn read_meta(a: &x::LayerAttributes, meta: &mut FrameMeta) {
     }
 }
 
-fn write_meta(meta: &FrameMeta, a: &mut x::LayerAttributes) {
+pub(crate) fn write_meta(meta: &FrameMeta, a: &mut x::LayerAttributes) {
     a.exposure = meta.exposure;
     if let Some([n, f]) = meta.near_far {
         a.near_clip_plane = Some(n);
@@ -419,10 +580,11 @@ fn write_meta(meta: &FrameMeta, a: &mut x::LayerAttributes) {
     );
 }
 
-fn float_samples(p: &Plane<f32>, precision: Precision) -> x::FlatSamples {
+/// Samples at `precision`: f16 rounds to nearest (values widened from f16 come back exactly).
+pub(crate) fn float_samples(v: &[f32], precision: Precision) -> x::FlatSamples {
     match precision {
-        Precision::F32 => x::FlatSamples::F32(p.data().to_vec()),
-        Precision::F16 => x::FlatSamples::F16(p.data().iter().map(|&v| half::f16::from_f32(v)).collect()),
+        Precision::F32 => x::FlatSamples::F32(v.to_vec()),
+        Precision::F16 => x::FlatSamples::F16(v.iter().map(|&v| half::f16::from_f32(v)).collect()),
     }
 }
 
@@ -438,57 +600,47 @@ pub fn write_exr(path: &Path, frame: &Frame, opts: &WriteOptions) -> Result<(), 
         .map_err(|e| exr_error(path, e))
 }
 
+/// The whole frame in the `afterimage` layout: every channel under the preset's names, and
+/// the frame values as attributes.
 fn exr_layer(frame: &Frame, opts: &WriteOptions) -> x::Layer<x::AnyChannels<x::FlatSamples>> {
     let mut list: Vec<x::AnyChannel<x::FlatSamples>> = Vec::new();
-    match opts.layout {
-        ExrLayout::Plain => {
-            for (p, n) in frame.color_scattered().iter().zip(["R", "G", "B"]) {
-                list.push(x::AnyChannel::new(n, float_samples(p, opts.precision)));
-            }
+    for kind in frame.channels().iter() {
+        let names = Preset::Afterimage
+            .names(kind)
+            .expect("afterimage names every channel");
+        if kind == ChannelKind::ObjectId {
+            let ids = frame.object_id().expect("listed channel exists");
+            list.push(x::AnyChannel::new(
+                names[0].as_str(),
+                x::FlatSamples::U32(ids.data().to_vec()),
+            ));
+            continue;
         }
-        ExrLayout::Afterimage => {
-            for kind in frame.channels().iter() {
-                let names = Preset::Afterimage
-                    .names(kind)
-                    .expect("afterimage names every channel");
-                if kind == ChannelKind::ObjectId {
-                    let ids = frame.object_id().expect("listed channel exists");
-                    list.push(x::AnyChannel::new(
-                        names[0].as_str(),
-                        x::FlatSamples::U32(ids.data().to_vec()),
-                    ));
-                    continue;
-                }
-                let scattered;
-                let planes = if kind == ChannelKind::Color {
-                    scattered = frame.color_scattered();
-                    &scattered[..]
-                } else {
-                    frame.planes(kind).expect("listed channel exists")
-                };
-                for (p, n) in planes.iter().zip(&names) {
-                    list.push(x::AnyChannel::new(n.as_str(), float_samples(p, opts.precision)));
-                }
-            }
+        let scattered;
+        let planes = if kind == ChannelKind::Color {
+            scattered = frame.color_scattered();
+            &scattered[..]
+        } else {
+            frame.planes(kind).expect("listed channel exists")
+        };
+        for (p, n) in planes.iter().zip(&names) {
+            list.push(x::AnyChannel::new(
+                n.as_str(),
+                float_samples(p.data(), opts.precision),
+            ));
         }
     }
     let mut attributes = x::LayerAttributes::default();
-    if opts.layout == ExrLayout::Afterimage {
-        write_meta(&frame.meta, &mut attributes);
-        let s = frame.sampling();
-        if !s.is_full() {
-            attributes.other.insert(
-                Text::from(attr::SHADING),
-                AttributeValue::IntVec3((s.factor as i32, s.phase[0] as i32, s.phase[1] as i32)),
-            );
-        }
+    write_meta(&frame.meta, &mut attributes);
+    let s = frame.sampling();
+    if !s.is_full() {
+        attributes.other.insert(
+            Text::from(attr::SHADING),
+            AttributeValue::IntVec3((s.factor as i32, s.phase[0] as i32, s.phase[1] as i32)),
+        );
     }
     let encoding = x::Encoding {
-        compression: match opts.compression {
-            Compression::None => x::Compression::Uncompressed,
-            Compression::Zip => x::Compression::ZIP16,
-            Compression::Piz => x::Compression::PIZ,
-        },
+        compression: opts.compression.to_exr(),
         blocks: x::Blocks::ScanLines,
         line_order: x::LineOrder::Increasing,
     };

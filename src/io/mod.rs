@@ -6,6 +6,8 @@
 mod colormap;
 mod exr_file;
 mod ldr;
+mod naming;
+mod output;
 mod preset;
 mod raw;
 mod sequence;
@@ -13,10 +15,14 @@ mod sequence;
 pub use colormap::inferno;
 pub use exr_file::{
     check_exr_header, read_exr_parts, read_raw_exr, read_raw_exr_bytes, read_raw_exr_bytes_limited,
-    write_exr, write_exr_bytes, Compression, ExrLayout, ExrLimits, ExrPart, ExrShape, PixelWindow, Precision,
-    WriteOptions,
+    write_exr, write_exr_bytes, Compression, ExrHeaders, ExrLimits, ExrPart, ExrShape, PixelWindow,
+    Precision, WriteOptions,
 };
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
+pub use naming::{refuse_overwrite, FramePattern, OutputNaming};
+pub use output::{
+    encode_filtered, write_filtered, FilteredFrame, InputImage, Keep, OutputOptions, RECORD_ATTRIBUTE,
+};
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
 pub use sequence::{Sequence, SequenceEntry};
@@ -155,6 +161,7 @@ pub fn read_raw(path: &Path) -> Result<RawImage, IoError> {
                 channels,
                 meta: frame.meta,
                 shading: crate::frame::Sampling::FULL,
+                exr: None,
             })
         }
         None => Err(IoError::UnsupportedType {
@@ -196,6 +203,17 @@ pub fn read_exr_frame_bytes_limited(
     limits: &ExrLimits,
 ) -> Result<Frame, IoError> {
     frame_of(&read_raw_exr_bytes_limited(bytes, label, limits)?, opts, None)
+}
+
+/// The frame in `raw` (motion converted as by [`read_frame_after`]) and `raw` itself, kept as
+/// the input a filtered result replaces (see [`write_filtered`]).
+pub fn frame_and_input(
+    raw: RawImage,
+    opts: &ReadOptions,
+    jitter_prev: Option<[f32; 2]>,
+) -> Result<(Frame, InputImage), IoError> {
+    let frame = frame_of(&raw, opts, jitter_prev)?;
+    Ok((frame, InputImage::new(raw, opts)?))
 }
 
 /// The frame in `raw`, with its motion converted from the file's convention to the

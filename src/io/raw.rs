@@ -1,5 +1,6 @@
 //! A decoded image as named channels, before any preset maps them onto a frame.
 
+use super::exr_file::ExrHeaders;
 use super::preset::{Preset, ReadOptions};
 use super::IoError;
 use crate::frame::{ChannelKind, Frame, FrameMeta, MotionConvention, Plane, SampleKind, Sampling};
@@ -87,6 +88,8 @@ pub struct RawImage {
     /// Sparse shading the file declares (`afterimage.shading`): its colour holds shaded
     /// samples at their pixels and is gathered into the frame's smaller colour planes.
     pub shading: Sampling,
+    /// The file's headers when it is an EXR: what a filtered result keeps of it.
+    pub exr: Option<ExrHeaders>,
 }
 
 impl RawImage {

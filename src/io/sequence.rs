@@ -1,7 +1,23 @@
-//! Frame sequences: a directory, a printf pattern (`frame_%04d.exr`) or a glob, sorted by
-//! frame number.
+//! Frame sequences: a directory, a frame-number pattern (`shot.####.exr`, `frame_%04d.exr`,
+//! `shot.@@@@.exr`, `shot.$F4.exr`: see [`FramePattern`]), a glob or a single file, sorted
+//! by frame number.
+//!
+//! A spec is read as the first of these that applies:
+//!
+//! 1. an existing directory: every `.exr` in it, or else every PNG/JPEG;
+//! 2. an existing file: that one frame (even when its name has `#`, `@`, `%d` or `[`);
+//! 3. a file name with a frame-number token: a pattern, its frames the files of its
+//!    directory whose names it matches (exactly as it would write them, see
+//!    [`FramePattern`]). So `#` is a frame token, never a glob character, and
+//!    `shot[v2].####.exr` is a pattern whose `[v2]` is text;
+//! 4. a spec with `*`, `?` or `[`: a glob, numbered by the last run of digits in each
+//!    file name;
+//! 5. anything else: "no such file".
+//!
+//! A spec with a bad token (two of them, one in a directory) is an error even when a
+//! glob could have read it.
 
-use super::{read_frame_after, FileType, IoError, ReadOptions};
+use super::{frame_and_input, read_raw, FileType, FramePattern, InputImage, IoError, ReadOptions};
 use crate::frame::Frame;
 use std::path::{Path, PathBuf};
 
@@ -34,50 +50,17 @@ fn frame_number(path: &Path) -> Option<u64> {
     stem[start..end].parse().ok()
 }
 
-/// A printf pattern split at its `%d` / `%0Nd`.
-struct Printf<'a> {
-    prefix: &'a str,
-    suffix: &'a str,
-    width: usize,
-}
-
-impl<'a> Printf<'a> {
-    fn parse(name: &'a str) -> Option<Printf<'a>> {
-        let pct = name.find('%')?;
-        let rest = &name[pct + 1..];
-        let d = rest.find('d')?;
-        let spec = &rest[..d];
-        if !spec.chars().all(|c| c.is_ascii_digit()) {
-            return None;
-        }
-        Some(Printf {
-            prefix: &name[..pct],
-            suffix: &rest[d + 1..],
-            width: spec.parse().unwrap_or(0),
-        })
-    }
-
-    fn matches(&self, file: &str) -> Option<u64> {
-        let mid = file.strip_prefix(self.prefix)?.strip_suffix(self.suffix)?;
-        if mid.is_empty() || !mid.chars().all(|c| c.is_ascii_digit()) || mid.len() < self.width {
-            return None;
-        }
-        mid.parse().ok()
-    }
-
-    fn format(&self, n: u64) -> String {
-        format!("{}{:0w$}{}", self.prefix, n, self.suffix, w = self.width)
-    }
-}
-
 impl Sequence {
     /// Opens a sequence from a directory (every `.exr`, or else every PNG/JPEG, in it), a
-    /// printf pattern, a glob (`*`, `?`, `[`), or a single file. Frames are sorted by
-    /// number; a number missing between the first and the last is an error that names it.
+    /// single file, a frame-number pattern (`shot.####.exr`, `frame_%04d.exr`,
+    /// `shot.@@@@.exr`, `shot.$F4.exr`) or a glob (`*`, `?`, `[`), in that order of
+    /// precedence (see the module). Frames are sorted by number; a number missing between
+    /// the first and the last is an error that names it (for a pattern, with the file
+    /// name it should have).
     pub fn open(spec: &str) -> Result<Sequence, IoError> {
         let path = Path::new(spec);
         let mut entries: Vec<SequenceEntry>;
-        let mut printf = None;
+        let mut pattern = None;
         if path.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
                 .map_err(|e| IoError::os(path, e))?
@@ -93,26 +76,14 @@ impl Sequence {
                 )));
             }
             entries = Self::number(spec, files)?;
-        } else if let Some(p) = path.file_name().and_then(|n| n.to_str()).and_then(Printf::parse) {
-            let dir = match path.parent() {
-                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-                _ => PathBuf::from("."),
-            };
-            entries = std::fs::read_dir(&dir)
-                .map_err(|e| IoError::os(&dir, e))?
-                .filter_map(|e| e.ok())
-                .filter_map(|e| {
-                    let name = e.file_name().to_str()?.to_string();
-                    p.matches(&name).map(|number| SequenceEntry {
-                        number,
-                        path: dir.join(&name),
-                    })
-                })
-                .collect();
-            if entries.is_empty() {
-                return Err(IoError::Sequence(format!("{spec}: no file matches the pattern")));
-            }
-            printf = Some((dir, p));
+        } else if path.is_file() {
+            entries = vec![SequenceEntry {
+                number: frame_number(path).unwrap_or(0),
+                path: path.to_path_buf(),
+            }];
+        } else if let Some(p) = FramePattern::parse(spec)? {
+            entries = Self::matching(spec, &p)?;
+            pattern = Some(p);
         } else if spec.contains(['*', '?', '[']) {
             let files: Vec<PathBuf> = glob::glob(spec)
                 .map_err(|e| IoError::Sequence(format!("{spec}: bad glob pattern: {e}")))?
@@ -123,11 +94,6 @@ impl Sequence {
                 return Err(IoError::Sequence(format!("{spec}: no file matches the glob")));
             }
             entries = Self::number(spec, files)?;
-        } else if path.is_file() {
-            entries = vec![SequenceEntry {
-                number: frame_number(path).unwrap_or(0),
-                path: path.to_path_buf(),
-            }];
         } else {
             return Err(IoError::os(
                 path,
@@ -147,8 +113,8 @@ impl Sequence {
             }
             if b.number != a.number + 1 {
                 let missing = a.number + 1;
-                let expected = match &printf {
-                    Some((dir, p)) => dir.join(p.format(missing)).display().to_string(),
+                let expected = match &pattern {
+                    Some(p) => p.format(missing).display().to_string(),
                     None => format!("a file numbered {missing}"),
                 };
                 return Err(IoError::Sequence(format!(
@@ -162,6 +128,45 @@ impl Sequence {
             spec: spec.to_string(),
             entries,
         })
+    }
+
+    /// The files of `pattern`'s directory that it matches; none is an error, with a hint
+    /// when files of the same name have another padding.
+    fn matching(spec: &str, pattern: &FramePattern) -> Result<Vec<SequenceEntry>, IoError> {
+        let dir = pattern.dir();
+        let mut entries = Vec::new();
+        let mut other_padding = None;
+        for entry in std::fs::read_dir(dir).map_err(|e| IoError::os(dir, e))? {
+            let Some(name) = entry.ok().and_then(|e| e.file_name().into_string().ok()) else {
+                continue;
+            };
+            match pattern.matches(&name) {
+                Some(number) => {
+                    let path = pattern.format(number);
+                    if path.is_file() {
+                        entries.push(SequenceEntry { number, path });
+                    }
+                }
+                None if other_padding.is_none() && pattern.matches_any_padding(&name) => {
+                    other_padding = Some(name);
+                }
+                None => {}
+            }
+        }
+        if entries.is_empty() {
+            let hint = match other_padding {
+                Some(name) => format!(
+                    " ({}, but {} has another padding: write the token for it)",
+                    pattern.padding_in_words(),
+                    dir.join(name).display()
+                ),
+                None => String::new(),
+            };
+            return Err(IoError::Sequence(format!(
+                "{spec}: no file matches the pattern{hint}"
+            )));
+        }
+        Ok(entries)
     }
 
     fn number(spec: &str, files: Vec<PathBuf>) -> Result<Vec<SequenceEntry>, IoError> {
@@ -197,12 +202,35 @@ impl Sequence {
     /// Reads the frames in order, each converted with its predecessor's jitter; in a
     /// sequence the frame index is the file's frame number.
     pub fn frames<'a>(&'a self, opts: &'a ReadOptions) -> impl Iterator<Item = Result<Frame, IoError>> + 'a {
+        self.inputs(opts).map(|r| r.map(|(f, _)| f))
+    }
+
+    /// [`Sequence::frames`], each with its file kept as the input a filtered result
+    /// replaces (see [`super::write_filtered`]).
+    pub fn inputs<'a>(
+        &'a self,
+        opts: &'a ReadOptions,
+    ) -> impl Iterator<Item = Result<(Frame, InputImage), IoError>> + 'a {
+        self.inputs_jittered(opts, |_| None)
+    }
+
+    /// [`Sequence::inputs`] with each frame's jitter from `jitter` (by frame number) where
+    /// it gives one, over what the file says; motion is converted with it.
+    pub fn inputs_jittered<'a>(
+        &'a self,
+        opts: &'a ReadOptions,
+        jitter: impl Fn(u64) -> Option<[f32; 2]> + 'a,
+    ) -> impl Iterator<Item = Result<(Frame, InputImage), IoError>> + 'a {
         let mut jitter_prev = None;
         self.entries.iter().map(move |e| {
-            let mut f = read_frame_after(&e.path, opts, jitter_prev)?;
+            let mut raw = read_raw(&e.path)?;
+            if let Some(j) = jitter(e.number) {
+                raw.meta.jitter = j;
+            }
+            let (mut f, input) = frame_and_input(raw, opts, jitter_prev)?;
             jitter_prev = Some(f.meta.jitter);
             f.meta.index = e.number;
-            Ok(f)
+            Ok((f, input))
         })
     }
 }
@@ -218,15 +246,93 @@ mod tests {
         assert_eq!(frame_number(Path::new("beauty.exr")), None);
     }
 
+    /// Empty files named `names` in a new temporary directory.
+    fn files(names: &[&str]) -> tempfile::TempDir {
+        let dir = tempfile::tempdir().unwrap();
+        for name in names {
+            std::fs::write(dir.path().join(name), "").unwrap();
+        }
+        dir
+    }
+
+    fn numbers(seq: &Sequence) -> Vec<u64> {
+        seq.entries.iter().map(|e| e.number).collect()
+    }
+
     #[test]
-    fn printf_patterns() {
-        let p = Printf::parse("frame_%04d.exr").unwrap();
-        assert_eq!(p.matches("frame_0012.exr"), Some(12));
-        assert_eq!(p.matches("frame_12.exr"), None);
-        assert_eq!(p.matches("frame_0012.png"), None);
-        assert_eq!(p.format(3), "frame_0003.exr");
-        let p = Printf::parse("f%d.png").unwrap();
-        assert_eq!(p.matches("f123.png"), Some(123));
-        assert!(Printf::parse("frame_%s.exr").is_none());
+    fn every_token_form_opens_a_sequence() {
+        let dir = files(&[
+            "shot.1002.exr",
+            "shot.1001.exr",
+            "shot.1003.exr",
+            "shot.1001.png",
+            "other.1001.exr",
+        ]);
+        let d = dir.path().display();
+        for token in ["####", "%04d", "%d", "@@@@", "$F4", "$F", "#"] {
+            let spec = format!("{d}/shot.{token}.exr");
+            let seq = Sequence::open(&spec).unwrap_or_else(|e| panic!("{spec}: {e}"));
+            assert_eq!(numbers(&seq), [1001, 1002, 1003], "{spec}");
+            assert_eq!(seq.entries[0].path, dir.path().join("shot.1001.exr"), "{spec}");
+        }
+        // Sequence::open only lists names: these empty files are never read.
+        assert_eq!(Sequence::open(&format!("{d}/shot.##.exr")).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn a_pattern_names_the_missing_frame_file() {
+        let dir = files(&["shot.0009.exr", "shot.0010.exr", "shot.0012.exr"]);
+        let spec = format!("{}/shot.####.exr", dir.path().display());
+        let err = Sequence::open(&spec).unwrap_err().to_string();
+        assert!(err.contains("frame 11 is missing"), "{err}");
+        assert!(err.contains("shot.0011.exr"), "{err}");
+    }
+
+    #[test]
+    fn a_pattern_with_the_wrong_padding_says_so() {
+        let dir = files(&["shot.1.exr", "shot.2.exr"]);
+        let spec = format!("{}/shot.####.exr", dir.path().display());
+        let err = Sequence::open(&spec).unwrap_err().to_string();
+        assert!(err.contains("no file matches the pattern"), "{err}");
+        assert!(
+            err.contains("zero-padded to 4 digits") && err.contains("shot.0001.exr"),
+            "{err}"
+        );
+        assert!(err.contains("another padding"), "{err}");
+        let spec = format!("{}/shot.#.exr", dir.path().display());
+        assert_eq!(numbers(&Sequence::open(&spec).unwrap()), [1, 2]);
+    }
+
+    #[test]
+    fn numbers_past_the_padding_continue_the_sequence() {
+        let dir = files(&["f.9998.exr", "f.9999.exr", "f.10000.exr", "f.010000.exr"]);
+        let seq = Sequence::open(&format!("{}/f.####.exr", dir.path().display())).unwrap();
+        assert_eq!(numbers(&seq), [9998, 9999, 10000]);
+    }
+
+    #[test]
+    fn precedence_of_files_patterns_and_globs() {
+        // An existing file is itself, whatever characters its name has.
+        let dir = files(&[
+            "render@2x.png",
+            "shot[v2].0001.exr",
+            "shot[v2].0002.exr",
+            "a1.exr",
+            "a2.exr",
+        ]);
+        let d = dir.path().display();
+        let seq = Sequence::open(&format!("{d}/render@2x.png")).unwrap();
+        assert_eq!(seq.entries[0].path, dir.path().join("render@2x.png"));
+        // A token makes a pattern, its `[v2]` text rather than a glob class.
+        let seq = Sequence::open(&format!("{d}/shot[v2].####.exr")).unwrap();
+        assert_eq!(numbers(&seq), [1, 2]);
+        // Without a token, `[` is a glob.
+        let seq = Sequence::open(&format!("{d}/a[12].exr")).unwrap();
+        assert_eq!(numbers(&seq), [1, 2]);
+        // A bad token is an error, not a glob.
+        let err = Sequence::open(&format!("{d}/a%d_#*.exr"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("two frame-number tokens"), "{err}");
     }
 }

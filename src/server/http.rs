@@ -9,16 +9,17 @@
 
 use super::service::Service;
 use crate::filters;
-use crate::frame::Frame;
 use crate::io::{
-    check_exr_header, read_exr_frame_bytes_limited, write_exr_bytes, Compression, ExrLayout, Precision,
-    ReadOptions, WriteOptions,
+    check_exr_header, encode_filtered, frame_and_input, read_raw_exr_bytes_limited, Compression,
+    FilteredFrame, Keep, OutputOptions, Precision, ReadOptions,
 };
 use crate::session::{
-    params_from_json, Caller, Checkout, ErrorKind, Filtered, MotionInput, SessionError, SessionRequest,
+    params_from_json, Caller, Checkout, ErrorKind, Filtered, KeptInput, MotionInput, SessionError,
+    SessionRequest,
 };
 use axum::body::{Body, Bytes};
-use axum::extract::{DefaultBodyLimit, FromRequestParts, Path, State};
+use axum::extract::rejection::QueryRejection;
+use axum::extract::{DefaultBodyLimit, FromRequestParts, Path, Query, State};
 use axum::http::request::Parts;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -34,6 +35,15 @@ pub const RECORD_HEADER: &str = "x-afterimage-record";
 /// Response header: outputs still queued for later requests (a windowed filter gives a
 /// whole shot at once at a cut, or at a flush).
 pub const READY_HEADER: &str = "x-afterimage-ready";
+/// Request header: the frame's index (a whole number), over the file's `afterimage.index`.
+/// Without either, the session numbers frames in the order it receives them.
+pub const INDEX_HEADER: &str = "x-afterimage-index";
+/// Request header: `1`/`true` when a new shot starts at this frame (the filter drops its
+/// history), `0`/`false` when not; over the file's `afterimage.reset`.
+pub const RESET_HEADER: &str = "x-afterimage-reset";
+/// Request header: the frame's sub-pixel jitter `x,y` in pixels (each in -1..=1), over the
+/// file's `afterimage.jitter`.
+pub const JITTER_HEADER: &str = "x-afterimage-jitter";
 /// Largest JSON body (session creation).
 pub const MAX_JSON_BYTES: usize = 64 << 10;
 
@@ -245,30 +255,137 @@ fn hand_over(
     co: &mut Checkout,
     outs: Vec<Filtered>,
     none: Reply,
+    output: &OutputOptions,
 ) -> Result<Reply, SessionError> {
     let (f, left) = co.queue_and_take(outs)?;
     let Some(f) = f else { return Ok(none) };
-    let out = Frame::new(f.color).map_err(|e| SessionError::Internal(e.to_string()))?;
-    let opts = WriteOptions {
-        precision: Precision::F32,
-        compression: Compression::None,
-        layout: ExrLayout::Plain,
-    };
-    let exr = write_exr_bytes(&out, &opts).map_err(|e| SessionError::Internal(e.to_string()))?;
     let record = json!({"index": f.index, "psnr": f.psnr, "ssim": f.ssim, "record": f.record}).to_string();
+    let frame_record = serde_json::to_string(&f.record).map_err(|e| SessionError::Internal(e.to_string()))?;
+    let frame = FilteredFrame {
+        color: &f.color,
+        meta: &f.meta,
+        record: Some(&frame_record),
+        input: f.input.as_ref().map(|k| &k.image),
+    };
+    let exr = encode_filtered(&frame, output).map_err(|e| SessionError::Internal(e.to_string()))?;
     svc.metrics.frame(&f.record);
-    co.recycle(out.into_color());
+    co.recycle(f.color);
     Ok(Reply::Exr { exr, record, left })
+}
+
+/// How a frame's reply is written: query parameters `keep` (all, filtered, none),
+/// `compression` (none, zip, piz, ...) and `precision` (half, float); by default the input
+/// file with its colour replaced, as `afterimage filter` writes it.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OutputQuery {
+    keep: Option<String>,
+    compression: Option<String>,
+    precision: Option<String>,
+}
+
+impl OutputQuery {
+    fn options(&self) -> Result<OutputOptions, SessionError> {
+        let invalid = |field: &str, e: crate::io::IoError| SessionError::invalid(field, e.to_string());
+        Ok(OutputOptions {
+            keep: match &self.keep {
+                Some(k) => k.parse::<Keep>().map_err(|e| invalid("keep", e))?,
+                None => Keep::All,
+            },
+            compression: match &self.compression {
+                Some(c) => Some(c.parse::<Compression>().map_err(|e| invalid("compression", e))?),
+                None => None,
+            },
+            precision: match self.precision.as_deref() {
+                None => None,
+                Some("half") => Some(Precision::F16),
+                Some("float") => Some(Precision::F32),
+                Some(other) => {
+                    return Err(SessionError::invalid(
+                        "precision",
+                        format!("{:?}: expected half or float", crate::session::clip(other)),
+                    ))
+                }
+            },
+        })
+    }
+}
+
+/// Frame values a request's headers give (see [`INDEX_HEADER`], [`RESET_HEADER`],
+/// [`JITTER_HEADER`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct FrameHeaders {
+    index: Option<u64>,
+    reset: Option<bool>,
+    jitter: Option<[f32; 2]>,
+}
+
+impl FrameHeaders {
+    fn parse(headers: &HeaderMap) -> Result<FrameHeaders, SessionError> {
+        let text = |name: &'static str| -> Result<Option<&str>, SessionError> {
+            headers
+                .get(name)
+                .map(|v| {
+                    v.to_str()
+                        .map_err(|_| SessionError::invalid(name, "not ASCII text"))
+                })
+                .transpose()
+        };
+        let index = text(INDEX_HEADER)?
+            .map(|v| {
+                v.trim().parse::<u64>().map_err(|_| {
+                    SessionError::invalid(
+                        INDEX_HEADER,
+                        format!(
+                            "{:?}: expected a whole number 0..={}",
+                            crate::session::clip(v),
+                            u64::MAX
+                        ),
+                    )
+                })
+            })
+            .transpose()?;
+        let reset = text(RESET_HEADER)?
+            .map(|v| match v.trim() {
+                "1" | "true" => Ok(true),
+                "0" | "false" => Ok(false),
+                other => Err(SessionError::invalid(
+                    RESET_HEADER,
+                    format!("{:?}: expected 1, 0, true or false", crate::session::clip(other)),
+                )),
+            })
+            .transpose()?;
+        let jitter = text(JITTER_HEADER)?
+            .map(|v| {
+                let bad = || {
+                    SessionError::invalid(
+                        JITTER_HEADER,
+                        format!(
+                            "{:?}: expected two numbers x,y in pixels, each in -1..=1",
+                            crate::session::clip(v)
+                        ),
+                    )
+                };
+                let (x, y) = v.split_once(',').ok_or_else(bad)?;
+                let parse = |t: &str| t.trim().parse::<f32>().ok().filter(|j| j.abs() <= 1.0);
+                Ok::<_, SessionError>([parse(x).ok_or_else(bad)?, parse(y).ok_or_else(bad)?])
+            })
+            .transpose()?;
+        Ok(FrameHeaders { index, reset, jitter })
+    }
 }
 
 async fn post_frame(
     State(svc): State<Service>,
     Auth(caller): Auth,
     Path(id): Path<String>,
+    query: Result<Query<OutputQuery>, QueryRejection>,
     headers: HeaderMap,
     body: Body,
 ) -> HttpResult<Response> {
     let _in_flight = svc.begin();
+    let output = counted(&svc, output_options(query))?;
+    let given = counted(&svc, FrameHeaders::parse(&headers))?;
     // The session first: unknown, busy or failed sessions are answered before the body.
     let co = counted(&svc, svc.sessions.checkout(&caller, &id))?;
     let shape = co.shape();
@@ -307,13 +424,25 @@ async fn post_frame(
             // each), then the output and the encoded reply.
             let decode = 3 * shape.pixels() * file.channels as u64 * 4 + 2 * shape.output_bytes();
             let _decode_hold = sessions.reserve(&caller, decode, "decoding a frame")?;
-            let frame = read_exr_frame_bytes_limited(&bytes, label, &ReadOptions::default(), &limits)
-                .map_err(body_err)?;
+            let mut raw = read_raw_exr_bytes_limited(&bytes, label, &limits).map_err(body_err)?;
             drop(bytes);
+            let declared = raw.exr.as_ref().and_then(|h| h.frame_index());
+            raw.meta.index = match given.index.or(declared) {
+                Some(i) => i,
+                None => co.next_index()?,
+            };
+            if let Some(r) = given.reset {
+                raw.meta.reset = r;
+            }
+            if let Some(j) = given.jitter {
+                raw.meta.jitter = j;
+            }
+            let (frame, input) = frame_and_input(raw, &ReadOptions::default(), None).map_err(body_err)?;
+            let input = KeptInput::new(sessions, &caller, input)?;
             let index = frame.meta.index;
-            let outs = co.process(frame, MotionInput::Internal)?;
+            let outs = co.process_kept(frame, MotionInput::Internal, Some(input))?;
             let lookahead = co.lookahead();
-            hand_over(&job, &mut co, outs, Reply::Accepted { index, lookahead })
+            hand_over(&job, &mut co, outs, Reply::Accepted { index, lookahead }, &output)
         })
         .await?;
     drop(body_hold);
@@ -327,7 +456,9 @@ async fn post_flush(
     State(svc): State<Service>,
     Auth(caller): Auth,
     Path(id): Path<String>,
+    query: Result<Query<OutputQuery>, QueryRejection>,
 ) -> HttpResult<Response> {
+    let output = counted(&svc, output_options(query))?;
     let co = counted(&svc, svc.sessions.checkout(&caller, &id))?;
     let shape = co.shape();
     let held = shape.output_bytes() * (2 * co.lookahead() as u64 + 2);
@@ -337,11 +468,19 @@ async fn post_flush(
         .on_pool(move |_| {
             let mut co = co;
             let outs = co.flush()?;
-            hand_over(&job, &mut co, outs, Reply::Empty)
+            hand_over(&job, &mut co, outs, Reply::Empty, &output)
         })
         .await?;
     drop(hold);
     Ok(reply.into_response())
+}
+
+/// The output options of a frame or flush request's query string.
+fn output_options(query: Result<Query<OutputQuery>, QueryRejection>) -> Result<OutputOptions, SessionError> {
+    match query {
+        Ok(Query(q)) => q.options(),
+        Err(e) => Err(SessionError::invalid("query", e.body_text())),
+    }
 }
 
 async fn filters(Auth(_): Auth) -> Response {

@@ -22,7 +22,8 @@ pub use budget::{Budget, Reservation};
 pub use error::{cap_message, clip, ErrorKind, SessionError, ECHO_CHARS, MAX_MESSAGE_BYTES};
 
 use crate::filters;
-use crate::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, Rgb};
+use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, MotionConvention, Rgb};
+use crate::io::InputImage;
 use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
 use crate::pipeline::exec::panic_text;
 use crate::pipeline::{self, Filter, FilterError, FrameRecord};
@@ -169,7 +170,7 @@ impl FrameShape {
 }
 
 /// A filtered frame and its figures.
-#[derive(Clone, Debug)]
+#[derive(Debug)]
 pub struct Filtered {
     /// The frame's index.
     pub index: u64,
@@ -181,6 +182,39 @@ pub struct Filtered {
     pub psnr: Option<f64>,
     /// SSIM against the reference, when it had one.
     pub ssim: Option<f64>,
+    /// The frame's values as they were filtered (index, jitter, reset).
+    pub meta: FrameMeta,
+    /// The input file it replaces, when the transport kept it (HTTP).
+    pub input: Option<KeptInput>,
+}
+
+/// A frame's decoded input file, kept until its output is written (windowed filters keep
+/// `lookahead` of them), with its share of the memory budget.
+#[derive(Debug)]
+pub struct KeptInput {
+    /// The input.
+    pub image: InputImage,
+    _hold: Reservation,
+}
+
+impl KeptInput {
+    /// Keeps `image`, its bytes reserved in `caller`'s budgets.
+    pub fn new(sessions: &Sessions, caller: &Caller, image: InputImage) -> Result<KeptInput, SessionError> {
+        let hold = sessions.reserve(
+            caller,
+            image.bytes(),
+            "an input kept for its output's pass-through",
+        )?;
+        Ok(KeptInput { image, _hold: hold })
+    }
+}
+
+/// What a frame in a filter's window waits with: its reference, values and input.
+#[derive(Debug)]
+struct Pending {
+    reference: Option<Rgb>,
+    meta: FrameMeta,
+    input: Option<KeptInput>,
 }
 
 /// A session's filter and everything that changes frame by frame: owned by whoever has the
@@ -191,9 +225,11 @@ struct Inner {
     jitter_prev: Option<[f32; 2]>,
     /// Metric space fixed by the first reference seen.
     space: Option<MetricSpace>,
-    /// References of the frames filtered whose output has not come out yet (windowed
+    /// What the frames filtered whose output has not come out yet wait with (windowed
     /// filters hold `lookahead` of them), oldest first.
-    pending: VecDeque<Option<Rgb>>,
+    pending: VecDeque<Pending>,
+    /// The index given to the next frame that comes without one.
+    next_index: u64,
     /// Outputs that came out but were not handed over yet (the HTTP API returns one per
     /// request), oldest first.
     ready: VecDeque<Filtered>,
@@ -476,6 +512,7 @@ impl Sessions {
                 jitter_prev: None,
                 space: None,
                 pending: VecDeque::new(),
+                next_index: 0,
                 ready: VecDeque::new(),
             }))),
             streamed: AtomicBool::new(false),
@@ -704,7 +741,24 @@ impl Checkout {
     /// and the channels the filter needs; its motion is in the session's convention (or
     /// already internal with [`MotionInput::Internal`]). On any error but a filter panic
     /// the session's state is as it was; after a panic the session is failed.
-    pub fn process(&mut self, mut frame: Frame, motion: MotionInput) -> Result<Vec<Filtered>, SessionError> {
+    pub fn process(&mut self, frame: Frame, motion: MotionInput) -> Result<Vec<Filtered>, SessionError> {
+        self.process_kept(frame, motion, None)
+    }
+
+    /// The index the session gives its next frame when the frame has none: one past the
+    /// last frame's (0 first).
+    pub fn next_index(&mut self) -> Result<u64, SessionError> {
+        Ok(self.inner()?.next_index)
+    }
+
+    /// [`Checkout::process`], keeping the frame's input file until its output comes out
+    /// (it is in that output's [`Filtered::input`]).
+    pub fn process_kept(
+        &mut self,
+        mut frame: Frame,
+        motion: MotionInput,
+        input: Option<KeptInput>,
+    ) -> Result<Vec<Filtered>, SessionError> {
         let s = self.session.clone();
         *lock(&s.slot) = Slot::Busy(Some(frame.meta.index));
         let (w, h) = (s.info.width as usize, s.info.height as usize);
@@ -751,7 +805,11 @@ impl Checkout {
         }
         let jitter = frame.meta.jitter;
         let index = frame.meta.index;
-        inner.pending.push_back(frame.reference().cloned());
+        inner.pending.push_back(Pending {
+            reference: frame.reference().cloned(),
+            meta: frame.meta.clone(),
+            input,
+        });
         let outs = self.guarded(&format!("frame {index}"), |f| f.push(&frame));
         let Some(inner) = self.inner.as_mut() else {
             return outs.map(|_| Vec::new()); // the filter panicked: `outs` is the error
@@ -761,6 +819,7 @@ impl Checkout {
         }
         let outs = outs?;
         inner.jitter_prev = Some(jitter);
+        inner.next_index = index.saturating_add(1);
         s.frames.fetch_add(1, Ordering::SeqCst);
         let outs = outs.into_iter().map(|o| measured(inner, o)).collect();
         self.account_state();
@@ -857,7 +916,16 @@ impl Drop for Checkout {
 
 /// An output with its figures against the reference its frame came with.
 fn measured(inner: &mut Inner, out: pipeline::Output) -> Result<Filtered, SessionError> {
-    let reference = inner.pending.pop_front().flatten();
+    let Pending {
+        reference,
+        meta,
+        input,
+    } = inner.pending.pop_front().ok_or_else(|| {
+        SessionError::Internal(format!(
+            "output {} came out of no pending frame",
+            out.record.index
+        ))
+    })?;
     let (psnr, ssim_v) = match reference {
         Some(r) => {
             let space = *inner.space.get_or_insert_with(|| SpaceChoice::Auto.resolve(&r));
@@ -875,6 +943,8 @@ fn measured(inner: &mut Inner, out: pipeline::Output) -> Result<Filtered, Sessio
         record: out.record,
         psnr,
         ssim: ssim_v,
+        meta,
+        input,
     })
 }
 

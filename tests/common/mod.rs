@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use afterimage::frame::{Plane, Rgb};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// `tests/fixtures/<rel>`.
 pub fn fixture(rel: &str) -> PathBuf {
@@ -20,4 +20,188 @@ pub fn random_rgb(w: usize, h: usize, seed: u64, lo: f64, hi: f64) -> Rgb {
 /// The `afterimage` binary built for this test run.
 pub fn bin() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
+}
+
+/// EXR images as the `exr` crate reads them: every part, channel and attribute.
+pub type ExrImage =
+    exr::prelude::Image<exr::prelude::Layers<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>;
+
+/// Reads every part of an EXR file with the `exr` crate directly (not through our reader).
+pub fn read_exr_all(path: &Path) -> ExrImage {
+    use exr::prelude::*;
+    read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .all_layers()
+        .all_attributes()
+        .from_file(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The pass-through inputs: the three-frame Blender render `blender-motion` as rendered,
+/// cropped (data window 320x180 at (10, 5) inside a 350x200 display), in overscan (data at
+/// (-16, -8) around a 288x164 display), and Nuke-style multi-part (one part per Blender
+/// pass, named `ViewLayer.Combined` and so on, colour in half floats with PIZ). Written
+/// under `root/<name>/frame_000N.exr`; returns (name, directory).
+pub fn passthrough_inputs(root: &Path) -> Vec<(&'static str, PathBuf)> {
+    use exr::prelude::*;
+    let mut out = Vec::new();
+    for name in ["blender", "cropped", "overscan", "multipart"] {
+        let dir = root.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        for n in 1..=3 {
+            let src = fixture(&format!("blender-motion/frame_{n:04}.exr"));
+            let mut image = read_exr_all(&src);
+            match name {
+                "cropped" => {
+                    image.layer_data[0].attributes.layer_position = Vec2(10, 5);
+                    image.attributes.display_window = IntegerBounds::new((0, 0), (350, 200));
+                }
+                "overscan" => {
+                    image.layer_data[0].attributes.layer_position = Vec2(-16, -8);
+                    image.attributes.display_window = IntegerBounds::new((0, 0), (288, 164));
+                }
+                "multipart" => image = split_into_parts(image),
+                _ => {}
+            }
+            image
+                .write()
+                .to_file(dir.join(format!("frame_{n:04}.exr")))
+                .unwrap();
+        }
+        out.push((name, dir));
+    }
+    out
+}
+
+/// One part per channel prefix (`ViewLayer.Combined.R` goes to part `ViewLayer.Combined`
+/// as `R`); the colour part in f16 with PIZ.
+fn split_into_parts(image: ExrImage) -> ExrImage {
+    use exr::prelude::*;
+    let layer = &image.layer_data[0];
+    let mut groups: Vec<(String, Vec<AnyChannel<FlatSamples>>)> = Vec::new();
+    for ch in &layer.channel_data.list {
+        let full = ch.name.to_string();
+        let (prefix, last) = full.rsplit_once('.').unwrap();
+        let color = prefix.ends_with("Combined");
+        let samples = match (&ch.sample_data, color) {
+            (FlatSamples::F32(v), true) => FlatSamples::F16(v.iter().map(|&x| f16::from_f32(x)).collect()),
+            (s, _) => s.clone(),
+        };
+        let c = AnyChannel::new(last, samples);
+        match groups.iter_mut().find(|(p, _)| p == prefix) {
+            Some((_, list)) => list.push(c),
+            None => groups.push((prefix.to_string(), vec![c])),
+        }
+    }
+    let layers: Vec<_> = groups
+        .into_iter()
+        .map(|(prefix, list)| {
+            let mut attributes = layer.attributes.clone();
+            attributes.layer_name = Some(Text::from(prefix.as_str()));
+            let mut encoding = layer.encoding;
+            if prefix.ends_with("Combined") {
+                encoding.compression = Compression::PIZ;
+            }
+            Layer::new(layer.size, attributes, encoding, AnyChannels::sort(list.into()))
+        })
+        .collect();
+    Image::from_layers(image.attributes.clone(), layers)
+}
+
+/// What an output may differ in from its input besides the colour samples.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Expect {
+    /// Compression of every part (None: each input part's own).
+    pub compression: Option<exr::compression::Compression>,
+}
+
+/// The one pass-through check for every path (CLI, HTTP, gRPC): `output` replaces `input`.
+/// Same display window, parts (names, data windows, compression), channels (names, sample
+/// types); every channel but the colour's (`*.R`, `*.G`, `*.B` of the part holding
+/// `Combined`, or plain `R,G,B`) bit-identical, alpha included; every header attribute
+/// kept except `afterimage.*`; the colour finite; the frame's record in
+/// `afterimage.record`.
+pub fn assert_replaces(input: &Path, output: &Path, expect: Expect) {
+    use exr::prelude::*;
+    let (a, b) = (read_exr_all(input), read_exr_all(output));
+    let what = format!("{} -> {}", input.display(), output.display());
+    assert_eq!(
+        a.attributes.display_window, b.attributes.display_window,
+        "display window: {what}"
+    );
+    assert_eq!(a.attributes.pixel_aspect, b.attributes.pixel_aspect, "{what}");
+    assert_eq!(a.layer_data.len(), b.layer_data.len(), "parts: {what}");
+    let strip = |attrs: &LayerAttributes| {
+        let mut attrs = attrs.clone();
+        attrs
+            .other
+            .retain(|k, _| !k.to_string().starts_with("afterimage."));
+        attrs
+    };
+    let mut records = 0;
+    for (la, lb) in a.layer_data.iter().zip(&b.layer_data) {
+        let part = la
+            .attributes
+            .layer_name
+            .as_ref()
+            .map(|t| t.to_string())
+            .unwrap_or_default();
+        assert_eq!(la.attributes.layer_name, lb.attributes.layer_name, "{what}");
+        assert_eq!(
+            (la.attributes.layer_position, la.size),
+            (lb.attributes.layer_position, lb.size),
+            "data window of part {part:?}: {what}"
+        );
+        let compression = expect.compression.unwrap_or(la.encoding.compression);
+        assert_eq!(
+            lb.encoding.compression, compression,
+            "compression of part {part:?}: {what}"
+        );
+        assert_eq!(
+            strip(&la.attributes),
+            strip(&lb.attributes),
+            "attributes of part {part:?}: {what}"
+        );
+        if let Some(AttributeValue::Text(t)) = lb.attributes.other.get(&Text::from("afterimage.record")) {
+            let v: serde_json::Value = serde_json::from_str(&t.to_string()).expect("record is JSON");
+            assert!(v.is_object(), "{v}");
+            records += 1;
+        }
+        let names = |l: &Layer<AnyChannels<FlatSamples>>| -> Vec<String> {
+            l.channel_data.list.iter().map(|c| c.name.to_string()).collect()
+        };
+        assert_eq!(names(la), names(lb), "channels of part {part:?}: {what}");
+        for (ca, cb) in la.channel_data.list.iter().zip(&lb.channel_data.list) {
+            let full = if part.is_empty() {
+                ca.name.to_string()
+            } else {
+                format!("{part}.{}", ca.name)
+            };
+            let is_color = ["R", "G", "B"]
+                .iter()
+                .any(|c| full == *c || (full.contains("Combined") && full.ends_with(&format!(".{c}"))));
+            let bits = |s: &FlatSamples| -> (&'static str, Vec<u32>) {
+                match s {
+                    FlatSamples::F16(v) => ("f16", v.iter().map(|x| x.to_bits() as u32).collect()),
+                    FlatSamples::F32(v) => ("f32", v.iter().map(|x| x.to_bits()).collect()),
+                    FlatSamples::U32(v) => ("u32", v.clone()),
+                }
+            };
+            let ((ta, va), (tb, vb)) = (bits(&ca.sample_data), bits(&cb.sample_data));
+            assert_eq!(ta, tb, "sample type of {full}: {what}");
+            if is_color {
+                let finite = match &cb.sample_data {
+                    FlatSamples::F16(v) => v.iter().all(|x| x.is_finite()),
+                    FlatSamples::F32(v) => v.iter().all(|x| x.is_finite()),
+                    FlatSamples::U32(_) => true,
+                };
+                assert!(finite, "{full} has non-finite samples: {what}");
+            } else {
+                assert!(va == vb, "{full} is not bit-identical: {what}");
+            }
+        }
+    }
+    assert_eq!(records, 1, "one part carries afterimage.record: {what}");
 }
