@@ -211,7 +211,8 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let given = |n: u64| jitter.as_ref().and_then(|t| t.get(&n).copied());
     for (i, read) in input.inputs_jittered(&in_opts, given).enumerate() {
         let entry = &input.entries[i];
-        let (mut frame, kept) = read?;
+        let (mut frame, mut kept) = read?;
+        kept.trim_to(write.keep);
         if args.cuts.contains(&entry.number) {
             frame.meta.reset = true;
         }

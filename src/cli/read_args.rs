@@ -52,7 +52,9 @@ pub struct WriteArgs {
     #[arg(long, default_value = "all", value_name = "WHAT")]
     pub keep: String,
     /// EXR compression of the outputs (default: each input part's own; zip without an EXR
-    /// input): none, rle, zips, zip, piz, pxr24, b44, b44a, dwaa, dwab.
+    /// input): none, rle, zips, zip, piz (lossless); pxr24 (rounds every f32 channel to 24
+    /// bits, passed-through depth and motion included), b44, b44a (f16 channels), dwaa,
+    /// dwab (colour-named channels) are lossy.
     #[arg(long, value_name = "METHOD")]
     pub compression: Option<String>,
     /// Write the filtered colour as half floats (default: the input colour's type).

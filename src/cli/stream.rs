@@ -6,7 +6,7 @@ use super::outln;
 use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters::create;
 use afterimage::frame::Frame;
-use afterimage::io::{write_filtered, FilteredFrame, InputImage, OutputNaming, Sequence};
+use afterimage::io::{write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, Sequence};
 use afterimage::metrics::Timing;
 use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
@@ -91,7 +91,7 @@ struct Source {
     input: Option<InputImage>,
 }
 
-fn load(args: &StreamArgs) -> anyhow::Result<Vec<(Frame, Source)>> {
+fn load(args: &StreamArgs, keep: Keep) -> anyhow::Result<Vec<(Frame, Source)>> {
     if let Some(name) = &args.scene {
         let s = Settings {
             width: args.size.0,
@@ -119,7 +119,8 @@ fn load(args: &StreamArgs) -> anyhow::Result<Vec<(Frame, Source)>> {
     seq.inputs(&opts)
         .zip(&seq.entries)
         .map(|(r, e)| {
-            let (frame, input) = r?;
+            let (frame, mut input) = r?;
+            input.trim_to(keep);
             let source = Source {
                 path: e.path.clone(),
                 input: Some(input),
@@ -132,7 +133,7 @@ fn load(args: &StreamArgs) -> anyhow::Result<Vec<(Frame, Source)>> {
 pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let naming = args.output.as_deref().map(OutputNaming::parse).transpose()?;
     let write = args.write.options()?;
-    let (frames, sources): (Vec<Frame>, Vec<Source>) = load(&args)?.into_iter().unzip();
+    let (frames, sources): (Vec<Frame>, Vec<Source>) = load(&args, write.keep)?.into_iter().unzip();
     let first = frames.first().context("no frames to send")?;
     let (w, h) = (first.width() as u32, first.height() as u32);
     let values = parse_assignments(&args.set)?;

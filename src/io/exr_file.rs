@@ -32,8 +32,9 @@ pub enum Precision {
 }
 
 /// Compression of written files: the methods OpenEXR defines that the `exr` crate writes.
-/// `Pxr24` (f32 rounded to 24 bits), `B44`/`B44a` (f16 in 4x4 blocks) and `Dwaa`/`Dwab` (DCT)
-/// lose precision; the others are lossless.
+/// `Pxr24` (every f32 channel rounded to 24 bits), `B44`/`B44a` (f16 channels in 4x4
+/// blocks) and `Dwaa`/`Dwab` (DCT of the channels named as colour: `R`, `G`, `B`, `Y`, ...;
+/// the others lossless) lose precision; the others are lossless.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Compression {
     /// None: largest, fastest.

@@ -100,6 +100,23 @@ impl InputImage {
         Ok(InputImage { raw, color })
     }
 
+    /// Drops the samples an output written with `keep` will not use (a windowed filter
+    /// holds its inputs for `lookahead` frames): all but the alpha for
+    /// [`Keep::Filtered`], all for [`Keep::None`].
+    pub fn trim_to(&mut self, keep: Keep) {
+        let alpha = self.alpha_name().map(str::to_string);
+        for ch in &mut self.raw.channels {
+            let used = match keep {
+                Keep::All => true,
+                Keep::Filtered => Some(&ch.name) == alpha.as_ref(),
+                Keep::None => false,
+            };
+            if !used {
+                ch.data = RawData::F32(Vec::new());
+            }
+        }
+    }
+
     /// The input's colour channel names.
     pub fn color_names(&self) -> &[String; 3] {
         &self.color
@@ -319,4 +336,44 @@ fn passed_through(
         (RawData::F32(v), _) => x::FlatSamples::F32(v.clone()),
         (RawData::U32(v), _) => x::FlatSamples::U32(v.clone()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn blender_input() -> InputImage {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/blender-motion/frame_0001.exr");
+        let raw = super::super::read_raw_exr(&path).unwrap();
+        InputImage::new(raw, &ReadOptions::default()).unwrap()
+    }
+
+    #[test]
+    fn an_input_holds_only_what_its_output_keeps() {
+        let px = 320 * 180 * 4;
+        let mut input = blender_input();
+        assert_eq!(input.color_names()[0], "ViewLayer.Combined.R");
+        assert_eq!(input.alpha_name(), Some("ViewLayer.Combined.A"));
+        // 16 channels, the 3 colour ones dropped at once: they are replaced.
+        assert_eq!(input.bytes(), 13 * px);
+        input.trim_to(Keep::All);
+        assert_eq!(input.bytes(), 13 * px);
+        input.trim_to(Keep::Filtered);
+        assert_eq!(input.bytes(), px, "alpha alone");
+        input.trim_to(Keep::None);
+        assert_eq!(input.bytes(), 0);
+    }
+
+    #[test]
+    fn options_parse_by_name_and_refuse_others_naming_the_choices() {
+        assert_eq!("filtered".parse::<Keep>().unwrap(), Keep::Filtered);
+        for c in Compression::ALL {
+            assert_eq!(c.name().parse::<Compression>().unwrap(), c);
+        }
+        assert_eq!("PIZ".parse::<Compression>().unwrap(), Compression::Piz);
+        let e = "lzw".parse::<Compression>().unwrap_err().to_string();
+        assert!(e.contains("lzw") && e.contains("dwab"), "{e}");
+        let e = "most".parse::<Keep>().unwrap_err().to_string();
+        assert!(e.contains("filtered"), "{e}");
+    }
 }

@@ -437,7 +437,8 @@ async fn post_frame(
             if let Some(j) = given.jitter {
                 raw.meta.jitter = j;
             }
-            let (frame, input) = frame_and_input(raw, &ReadOptions::default(), None).map_err(body_err)?;
+            let (frame, mut input) = frame_and_input(raw, &ReadOptions::default(), None).map_err(body_err)?;
+            input.trim_to(output.keep);
             let input = KeptInput::new(sessions, &caller, input)?;
             let index = frame.meta.index;
             let outs = co.process_kept(frame, MotionInput::Internal, Some(input))?;
