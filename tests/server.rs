@@ -1704,6 +1704,7 @@ async fn tls_end_to_end_over_grpc_and_http() {
         api_key: Some(KEY_B.into()),
         tls_ca: Some(ck.cert.pem().into_bytes()),
         tls_domain: Some("localhost".into()),
+        route: None,
     };
     let mut c = Client::connect_with(format!("https://localhost:{}", r.grpc_addr.port()), &opts)
         .await
@@ -1977,4 +1978,350 @@ async fn soak_eight_clients_and_one_misbehaving() {
     );
     let _ = child.kill();
     let _ = child.wait();
+}
+
+// ---------------------------------------------------------------------------------------
+// Several replicas behind one address: nginx hashing on x-afterimage-route.
+
+/// A replica: an `afterimage serve` process on its own ports.
+struct Replica {
+    name: String,
+    child: std::process::Child,
+    alive: bool,
+    grpc: u16,
+    http: u16,
+}
+
+impl Replica {
+    fn kill(&mut self) {
+        self.child.kill().unwrap();
+        self.child.wait().unwrap();
+        self.alive = false;
+    }
+
+    fn start(name: &str) -> Replica {
+        let (grpc, http) = (free_port(), free_port());
+        let child = common::bin()
+            .arg("serve")
+            .env("AFTERIMAGE_GRPC_ADDR", format!("127.0.0.1:{grpc}"))
+            .env("AFTERIMAGE_HTTP_ADDR", format!("127.0.0.1:{http}"))
+            .env("AFTERIMAGE_REPLICA", name)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        Replica {
+            name: name.into(),
+            child,
+            alive: true,
+            grpc,
+            http,
+        }
+    }
+
+    fn http_addr(&self) -> std::net::SocketAddr {
+        std::net::SocketAddr::from(([127, 0, 0, 1], self.http))
+    }
+}
+
+impl Drop for Replica {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Waits until `GET path` on `addr` answers 200.
+async fn until_ready(addr: std::net::SocketAddr, path: &str) {
+    for _ in 0..200 {
+        if tokio::net::TcpStream::connect(addr).await.is_ok()
+            && http(addr, "GET", path, b"", "text/plain").await.0 == 200
+        {
+            return;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    panic!("{addr}{path} never answered 200");
+}
+
+/// nginx in front of `replicas`: one gRPC (h2c) and one HTTP port, each upstream chosen by
+/// `hash $http_x_afterimage_route consistent` as deploy/README.md says. None (with the
+/// reason printed) when nginx is not installed, unless AFTERIMAGE_REQUIRE_NGINX is set.
+fn start_nginx(dir: &std::path::Path, replicas: &[Replica]) -> Option<(std::process::Child, u16, u16)> {
+    let nginx = ["nginx", "/usr/sbin/nginx"]
+        .into_iter()
+        .find(|n| std::process::Command::new(n).arg("-v").output().is_ok());
+    let Some(nginx) = nginx else {
+        assert!(
+            std::env::var_os("AFTERIMAGE_REQUIRE_NGINX").is_none(),
+            "AFTERIMAGE_REQUIRE_NGINX is set but nginx is not installed"
+        );
+        eprintln!("SKIPPED: nginx is not installed (Debian: nginx-light); the replica test did not run");
+        return None;
+    };
+    let (pg, ph) = (free_port(), free_port());
+    let servers = |port: fn(&Replica) -> u16| -> String {
+        replicas
+            .iter()
+            .map(|r| format!("    server 127.0.0.1:{};\n", port(r)))
+            .collect()
+    };
+    let d = dir.display();
+    let conf = format!(
+        "worker_processes 1;\ndaemon off;\npid {d}/nginx.pid;\nerror_log {d}/error.log;\n\
+         events {{ worker_connections 512; }}\n\
+         http {{\n  access_log off;\n  client_body_temp_path {d}/body;\n  proxy_temp_path {d}/proxy;\n\
+         fastcgi_temp_path {d}/fastcgi;\n  uwsgi_temp_path {d}/uwsgi;\n  scgi_temp_path {d}/scgi;\n\
+         upstream grpc_replicas {{\n    hash $http_x_afterimage_route consistent;\n{}  }}\n\
+         upstream http_replicas {{\n    hash $http_x_afterimage_route consistent;\n{}  }}\n\
+         server {{ listen 127.0.0.1:{pg} http2; client_max_body_size 0;\n\
+           location / {{ grpc_pass grpc://grpc_replicas; grpc_read_timeout 60s; grpc_send_timeout 60s; }} }}\n\
+         server {{ listen 127.0.0.1:{ph}; client_max_body_size 64m;\n\
+           location / {{ proxy_pass http://http_replicas; proxy_http_version 1.1; }} }}\n}}\n",
+        servers(|r| r.grpc),
+        servers(|r| r.http),
+    );
+    let path = dir.join("nginx.conf");
+    std::fs::write(&path, conf).unwrap();
+    let child = std::process::Command::new(nginx)
+        .arg("-c")
+        .arg(&path)
+        .arg("-e")
+        .arg(dir.join("error.log"))
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    Some((child, pg, ph))
+}
+
+/// Which replica holds session `id` (asked directly, not through the proxy).
+async fn holder(replicas: &[Replica], id: &str) -> Option<usize> {
+    for (k, r) in replicas.iter().enumerate() {
+        if r.alive
+            && http(
+                r.http_addr(),
+                "GET",
+                &format!("/v1/sessions/{id}"),
+                b"",
+                "text/plain",
+            )
+            .await
+            .0 == 200
+        {
+            return Some(k);
+        }
+    }
+    None
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn replicas_behind_a_consistent_hash_proxy_keep_sessions_apart() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut replicas: Vec<Replica> = (0..3).map(|k| Replica::start(&format!("replica-{k}"))).collect();
+    for r in &replicas {
+        until_ready(r.http_addr(), "/readyz").await;
+    }
+    let Some((nginx, pg, ph)) = start_nginx(dir.path(), &replicas) else {
+        return;
+    };
+    let _nginx = KillOnDrop(nginx);
+    let proxy_http = std::net::SocketAddr::from(([127, 0, 0, 1], ph));
+    until_ready(proxy_http, "/healthz").await;
+    let fr = frames("fence", 4, 1);
+    let want = in_process("taa", &fr);
+    let exrs: Vec<Vec<u8>> = fr
+        .iter()
+        .map(|f| {
+            write_exr_bytes(
+                f,
+                &WriteOptions {
+                    precision: Precision::F32,
+                    compression: Compression::Zip,
+                },
+            )
+            .unwrap()
+        })
+        .collect();
+    // 12 gRPC and 12 HTTP sessions, each with its own routing key.
+    let mut grpc = Vec::new();
+    for k in 0..12 {
+        let opts = afterimage::server::client::ConnectOptions {
+            route: Some(format!("grpc-{k}")),
+            ..Default::default()
+        };
+        let mut c = Client::connect_with(format!("http://127.0.0.1:{pg}"), &opts)
+            .await
+            .unwrap();
+        let s = open(&mut c, "taa").await;
+        grpc.push((c, s, Vec::<Rgb>::new()));
+    }
+    let mut web = Vec::new();
+    for k in 0..12 {
+        let route = format!("x-afterimage-route: http-{k}\r\n");
+        let (st, _, body) = http_with(
+            proxy_http,
+            "POST",
+            "/v1/sessions",
+            &format!("{route}Content-Type: application/json\r\n"),
+            br#"{"filter":"taa","width":64,"height":36}"#,
+        )
+        .await;
+        assert_eq!(st, 201, "{}", String::from_utf8_lossy(&body));
+        let id = serde_json::from_slice::<Value>(&body).unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        web.push((route, id, Vec::<Rgb>::new()));
+    }
+    // The keys spread the sessions over the replicas.
+    let mut on = [0usize; 3];
+    let mut grpc_on = Vec::new();
+    for (_, s, _) in &grpc {
+        let k = holder(&replicas, &s.id).await.expect("a replica holds it");
+        on[k] += 1;
+        grpc_on.push(k);
+    }
+    let mut web_on = Vec::new();
+    for (_, id, _) in &web {
+        let k = holder(&replicas, id).await.expect("a replica holds it");
+        on[k] += 1;
+        web_on.push(k);
+    }
+    assert!(
+        on.iter().filter(|&&n| n > 0).count() >= 2,
+        "sessions per replica {on:?}"
+    );
+    // Two frames each, then the busiest replica is killed.
+    let send_http = |route: String, id: String, exr: Vec<u8>| async move {
+        http_with(
+            proxy_http,
+            "POST",
+            &format!("/v1/sessions/{id}/frames"),
+            &format!("{route}Content-Type: image/x-exr\r\n"),
+            &exr,
+        )
+        .await
+    };
+    for (c, s, got) in grpc.iter_mut() {
+        got.extend(stream_all(c, s, &fr[..2], F32).await.unwrap());
+    }
+    for (route, id, got) in web.iter_mut() {
+        for exr in &exrs[..2] {
+            let (st, _, body) = send_http(route.clone(), id.clone(), exr.clone()).await;
+            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+            got.push(exr_color(&body));
+        }
+    }
+    let dead = (0..3).max_by_key(|&k| on[k]).unwrap();
+    replicas[dead].kill();
+    let dead_name = replicas[dead].name.clone();
+    // Sessions on the other replicas carry on, bit for bit; the dead replica's clients get
+    // "no session ... on replica X" from the replica the proxy now picks (or UNAVAILABLE).
+    let mut lost = 0;
+    for ((c, s, got), &k) in grpc.iter_mut().zip(&grpc_on) {
+        let r = stream_all(c, s, &fr[2..], F32).await;
+        if k == dead {
+            let e = r.unwrap_err();
+            assert!(
+                (e.code() == Code::NotFound
+                    && e.message().contains("x-afterimage-route")
+                    && !e.message().contains(&dead_name))
+                    || e.code() == Code::Unavailable,
+                "{e:?}"
+            );
+            lost += 1;
+        } else {
+            got.extend(r.unwrap());
+            same(got, &want, &format!("grpc session {}", s.id));
+        }
+    }
+    for ((route, id, got), &k) in web.iter_mut().zip(&web_on) {
+        for exr in &exrs[2..] {
+            let (st, _, body) = send_http(route.clone(), id.clone(), exr.clone()).await;
+            if k == dead {
+                let text = String::from_utf8_lossy(&body).to_string();
+                let log = std::fs::read_to_string(dir.path().join("error.log")).unwrap_or_default();
+                assert!(
+                    st == 404 && text.contains("on replica replica-") && !text.contains(&dead_name),
+                    "{st} {text}\nnginx: {log}"
+                );
+            } else {
+                assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+                got.push(exr_color(&body));
+            }
+        }
+        if k == dead {
+            lost += 1;
+        } else {
+            same(got, &want, &format!("http session {id}"));
+        }
+    }
+    assert_eq!(lost, on[dead]);
+    // `afterimage stream` through the proxy: its replica is killed mid-run; it creates its
+    // session again on another and answers every frame.
+    let url = format!("http://127.0.0.1:{pg}");
+    let route = "stream-run";
+    let (st, _, body) = http_with(
+        proxy_http,
+        "POST",
+        "/v1/sessions",
+        &format!("x-afterimage-route: {route}\r\nContent-Type: application/json\r\n"),
+        br#"{"filter":"taa","width":64,"height":36}"#,
+    )
+    .await;
+    assert_eq!(st, 201);
+    let probe = serde_json::from_slice::<Value>(&body).unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let target = holder(&replicas, &probe).await.unwrap();
+    let metrics = replicas[target].http_addr();
+    let taa_frames = || async move {
+        let (_, _, m) = http(metrics, "GET", "/metrics", b"", "text/plain").await;
+        String::from_utf8_lossy(&m)
+            .lines()
+            .filter(|l| l.starts_with("afterimage_frames_total{filter=\"taa\"}"))
+            .filter_map(|l| l.split_whitespace().last()?.parse::<u64>().ok())
+            .sum::<u64>()
+    };
+    let before = taa_frames().await;
+    let run = tokio::task::spawn_blocking(move || {
+        common::bin()
+            .args([
+                "stream", "--server", &url, "--route", route, "--filter", "taa", "--scene", "fence",
+            ])
+            .args(["--size", "320x180", "--frames", "80", "--spp", "1"])
+            .output()
+            .unwrap()
+    });
+    // Kill the stream's replica once it has filtered some of the stream's frames.
+    for _ in 0..2000 {
+        if taa_frames().await >= before + 10 {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+    }
+    replicas[target].kill();
+    let out = run.await.unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        stdout.contains("80 frames of 320x180")
+            && stdout.contains("was lost before frame")
+            && stdout.contains("recreated"),
+        "{stdout}"
+    );
+}
+
+/// A child process killed when the test ends, passing or not.
+struct KillOnDrop(std::process::Child);
+
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        // SIGTERM: nginx's master stops its workers too (SIGKILL would orphan them).
+        let _ = std::process::Command::new("kill")
+            .arg(self.0.id().to_string())
+            .status();
+        let _ = self.0.wait();
+    }
 }

@@ -19,8 +19,9 @@ With --check it also verifies the contract end to end and exits non-zero on any 
   - a closed session is NOT_FOUND;
   - with --api-key, a call without the key is UNAUTHENTICATED.
 
-A server with API keys takes `--api-key KEY` (or AFTERIMAGE_API_KEY), sent as
-`authorization: Bearer KEY` metadata on every call; a server with TLS takes
+Every call carries the routing key `x-afterimage-route` (`--route`, default random), which
+a proxy in front of several replicas hashes on. A server with API keys takes `--api-key
+KEY` (or AFTERIMAGE_API_KEY), sent as `authorization: Bearer KEY` metadata on every call; a server with TLS takes
 `--tls-ca cert.pem` (the CA, or the self-signed certificate, to trust) and, when the
 certificate's name is not the address's host, `--tls-domain NAME`.
 
@@ -144,11 +145,15 @@ def run_session(stub, args, filter_name, params, frames, send):
     return session, out, wall
 
 
-class BearerKey(grpc.UnaryUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
-    """Adds `authorization: Bearer KEY` to every call."""
+class CallMetadata(grpc.UnaryUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
+    """Adds `authorization: Bearer KEY` (with a key) and the routing key
+    `x-afterimage-route` to every call: a proxy in front of several replicas hashes on
+    the routing key, so all of this client's calls reach the replica holding its sessions."""
 
-    def __init__(self, key):
-        self.metadata = [("authorization", f"Bearer {key}")]
+    def __init__(self, key, route):
+        self.metadata = [("x-afterimage-route", route)]
+        if key:
+            self.metadata.append(("authorization", f"Bearer {key}"))
 
     def _details(self, d):
         return d._replace(metadata=list(d.metadata or []) + self.metadata)
@@ -190,6 +195,8 @@ def main():
                     help="API key of a server that has keys (default: $AFTERIMAGE_API_KEY)")
     ap.add_argument("--tls-ca", help="PEM file of the CA that signed the server's TLS certificate")
     ap.add_argument("--tls-domain", help="the name in the server's certificate, when not the host")
+    ap.add_argument("--route", default=os.urandom(8).hex(),
+                    help="routing key sent as x-afterimage-route on every call (default: random)")
     args = ap.parse_args()
     args.width, args.height = (int(x) for x in args.size.lower().split("x"))
     params = dict(kv.split("=", 1) for kv in args.set)
@@ -200,7 +207,7 @@ def main():
     except grpc.FutureTimeoutError:
         print(f"no afterimage server at {args.server} after {args.wait:.0f} s", file=sys.stderr)
         return 2
-    channel = grpc.intercept_channel(bare, BearerKey(args.api_key)) if args.api_key else bare
+    channel = grpc.intercept_channel(bare, CallMetadata(args.api_key, args.route))
     stub = pb_grpc.AfterimageStub(channel)
 
     filters = {f.name: f for f in stub.ListFilters(pb.ListFiltersRequest()).filters}

@@ -73,6 +73,14 @@ pub struct StreamArgs {
     /// Also run the filter in this process on the same frames and compare the times.
     #[arg(long)]
     compare: bool,
+    /// The routing key sent with every call (`x-afterimage-route`), so that a proxy in
+    /// front of several replicas sends all of this run's calls to one (default: random).
+    #[arg(long, value_name = "KEY")]
+    route: Option<String>,
+    /// Times a lost session (its replica drained or killed: NOT_FOUND, UNAVAILABLE) is
+    /// created again, going on from the first frame without a reply.
+    #[arg(long, default_value_t = 3)]
+    retries: usize,
     /// Where to write the filtered frames, as `filter -o` does: a directory (each output
     /// keeps its input's file name; frame_NNNN.exr for a scene) or a pattern with `####`;
     /// none: not written.
@@ -82,6 +90,40 @@ pub struct StreamArgs {
     read: ReadArgs,
     #[command(flatten)]
     write: WriteArgs,
+}
+
+/// A session that was lost mid-stream and created again.
+struct Recreated {
+    session: String,
+    /// Frames it had filtered: the history the new session starts without.
+    history: u64,
+    /// The first frame the new session gets.
+    next: u64,
+    why: String,
+}
+
+/// Whether a stream's error `s` means its session is gone (the replica holding it was
+/// drained or killed, or a proxy now routes elsewhere), so a new session can take over:
+/// NOT_FOUND says so; after any other error the session is looked up, and is gone when
+/// that finds none or no server answers. A session that still exists (failed, say) is not
+/// replaced.
+async fn session_lost(client: &mut Client, id: &str, s: &tonic::Status) -> bool {
+    use tonic::Code;
+    if s.code() == Code::NotFound {
+        return true;
+    }
+    let probe = client
+        .inner
+        .get_session(pb::GetSessionRequest { id: id.to_string() })
+        .await;
+    matches!(probe, Err(e) if matches!(e.code(), Code::NotFound | Code::Unavailable))
+}
+
+/// A routing key of 16 random hex digits.
+fn random_route() -> anyhow::Result<String> {
+    let mut b = [0u8; 8];
+    getrandom::fill(&mut b).map_err(|e| anyhow::anyhow!("no randomness for a routing key: {e}"))?;
+    Ok(b.iter().map(|x| format!("{x:02x}")).collect())
 }
 
 /// Where a frame that was sent came from: its file, and the decoded input its output
@@ -159,6 +201,11 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     bar.set_message(args.filter.clone());
     let mut replies = Vec::new();
     let wall = Instant::now();
+    let route = match &args.route {
+        Some(r) => r.clone(),
+        None => random_route()?,
+    };
+    let mut recreated: Vec<Recreated> = Vec::new();
     rt.block_on(async {
         let connect = ConnectOptions {
             api_key: args.api_key.clone(),
@@ -168,35 +215,62 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
                 .map(|p| std::fs::read(p).with_context(|| format!("--tls-ca {}", p.display())))
                 .transpose()?,
             tls_domain: args.tls_domain.clone(),
+            route: Some(route.clone()),
         };
         let mut client = Client::connect_with(args.server.clone(), &connect)
             .await
             .with_context(|| format!("connecting to {}", args.server))?;
-        let session = client
-            .inner
-            .create_session(pb::CreateSessionRequest {
-                filter: args.filter.clone(),
-                params: params.into_iter().collect(),
-                width: w,
-                height: h,
-                motion: "internal".into(),
-                channels: vec![],
-            })
-            .await
-            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?
-            .into_inner();
-        client
-            .stream(&session, frames.clone(), opts, |r| {
-                bar.inc(1);
-                replies.push(r);
-            })
-            .await
-            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?;
-        client
-            .inner
-            .close_session(pb::CloseSessionRequest { id: session.id })
-            .await
-            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))?;
+        let status = |s: tonic::Status| anyhow::anyhow!("{:?}: {}", s.code(), s.message());
+        loop {
+            let session = client
+                .inner
+                .create_session(pb::CreateSessionRequest {
+                    filter: args.filter.clone(),
+                    params: params.clone().into_iter().collect(),
+                    width: w,
+                    height: h,
+                    motion: "internal".into(),
+                    channels: vec![],
+                })
+                .await
+                .map_err(status)?
+                .into_inner();
+            // Frames are answered in order: the first without a reply is where this
+            // session starts.
+            let start = replies.len();
+            let sent = client
+                .stream(&session, frames[start..].iter().cloned(), opts, |r| {
+                    bar.inc(1);
+                    replies.push(r);
+                })
+                .await;
+            match sent {
+                Ok(()) => {
+                    client
+                        .inner
+                        .close_session(pb::CloseSessionRequest { id: session.id })
+                        .await
+                        .map_err(status)?;
+                    break;
+                }
+                Err(s) if recreated.len() < args.retries && session_lost(&mut client, &session.id, &s).await => {
+                    let r = Recreated {
+                        session: session.id,
+                        history: (replies.len() - start) as u64,
+                        next: frames[replies.len()].meta.index,
+                        why: format!("{:?}: {}", s.code(), s.message()),
+                    };
+                    bar.suspend(|| {
+                        tracing::warn!(
+                            "session {} lost ({}); a new session goes on from frame {}: the filter's history of {} frames is lost",
+                            r.session, r.why, r.next, r.history
+                        )
+                    });
+                    recreated.push(r);
+                }
+                Err(s) => return Err(status(s)),
+            }
+        }
         anyhow::Ok(())
     })?;
     let wall_s = wall.elapsed().as_secs_f64();
@@ -216,6 +290,15 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
             };
             write_filtered(&path, &frame, &write).with_context(|| format!("writing {}", path.display()))?;
         }
+    }
+    for r in &recreated {
+        outln!(
+            "session {} was lost before frame {} ({}): recreated, {} frames of filter history lost",
+            r.session,
+            r.next,
+            r.why,
+            r.history
+        );
     }
     let rtt: Vec<f64> = replies.iter().map(|r| r.round_trip_ms).collect();
     let server: Vec<f64> = replies.iter().map(|r| r.report.server_ms).collect();

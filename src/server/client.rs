@@ -25,6 +25,9 @@ pub struct ConnectOptions {
     pub tls_ca: Option<Vec<u8>>,
     /// The name the certificate is for, when it is not the address's host.
     pub tls_domain: Option<String>,
+    /// Sent as [`super::ROUTE_HEADER`] on every call: the key a proxy in front of several
+    /// replicas routes the client's session by (printable ASCII).
+    pub route: Option<String>,
 }
 
 /// Why a client could not connect.
@@ -38,14 +41,20 @@ pub enum ConnectError {
     Options(String),
 }
 
-/// Adds the API key to every call.
+/// Adds the API key and the routing key to every call.
 #[derive(Clone, Debug, Default)]
-pub struct Auth(Option<MetadataValue<Ascii>>);
+pub struct Auth {
+    key: Option<MetadataValue<Ascii>>,
+    route: Option<MetadataValue<Ascii>>,
+}
 
 impl Interceptor for Auth {
     fn call(&mut self, mut req: tonic::Request<()>) -> Result<tonic::Request<()>, Status> {
-        if let Some(v) = &self.0 {
+        if let Some(v) = &self.key {
             req.metadata_mut().insert("authorization", v.clone());
+        }
+        if let Some(v) = &self.route {
+            req.metadata_mut().insert(super::ROUTE_HEADER, v.clone());
         }
         Ok(req)
     }
@@ -130,8 +139,16 @@ impl Client {
                     .map_err(|_| ConnectError::Options("the API key is not printable ASCII".into()))
             })
             .transpose()?;
+        let route = opts
+            .route
+            .as_ref()
+            .map(|r| {
+                MetadataValue::try_from(r.as_str())
+                    .map_err(|_| ConnectError::Options("the routing key is not printable ASCII".into()))
+            })
+            .transpose()?;
         let channel = endpoint.connect().await?;
-        let inner = AfterimageClient::with_interceptor(channel, Auth(key))
+        let inner = AfterimageClient::with_interceptor(channel, Auth { key, route })
             .max_decoding_message_size(64 << 20)
             .max_encoding_message_size(64 << 20);
         Ok(Client { inner })

@@ -74,6 +74,9 @@ pub struct Config {
     pub max_exr_channels: usize,
     /// Parts an EXR frame may have.
     pub max_exr_parts: usize,
+    /// This replica's name, said in "no such session" answers (empty: the `HOSTNAME`
+    /// variable, which Kubernetes sets to the pod's name, else `local`).
+    pub replica: String,
     /// Plain API keys from the environment (`AFTERIMAGE_API_KEYS`); never printed.
     #[serde(skip)]
     pub api_keys_plain: Option<String>,
@@ -108,6 +111,7 @@ impl Default for Config {
             max_concurrent_streams: 16,
             max_exr_channels: 64,
             max_exr_parts: 16,
+            replica: String::new(),
             api_keys_plain: None,
         }
     }
@@ -335,6 +339,17 @@ impl Config {
             max_height: self.max_height,
             max_frame_bytes: self.max_frame_mib << 20,
             max_non_finite_fraction: self.max_non_finite_fraction,
+            replica: self.replica_name(),
+        }
+    }
+
+    /// This replica's name: `replica`, else `HOSTNAME`, else `local`.
+    pub fn replica_name(&self) -> String {
+        let host = std::env::var("HOSTNAME").ok().filter(|h| !h.trim().is_empty());
+        match (self.replica.trim(), host) {
+            ("", Some(h)) => crate::session::clip(h.trim()).into_owned(),
+            ("", None) => "local".into(),
+            (r, _) => crate::session::clip(r).into_owned(),
         }
     }
 }

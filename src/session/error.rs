@@ -43,12 +43,16 @@ pub enum SessionError {
     },
     /// No session of that id for this caller (never existed, closed, evicted after being
     /// idle, or created with another API key: the reply is the same, so ids do not leak).
-    #[error("no session {id:?} (closed, evicted after {idle_s} s idle, or never created)")]
+    #[error(
+        "no session {id:?} on replica {replica} (closed, evicted after {idle_s} s idle, never created, or held by another replica: send every request of a session with the same x-afterimage-route, or create it again)"
+    )]
     NotFound {
         /// The id asked for (clipped).
         id: String,
         /// The idle timeout.
         idle_s: u64,
+        /// The replica that answered ([`super::Limits::replica`]).
+        replica: String,
     },
     /// A limit would be exceeded: sessions, the memory budget, a key's quota.
     #[error("{0}")]

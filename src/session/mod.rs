@@ -56,6 +56,9 @@ pub struct Limits {
     /// Largest share of non-finite colour samples a frame may have; a frame above it is
     /// refused (a NaN flood is a renderer bug, not something to filter).
     pub max_non_finite_fraction: f64,
+    /// This server's name among replicas behind one address, said in "no such session"
+    /// answers so a client can tell a lost session from a wrong id.
+    pub replica: String,
 }
 
 impl Default for Limits {
@@ -68,6 +71,7 @@ impl Default for Limits {
             max_height: 8192,
             max_frame_bytes: 1 << 30,
             max_non_finite_fraction: 0.5,
+            replica: "local".into(),
         }
     }
 }
@@ -538,6 +542,7 @@ impl Sessions {
         SessionError::NotFound {
             id: clip(id).into_owned(),
             idle_s: self.limits.idle_timeout.as_secs(),
+            replica: self.limits.replica.clone(),
         }
     }
 
