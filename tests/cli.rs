@@ -737,6 +737,27 @@ fn filter_output_replaces_its_input_in_every_layout() {
         );
         eprintln!("SKIPPED: oiiotool is not installed (Debian: openimageio-tools); the outputs were not cross-checked with it");
     }
+    // Every output token form numbers the files the same way.
+    let input = dir.path().join("in/blender");
+    for (pattern, first) in [
+        ("h.$F4.exr", "h.0001.exr"),
+        ("o.@@@@.exr", "o.0001.exr"),
+        ("p.%03d.exr", "p.001.exr"),
+        ("n.#.exr", "n.1.exr"),
+    ] {
+        let out = dir.path().join("forms");
+        let (ok, _, err) = run(&[
+            "filter",
+            "--filter",
+            "passthrough",
+            "-i",
+            input.to_str().unwrap(),
+            "-o",
+            out.join(pattern).to_str().unwrap(),
+        ]);
+        assert!(ok, "{pattern}: {err}");
+        assert!(out.join(first).exists(), "{pattern}: no {first}");
+    }
     // Options: the colour part alone, recompressed, colour in half floats.
     let input = dir.path().join("in/multipart");
     let out = dir.path().join("options");
