@@ -92,6 +92,30 @@ step "5. validate.mjs"
 node deploy/check/validate.mjs "${overlays[@]/#/$out/}"
 passed=$((passed + 1))
 
+step "5b. the batch Indexed Job (deploy/k8s/batch): rendered, Kubernetes schemas (strict), shard count = completions"
+$tools/venv/bin/kubectl kustomize deploy/k8s/batch >$out/batch.yaml
+for v in ${K8S_VERSIONS:-1.30.0 1.37.0}; do
+  $tools/venv/bin/kubernetes-validate --quiet --strict -k "$v" $out/batch.yaml
+done
+$py - $out/batch.yaml <<'PY'
+import sys, tomllib, yaml
+docs = [d for d in yaml.safe_load_all(open(sys.argv[1])) if d]
+job = next(d for d in docs if d['kind'] == 'Job')
+spec = job['spec']
+c = spec['template']['spec']['containers'][0]
+env = {e['name']: e.get('value') for e in c['env']}
+assert spec['completionMode'] == 'Indexed', 'the Job must be Indexed (JOB_COMPLETION_INDEX)'
+assert int(env['AFTERIMAGE_SHARD_COUNT']) == spec['completions'] == spec['parallelism'], \
+    f"AFTERIMAGE_SHARD_COUNT {env['AFTERIMAGE_SHARD_COUNT']} != completions {spec['completions']} / parallelism {spec['parallelism']}"
+assert c['command'][:2] == ['afterimage', 'batch'], c['command']
+cm = next(d for d in docs if d['kind'] == 'ConfigMap')
+m = tomllib.loads(cm['data']['batch.toml'])
+names = [s['name'] for s in m['shot']]
+assert len(names) == len(set(names)), f'shot names repeat: {names}'
+print(f"batch Job: {spec['completions']} shards, {len(names)} shots in batch.toml")
+PY
+passed=$((passed + 1))
+
 if [ -n "$bin" ]; then
   step "6. smoke.sh"
   deploy/check/smoke.sh "$bin" $out/prod

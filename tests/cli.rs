@@ -36,7 +36,7 @@ fn help_on_every_command() {
     let commands = commands();
     assert_eq!(
         commands,
-        ["info", "eval", "filter", "filters", "report", "serve", "stream", "scene", "keygen"]
+        ["info", "eval", "filter", "batch", "filters", "report", "serve", "stream", "scene", "keygen"]
     );
     for c in &commands {
         let (ok, out, err) = run(&[c, "--help"]);
@@ -48,7 +48,7 @@ fn help_on_every_command() {
         assert!(out.contains("-j, --threads <N>"), "{c} --help has no -j: {out}");
         assert!(!out.contains("--out "), "{c} --help still says --out: {out}");
         let short: &[&str] = match c.as_str() {
-            "filter" | "stream" => &["-i, --input", "-o, --output"],
+            "filter" | "stream" | "batch" => &["-i, --input", "-o, --output"],
             "eval" => &["-i, --input"],
             "scene" | "report" => &["-o, --output"],
             _ => &[],
@@ -929,4 +929,212 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
         "halton:0",
     ]);
     assert!(!ok && err.contains("halton:N"), "{err}");
+}
+
+/// Colour planes of every `.exr` in `dir` (hidden files left out), by file name.
+fn colours_in(dir: &Path) -> std::collections::BTreeMap<String, afterimage::frame::Rgb> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "exr"))
+        .filter(|p| !p.file_name().unwrap().to_string_lossy().starts_with('.'))
+        .map(|p| {
+            let f =
+                read_frame(&p, &ReadOptions::default()).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                f.into_color(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let lengths = [3, 5, 2, 4, 6];
+    let mut manifest = String::from("filter = \"taa\"\nargs = [\"--keep\", \"filtered\"]\n");
+    for (k, n) in lengths.iter().enumerate() {
+        let input = d.join(format!("in/shot{k}"));
+        let (ok, _, err) = run(&[
+            "scene",
+            "fence",
+            "--frames",
+            &n.to_string(),
+            "--size",
+            "24x16",
+            "--spp",
+            "1",
+            "-o",
+            input.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        manifest += &format!(
+            "[[shot]]\nname = \"shot{k}\"\ninput = \"{}\"\noutput = \"{}\"\n",
+            input.display(),
+            d.join(format!("out/shot{k}/shot{k}_aa.####.exr")).display()
+        );
+    }
+    let path = d.join("batch.toml");
+    std::fs::write(&path, &manifest).unwrap();
+    // Three shards: every shot filtered by exactly one, whole.
+    let mut owners = vec![Vec::new(); 5];
+    for i in 0..3 {
+        let summary = d.join(format!("sum{i}.json"));
+        let (ok, out, err) = run(&[
+            "batch",
+            path.to_str().unwrap(),
+            "--shard",
+            &format!("{i}/3"),
+            "--summary",
+            summary.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        assert!(out.contains(&format!("shard {i}/3")), "{out}");
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+        for s in v["shots"].as_array().unwrap() {
+            assert_eq!(s["status"], "done", "{s}");
+            let k: usize = s["name"].as_str().unwrap()[4..].parse().unwrap();
+            owners[k].push(i);
+            assert_eq!(s["frames"], lengths[k] as u64);
+        }
+        assert!(std::fs::read_to_string(summary.with_extension("md"))
+            .unwrap()
+            .contains("| shot"));
+    }
+    assert!(owners.iter().all(|o| o.len() == 1), "{owners:?}");
+    // The outputs are what `filter` writes for the same shot and options.
+    for (k, n) in lengths.iter().enumerate() {
+        let out = d.join(format!("out/shot{k}"));
+        let got = colours_in(&out);
+        assert_eq!(got.len(), *n, "shot{k}");
+        let alone = d.join(format!("alone/shot{k}"));
+        let (ok, _, err) = run(&[
+            "filter",
+            "--filter",
+            "taa",
+            "--keep",
+            "filtered",
+            "-i",
+            d.join(format!("in/shot{k}")).to_str().unwrap(),
+            "-o",
+            alone.join(format!("shot{k}_aa.####.exr")).to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        assert_eq!(got, colours_in(&alone), "shot{k}");
+        assert!(out.join(format!("shot{k}.records.json")).exists());
+    }
+    // A rerun skips finished shots.
+    let summary = d.join("again.json");
+    let (ok, out, err) = run(&[
+        "batch",
+        path.to_str().unwrap(),
+        "--summary",
+        summary.to_str().unwrap(),
+    ]);
+    assert!(ok && out.contains("0 done, 5 skipped"), "{out} {err}");
+    // A shot that fails is retried, reported, and makes the exit status non-zero; the
+    // others still run.
+    let bad = manifest.clone()
+        + &format!(
+            "[[shot]]\nname = \"broken\"\ninput = \"{}\"\noutput = \"{}\"\nargs = [\"--set\", \"alpha=9\"]\n",
+            d.join("in/shot0").display(),
+            d.join("out/broken").display()
+        );
+    std::fs::write(&path, bad).unwrap();
+    let (ok, out, err) = run(&[
+        "batch",
+        path.to_str().unwrap(),
+        "--summary",
+        summary.to_str().unwrap(),
+        "--retries",
+        "1",
+    ]);
+    assert!(
+        !ok && out.contains("broken failed") && out.contains("alpha") && err.contains("1 of 6 shots failed"),
+        "{out} {err}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
+    let broken = v["shots"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == "broken")
+        .unwrap()
+        .clone();
+    assert_eq!(
+        (broken["status"].as_str(), broken["attempts"].as_u64()),
+        (Some("failed"), Some(2))
+    );
+    // Bad shard values are refused.
+    let (ok, _, err) = run(&["batch", path.to_str().unwrap(), "--shard", "3/3"]);
+    assert!(!ok && err.contains("INDEX/COUNT"), "{err}");
+}
+
+#[test]
+fn a_killed_batch_shows_no_partial_frame_and_resumes_to_the_same_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = d.join("in/long");
+    let (ok, _, err) = run(&[
+        "scene",
+        "fence",
+        "--frames",
+        "24",
+        "--size",
+        "96x64",
+        "--spp",
+        "1",
+        "-o",
+        input.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let batch = |out: &Path| -> std::process::Command {
+        let mut c = common::bin();
+        c.args(["batch", "--filter", "pixel_trace", "-i"])
+            .arg(&input)
+            .arg("-o")
+            .arg(out);
+        c.arg("--summary").arg(out.join("summary.json"));
+        c
+    };
+    let whole = d.join("whole");
+    assert!(batch(&whole).output().unwrap().status.success());
+    // Killed once its first frames are out: every visible frame is whole.
+    let cut = d.join("cut");
+    let mut child = batch(&cut)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let shot = cut.join("long");
+    let started = std::time::Instant::now();
+    while colours_in_count(&shot) < 3 && started.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let partial = colours_in(&shot);
+    assert!(
+        !partial.is_empty() && partial.len() < 24,
+        "{} frames were out at the kill",
+        partial.len()
+    );
+    assert!(!shot.join(".afterimage-done/long.json").exists());
+    // The rerun filters the shot again and ends where an uninterrupted run ends.
+    assert!(batch(&cut).output().unwrap().status.success());
+    assert_eq!(colours_in(&shot), colours_in(&whole.join("long")));
+}
+
+/// Visible `.exr` files in `dir` (0 when it does not exist yet).
+fn colours_in_count(dir: &Path) -> usize {
+    std::fs::read_dir(dir).map_or(0, |r| {
+        r.filter_map(Result::ok)
+            .filter(|e| {
+                let n = e.file_name().to_string_lossy().into_owned();
+                n.ends_with(".exr") && !n.starts_with('.')
+            })
+            .count()
+    })
 }

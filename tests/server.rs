@@ -2261,19 +2261,16 @@ async fn replicas_behind_a_consistent_hash_proxy_keep_sessions_apart() {
     // session again on another and answers every frame.
     let url = format!("http://127.0.0.1:{pg}");
     let route = "stream-run";
-    let (st, _, body) = http_with(
-        proxy_http,
-        "POST",
-        "/v1/sessions",
-        &format!("x-afterimage-route: {route}\r\nContent-Type: application/json\r\n"),
-        br#"{"filter":"taa","width":64,"height":36}"#,
-    )
-    .await;
-    assert_eq!(st, 201);
-    let probe = serde_json::from_slice::<Value>(&body).unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    // Which replica the key reaches over gRPC (nginx hashes each upstream's own server
+    // list, so the HTTP upstream may send the same key elsewhere).
+    let opts = afterimage::server::client::ConnectOptions {
+        route: Some(route.into()),
+        ..Default::default()
+    };
+    let mut c = Client::connect_with(format!("http://127.0.0.1:{pg}"), &opts)
+        .await
+        .unwrap();
+    let probe = open(&mut c, "taa").await.id;
     let target = holder(&replicas, &probe).await.unwrap();
     let metrics = replicas[target].http_addr();
     let taa_frames = || async move {

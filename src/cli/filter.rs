@@ -130,7 +130,63 @@ struct Pending {
     input: InputImage,
 }
 
+/// What filtering one sequence gave (`filter` prints it; `batch` summarises it).
+pub struct ShotReport {
+    /// Where the outputs went (the directory or pattern).
+    pub output: String,
+    /// The frames' records, in order.
+    pub records: Vec<FrameRecord>,
+    /// Quality against the reference, when there was one.
+    pub summary: Option<afterimage::metrics::Summary>,
+}
+
 pub fn run(args: FilterArgs) -> anyhow::Result<()> {
+    let bar = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
+            .progress_chars("=> "),
+    );
+    bar.set_message(args.filter.clone());
+    let report = run_shot(&args, &bar)?;
+    bar.finish_and_clear();
+    let records = &report.records;
+    // Per-stage medians, then quality.
+    let totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
+    outln!(
+        "{}: {} frames -> {} (median {:.2} ms/frame)",
+        args.filter,
+        records.len(),
+        report.output,
+        Timing::of(&totals).median_ms
+    );
+    for s in summarize_stages(records) {
+        match s.timing {
+            Some(t) => outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
+            None => outln!(
+                "  {:<16} left out: {}",
+                s.name,
+                s.first_skip.as_deref().unwrap_or("-")
+            ),
+        }
+    }
+    let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
+    let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();
+    let non_finite: u64 = records.iter().map(|r| r.input.non_finite).sum();
+    outln!("  history: {reset} pixel restarts, {clipped} clipped; non-finite input samples: {non_finite}");
+    if let Some(s) = &report.summary {
+        outln!(
+            "  vs reference ({:?} space): mean PSNR {:.3} dB, mean SSIM {:.4}, tRMSE {}",
+            s.space,
+            s.mean_psnr,
+            s.mean_ssim,
+            s.trmse.map_or("- (one frame)".into(), |t| format!("{t:.6}"))
+        );
+    }
+    Ok(())
+}
+
+/// Filters the sequence `args` names and writes its outputs and records; `bar` counts the
+/// frames (its length is set here).
+pub fn run_shot(args: &FilterArgs, bar: &ProgressBar) -> anyhow::Result<ShotReport> {
     let values = parse_assignments(&args.set)?;
     let mut filter = filters::create(&args.filter, &values)?;
     let in_opts = args.read.options()?;
@@ -169,11 +225,7 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     refuse_overwrite(&outputs, &inputs)?;
     let out_dir = naming.dir().to_path_buf();
     std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    let bar = ProgressBar::new(input.len() as u64).with_style(
-        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
-            .progress_chars("=> "),
-    );
-    bar.set_message(args.filter.clone());
+    bar.set_length(input.len() as u64);
     let mut eval = Evaluator::new(SpaceChoice::Auto);
     let mut records: Vec<FrameRecord> = Vec::new();
     let mut ref_frames = reference.as_ref().map(|r| r.frames(&ref_opts));
@@ -238,8 +290,6 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     for out in filter.finish().context("flushing the filter's window")? {
         emit(out, &mut pending, filter.as_mut())?;
     }
-    bar.finish_and_clear();
-
     let summary = eval.summary();
     let doc = json!({
         "filter": args.filter,
@@ -255,40 +305,11 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         .unwrap_or_else(|| out_dir.join("records.json"));
     std::fs::write(&path, serde_json::to_string_pretty(&doc)?)
         .with_context(|| format!("writing {}", path.display()))?;
-
-    // Per-stage medians, then quality.
-    let totals: Vec<f64> = records.iter().map(|r| r.total_ms).collect();
-    outln!(
-        "{}: {} frames -> {} (median {:.2} ms/frame)",
-        args.filter,
-        records.len(),
-        naming,
-        Timing::of(&totals).median_ms
-    );
-    for s in summarize_stages(&records) {
-        match s.timing {
-            Some(t) => outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
-            None => outln!(
-                "  {:<16} left out: {}",
-                s.name,
-                s.first_skip.as_deref().unwrap_or("-")
-            ),
-        }
-    }
-    let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
-    let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();
-    let non_finite: u64 = records.iter().map(|r| r.input.non_finite).sum();
-    outln!("  history: {reset} pixel restarts, {clipped} clipped; non-finite input samples: {non_finite}");
-    if let Some(s) = summary {
-        outln!(
-            "  vs reference ({:?} space): mean PSNR {:.3} dB, mean SSIM {:.4}, tRMSE {}",
-            s.space,
-            s.mean_psnr,
-            s.mean_ssim,
-            s.trmse.map_or("- (one frame)".into(), |t| format!("{t:.6}"))
-        );
-    }
-    Ok(())
+    Ok(ShotReport {
+        output: naming.to_string(),
+        records,
+        summary,
+    })
 }
 
 /// The jitter of every frame of `input` from `--jitter-from` (see [`FilterArgs`]), by

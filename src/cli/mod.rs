@@ -1,6 +1,7 @@
 //! Subcommands of the `afterimage` binary. Thin glue over the library: parse, call,
 //! print.
 
+mod batch;
 mod eval;
 mod filter;
 mod info;
@@ -33,6 +34,9 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Run a filter over a sequence: EXR out, per-frame records, metrics with a reference.
     Filter(filter::FilterArgs),
+    /// Filter many shots (a manifest, or -i DIR repeated): resumable, sharded over the
+    /// processes of a cluster job, with a summary.
+    Batch(batch::BatchArgs),
     /// List the filters: parameters with defaults and bounds, channels, stages, state size.
     Filters(filter::FiltersArgs),
     /// Error against run time: every filter on every scene, with tables, JSON, CSV and
@@ -64,6 +68,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Stream(a) => stream::run(a),
         Command::Report(a) => report::run(a),
         Command::Filter(a) => filter::run(a),
+        Command::Batch(a) => batch::run(a),
         Command::Filters(a) => filter::list(a),
         Command::Keygen(a) => keygen::run(a),
     }

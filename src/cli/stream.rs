@@ -104,19 +104,17 @@ struct Recreated {
 
 /// Whether a stream's error `s` means its session is gone (the replica holding it was
 /// drained or killed, or a proxy now routes elsewhere), so a new session can take over:
-/// NOT_FOUND says so; after any other error the session is looked up, and is gone when
-/// that finds none or no server answers. A session that still exists (failed, say) is not
-/// replaced.
+/// NOT_FOUND says so; after any other error the session is looked up, and is kept (the
+/// error stands) only when a server answers that it still exists, failed for instance.
 async fn session_lost(client: &mut Client, id: &str, s: &tonic::Status) -> bool {
-    use tonic::Code;
-    if s.code() == Code::NotFound {
+    if s.code() == tonic::Code::NotFound {
         return true;
     }
     let probe = client
         .inner
         .get_session(pb::GetSessionRequest { id: id.to_string() })
         .await;
-    matches!(probe, Err(e) if matches!(e.code(), Code::NotFound | Code::Unavailable))
+    probe.is_err()
 }
 
 /// A routing key of 16 random hex digits.

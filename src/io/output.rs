@@ -167,16 +167,24 @@ pub struct FilteredFrame<'a> {
 
 type AnyImage = x::Image<x::Layers<x::AnyChannels<x::FlatSamples>>>;
 
-/// Writes a filtered frame to `path` (see the module docs), creating its directory.
+/// Writes a filtered frame to `path` (see the module docs), creating its directory. The
+/// file appears whole or not at all: it is written under a hidden temporary name beside
+/// `path` (`.NAME.partial`) and renamed into place, so a reader, or a run that was killed
+/// and is resumed, never sees half a frame under the real name.
 pub fn write_filtered(path: &Path, frame: &FilteredFrame, opts: &OutputOptions) -> Result<(), IoError> {
     let image = filtered_image(frame, opts, path)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
     }
+    let name = path
+        .file_name()
+        .map_or("frame".into(), |n| n.to_string_lossy().into_owned());
+    let partial = path.with_file_name(format!(".{name}.partial"));
     image
         .write()
-        .to_file(path)
-        .map_err(|e| super::exr_file::exr_error(path, e))
+        .to_file(&partial)
+        .map_err(|e| super::exr_file::exr_error(&partial, e))?;
+    std::fs::rename(&partial, path).map_err(|e| IoError::os(path, e))
 }
 
 /// Encodes a filtered frame as EXR bytes (an HTTP reply), as [`write_filtered`] writes it.

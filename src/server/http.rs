@@ -207,6 +207,11 @@ async fn read_body(body: Body, limit: u64, timeout: Duration) -> Result<Bytes, S
     }
 }
 
+/// Reads a body to its end, keeping nothing.
+async fn discard(mut body: Body) {
+    while let Some(Ok(_)) = body.frame().await {}
+}
+
 /// What a frame or flush request answers.
 enum Reply {
     /// A filtered frame: EXR bytes, its record as JSON, outputs still queued.
@@ -384,10 +389,26 @@ async fn post_frame(
     body: Body,
 ) -> HttpResult<Response> {
     let _in_flight = svc.begin();
-    let output = counted(&svc, output_options(query))?;
-    let given = counted(&svc, FrameHeaders::parse(&headers))?;
-    // The session first: unknown, busy or failed sessions are answered before the body.
-    let co = counted(&svc, svc.sessions.checkout(&caller, &id))?;
+    // The session first: unknown, busy or failed sessions are answered at once, before the
+    // body is read (and bad options or headers too). A proxy in front (nginx) sends the
+    // whole body before it reads the answer and turns a connection closed under it into
+    // 502, so a body of at most `max_frame_mib` is read and dropped after the answer, in
+    // the background, within the request timeout; a larger one is not read.
+    let early = output_options(query).and_then(|output| {
+        let given = FrameHeaders::parse(&headers)?;
+        Ok((output, given, svc.sessions.checkout(&caller, &id)?))
+    });
+    let (output, given, co) = match early {
+        Ok(v) => v,
+        Err(e) => {
+            let cap = svc.config.max_frame_mib << 20;
+            if content_length(&headers).ok().flatten().is_some_and(|n| n <= cap) {
+                let timeout = Duration::from_secs(svc.config.request_timeout_s);
+                tokio::spawn(tokio::time::timeout(timeout, discard(body)));
+            }
+            return counted(&svc, Err(e));
+        }
+    };
     let shape = co.shape();
     let max = svc.max_exr_body(shape);
     let declared = counted(&svc, content_length(&headers))?;

@@ -1,0 +1,470 @@
+//! `afterimage batch`: many shots, each filtered as `afterimage filter` filters one
+//! sequence (the same code and every one of its options), resumable, and split over the
+//! processes of a cluster job.
+//!
+//! - **Shots** come from a manifest (TOML or JSON: defaults, then `[[shot]]` tables with
+//!   `name`, `input`, `output` and extra `filter` arguments) or from `-i DIR` repeated, each
+//!   directory a shot named after it, written under `-o ROOT/<name>/`.
+//! - **Resumable**: every output frame appears whole or not at all (written under a hidden
+//!   temporary name, then renamed), and a finished shot leaves `.afterimage-done/<name>.json`
+//!   beside its outputs; a rerun skips finished shots and filters an unfinished one from
+//!   its first frame (a causal filter needs its history: there is no mid-shot checkpoint
+//!   yet, so a killed run redoes the frames of the shot it was in).
+//! - **Sharding**: `--shard INDEX/COUNT` (default: `JOB_COMPLETION_INDEX`, as a Kubernetes
+//!   Indexed Job sets it, or `AWS_BATCH_JOB_ARRAY_INDEX`, with the count from
+//!   `AFTERIMAGE_SHARD_COUNT`) gives whole shots to shards, longest first to the shard with
+//!   the fewest frames so far: deterministic, even by frame count, and no two shards ever
+//!   write the same file.
+//! - **Results**: a bar per shot and one overall (frames/s, ETA); a summary in JSON and
+//!   markdown (per shot: frames, ms/frame, PSNR/tRMSE with a reference, failures); a
+//!   failed shot is retried `--retries` times; the exit status is non-zero when any failed.
+
+use super::filter::{run_shot, FilterArgs};
+use super::outln;
+use afterimage::io::{OutputNaming, Sequence};
+use anyhow::Context;
+use clap::{Args, Parser};
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Arguments of `batch`.
+#[derive(Args, Debug)]
+pub struct BatchArgs {
+    /// The manifest (TOML or JSON; see `afterimage batch --help` and the README).
+    manifest: Option<PathBuf>,
+    /// A shot directory (repeatable), instead of or besides a manifest: named after the
+    /// directory, written to `-o ROOT/<name>/`.
+    #[arg(short = 'i', long = "input", value_name = "DIR")]
+    inputs: Vec<PathBuf>,
+    /// Output root for `-i` shots.
+    #[arg(short = 'o', long, value_name = "ROOT")]
+    output: Option<PathBuf>,
+    /// The filter of `-i` shots, and of manifest shots that name none.
+    #[arg(long)]
+    filter: Option<String>,
+    /// This process's share of the shots, INDEX/COUNT (e.g. 0/3). Default: from
+    /// JOB_COMPLETION_INDEX (Kubernetes Indexed Job) or AWS_BATCH_JOB_ARRAY_INDEX, with
+    /// AFTERIMAGE_SHARD_COUNT; else all shots.
+    #[arg(long, value_name = "INDEX/COUNT")]
+    shard: Option<String>,
+    /// Times a failed shot is run again.
+    #[arg(long, default_value_t = 1)]
+    retries: u32,
+    /// Filter finished shots again instead of skipping them.
+    #[arg(long)]
+    force: bool,
+    /// The summary's path (JSON; a markdown table is written beside it). Default:
+    /// batch-summary.json, or batch-summary-shard-I-of-N.json, in the current directory.
+    #[arg(long, value_name = "FILE")]
+    summary: Option<PathBuf>,
+}
+
+/// A manifest: defaults for every shot, then the shots.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Manifest {
+    /// Default filter.
+    filter: Option<String>,
+    /// `afterimage filter` arguments for every shot (before each shot's own).
+    #[serde(default)]
+    args: Vec<String>,
+    /// The shots.
+    #[serde(default)]
+    shot: Vec<ShotSpec>,
+}
+
+/// One shot of a manifest.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+struct ShotSpec {
+    /// Unique name (the done marker and the summary use it).
+    name: String,
+    /// The sequence, as `filter -i` takes it.
+    input: String,
+    /// Where its outputs go, as `filter -o` takes it.
+    output: String,
+    /// Its filter (default: the manifest's, or --filter).
+    filter: Option<String>,
+    /// More `afterimage filter` arguments (`--set`, `--cuts`, `--keep`, `--reference`, ...).
+    #[serde(default)]
+    args: Vec<String>,
+}
+
+/// A shot ready to run: its `filter` arguments and frame count.
+struct Shot {
+    spec: ShotSpec,
+    argv: Vec<String>,
+    frames: usize,
+}
+
+/// What happened to a shot, as the summary says.
+#[derive(Debug, Serialize, Deserialize)]
+struct ShotResult {
+    name: String,
+    input: String,
+    output: String,
+    frames: usize,
+    /// done, skipped (finished earlier) or failed.
+    status: String,
+    attempts: u32,
+    ms_per_frame: Option<f64>,
+    mean_psnr: Option<f64>,
+    trmse: Option<f64>,
+    error: Option<String>,
+}
+
+#[derive(Parser)]
+#[command(no_binary_name = true)]
+struct ShotArgs {
+    #[command(flatten)]
+    filter: FilterArgs,
+}
+
+/// `INDEX/COUNT` from the flag, else from the job environment.
+fn shard(flag: Option<&str>) -> anyhow::Result<(usize, usize)> {
+    let parse = |s: &str, what: &str| -> anyhow::Result<(usize, usize)> {
+        let bad = || anyhow::anyhow!("{what} {s:?}: expected INDEX/COUNT with INDEX < COUNT, e.g. 0/3");
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let (i, n): (usize, usize) = (
+            i.trim().parse().map_err(|_| bad())?,
+            n.trim().parse().map_err(|_| bad())?,
+        );
+        if n == 0 || i >= n {
+            return Err(bad());
+        }
+        Ok((i, n))
+    };
+    if let Some(s) = flag {
+        return parse(s, "--shard");
+    }
+    let index = ["JOB_COMPLETION_INDEX", "AWS_BATCH_JOB_ARRAY_INDEX"]
+        .iter()
+        .find_map(|v| std::env::var(v).ok().map(|x| (*v, x)));
+    match (index, std::env::var("AFTERIMAGE_SHARD_COUNT").ok()) {
+        (Some((var, i)), Some(n)) => parse(&format!("{i}/{n}"), &format!("{var}/AFTERIMAGE_SHARD_COUNT")),
+        (Some((var, _)), None) => anyhow::bail!(
+            "{var} is set but AFTERIMAGE_SHARD_COUNT is not: set it to the job's number of shards"
+        ),
+        _ => Ok((0, 1)),
+    }
+}
+
+/// Shots for each shard: longest first, each to the shard with the fewest frames so far
+/// (ties: the lower index); shots of equal length in name order.
+fn assign(frames: &[(String, usize)], count: usize) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..frames.len()).collect();
+    order.sort_by(|&a, &b| frames[b].1.cmp(&frames[a].1).then(frames[a].0.cmp(&frames[b].0)));
+    let mut load = vec![0usize; count];
+    let mut owner = vec![0usize; frames.len()];
+    for k in order {
+        let s = (0..count).min_by_key(|&s| (load[s], s)).expect("count > 0");
+        load[s] += frames[k].1;
+        owner[k] = s;
+    }
+    owner
+}
+
+fn read_manifest(path: &Path) -> anyhow::Result<Manifest> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    let m: Manifest = if json {
+        serde_json::from_str(&text).with_context(|| format!("{}: not a batch manifest", path.display()))?
+    } else {
+        toml::from_str(&text).with_context(|| format!("{}: not a batch manifest", path.display()))?
+    };
+    Ok(m)
+}
+
+/// The shots of the manifest and of `-i`, checked: names unique, filters named, inputs open.
+fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
+    let manifest = match &args.manifest {
+        Some(p) => read_manifest(p)?,
+        None => Manifest::default(),
+    };
+    let mut specs = manifest.shot.clone();
+    if !args.inputs.is_empty() {
+        let root = args
+            .output
+            .as_ref()
+            .context("-i shots need -o ROOT: each is written to ROOT/<name>/")?;
+        for dir in &args.inputs {
+            let name = dir
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .with_context(|| format!("{}: a shot directory needs a name", dir.display()))?;
+            specs.push(ShotSpec {
+                output: root.join(&name).display().to_string(),
+                name,
+                input: dir.display().to_string(),
+                filter: None,
+                args: Vec::new(),
+            });
+        }
+    }
+    if specs.is_empty() {
+        anyhow::bail!("no shots: give a manifest with [[shot]] tables, or -i DIR (repeatable) with -o ROOT");
+    }
+    let mut out = Vec::new();
+    for spec in specs {
+        if out.iter().any(|s: &Shot| s.spec.name == spec.name) {
+            anyhow::bail!("two shots are named {:?}: shot names must be unique", spec.name);
+        }
+        if spec.name.is_empty() || spec.name.contains(['/', '\\']) || spec.name.starts_with('.') {
+            anyhow::bail!(
+                "shot name {:?}: expected a file name (no slashes, not starting with a dot)",
+                spec.name
+            );
+        }
+        let filter = spec
+            .filter
+            .clone()
+            .or_else(|| manifest.filter.clone())
+            .or_else(|| args.filter.clone())
+            .with_context(|| {
+                format!(
+                    "shot {}: no filter (give --filter, or `filter` in the manifest)",
+                    spec.name
+                )
+            })?;
+        let frames = Sequence::open(&spec.input)
+            .with_context(|| format!("shot {}", spec.name))?
+            .len();
+        let naming = OutputNaming::parse(&spec.output).with_context(|| format!("shot {}", spec.name))?;
+        let records = naming.dir().join(format!("{}.records.json", spec.name));
+        let mut argv: Vec<String> = vec![
+            "--filter".into(),
+            filter,
+            "-i".into(),
+            spec.input.clone(),
+            "-o".into(),
+            spec.output.clone(),
+            "--records".into(),
+            records.display().to_string(),
+        ];
+        argv.extend(manifest.args.iter().cloned());
+        argv.extend(spec.args.iter().cloned());
+        out.push(Shot { spec, argv, frames });
+    }
+    Ok(out)
+}
+
+/// Where a finished shot leaves its marker: `.afterimage-done/<name>.json` in its output
+/// directory.
+fn done_marker(spec: &ShotSpec) -> anyhow::Result<PathBuf> {
+    let naming = OutputNaming::parse(&spec.output)?;
+    Ok(naming
+        .dir()
+        .join(".afterimage-done")
+        .join(format!("{}.json", spec.name)))
+}
+
+/// Writes `text` to `path` whole or not at all (a temporary file renamed into place).
+fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
+}
+
+fn run_one(shot: &Shot, bar: &ProgressBar) -> anyhow::Result<ShotResult> {
+    let args = ShotArgs::try_parse_from(&shot.argv)
+        .map_err(|e| anyhow::anyhow!("shot {}: its filter arguments: {}", shot.spec.name, e.render()))?;
+    let report = run_shot(&args.filter, bar)?;
+    let totals: Vec<f64> = report.records.iter().map(|r| r.total_ms).collect();
+    Ok(ShotResult {
+        name: shot.spec.name.clone(),
+        input: shot.spec.input.clone(),
+        output: report.output,
+        frames: report.records.len(),
+        status: "done".into(),
+        attempts: 1,
+        ms_per_frame: Some(afterimage::metrics::Timing::of(&totals).median_ms),
+        mean_psnr: report.summary.as_ref().map(|s| s.mean_psnr),
+        trmse: report.summary.as_ref().and_then(|s| s.trmse),
+        error: None,
+    })
+}
+
+pub fn run(args: BatchArgs) -> anyhow::Result<()> {
+    let (index, count) = shard(args.shard.as_deref())?;
+    let all = shots(&args)?;
+    let owner = assign(
+        &all.iter()
+            .map(|s| (s.spec.name.clone(), s.frames))
+            .collect::<Vec<_>>(),
+        count,
+    );
+    let mine: Vec<&Shot> = all
+        .iter()
+        .zip(&owner)
+        .filter(|(_, &o)| o == index)
+        .map(|(s, _)| s)
+        .collect();
+    let total_frames: usize = mine.iter().map(|s| s.frames).sum();
+    let multi = MultiProgress::new();
+    let overall = multi.add(
+        ProgressBar::new(total_frames as u64).with_style(
+            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} frames, {per_sec}, {eta} left")?
+                .progress_chars("=> "),
+        ),
+    );
+    overall.set_message(format!("shard {index}/{count}"));
+    let started = Instant::now();
+    let mut results = Vec::new();
+    for shot in &mine {
+        let marker = done_marker(&shot.spec)?;
+        if marker.exists() && !args.force {
+            let mut r: ShotResult =
+                serde_json::from_str(&std::fs::read_to_string(&marker)?).with_context(|| {
+                    format!(
+                        "{}: not a done marker; delete it to filter the shot again",
+                        marker.display()
+                    )
+                })?;
+            r.status = "skipped".into();
+            overall.inc(shot.frames as u64);
+            results.push(r);
+            continue;
+        }
+        let bar = multi.insert_before(
+            &overall,
+            ProgressBar::new(shot.frames as u64).with_style(
+                ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} frames, {eta} left")?
+                    .progress_chars("=> "),
+            ),
+        );
+        bar.set_message(shot.spec.name.clone());
+        let mut attempt = 0;
+        let result = loop {
+            attempt += 1;
+            bar.reset();
+            match run_one(shot, &bar) {
+                Ok(mut r) => {
+                    r.attempts = attempt;
+                    write_atomic(&marker, &serde_json::to_string_pretty(&r)?)?;
+                    break r;
+                }
+                Err(e) if attempt <= args.retries => {
+                    multi.suspend(|| {
+                        tracing::warn!(
+                            "shot {} failed (attempt {attempt}): {e:#}; trying again",
+                            shot.spec.name
+                        )
+                    });
+                }
+                Err(e) => {
+                    break ShotResult {
+                        name: shot.spec.name.clone(),
+                        input: shot.spec.input.clone(),
+                        output: shot.spec.output.clone(),
+                        frames: shot.frames,
+                        status: "failed".into(),
+                        attempts: attempt,
+                        ms_per_frame: None,
+                        mean_psnr: None,
+                        trmse: None,
+                        error: Some(format!("{e:#}")),
+                    }
+                }
+            }
+        };
+        bar.finish_and_clear();
+        multi.remove(&bar);
+        overall.inc(shot.frames as u64);
+        results.push(result);
+    }
+    overall.finish_and_clear();
+    let failed = results.iter().filter(|r| r.status == "failed").count();
+    let summary_path = args.summary.clone().unwrap_or_else(|| {
+        PathBuf::from(if count == 1 {
+            "batch-summary.json".to_string()
+        } else {
+            format!("batch-summary-shard-{index}-of-{count}.json")
+        })
+    });
+    let doc = serde_json::json!({
+        "shard": {"index": index, "count": count},
+        "shots": results,
+        "frames": total_frames,
+        "wall_s": started.elapsed().as_secs_f64(),
+        "failed": failed,
+    });
+    write_atomic(&summary_path, &serde_json::to_string_pretty(&doc)?)?;
+    let mut md = format!(
+        "# afterimage batch, shard {index}/{count}\n\n| shot | status | frames | ms/frame | PSNR dB | tRMSE | error |\n|---|---|---:|---:|---:|---:|---|\n"
+    );
+    let opt = |v: Option<f64>, p: usize| v.map_or("-".to_string(), |x| format!("{x:.p$}"));
+    for r in &results {
+        md += &format!(
+            "| {} | {} | {} | {} | {} | {} | {} |\n",
+            r.name,
+            r.status,
+            r.frames,
+            opt(r.ms_per_frame, 2),
+            opt(r.mean_psnr, 3),
+            opt(r.trmse, 6),
+            r.error
+                .as_deref()
+                .unwrap_or("")
+                .replace('|', "\\|")
+                .replace('\n', " ")
+        );
+    }
+    write_atomic(&summary_path.with_extension("md"), &md)?;
+    outln!(
+        "shard {index}/{count}: {} shots ({} done, {} skipped, {failed} failed), {total_frames} frames in {:.1} s -> {}",
+        results.len(),
+        results.iter().filter(|r| r.status == "done").count(),
+        results.iter().filter(|r| r.status == "skipped").count(),
+        started.elapsed().as_secs_f64(),
+        summary_path.display()
+    );
+    for r in results.iter().filter(|r| r.status == "failed") {
+        outln!("  {} failed: {}", r.name, r.error.as_deref().unwrap_or("-"));
+    }
+    if failed > 0 {
+        anyhow::bail!(
+            "{failed} of {} shots failed (see {})",
+            results.len(),
+            summary_path.display()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shots_go_longest_first_to_the_least_loaded_shard() {
+        let f = |v: &[(&str, usize)]| v.iter().map(|(n, k)| (n.to_string(), *k)).collect::<Vec<_>>();
+        let shots = f(&[("a", 10), ("b", 40), ("c", 30), ("d", 20), ("e", 10)]);
+        let owner = assign(&shots, 3);
+        // b -> 0, c -> 1, d -> 2, then a and e (10 each, by name) to 2 and 1... by load.
+        assert_eq!(owner, vec![2, 0, 1, 2, 1]);
+        let load = |s| {
+            shots
+                .iter()
+                .zip(&owner)
+                .filter(|(_, &o)| o == s)
+                .map(|(x, _)| x.1)
+                .sum::<usize>()
+        };
+        assert_eq!([load(0), load(1), load(2)], [40, 40, 30]);
+        assert_eq!(assign(&shots, 1), vec![0; 5]);
+    }
+
+    #[test]
+    fn shard_flags_are_checked() {
+        assert_eq!(shard(Some("1/3")).unwrap(), (1, 3));
+        for bad in ["3/3", "x/2", "1", "0/0"] {
+            let e = shard(Some(bad)).unwrap_err().to_string();
+            assert!(e.contains("INDEX/COUNT"), "{bad}: {e}");
+        }
+    }
+}
