@@ -729,6 +729,16 @@ fn filter_output_replaces_its_input_in_every_layout() {
             oiio_checked += 1;
         }
     }
+    // The colour written is the library's filter output for the same frames.
+    let input = dir.path().join("in/blender");
+    let mut taa = afterimage::filters::create("taa", &Default::default()).unwrap();
+    let seq = Sequence::open(input.to_str().unwrap()).unwrap();
+    for (n, frame) in (1..).zip(seq.frames(&ReadOptions::default())) {
+        let want = taa.process(&frame.unwrap()).unwrap().color;
+        let out = dir.path().join(format!("out/blender/shot_aa.{n:04}.exr"));
+        let got = read_frame(&out, &ReadOptions::default()).unwrap();
+        assert_eq!(got.color(), &want, "frame {n}");
+    }
     if oiio_checked == 0 {
         // CI installs oiiotool and sets this, so there the cross-check cannot be skipped.
         assert!(
@@ -829,11 +839,15 @@ fn filter_output_replaces_its_input_in_every_layout() {
         "-i",
         input.to_str().unwrap(),
         "-o",
-        "x",
+        dir.path().join("never").to_str().unwrap(),
         "--compression",
         "lzw",
     ]);
     assert!(!ok && err.contains("lzw") && err.contains("piz"), "{err}");
+    assert!(
+        !dir.path().join("never").exists(),
+        "refused before anything was written"
+    );
 }
 
 #[test]
@@ -891,6 +905,7 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
     let from_csv = filtered(&["--jitter-from", csv.to_str().unwrap()], "csv");
     assert_eq!(from_csv[3].color(), still[3].color());
     // Gaps and out-of-range values are refused before anything runs.
+    let never = dir.path().join("never");
     std::fs::write(&zeros, "[[0, 0], [0, 0]]").unwrap();
     let (ok, _, err) = run(&[
         "filter",
@@ -899,7 +914,7 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
         "-i",
         d,
         "-o",
-        "x",
+        never.to_str().unwrap(),
         "--jitter-from",
         zeros.to_str().unwrap(),
     ]);
@@ -912,7 +927,7 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
         "-i",
         d,
         "-o",
-        "x",
+        never.to_str().unwrap(),
         "--jitter-from",
         csv.to_str().unwrap(),
     ]);
@@ -924,11 +939,12 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
         "-i",
         d,
         "-o",
-        "x",
+        never.to_str().unwrap(),
         "--jitter-from",
         "halton:0",
     ]);
     assert!(!ok && err.contains("halton:N"), "{err}");
+    assert!(!never.exists(), "refused before anything was written");
 }
 
 /// Colour planes of every `.exr` in `dir` (hidden files left out), by file name.

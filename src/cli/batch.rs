@@ -14,7 +14,8 @@
 //!   Indexed Job sets it, or `AWS_BATCH_JOB_ARRAY_INDEX`, with the count from
 //!   `AFTERIMAGE_SHARD_COUNT`) gives whole shots to shards, longest first to the shard with
 //!   the fewest frames so far: deterministic, even by frame count, and no two shards ever
-//!   write the same file.
+//!   write the same file (each process counts the frames when it starts, so the inputs
+//!   must be complete by then). A shot whose input does not open is failed by its shard.
 //! - **Results**: a bar per shot and one overall (frames/s, ETA); a summary in JSON and
 //!   markdown (per shot: frames, ms/frame, PSNR/tRMSE with a reference, failures); a
 //!   failed shot is retried `--retries` times; the exit status is non-zero when any failed.
@@ -92,11 +93,13 @@ struct ShotSpec {
     args: Vec<String>,
 }
 
-/// A shot ready to run: its `filter` arguments and frame count.
+/// A shot ready to run: its `filter` arguments and frame count (0 with the error when its
+/// input does not open: the shot is then reported failed by its shard, not fatal to all).
 struct Shot {
     spec: ShotSpec,
     argv: Vec<String>,
     frames: usize,
+    open_error: Option<String>,
 }
 
 /// What happened to a shot, as the summary says.
@@ -228,9 +231,10 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
                     spec.name
                 )
             })?;
-        let frames = Sequence::open(&spec.input)
-            .with_context(|| format!("shot {}", spec.name))?
-            .len();
+        let (frames, open_error) = match Sequence::open(&spec.input) {
+            Ok(seq) => (seq.len(), None),
+            Err(e) => (0, Some(format!("{e}"))),
+        };
         let naming = OutputNaming::parse(&spec.output).with_context(|| format!("shot {}", spec.name))?;
         let records = naming.dir().join(format!("{}.records.json", spec.name));
         let mut argv: Vec<String> = vec![
@@ -245,7 +249,12 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
         ];
         argv.extend(manifest.args.iter().cloned());
         argv.extend(spec.args.iter().cloned());
-        out.push(Shot { spec, argv, frames });
+        out.push(Shot {
+            spec,
+            argv,
+            frames,
+            open_error,
+        });
     }
     Ok(out)
 }
@@ -271,6 +280,9 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
 }
 
 fn run_one(shot: &Shot, bar: &ProgressBar) -> anyhow::Result<ShotResult> {
+    if let Some(e) = &shot.open_error {
+        anyhow::bail!("{e}");
+    }
     let args = ShotArgs::try_parse_from(&shot.argv)
         .map_err(|e| anyhow::anyhow!("shot {}: its filter arguments: {}", shot.spec.name, e.render()))?;
     let report = run_shot(&args.filter, bar)?;

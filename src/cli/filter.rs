@@ -203,6 +203,10 @@ pub fn run_shot(args: &FilterArgs, bar: &ProgressBar) -> anyhow::Result<ShotRepo
         let (first, last) = (input.entries[0].number, input.entries[input.len() - 1].number);
         anyhow::bail!("--cuts {missing}: the input has no frame {missing} (its frames are {first}-{last})");
     }
+    let jitter = match &args.jitter_from {
+        Some(spec) => Some(jitter_table(spec, &input)?),
+        None => None,
+    };
     let naming = OutputNaming::parse(&args.output)?;
     let mut write = args.write.options()?;
     if args.f16 {
@@ -256,10 +260,6 @@ pub fn run_shot(args: &FilterArgs, bar: &ProgressBar) -> anyhow::Result<ShotRepo
             bar.inc(1);
             Ok(())
         };
-    let jitter = match &args.jitter_from {
-        Some(spec) => Some(jitter_table(spec, &input)?),
-        None => None,
-    };
     let given = |n: u64| jitter.as_ref().and_then(|t| t.get(&n).copied());
     for (i, read) in input.inputs_jittered(&in_opts, given).enumerate() {
         let entry = &input.entries[i];

@@ -6,13 +6,16 @@ use super::outln;
 use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters::create;
 use afterimage::frame::Frame;
-use afterimage::io::{write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, Sequence};
+use afterimage::io::{
+    refuse_overwrite, write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, Sequence,
+};
 use afterimage::metrics::Timing;
 use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, ConnectOptions, SendOptions};
 use afterimage::server::proto as pb;
 use afterimage::session::params_from_json;
+use afterimage::session::random_hex;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -104,24 +107,23 @@ struct Recreated {
 
 /// Whether a stream's error `s` means its session is gone (the replica holding it was
 /// drained or killed, or a proxy now routes elsewhere), so a new session can take over:
-/// NOT_FOUND says so; after any other error the session is looked up, and is kept (the
-/// error stands) only when a server answers that it still exists, failed for instance.
+/// NOT_FOUND says so; after any other error the session is looked up, and is gone when no
+/// server has it or none answers (NOT_FOUND, UNAVAILABLE, or a broken connection:
+/// UNKNOWN, INTERNAL, CANCELLED, DEADLINE_EXCEEDED). An answer that it still exists
+/// (failed, say), or a refusal (a key, a permission), leaves the error standing.
 async fn session_lost(client: &mut Client, id: &str, s: &tonic::Status) -> bool {
-    if s.code() == tonic::Code::NotFound {
+    use tonic::Code;
+    if s.code() == Code::NotFound {
         return true;
     }
     let probe = client
         .inner
         .get_session(pb::GetSessionRequest { id: id.to_string() })
         .await;
-    probe.is_err()
-}
-
-/// A routing key of 16 random hex digits.
-fn random_route() -> anyhow::Result<String> {
-    let mut b = [0u8; 8];
-    getrandom::fill(&mut b).map_err(|e| anyhow::anyhow!("no randomness for a routing key: {e}"))?;
-    Ok(b.iter().map(|x| format!("{x:02x}")).collect())
+    matches!(probe, Err(e) if matches!(
+        e.code(),
+        Code::NotFound | Code::Unavailable | Code::Unknown | Code::Internal | Code::Cancelled | Code::DeadlineExceeded
+    ))
 }
 
 /// Where a frame that was sent came from: its file, and the decoded input its output
@@ -173,7 +175,18 @@ fn load(args: &StreamArgs, keep: Keep) -> anyhow::Result<Vec<(Frame, Source)>> {
 pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let naming = args.output.as_deref().map(OutputNaming::parse).transpose()?;
     let write = args.write.options()?;
-    let (frames, sources): (Vec<Frame>, Vec<Source>) = load(&args, write.keep)?.into_iter().unzip();
+    // Without --output nothing of the inputs is written: keep none of it.
+    let keep = if naming.is_some() { write.keep } else { Keep::None };
+    let (frames, sources): (Vec<Frame>, Vec<Source>) = load(&args, keep)?.into_iter().unzip();
+    if let (Some(naming), Some(_)) = (&naming, &args.input) {
+        let outputs: Vec<PathBuf> = frames
+            .iter()
+            .zip(&sources)
+            .map(|(f, s)| naming.path(&s.path, f.meta.index))
+            .collect();
+        let inputs: Vec<PathBuf> = sources.iter().map(|s| s.path.clone()).collect();
+        refuse_overwrite(&outputs, &inputs)?;
+    }
     let first = frames.first().context("no frames to send")?;
     let (w, h) = (first.width() as u32, first.height() as u32);
     let values = parse_assignments(&args.set)?;
@@ -201,7 +214,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     let wall = Instant::now();
     let route = match &args.route {
         Some(r) => r.clone(),
-        None => random_route()?,
+        None => random_hex(8).map_err(|e| anyhow::anyhow!("no randomness for a routing key: {e}"))?,
     };
     let mut recreated: Vec<Recreated> = Vec::new();
     rt.block_on(async {
@@ -251,6 +264,8 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
                         .map_err(status)?;
                     break;
                 }
+                // Every frame was answered before the stream failed: nothing is left to send.
+                Err(_) if replies.len() == frames.len() => break,
                 Err(s) if recreated.len() < args.retries && session_lost(&mut client, &session.id, &s).await => {
                     let r = Recreated {
                         session: session.id,

@@ -390,10 +390,12 @@ impl ExrHeaders {
         (p.0 as i64, p.1 as i64)
     }
 
-    /// The frame index the file declares (`afterimage.index` in any part), if it does.
+    /// The frame index the file declares (`afterimage.index`; the last part that has one,
+    /// as the frame's values are read), if it does.
     pub fn frame_index(&self) -> Option<u64> {
         self.parts
             .iter()
+            .rev()
             .find_map(|p| match p.attributes.other.get(&Text::from(attr::INDEX)) {
                 Some(AttributeValue::Text(t)) => t.to_string().parse().ok(),
                 _ => None,

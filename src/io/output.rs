@@ -54,6 +54,22 @@ impl Keep {
     }
 }
 
+impl Keep {
+    /// The one of `self` and `other` that keeps less.
+    pub fn narrower(self, other: Keep) -> Keep {
+        let rank = |k: Keep| match k {
+            Keep::None => 0,
+            Keep::Filtered => 1,
+            Keep::All => 2,
+        };
+        if rank(self) <= rank(other) {
+            self
+        } else {
+            other
+        }
+    }
+}
+
 impl std::str::FromStr for Keep {
     type Err = IoError;
 
@@ -65,7 +81,8 @@ impl std::str::FromStr for Keep {
     }
 }
 
-/// How a filtered frame is written.
+/// How a filtered frame is written. An input trimmed to keep less (see
+/// [`InputImage::trim_to`]) is written with the narrower of the two.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct OutputOptions {
     /// What of the input is kept.
@@ -82,6 +99,8 @@ pub struct OutputOptions {
 pub struct InputImage {
     raw: RawImage,
     color: [String; 3],
+    /// What an output of it can still keep ([`InputImage::trim_to`]).
+    holds: Keep,
 }
 
 impl InputImage {
@@ -97,13 +116,20 @@ impl InputImage {
         for ch in raw.channels.iter_mut().filter(|c| color.contains(&c.name)) {
             ch.data = RawData::F32(Vec::new());
         }
-        Ok(InputImage { raw, color })
+        Ok(InputImage {
+            raw,
+            color,
+            holds: Keep::All,
+        })
     }
 
     /// Drops the samples an output written with `keep` will not use (a windowed filter
     /// holds its inputs for `lookahead` frames): all but the alpha for
     /// [`Keep::Filtered`], all for [`Keep::None`].
+    /// An output asked to keep more than that afterwards keeps only what is left.
     pub fn trim_to(&mut self, keep: Keep) {
+        self.holds = keep.narrower(self.holds);
+        let keep = self.holds;
         let alpha = self.alpha_name().map(str::to_string);
         for ch in &mut self.raw.channels {
             let used = match keep {
@@ -226,22 +252,33 @@ fn filtered_image(frame: &FilteredFrame, opts: &OutputOptions, label: &Path) -> 
             });
         }
     }
+    let keep = input.map_or(Keep::None, |i| opts.keep.narrower(i.holds));
     match input {
-        Some(i) if opts.keep != Keep::None => {
+        Some(i) if keep != Keep::None => {
             let headers = i.raw.exr.as_ref().expect("filtered on exr");
-            kept_image(frame, i, headers, opts)
+            kept_image(frame, i, headers, &OutputOptions { keep, ..*opts })
         }
-        _ => Ok(color_only_image(
-            frame,
-            input.and_then(|i| i.raw.exr.as_ref()),
-            opts,
-        )),
+        _ => Ok(color_only_image(frame, input, opts)),
     }
 }
 
-/// The filtered colour alone as `R,G,B`, in the input's windows when there is an input.
-fn color_only_image(frame: &FilteredFrame, headers: Option<&ExrHeaders>, opts: &OutputOptions) -> AnyImage {
-    let precision = opts.precision.unwrap_or(Precision::F32);
+/// The filtered colour alone as `R,G,B`: in the input's windows, the input colour's sample
+/// type and its part's compression when there is an EXR input (f32 and ZIP otherwise).
+fn color_only_image(frame: &FilteredFrame, input: Option<&InputImage>, opts: &OutputOptions) -> AnyImage {
+    let headers = input.and_then(|i| i.raw.exr.as_ref());
+    // The part and channel header of the input's red.
+    let red = input.zip(headers).and_then(|(i, h)| {
+        h.parts.iter().find_map(|p| {
+            p.channels
+                .iter()
+                .find(|c| c.full_name == i.color[0])
+                .map(|c| (p, c))
+        })
+    });
+    let precision = opts.precision.unwrap_or(match red {
+        Some((_, c)) if c.sample_type == x::SampleType::F16 => Precision::F16,
+        _ => Precision::F32,
+    });
     let list: Vec<_> = frame
         .color
         .iter()
@@ -261,7 +298,11 @@ fn color_only_image(frame: &FilteredFrame, headers: Option<&ExrHeaders>, opts: &
         None => x::ImageAttributes::new(x::IntegerBounds::from_dimensions(size)),
     };
     let encoding = x::Encoding {
-        compression: opts.compression.unwrap_or(Compression::Zip).to_exr(),
+        compression: match (opts.compression, red) {
+            (Some(c), _) => c.to_exr(),
+            (None, Some((p, _))) => p.encoding.compression,
+            (None, None) => Compression::Zip.to_exr(),
+        },
         blocks: x::Blocks::ScanLines,
         line_order: x::LineOrder::Increasing,
     };
@@ -311,6 +352,12 @@ fn kept_image(
         let mut attributes = part.attributes.clone();
         if holds_color {
             set_frame_attributes(frame, &mut attributes);
+        } else {
+            // The frame's values live on the colour's part alone; stale copies elsewhere
+            // would be read back over them.
+            attributes
+                .other
+                .retain(|k, _| !k.to_string().starts_with("afterimage."));
         }
         let mut encoding = part.encoding;
         if let Some(c) = opts.compression {
@@ -339,6 +386,19 @@ fn passed_through(
             path: input.raw.path.clone(),
             reason: format!("channel {} is in the header but was not decoded", ch.full_name),
         })?;
+    let len = match &raw.data {
+        RawData::F32(v) => v.len(),
+        RawData::U32(v) => v.len(),
+    };
+    if len != input.raw.width * input.raw.height {
+        return Err(IoError::Inconsistent {
+            path: input.raw.path.clone(),
+            reason: format!(
+                "channel {} holds {len} samples, not the {}x{} of its part",
+                ch.full_name, input.raw.width, input.raw.height
+            ),
+        });
+    }
     Ok(match (&raw.data, ch.sample_type) {
         (RawData::F32(v), x::SampleType::F16) => float_samples(v, Precision::F16),
         (RawData::F32(v), _) => x::FlatSamples::F32(v.clone()),

@@ -311,9 +311,13 @@ pub struct Totals {
 }
 
 fn new_id() -> Result<String, SessionError> {
-    let mut b = [0u8; 16];
-    getrandom::fill(&mut b)
-        .map_err(|e| SessionError::Internal(format!("no OS randomness for a session id: {e}")))?;
+    random_hex(16).map_err(|e| SessionError::Internal(format!("no OS randomness for a session id: {e}")))
+}
+
+/// `bytes` random bytes from the OS, as lower-case hex (session ids, routing keys).
+pub fn random_hex(bytes: usize) -> Result<String, getrandom::Error> {
+    let mut b = vec![0u8; bytes];
+    getrandom::fill(&mut b)?;
     Ok(b.iter().map(|x| format!("{x:02x}")).collect())
 }
 

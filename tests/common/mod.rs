@@ -164,6 +164,27 @@ pub fn assert_replaces(input: &Path, output: &Path, expect: Expect) {
             strip(&lb.attributes),
             "attributes of part {part:?}: {what}"
         );
+        let holds_color = lb.channel_data.list.iter().any(|c| {
+            let full = if part.is_empty() {
+                c.name.to_string()
+            } else {
+                format!("{part}.{}", c.name)
+            };
+            full == "R" || (full.contains("Combined") && full.ends_with(".R"))
+        });
+        if !holds_color {
+            let stale: Vec<String> = lb
+                .attributes
+                .other
+                .keys()
+                .map(|k| k.to_string())
+                .filter(|k| k.starts_with("afterimage."))
+                .collect();
+            assert!(
+                stale.is_empty(),
+                "part {part:?} has frame attributes {stale:?}: {what}"
+            );
+        }
         if let Some(AttributeValue::Text(t)) = lb.attributes.other.get(&Text::from("afterimage.record")) {
             let v: serde_json::Value = serde_json::from_str(&t.to_string()).expect("record is JSON");
             assert!(v.is_object(), "{v}");
