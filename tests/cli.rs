@@ -906,44 +906,30 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
     assert_eq!(from_csv[3].color(), still[3].color());
     // Gaps and out-of-range values are refused before anything runs.
     let never = dir.path().join("never");
+    let refused = |jitter: &str| -> String {
+        let o = never.to_str().unwrap();
+        let (ok, _, err) = run(&[
+            "filter",
+            "--filter",
+            "taa",
+            "-i",
+            d,
+            "-o",
+            o,
+            "--jitter-from",
+            jitter,
+        ]);
+        assert!(!ok, "--jitter-from {jitter} was taken");
+        err
+    };
     std::fs::write(&zeros, "[[0, 0], [0, 0]]").unwrap();
-    let (ok, _, err) = run(&[
-        "filter",
-        "--filter",
-        "taa",
-        "-i",
-        d,
-        "-o",
-        never.to_str().unwrap(),
-        "--jitter-from",
-        zeros.to_str().unwrap(),
-    ]);
-    assert!(!ok && err.contains("2 jitters for 4 frames"), "{err}");
+    let err = refused(zeros.to_str().unwrap());
+    assert!(err.contains("2 jitters for 4 frames"), "{err}");
     std::fs::write(&csv, "0,0,0\n1,0,0\n2,0,0\n3,3,0\n").unwrap();
-    let (ok, _, err) = run(&[
-        "filter",
-        "--filter",
-        "taa",
-        "-i",
-        d,
-        "-o",
-        never.to_str().unwrap(),
-        "--jitter-from",
-        csv.to_str().unwrap(),
-    ]);
-    assert!(!ok && err.contains("frame 3") && err.contains("-1..=1"), "{err}");
-    let (ok, _, err) = run(&[
-        "filter",
-        "--filter",
-        "taa",
-        "-i",
-        d,
-        "-o",
-        never.to_str().unwrap(),
-        "--jitter-from",
-        "halton:0",
-    ]);
-    assert!(!ok && err.contains("halton:N"), "{err}");
+    let err = refused(csv.to_str().unwrap());
+    assert!(err.contains("frame 3") && err.contains("-1..=1"), "{err}");
+    let err = refused("halton:0");
+    assert!(err.contains("halton:N"), "{err}");
     assert!(!never.exists(), "refused before anything was written");
 }
 

@@ -512,6 +512,26 @@ fn exr_color(body: &[u8]) -> Rgb {
         .into_color()
 }
 
+/// Flushes session `id` over HTTP until 204: each output's reply (200) headers and body.
+async fn flush_all(addr: std::net::SocketAddr, id: &str) -> Vec<(String, Vec<u8>)> {
+    let mut out = Vec::new();
+    loop {
+        let (st, headers, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{id}/flush"),
+            b"",
+            "text/plain",
+        )
+        .await;
+        if st == 204 {
+            return out;
+        }
+        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+        out.push((headers, body));
+    }
+}
+
 /// A minimal HTTP/1.1 exchange over a real socket.
 async fn http(
     addr: std::net::SocketAddr,
@@ -638,19 +658,7 @@ async fn http_frames_are_bit_identical_too() {
             got.push(exr_color(&body));
         }
     }
-    loop {
-        let (st, headers, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{pid}/flush"),
-            b"",
-            "text/plain",
-        )
-        .await;
-        if st == 204 {
-            break;
-        }
-        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+    for (headers, body) in flush_all(addr, &pid).await {
         assert!(
             headers.to_ascii_lowercase().contains("x-afterimage-ready: "),
             "{headers}"
@@ -776,21 +784,7 @@ async fn replies_and_stream_outputs_replace_their_inputs() {
                     replies.push(body);
                 }
             }
-            loop {
-                let (st, _, body) = http(
-                    addr,
-                    "POST",
-                    &format!("/v1/sessions/{id}/flush"),
-                    b"",
-                    "text/plain",
-                )
-                .await;
-                if st == 204 {
-                    break;
-                }
-                assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
-                replies.push(body);
-            }
+            replies.extend(flush_all(addr, &id).await.into_iter().map(|(_, body)| body));
             assert_eq!(replies.len(), 3, "{name} {filter}");
             for (k, body) in replies.iter().enumerate() {
                 let n = k + 1;
@@ -975,21 +969,7 @@ async fn http_frame_values_come_from_headers() {
             replies.push(body);
         }
     }
-    loop {
-        let (st, _, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{pid}/flush"),
-            b"",
-            "text/plain",
-        )
-        .await;
-        if st == 204 {
-            break;
-        }
-        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
-        replies.push(body);
-    }
+    replies.extend(flush_all(addr, &pid).await.into_iter().map(|(_, body)| body));
     assert_eq!(replies.len(), 3);
     for body in &replies {
         let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(&body[..]), false).unwrap();

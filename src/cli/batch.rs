@@ -22,7 +22,7 @@
 
 use super::filter::{run_shot, FilterArgs};
 use super::outln;
-use afterimage::io::{OutputNaming, Sequence};
+use afterimage::io::{partial_path, OutputNaming, Sequence};
 use anyhow::Context;
 use clap::{Args, Parser};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
@@ -269,12 +269,13 @@ fn done_marker(spec: &ShotSpec) -> anyhow::Result<PathBuf> {
         .join(format!("{}.json", spec.name)))
 }
 
-/// Writes `text` to `path` whole or not at all (a temporary file renamed into place).
+/// Writes `text` to `path` whole or not at all (under [`partial_path`], then renamed), as
+/// the frames are written.
 fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let tmp = path.with_extension("partial");
+    let tmp = partial_path(path);
     std::fs::write(&tmp, text).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))
 }

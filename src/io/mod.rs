@@ -21,7 +21,8 @@ pub use exr_file::{
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use naming::{refuse_overwrite, FramePattern, OutputNaming};
 pub use output::{
-    encode_filtered, write_filtered, FilteredFrame, InputImage, Keep, OutputOptions, RECORD_ATTRIBUTE,
+    encode_filtered, partial_path, write_filtered, FilteredFrame, InputImage, Keep, OutputOptions,
+    RECORD_ATTRIBUTE,
 };
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};

@@ -202,15 +202,21 @@ pub fn write_filtered(path: &Path, frame: &FilteredFrame, opts: &OutputOptions) 
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
     }
-    let name = path
-        .file_name()
-        .map_or("frame".into(), |n| n.to_string_lossy().into_owned());
-    let partial = path.with_file_name(format!(".{name}.partial"));
+    let partial = partial_path(path);
     image
         .write()
         .to_file(&partial)
         .map_err(|e| super::exr_file::exr_error(&partial, e))?;
     std::fs::rename(&partial, path).map_err(|e| IoError::os(path, e))
+}
+
+/// The hidden name a file is written under before it is renamed to `path` (`.NAME.partial`
+/// beside it), so that it appears whole or not at all.
+pub fn partial_path(path: &Path) -> std::path::PathBuf {
+    let name = path
+        .file_name()
+        .map_or("file".into(), |n| n.to_string_lossy().into_owned());
+    path.with_file_name(format!(".{name}.partial"))
 }
 
 /// Encodes a filtered frame as EXR bytes (an HTTP reply), as [`write_filtered`] writes it.
