@@ -1074,8 +1074,14 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
     assert!(!ok && err.contains("INDEX/COUNT"), "{err}");
 }
 
+/// A batch killed (SIGKILL) mid-shot shows no partial frame, and its rerun continues from
+/// the last checkpoint to the outputs and figures of an uninterrupted run, rewriting none of
+/// the frames before the checkpoint: for a causal filter (its state saved) and a windowed
+/// one (its window replayed), on jittered frames measured against their reference.
 #[test]
-fn a_killed_batch_shows_no_partial_frame_and_resumes_to_the_same_outputs() {
+fn a_killed_batch_resumes_from_its_checkpoint_to_the_same_outputs() {
+    const EVERY: usize = 4;
+    const FRAMES: usize = 32;
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let input = d.join("in/long");
@@ -1083,7 +1089,7 @@ fn a_killed_batch_shows_no_partial_frame_and_resumes_to_the_same_outputs() {
         "scene",
         "fence",
         "--frames",
-        "24",
+        &FRAMES.to_string(),
         "--size",
         "96x64",
         "--spp",
@@ -1092,51 +1098,332 @@ fn a_killed_batch_shows_no_partial_frame_and_resumes_to_the_same_outputs() {
         input.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
-    let batch = |out: &Path| -> std::process::Command {
-        let mut c = common::bin();
-        c.args(["batch", "--filter", "pixel_trace", "-i"])
+    for filter in ["phlm", "pixel_trace"] {
+        let batch = |out: &Path| -> std::process::Command {
+            let mut c = common::bin();
+            c.args([
+                "batch",
+                "--filter",
+                filter,
+                "--checkpoint-every",
+                &EVERY.to_string(),
+                "-i",
+            ])
             .arg(&input)
             .arg("-o")
             .arg(out);
-        c.arg("--summary").arg(out.join("summary.json"));
-        c
-    };
-    let whole = d.join("whole");
-    assert!(batch(&whole).output().unwrap().status.success());
-    // Killed once its first frames are out: every visible frame is whole.
-    let cut = d.join("cut");
-    let mut child = batch(&cut)
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    let shot = cut.join("long");
-    let started = std::time::Instant::now();
-    while colours_in_count(&shot) < 3 && started.elapsed().as_secs() < 60 {
-        std::thread::sleep(std::time::Duration::from_millis(5));
+            c.arg("--summary").arg(out.join("summary.json"));
+            c
+        };
+        let whole = d.join(format!("whole-{filter}"));
+        assert!(batch(&whole).output().unwrap().status.success());
+        // Killed once a checkpoint past the first few frames is in place.
+        let cut = d.join(format!("cut-{filter}"));
+        let mut child = batch(&cut)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        let shot = cut.join("long");
+        let progress = shot.join(".afterimage-progress/long.progress.json");
+        let next = |p: &Path| -> Option<usize> {
+            let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).ok()?).ok()?;
+            v["next"].as_u64().map(|n| n as usize)
+        };
+        let started = std::time::Instant::now();
+        while next(&progress).is_none_or(|n| n < 2 * EVERY) && started.elapsed().as_secs() < 120 {
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        child.kill().unwrap();
+        child.wait().unwrap();
+        let at = next(&progress).expect("a checkpoint was written");
+        let visible = colours_in(&shot);
+        assert!(
+            at >= 2 * EVERY && visible.len() < FRAMES,
+            "{filter}: killed at checkpoint {at} with {} of {FRAMES} frames out (finished too soon?)",
+            visible.len()
+        );
+        assert!(
+            visible.len() >= at && visible.len() <= at + EVERY,
+            "{filter}: {} out, checkpoint {at}",
+            visible.len()
+        );
+        assert!(!shot.join(".afterimage-done/long.json").exists());
+        let inode = |k: usize| {
+            use std::os::unix::fs::MetadataExt;
+            std::fs::metadata(shot.join(format!("frame_{k:04}.exr")))
+                .ok()
+                .map(|m| m.ino())
+        };
+        let before: Vec<_> = (0..FRAMES).map(inode).collect();
+        // The rerun continues at the checkpoint and ends where an uninterrupted run ends.
+        assert!(batch(&cut).output().unwrap().status.success());
+        assert_eq!(colours_in(&shot), colours_in(&whole.join("long")), "{filter}");
+        let after: Vec<_> = (0..FRAMES).map(inode).collect();
+        let rewritten: Vec<usize> = (0..FRAMES)
+            .filter(|&k| before[k].is_some() && before[k] != after[k])
+            .collect();
+        assert!(
+            rewritten.iter().all(|&k| k >= at),
+            "{filter}: rewrote {rewritten:?} before checkpoint {at}"
+        );
+        assert!(rewritten.len() <= EVERY, "{filter}: redid {rewritten:?}");
+        let records = |root: &Path| -> serde_json::Value {
+            serde_json::from_slice(&std::fs::read(root.join("long/long.records.json")).unwrap()).unwrap()
+        };
+        let (a, b) = (records(&whole), records(&cut));
+        assert_eq!(a["frames"].as_array().unwrap().len(), FRAMES);
+        assert_eq!(b["frames"].as_array().unwrap().len(), FRAMES);
+        assert_eq!(a["metrics"], b["metrics"], "{filter}: the figures of every frame");
+        assert!(a["summary"]["trmse"].is_number(), "{}", a["summary"]);
+        assert_eq!(a["summary"], b["summary"], "{filter}");
+        assert!(!shot.join(".afterimage-progress/long.progress.json").exists());
     }
-    child.kill().unwrap();
-    child.wait().unwrap();
-    let partial = colours_in(&shot);
-    assert!(
-        !partial.is_empty() && partial.len() < 24,
-        "{} frames were out at the kill",
-        partial.len()
-    );
-    assert!(!shot.join(".afterimage-done/long.json").exists());
-    // The rerun filters the shot again and ends where an uninterrupted run ends.
-    assert!(batch(&cut).output().unwrap().status.success());
-    assert_eq!(colours_in(&shot), colours_in(&whole.join("long")));
 }
 
-/// Visible `.exr` files in `dir` (0 when it does not exist yet).
-fn colours_in_count(dir: &Path) -> usize {
-    std::fs::read_dir(dir).map_or(0, |r| {
-        r.filter_map(Result::ok)
-            .filter(|e| {
-                let n = e.file_name().to_string_lossy().into_owned();
-                n.ends_with(".exr") && !n.starts_with('.')
-            })
-            .count()
-    })
+/// Every part, channel (sample bits) and attribute of an EXR file, in a stable order, without
+/// the record attribute (whose timings differ between any two runs).
+fn exr_without_record(path: &Path) -> Vec<String> {
+    use exr::prelude::FlatSamples;
+    let image = common::read_exr_all(path);
+    let mut out = vec![format!("{:?}", image.attributes)];
+    for layer in &image.layer_data {
+        let mut attrs: Vec<String> = layer
+            .attributes
+            .other
+            .iter()
+            .filter(|(k, _)| **k != *afterimage::io::RECORD_ATTRIBUTE)
+            .map(|(k, v)| format!("{k}={v:?}"))
+            .collect();
+        attrs.sort();
+        out.push(format!(
+            "{:?} {:?} {:?} {attrs:?}",
+            layer.attributes.layer_name, layer.size, layer.encoding
+        ));
+        for c in &layer.channel_data.list {
+            let bits: Vec<u32> = match &c.sample_data {
+                FlatSamples::F16(v) => v.iter().map(|x| x.to_bits() as u32).collect(),
+                FlatSamples::F32(v) => v.iter().map(|x| x.to_bits()).collect(),
+                FlatSamples::U32(v) => v.clone(),
+            };
+            out.push(format!("{} {bits:?}", c.name));
+        }
+    }
+    out
+}
+
+/// moto's S3 server on a free loopback port with an empty bucket `afterimage`; killed when
+/// dropped.
+struct Moto {
+    child: std::process::Child,
+    endpoint: String,
+}
+
+impl Drop for Moto {
+    fn drop(&mut self) {
+        self.child.kill().ok();
+        self.child.wait().ok();
+    }
+}
+
+impl Moto {
+    const BUCKET: &'static str = "afterimage";
+
+    /// None (with the reason printed) when moto is not installed, unless
+    /// AFTERIMAGE_REQUIRE_MOTO is set. AFTERIMAGE_MOTO names its `moto_server`.
+    fn start() -> Option<Moto> {
+        let exe = std::env::var("AFTERIMAGE_MOTO").unwrap_or_else(|_| "moto_server".into());
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let child = std::process::Command::new(&exe)
+            .args(["-H", "127.0.0.1", "-p", &port.to_string()])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn();
+        let Ok(child) = child else {
+            assert!(
+                std::env::var_os("AFTERIMAGE_REQUIRE_MOTO").is_none(),
+                "AFTERIMAGE_REQUIRE_MOTO is set but {exe} does not start"
+            );
+            eprintln!("SKIPPED: {exe} not found (pip install 'moto[server]'); the S3 test did not run");
+            return None;
+        };
+        let moto = Moto {
+            child,
+            endpoint: format!("http://127.0.0.1:{port}"),
+        };
+        let started = std::time::Instant::now();
+        loop {
+            // Creating the bucket is the readiness probe: a path-style PUT, unsigned (moto
+            // does not check signatures).
+            if let Ok(mut s) = std::net::TcpStream::connect(("127.0.0.1", port)) {
+                use std::io::{Read, Write};
+                let req = format!(
+                    "PUT /{} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+                    Moto::BUCKET
+                );
+                let mut reply = String::new();
+                if s.write_all(req.as_bytes()).is_ok() && s.read_to_string(&mut reply).is_ok() {
+                    assert!(reply.starts_with("HTTP/1.1 200"), "creating the bucket: {reply}");
+                    return Some(moto);
+                }
+            }
+            assert!(started.elapsed().as_secs() < 30, "moto did not answer in 30 s");
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+    }
+
+    fn store(&self) -> object_store::aws::AmazonS3 {
+        object_store::aws::AmazonS3Builder::new()
+            .with_endpoint(&self.endpoint)
+            .with_allow_http(true)
+            .with_bucket_name(Moto::BUCKET)
+            .with_region("us-east-1")
+            .with_access_key_id("test")
+            .with_secret_access_key("test")
+            .build()
+            .unwrap()
+    }
+
+    /// `afterimage ARGS` with credentials for this server.
+    fn run(&self, args: &[&str]) -> (bool, String, String) {
+        let out = common::bin()
+            .args(args)
+            .args(["--endpoint", &self.endpoint])
+            .env("AWS_ACCESS_KEY_ID", "test")
+            .env("AWS_SECRET_ACCESS_KEY", "test")
+            .env("AWS_REGION", "us-east-1")
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    }
+}
+
+/// Two shots (and a broken third) uploaded to a real S3 API (moto on loopback): `batch`
+/// reads them from the bucket and writes outputs, done markers and summaries there, each
+/// output what `filter` writes for the same shot from local files; a rerun skips them.
+#[test]
+fn batch_filters_shots_in_s3_as_filter_does_locally() {
+    use object_store::{ObjectStore, ObjectStoreExt};
+    let Some(moto) = Moto::start() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let rt = tokio::runtime::Runtime::new().unwrap();
+    let store = moto.store();
+    let key = |k: &str| object_store::path::Path::from(k);
+    for (shot, scene) in [("a", "fence"), ("b", "flyover"), ("c", "fence")] {
+        let input = d.join("in").join(shot);
+        let (ok, _, err) = run(&[
+            "scene",
+            scene,
+            "--frames",
+            "5",
+            "--size",
+            "48x32",
+            "--spp",
+            "1",
+            "-o",
+            input.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        for e in std::fs::read_dir(&input).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            // Shot c lacks a frame: it fails, alone.
+            if name.ends_with(".exr") && !(shot == "c" && name.contains("0002")) {
+                let bytes = std::fs::read(&p).unwrap();
+                rt.block_on(store.put(&key(&format!("shots/{shot}/{name}")), bytes.into()))
+                    .unwrap();
+            }
+        }
+    }
+    let s3 = |k: &str| format!("s3://{}/{k}", Moto::BUCKET);
+    let batch = [
+        "batch",
+        "--filter",
+        "taa",
+        "--checkpoint-every",
+        "2",
+        "-i",
+        &s3("shots/a/"),
+        "-i",
+        &s3("shots/b"),
+        "-i",
+        &s3("shots/c/"),
+        "-o",
+        &s3("out"),
+        "--summary",
+        &s3("out/summary.json"),
+    ];
+    let (ok, out, err) = moto.run(&batch);
+    assert!(!ok, "shot c has a gap: {out}");
+    assert!(out.contains("2 done") && out.contains("1 failed"), "{out}\n{err}");
+    assert!(
+        out.contains("frame 2 is missing") && out.contains("shots/c"),
+        "{out}"
+    );
+    let listed: Vec<String> = rt
+        .block_on(async {
+            use futures_util::TryStreamExt;
+            store.list(Some(&key("out"))).try_collect::<Vec<_>>().await
+        })
+        .unwrap()
+        .into_iter()
+        .map(|m| m.location.to_string())
+        .collect();
+    let get = |k: &str| -> Vec<u8> {
+        rt.block_on(async { store.get(&key(k)).await.unwrap().bytes().await.unwrap().to_vec() })
+    };
+    for shot in ["a", "b"] {
+        let local = d.join("local").join(shot);
+        let (ok, _, err) = run(&[
+            "filter",
+            "--filter",
+            "taa",
+            "-i",
+            d.join("in").join(shot).to_str().unwrap(),
+            "-o",
+            local.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        for k in 0..5 {
+            let name = format!("frame_{k:04}.exr");
+            let got = d.join("got").join(shot).join(&name);
+            std::fs::create_dir_all(got.parent().unwrap()).unwrap();
+            std::fs::write(&got, get(&format!("out/{shot}/{name}"))).unwrap();
+            assert_eq!(
+                exr_without_record(&got),
+                exr_without_record(&local.join(&name)),
+                "{shot} {name}"
+            );
+        }
+        assert!(
+            listed.contains(&format!("out/{shot}/.afterimage-done/{shot}.json")),
+            "{listed:?}"
+        );
+    }
+    assert!(
+        listed
+            .iter()
+            .all(|k| !k.contains("partial") && !k.contains(".afterimage-progress")),
+        "{listed:?}"
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&get("out/summary.json")).unwrap();
+    assert_eq!(summary["failed"], 1, "{summary}");
+    assert!(String::from_utf8(get("out/summary.md"))
+        .unwrap()
+        .contains("| a | done | 5 |"));
+    // A rerun skips the finished shots and fails c again.
+    let (ok, out, _) = moto.run(&batch);
+    assert!(
+        !ok && out.contains("2 skipped") && out.contains("1 failed"),
+        "{out}"
+    );
 }

@@ -1581,6 +1581,7 @@ async fn keyed_server(tweak: impl FnOnce(&mut Config)) -> (Running, tempfile::Te
     (r, dir)
 }
 
+const STATE_TYPE: &str = "application/vnd.afterimage.state";
 const KEY_A: &str = "key-a-0123456789abcdef";
 const KEY_B: &str = "key-b-0123456789abcdef";
 
@@ -2378,4 +2379,161 @@ impl Drop for KillOnDrop {
             .status();
         let _ = self.0.wait();
     }
+}
+
+/// A session exported over HTTP and imported into a new session continues bit for bit
+/// (colour and frame index), on the same state file format batch checkpoints use; a state
+/// file that is damaged, too large, of another filter or size, or of a windowed filter is
+/// refused with the reason, and the session it was sent to goes on as before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_exported_session_continues_in_another() {
+    let r = server(|_| {}).await;
+    let addr = r.http_addr;
+    let create = |body: &'static str| async move {
+        let (st, _, b) = http(addr, "POST", "/v1/sessions", body.as_bytes(), "application/json").await;
+        assert_eq!(st, 201, "{}", String::from_utf8_lossy(&b));
+        serde_json::from_slice::<Value>(&b).unwrap()["id"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let phlm = r#"{"filter":"phlm","width":64,"height":36}"#;
+    let (a, b) = (create(phlm).await, create(phlm).await);
+    let full = WriteOptions {
+        precision: Precision::F32,
+        compression: Compression::Zip,
+    };
+    let fr = frames("flyover", 6, 1);
+    let post = |id: String, f: &Frame| {
+        let exr = write_exr_bytes(f, &full).unwrap();
+        async move {
+            let (st, _, body) = http(
+                addr,
+                "POST",
+                &format!("/v1/sessions/{id}/frames"),
+                &exr,
+                "image/x-exr",
+            )
+            .await;
+            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+            let f = afterimage::io::read_exr_frame_bytes(
+                &body,
+                std::path::Path::new("reply"),
+                &Default::default(),
+            )
+            .unwrap();
+            let bits: Vec<u32> = f
+                .color()
+                .iter()
+                .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+                .collect();
+            (exr_record(&body)["index"].as_u64().unwrap(), bits)
+        }
+    };
+    for f in &fr[..3] {
+        post(a.clone(), f).await;
+    }
+    let (st, head, state) = http(addr, "GET", &format!("/v1/sessions/{a}/state"), b"", "text/plain").await;
+    assert_eq!(st, 200, "{}", String::from_utf8_lossy(&state));
+    assert!(
+        head.to_ascii_lowercase()
+            .contains("application/vnd.afterimage.state"),
+        "{head}"
+    );
+    let put = |id: String, body: Vec<u8>| async move {
+        let (st, _, reply) = http(
+            addr,
+            "PUT",
+            &format!("/v1/sessions/{id}/state"),
+            &body,
+            STATE_TYPE,
+        )
+        .await;
+        (st, String::from_utf8_lossy(&reply).into_owned())
+    };
+    let (st, text) = put(b.clone(), state.clone()).await;
+    assert_eq!(st, 200, "{text}");
+    // Frames without an index: both number them on from the exported session's last.
+    for f in &fr[3..] {
+        let mut f = f.clone();
+        f.meta.index = 0;
+        let plain = |f: &Frame| {
+            use exr::prelude::*;
+            let list = f
+                .color()
+                .iter()
+                .zip(["R", "G", "B"])
+                .map(|(p, n)| AnyChannel::new(n, FlatSamples::F32(p.data().to_vec())))
+                .collect();
+            let mut out = std::io::Cursor::new(Vec::new());
+            Image::from_channels((64, 36), AnyChannels::sort(list))
+                .write()
+                .to_buffered(&mut out)
+                .unwrap();
+            out.into_inner()
+        };
+        let mut replies = Vec::new();
+        for id in [&a, &b] {
+            let (st, _, body) = http(
+                addr,
+                "POST",
+                &format!("/v1/sessions/{id}/frames"),
+                &plain(&f),
+                "image/x-exr",
+            )
+            .await;
+            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+            let g = afterimage::io::read_exr_frame_bytes(
+                &body,
+                std::path::Path::new("reply"),
+                &Default::default(),
+            )
+            .unwrap();
+            let bits: Vec<u32> = g
+                .color()
+                .iter()
+                .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+                .collect();
+            replies.push((exr_record(&body)["index"].as_u64().unwrap(), bits));
+        }
+        assert!(
+            replies[0] == replies[1],
+            "frame {}: the imported session differs",
+            replies[0].0
+        );
+    }
+    // Refusals, each naming what is wrong.
+    let mut damaged = state.clone();
+    let at = damaged.len() / 2;
+    damaged[at] ^= 1;
+    let taa = create(r#"{"filter":"taa","width":64,"height":36}"#).await;
+    let small = create(r#"{"filter":"phlm","width":32,"height":18}"#).await;
+    let window = create(r#"{"filter":"pixel_trace","width":64,"height":36}"#).await;
+    for (id, body, want) in [
+        (b.clone(), b"not a state".to_vec(), "not an afterimage state file"),
+        (b.clone(), damaged, "checksum"),
+        (taa.clone(), state.clone(), "does not fit filter taa"),
+        (small.clone(), state.clone(), "pixels"),
+        (window.clone(), state.clone(), "cannot save or load"),
+    ] {
+        let (st, text) = put(id, body).await;
+        assert!(st == 400 || st == 413, "{want}: {st} {text}");
+        assert!(text.contains(want), "{want}: {text}");
+    }
+    let (st, _, text) = http(
+        addr,
+        "GET",
+        &format!("/v1/sessions/{window}/state"),
+        b"",
+        "text/plain",
+    )
+    .await;
+    assert!(
+        st == 400 && String::from_utf8_lossy(&text).contains("window"),
+        "{st}"
+    );
+    // The session refused a state goes on from its own.
+    let (index, _) = post(b.clone(), &fr[5]).await;
+    assert_eq!(index, fr[5].meta.index);
+    r.shutdown().await.unwrap();
 }

@@ -2,21 +2,16 @@
 
 use super::outln;
 use super::read_args::{ReadArgs, WriteArgs};
+use super::shot::run_shot;
 use afterimage::filters;
-use afterimage::frame::{Frame, FrameMeta, Rgb};
-use afterimage::io::{
-    refuse_overwrite, write_filtered, write_png, FilteredFrame, InputImage, OutputNaming, Sequence,
-};
-use afterimage::metrics::{Evaluator, SpaceChoice, Timing};
-use afterimage::pipeline::{
-    params::parse_assignments, summarize_stages, Filter, FrameRecord, Output, ParamKind,
-};
+use afterimage::io::Sequence;
+use afterimage::metrics::Timing;
+use afterimage::pipeline::{summarize_stages, ParamKind};
 use afterimage::scene::halton_jitter;
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use serde_json::json;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 /// Arguments of `filter`.
@@ -24,48 +19,52 @@ use std::path::PathBuf;
 pub struct FilterArgs {
     /// The filter (see `afterimage filters`).
     #[arg(long)]
-    filter: String,
+    pub(super) filter: String,
     /// Set a parameter: --set alpha=0.05 --set variant=baseline. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
-    set: Vec<String>,
+    pub(super) set: Vec<String>,
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]
-    input: String,
+    pub(super) input: String,
     /// Where to write: a directory (each output keeps its input's file name) or a pattern
     /// with the frame number as `####`, `%04d`, `$F4` or `@@@@` (out/shot_aa.####.exr).
     /// records.json goes into the directory.
     #[arg(short = 'o', long, value_name = "DIR|PATTERN")]
-    output: String,
+    pub(super) output: String,
     /// Where to write the per-frame records (default: records.json in the output directory).
     #[arg(long, value_name = "FILE")]
-    records: Option<PathBuf>,
+    pub(super) records: Option<PathBuf>,
     /// Ground truth, frame for frame: PSNR, SSIM and tRMSE are printed and recorded
     /// (default: the input frames' own reference channel, when they have one).
     #[arg(long)]
-    reference: Option<String>,
+    pub(super) reference: Option<String>,
     /// Channel-name preset of the reference files.
     #[arg(long, default_value = "auto", value_name = "PRESET")]
-    reference_preset: String,
+    pub(super) reference_preset: String,
     /// Also write PNG previews (tonemapped c/(1+c) when the input is HDR).
     #[arg(long)]
-    png: bool,
+    pub(super) png: bool,
     /// Frame numbers where a new shot starts, comma-separated (--cuts 1001,1050): the filter
     /// drops its history there, as it does for a frame whose file says `afterimage.reset`.
     #[arg(long, value_delimiter = ',', value_name = "FRAME")]
-    cuts: Vec<u64>,
+    pub(super) cuts: Vec<u64>,
     /// Each frame's sub-pixel jitter, over what the files say (pixels, x right, y down):
     /// `halton:8` (Halton 2,3 with 8 phases, indexed by frame number modulo 8, as
     /// `afterimage scene` renders), or a file: JSON (`[[x, y], ...]` in frame order, or
     /// `{"1001": [x, y], ...}` by frame number) or CSV lines `frame,x,y`.
     #[arg(long, value_name = "halton:N|FILE")]
-    jitter_from: Option<String>,
+    pub(super) jitter_from: Option<String>,
     #[command(flatten)]
-    read: ReadArgs,
+    pub(super) read: ReadArgs,
     #[command(flatten)]
-    write: WriteArgs,
+    pub(super) write: WriteArgs,
     /// Old name of --half.
     #[arg(long, hide = true)]
-    f16: bool,
+    pub(super) f16: bool,
+    /// S3 endpoint for `s3://` inputs and outputs (an S3-compatible store such as MinIO);
+    /// default: AWS_ENDPOINT_URL, else AWS's own.
+    #[arg(long, value_name = "URL")]
+    pub(super) endpoint: Option<String>,
 }
 
 /// Arguments of `filters`.
@@ -120,33 +119,14 @@ pub fn list(args: FiltersArgs) -> anyhow::Result<()> {
     super::print_stdout(&text)
 }
 
-/// What the output of a pushed frame needs when it comes out.
-struct Pending {
-    number: u64,
-    path: PathBuf,
-    meta: FrameMeta,
-    reference: Option<Rgb>,
-    hdr: bool,
-    input: InputImage,
-}
-
-/// What filtering one sequence gave (`filter` prints it; `batch` summarises it).
-pub struct ShotReport {
-    /// Where the outputs went (the directory or pattern).
-    pub output: String,
-    /// The frames' records, in order.
-    pub records: Vec<FrameRecord>,
-    /// Quality against the reference, when there was one.
-    pub summary: Option<afterimage::metrics::Summary>,
-}
-
 pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     let bar = ProgressBar::new(0).with_style(
         ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
             .progress_chars("=> "),
     );
     bar.set_message(args.filter.clone());
-    let report = run_shot(&args, &bar)?;
+    super::store::set_endpoint(args.endpoint.clone())?;
+    let report = run_shot(&args, &bar, None)?;
     bar.finish_and_clear();
     let records = &report.records;
     // Per-stage medians, then quality.
@@ -184,137 +164,9 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Filters the sequence `args` names and writes its outputs and records; `bar` counts the
-/// frames (its length is set here).
-pub fn run_shot(args: &FilterArgs, bar: &ProgressBar) -> anyhow::Result<ShotReport> {
-    let values = parse_assignments(&args.set)?;
-    let mut filter = filters::create(&args.filter, &values)?;
-    let in_opts = args.read.options()?;
-    let (input, reference, ref_opts) = super::read_args::open_with_reference(
-        &args.input,
-        args.reference.as_deref(),
-        &args.reference_preset,
-    )?;
-    if let Some(missing) = args
-        .cuts
-        .iter()
-        .find(|&&c| !input.entries.iter().any(|e| e.number == c))
-    {
-        let (first, last) = (input.entries[0].number, input.entries[input.len() - 1].number);
-        anyhow::bail!("--cuts {missing}: the input has no frame {missing} (its frames are {first}-{last})");
-    }
-    let jitter = match &args.jitter_from {
-        Some(spec) => Some(jitter_table(spec, &input)?),
-        None => None,
-    };
-    let naming = OutputNaming::parse(&args.output)?;
-    let mut write = args.write.options()?;
-    if args.f16 {
-        write.precision = Some(afterimage::io::Precision::F16);
-    }
-    let mut outputs: Vec<PathBuf> = input
-        .entries
-        .iter()
-        .map(|e| naming.path(&e.path, e.number))
-        .collect();
-    if args.png {
-        outputs.extend(
-            input
-                .entries
-                .iter()
-                .map(|e| naming.preview_path(&e.path, e.number)),
-        );
-    }
-    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.path.clone()).collect();
-    refuse_overwrite(&outputs, &inputs)?;
-    let out_dir = naming.dir().to_path_buf();
-    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    bar.set_length(input.len() as u64);
-    let mut eval = Evaluator::new(SpaceChoice::Auto);
-    let mut records: Vec<FrameRecord> = Vec::new();
-    let mut ref_frames = reference.as_ref().map(|r| r.frames(&ref_opts));
-    // A windowed filter returns frame t after frame t + lookahead arrives: what the output
-    // of each pushed frame needs waits here until it comes out.
-    let mut pending: VecDeque<Pending> = VecDeque::new();
-    let mut emit =
-        |out: Output, pending: &mut VecDeque<Pending>, filter: &mut dyn Filter| -> anyhow::Result<()> {
-            let p = pending.pop_front().expect("one output per frame pushed");
-            if let Some(r) = &p.reference {
-                eval.push(p.number, &out.color, r, p.meta.reset)
-                    .with_context(|| format!("measuring frame {} against its reference", p.number))?;
-            }
-            let record = serde_json::to_string(&out.record)?;
-            let path = naming.path(&p.path, p.number);
-            let frame = FilteredFrame {
-                color: &out.color,
-                meta: &p.meta,
-                record: Some(&record),
-                input: Some(&p.input),
-            };
-            write_filtered(&path, &frame, &write).with_context(|| format!("writing {}", path.display()))?;
-            if args.png {
-                write_png(&naming.preview_path(&p.path, p.number), &out.color, p.hdr)?;
-            }
-            records.push(out.record);
-            filter.recycle(out.color);
-            bar.inc(1);
-            Ok(())
-        };
-    let given = |n: u64| jitter.as_ref().and_then(|t| t.get(&n).copied());
-    for (i, read) in input.inputs_jittered(&in_opts, given).enumerate() {
-        let entry = &input.entries[i];
-        let (mut frame, mut kept) = read?;
-        kept.trim_to(write.keep);
-        if args.cuts.contains(&entry.number) {
-            frame.meta.reset = true;
-        }
-        let reference: Option<Rgb> = match ref_frames.as_mut() {
-            Some(it) => Some(it.next().expect("same length")?.color().clone()),
-            None => frame.reference().cloned(),
-        };
-        pending.push_back(Pending {
-            number: entry.number,
-            path: entry.path.clone(),
-            meta: frame.meta.clone(),
-            reference,
-            hdr: frame_is_hdr(&frame),
-            input: kept,
-        });
-        let outs = filter
-            .push(&frame)
-            .with_context(|| format!("filtering {}", entry.path.display()))?;
-        for out in outs {
-            emit(out, &mut pending, filter.as_mut())?;
-        }
-    }
-    for out in filter.finish().context("flushing the filter's window")? {
-        emit(out, &mut pending, filter.as_mut())?;
-    }
-    let summary = eval.summary();
-    let doc = json!({
-        "filter": args.filter,
-        "params": filter.params(),
-        "input": args.input,
-        "frames": records,
-        "metrics": eval.frames,
-        "summary": summary,
-    });
-    let path = args
-        .records
-        .clone()
-        .unwrap_or_else(|| out_dir.join("records.json"));
-    std::fs::write(&path, serde_json::to_string_pretty(&doc)?)
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(ShotReport {
-        output: naming.to_string(),
-        records,
-        summary,
-    })
-}
-
 /// The jitter of every frame of `input` from `--jitter-from` (see [`FilterArgs`]), by
 /// frame number; every frame must get one.
-fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTreeMap<u64, [f32; 2]>> {
+pub(super) fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTreeMap<u64, [f32; 2]>> {
     let numbers: Vec<u64> = input.entries.iter().map(|e| e.number).collect();
     let table: BTreeMap<u64, [f32; 2]> = if let Some(n) = spec.strip_prefix("halton:") {
         let phases: u32 = n
@@ -382,8 +234,4 @@ fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTreeMap<u64, [f
         anyhow::bail!("--jitter-from {spec}: frame {k}: jitter {j:?} is not within -1..=1 pixels");
     }
     Ok(table)
-}
-
-fn frame_is_hdr(f: &Frame) -> bool {
-    f.color().iter().any(|p| p.data().iter().any(|&v| v > 1.0))
 }

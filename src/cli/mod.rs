@@ -10,6 +10,8 @@ mod read_args;
 mod report;
 mod scene;
 mod serve;
+mod shot;
+mod store;
 mod stream;
 
 use clap::{Parser, Subcommand};

@@ -26,8 +26,8 @@ use crate::pipeline::clean::{color_max, CleanMax};
 use crate::pipeline::exec::{for_rows, par_bands, StageClock, BAND_ROWS};
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, FrameFacts, InputCounts, Output, ParamKind,
-    PixelCounts, Recorder, Scratch, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, FilterState, FrameFacts, InputCounts, Output,
+    ParamKind, PixelCounts, Recorder, Scratch, Skip, StateError,
 };
 use serde_json::Value;
 
@@ -683,6 +683,16 @@ fn fused(
 impl Filter for Fxaa {
     fn name(&self) -> &'static str {
         Self::NAME
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(FilterState::empty(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        state.check_stateless(Self::NAME, &self.params())?;
+        self.last_hdr = None;
+        Ok(())
     }
 
     fn params(&self) -> Value {

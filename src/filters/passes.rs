@@ -6,8 +6,8 @@ use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{
-    bind_size, check_channels, check_needs, prepare, DoubleBuffer, FilterError, Inputs, ModelHealth, Output,
-    PixelCounts, Recorder, Scratch, Skip,
+    bind_size, check_channels, check_needs, prepare, DoubleBuffer, FilterError, FilterState, Inputs,
+    ModelHealth, Output, PixelCounts, Recorder, Scratch, Skip, StateError,
 };
 use std::borrow::Cow;
 
@@ -260,6 +260,56 @@ impl TemporalState {
             }
         }
         Ok(has_history)
+    }
+
+    /// The state to continue from (see [`crate::pipeline::state`]): the history planes and
+    /// whether the colour in them is tonemapped.
+    pub fn save(&self, filter: &'static str, params: serde_json::Value) -> FilterState {
+        let mut st = FilterState::empty(filter, params);
+        st.components = self.buffer.components().to_vec();
+        if let Some(size) = self.buffer.history_size() {
+            st.size = Some(size);
+            st.planes = self.buffer.read().to_vec();
+        }
+        st.flags.insert("tonemapped".into(), self.tonemapped.into());
+        st
+    }
+
+    /// Continues from `st`, a state [`Self::save`] gave for `filter` with `params`; on
+    /// error nothing changes.
+    pub fn load(
+        &mut self,
+        st: &FilterState,
+        filter: &'static str,
+        params: &serde_json::Value,
+    ) -> Result<(), StateError> {
+        st.check_for(filter, params)?;
+        let tonemapped = st.flag("tonemapped", filter)?;
+        if st.components != self.buffer.components() {
+            return Err(StateError::Mismatch {
+                what: st.filter.clone(),
+                filter,
+                message: format!(
+                    "its planes have {:?} channels, the filter's {:?}",
+                    st.components,
+                    self.buffer.components()
+                ),
+            });
+        }
+        match st.size {
+            Some(size) => {
+                self.buffer
+                    .restore(size, st.planes.clone())
+                    .map_err(|message| StateError::Mismatch {
+                        what: st.filter.clone(),
+                        filter,
+                        message,
+                    })?
+            }
+            None => self.buffer.reset(),
+        }
+        self.tonemapped = tonemapped;
+        Ok(())
     }
 
     /// After a frame: the written planes become the history; returns the bytes held.

@@ -13,8 +13,8 @@ use crate::pipeline::clean::CleanMax;
 use crate::pipeline::exec::par_bands;
 use crate::pipeline::input::REPAIR_STAGE;
 use crate::pipeline::{
-    check_needs, prepare, Filter, FilterError, FilterKind, InputCounts, Output, PixelCounts, Recorder,
-    Scratch, Skip,
+    check_needs, prepare, Filter, FilterError, FilterKind, FilterState, InputCounts, Output, PixelCounts,
+    Recorder, Scratch, Skip, StateError,
 };
 use serde_json::Value;
 
@@ -73,6 +73,15 @@ impl Filter for Passthrough {
     fn name(&self) -> &'static str {
         Self::NAME
     }
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(FilterState::empty(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        state.check_stateless(Self::NAME, &self.params())?;
+        Ok(())
+    }
+
     fn params(&self) -> Value {
         Value::Object(crate::pipeline::params::to_json(&Params {}))
     }

@@ -11,6 +11,7 @@ mod output;
 mod preset;
 mod raw;
 mod sequence;
+mod storage;
 
 pub use colormap::inferno;
 pub use exr_file::{
@@ -21,12 +22,13 @@ pub use exr_file::{
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
 pub use naming::{refuse_overwrite, FramePattern, OutputNaming};
 pub use output::{
-    encode_filtered, partial_path, write_filtered, FilteredFrame, InputImage, Keep, OutputOptions,
-    RECORD_ATTRIBUTE,
+    encode_filtered, encode_filtered_for, partial_path, write_filtered, FilteredFrame, InputImage, Keep,
+    OutputOptions, RECORD_ATTRIBUTE,
 };
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
 pub use sequence::{Sequence, SequenceEntry};
+pub use storage::{read_raw_in, LocalFiles, Storage};
 
 use crate::frame::{ChannelKind, Frame, FrameError};
 use std::path::{Path, PathBuf};
@@ -109,7 +111,8 @@ pub enum IoError {
 }
 
 impl IoError {
-    pub(crate) fn os(path: &Path, source: std::io::Error) -> Self {
+    /// The OS (or a storage service, as an OS-like error) refused `path`.
+    pub fn os(path: &Path, source: std::io::Error) -> Self {
         IoError::Os {
             path: path.to_path_buf(),
             source,

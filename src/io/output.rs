@@ -219,16 +219,36 @@ pub fn partial_path(path: &Path) -> std::path::PathBuf {
     path.with_file_name(format!(".{name}.partial"))
 }
 
-/// Encodes a filtered frame as EXR bytes (an HTTP reply), as [`write_filtered`] writes it.
+/// Encodes a filtered frame as EXR bytes (an HTTP reply), as [`write_filtered`] writes it,
+/// compressing on the calling thread.
 pub fn encode_filtered(frame: &FilteredFrame, opts: &OutputOptions) -> Result<Vec<u8>, IoError> {
-    let label = Path::new("(reply)");
+    encode(frame, opts, Path::new("(reply)"), false)
+}
+
+/// Encodes a filtered frame bound for `path` (an object store, or a file written by a
+/// [`super::Storage`]) exactly as [`write_filtered`] writes it, blocks compressed on the pool.
+pub fn encode_filtered_for(
+    path: &Path,
+    frame: &FilteredFrame,
+    opts: &OutputOptions,
+) -> Result<Vec<u8>, IoError> {
+    encode(frame, opts, path, true)
+}
+
+fn encode(
+    frame: &FilteredFrame,
+    opts: &OutputOptions,
+    label: &Path,
+    parallel: bool,
+) -> Result<Vec<u8>, IoError> {
     let image = filtered_image(frame, opts, label)?;
     let mut out = std::io::Cursor::new(Vec::new());
-    image
-        .write()
-        .non_parallel()
-        .to_buffered(&mut out)
-        .map_err(|e| super::exr_file::exr_error(label, e))?;
+    let written = if parallel {
+        image.write().to_buffered(&mut out)
+    } else {
+        image.write().non_parallel().to_buffered(&mut out)
+    };
+    written.map_err(|e| super::exr_file::exr_error(label, e))?;
     Ok(out.into_inner())
 }
 

@@ -17,7 +17,9 @@
 //! A spec with a bad token (two of them, one in a directory) is an error even when a
 //! glob could have read it.
 
-use super::{frame_and_input, read_raw, FileType, FramePattern, InputImage, IoError, ReadOptions};
+use super::{
+    frame_and_input, read_raw_in, FileType, FramePattern, InputImage, IoError, ReadOptions, Storage,
+};
 use crate::frame::Frame;
 use std::path::{Path, PathBuf};
 
@@ -59,7 +61,7 @@ impl Sequence {
     /// name it should have).
     pub fn open(spec: &str) -> Result<Sequence, IoError> {
         let path = Path::new(spec);
-        let mut entries: Vec<SequenceEntry>;
+        let entries: Vec<SequenceEntry>;
         let mut pattern = None;
         if path.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
@@ -100,6 +102,16 @@ impl Sequence {
                 std::io::Error::new(std::io::ErrorKind::NotFound, "no such file or directory"),
             ));
         }
+        Self::ordered(spec, entries, pattern.as_ref())
+    }
+
+    /// `entries` sorted by number, checked for repeated and missing numbers (a missing one
+    /// named with the file `pattern` would give it).
+    fn ordered(
+        spec: &str,
+        mut entries: Vec<SequenceEntry>,
+        pattern: Option<&FramePattern>,
+    ) -> Result<Sequence, IoError> {
         entries.sort_by_key(|e| e.number);
         for pair in entries.windows(2) {
             let (a, b) = (&pair[0], &pair[1]);
@@ -113,7 +125,7 @@ impl Sequence {
             }
             if b.number != a.number + 1 {
                 let missing = a.number + 1;
-                let expected = match &pattern {
+                let expected = match pattern {
                     Some(p) => p.format(missing).display().to_string(),
                     None => format!("a file numbered {missing}"),
                 };
@@ -134,21 +146,31 @@ impl Sequence {
     /// when files of the same name have another padding.
     fn matching(spec: &str, pattern: &FramePattern) -> Result<Vec<SequenceEntry>, IoError> {
         let dir = pattern.dir();
+        let files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map_err(|e| IoError::os(dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file())
+            .collect();
+        Self::matching_files(spec, pattern, &files)
+    }
+
+    /// The `files` (of `pattern`'s directory) that `pattern` matches (see [`Self::matching`]).
+    fn matching_files(
+        spec: &str,
+        pattern: &FramePattern,
+        files: &[PathBuf],
+    ) -> Result<Vec<SequenceEntry>, IoError> {
+        let dir = pattern.dir();
         let mut entries = Vec::new();
         let mut other_padding = None;
-        for entry in std::fs::read_dir(dir).map_err(|e| IoError::os(dir, e))? {
-            let Some(name) = entry.ok().and_then(|e| e.file_name().into_string().ok()) else {
-                continue;
-            };
-            match pattern.matches(&name) {
-                Some(number) => {
-                    let path = pattern.format(number);
-                    if path.is_file() {
-                        entries.push(SequenceEntry { number, path });
-                    }
-                }
-                None if other_padding.is_none() && pattern.matches_any_padding(&name) => {
-                    other_padding = Some(name);
+        for name in files.iter().filter_map(|p| p.file_name()?.to_str()) {
+            match pattern.matches(name) {
+                Some(number) => entries.push(SequenceEntry {
+                    number,
+                    path: pattern.format(number),
+                }),
+                None if other_padding.is_none() && pattern.matches_any_padding(name) => {
+                    other_padding = Some(name.to_string());
                 }
                 None => {}
             }
@@ -167,6 +189,48 @@ impl Sequence {
             )));
         }
         Ok(entries)
+    }
+
+    /// Opens a sequence in `storage`: as [`Sequence::open`] for local files; in an object
+    /// store, a frame-number pattern (`s3://bucket/shot/beauty.####.exr`), one object
+    /// (`.../beauty.0001.exr`), or else a "directory" (`s3://bucket/shot/`: every `.exr`
+    /// directly in it). Globs are local only.
+    pub fn open_in(spec: &str, storage: &dyn Storage) -> Result<Sequence, IoError> {
+        if storage.is_local() {
+            return Self::open(spec);
+        }
+        let path = Path::new(spec);
+        let (entries, pattern) = if let Some(p) = FramePattern::parse(spec)? {
+            let files = storage.list(p.dir())?;
+            (Self::matching_files(spec, &p, &files)?, Some(p))
+        } else if FileType::of(path).is_some() && !spec.ends_with('/') {
+            let dir = path.parent().unwrap_or(Path::new(""));
+            if !storage.list(dir)?.iter().any(|f| f == path) {
+                return Err(IoError::os(
+                    path,
+                    std::io::Error::new(std::io::ErrorKind::NotFound, "no such object"),
+                ));
+            }
+            let number = frame_number(path).unwrap_or(0);
+            (
+                vec![SequenceEntry {
+                    number,
+                    path: path.to_path_buf(),
+                }],
+                None,
+            )
+        } else {
+            let files: Vec<PathBuf> = storage
+                .list(path)?
+                .into_iter()
+                .filter(|p| FileType::of(p) == Some(FileType::Exr))
+                .collect();
+            if files.is_empty() {
+                return Err(IoError::Sequence(format!("{spec}: no .exr objects there")));
+            }
+            (Self::number(spec, files)?, None)
+        };
+        Self::ordered(spec, entries, pattern.as_ref())
     }
 
     fn number(spec: &str, files: Vec<PathBuf>) -> Result<Vec<SequenceEntry>, IoError> {
@@ -221,14 +285,34 @@ impl Sequence {
         opts: &'a ReadOptions,
         jitter: impl Fn(u64) -> Option<[f32; 2]> + 'a,
     ) -> impl Iterator<Item = Result<(Frame, InputImage), IoError>> + 'a {
-        let mut jitter_prev = None;
-        self.entries.iter().map(move |e| {
-            let mut raw = read_raw(&e.path)?;
+        self.inputs_in(&super::LocalFiles, opts, jitter, 0)
+    }
+
+    /// [`Sequence::inputs_jittered`] from `storage`, starting at position `start`: the frames
+    /// are those a read from the first would give (motion converted with the jitter of the
+    /// frame before `start`, which is read for it), so a run can resume mid-sequence.
+    pub fn inputs_in<'a>(
+        &'a self,
+        storage: &'a dyn Storage,
+        opts: &'a ReadOptions,
+        jitter: impl Fn(u64) -> Option<[f32; 2]> + 'a,
+        start: usize,
+    ) -> impl Iterator<Item = Result<(Frame, InputImage), IoError>> + 'a {
+        let mut jitter_prev: Option<Result<[f32; 2], IoError>> = start
+            .checked_sub(1)
+            .and_then(|k| self.entries.get(k))
+            .map(|e| match jitter(e.number) {
+                Some(j) => Ok(j),
+                None => read_raw_in(storage, &e.path).map(|raw| raw.meta.jitter),
+            });
+        self.entries.iter().skip(start).map(move |e| {
+            let prev = jitter_prev.take().transpose()?;
+            let mut raw = read_raw_in(storage, &e.path)?;
             if let Some(j) = jitter(e.number) {
                 raw.meta.jitter = j;
             }
-            let (mut f, input) = frame_and_input(raw, opts, jitter_prev)?;
-            jitter_prev = Some(f.meta.jitter);
+            let (mut f, input) = frame_and_input(raw, opts, prev)?;
+            jitter_prev = Some(Ok(f.meta.jitter));
             f.meta.index = e.number;
             Ok((f, input))
         })
@@ -238,6 +322,49 @@ impl Sequence {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Read from a later position, frames are what a read from the first gives: motion of
+    /// a jittered convention converted with the real previous frame's jitter (read for it),
+    /// or the one `jitter` gives.
+    #[test]
+    fn a_read_from_mid_sequence_gives_the_frames_a_whole_read_gives() {
+        use crate::frame::MotionConvention;
+        let dir = tempfile::tempdir().unwrap();
+        let mut rng = crate::rng::SplitMix64::new(9);
+        for k in 0..4u64 {
+            let mut f = crate::filters::check::random_frame(&mut rng, 7, 5, 1.0, 2.0, k);
+            f.meta.jitter = [0.1 * k as f32 - 0.2, 0.3 - 0.15 * k as f32];
+            let path = dir.path().join(format!("f.{k:04}.exr"));
+            super::super::write_exr(&path, &f, &super::super::WriteOptions::default()).unwrap();
+        }
+        let seq = Sequence::open(&dir.path().display().to_string()).unwrap();
+        let opts = ReadOptions {
+            motion_convention: Some(MotionConvention {
+                jittered: true,
+                ..MotionConvention::INTERNAL
+            }),
+            ..ReadOptions::default()
+        };
+        let motion = |f: &Frame| -> Vec<u32> {
+            f.motion()
+                .unwrap()
+                .iter()
+                .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+                .collect()
+        };
+        let given = |n: u64| (n == 1).then_some([0.5, -0.5]);
+        for jitter in [&(|_| None) as &dyn Fn(u64) -> Option<[f32; 2]>, &given] {
+            let read = |start| -> Vec<Vec<u32>> {
+                seq.inputs_in(&super::super::LocalFiles, &opts, jitter, start)
+                    .map(|r| motion(&r.unwrap().0))
+                    .collect()
+            };
+            let whole = read(0);
+            assert_ne!(whole[1], whole[2], "the jitter changes the motion");
+            assert_eq!(read(2), whole[2..]);
+            assert_eq!(read(1), whole[1..]);
+        }
+    }
 
     #[test]
     fn frame_numbers_come_from_the_last_digit_run() {

@@ -245,6 +245,30 @@ impl Evaluator {
         self.space
     }
 
+    /// The last frame's output and reference, which the next frame's temporal error is
+    /// measured against (None before the first frame and after a cut's reset).
+    pub fn last_pair(&self) -> Option<&(Rgb, Rgb)> {
+        self.prev.as_ref()
+    }
+
+    /// An evaluator that continues one stopped after `frames`, in `space`, with the last
+    /// output and reference `last_pair` ([`Self::space`], [`Self::last_pair`] and
+    /// [`Self::frames`] of the stopped one): what it measures next is what the stopped one
+    /// would have measured.
+    pub fn resumed(
+        choice: SpaceChoice,
+        space: Option<MetricSpace>,
+        last_pair: Option<(Rgb, Rgb)>,
+        frames: Vec<FrameMetrics>,
+    ) -> Self {
+        Evaluator {
+            choice,
+            space,
+            prev: last_pair,
+            frames,
+        }
+    }
+
     /// Measures one frame. `reset` drops the temporal pair (a camera cut), and so does a
     /// change of size. Images of different sizes are an error that changes nothing.
     pub fn push(

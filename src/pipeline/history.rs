@@ -94,6 +94,34 @@ impl DoubleBuffer {
         self.valid = false;
     }
 
+    /// The channels per pixel of each plane.
+    pub fn components(&self) -> &[usize] {
+        &self.components
+    }
+
+    /// The size of the history, when there is one (its planes are [`Self::read`]).
+    pub fn history_size(&self) -> Option<(usize, usize)> {
+        self.size.filter(|_| self.valid)
+    }
+
+    /// Makes `planes`, a `size` (width, height) history laid out as [`Self::components`]
+    /// says, the history. Planes of another layout are refused with what differs (and the
+    /// buffer is left as it was).
+    pub fn restore(&mut self, size: (usize, usize), planes: Vec<Plane<f32>>) -> Result<(), String> {
+        let (w, h) = size;
+        let expected: Vec<(usize, usize)> = self.components.iter().map(|&c| (c * w, h)).collect();
+        let got: Vec<(usize, usize)> = planes.iter().map(Plane::size).collect();
+        if expected != got {
+            return Err(format!(
+                "its planes are {got:?} samples, but a {w}x{h} history of this filter is {expected:?}"
+            ));
+        }
+        self.ensure(w, h);
+        self.read = planes;
+        self.valid = true;
+        Ok(())
+    }
+
     /// Bytes held by both buffers.
     pub fn bytes(&self) -> usize {
         self.read

@@ -13,6 +13,7 @@ pub mod input;
 pub mod params;
 pub mod planner;
 pub mod record;
+pub mod state;
 
 pub use history::{DoubleBuffer, Scratch};
 pub use input::{prepare, Inputs};
@@ -22,6 +23,7 @@ pub use record::{
     summarize_stages, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord,
     StageSummary, WindowRecord,
 };
+pub use state::{FilterState, StateError};
 
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameError, Rgb};
 use serde::Serialize;
@@ -165,6 +167,24 @@ pub trait Filter: Send {
     /// Hands an output's planes back for reuse by the next frame (optional: callers that
     /// keep their outputs simply do not call it).
     fn recycle(&mut self, _planes: Rgb) {}
+    /// Everything this filter carries to the next frame ([`state`]): loaded into a filter
+    /// of the same name and parameters, the frames that follow give bit-identical outputs.
+    /// A windowed filter cannot: its state is its window of input frames, which a caller
+    /// replays instead (push the `lookahead` frames before the first output wanted).
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Err(StateError::Unsupported {
+            filter: self.name(),
+            why: "it holds a window of input frames; replay them instead",
+        })
+    }
+    /// Continues from a state [`Filter::save_state`] gave; refused (and the filter left as
+    /// it was) unless the state is this filter's, with the same parameters.
+    fn load_state(&mut self, _state: &FilterState) -> Result<(), StateError> {
+        Err(StateError::Unsupported {
+            filter: self.name(),
+            why: "it holds a window of input frames; replay them instead",
+        })
+    }
 }
 
 /// Static description of a filter kind, implemented by each filter module.

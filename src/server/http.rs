@@ -174,6 +174,85 @@ async fn delete_session(
     Ok(Json(json!({"id": id, "frames": frames})).into_response())
 }
 
+/// The media type of a session state file ([`crate::pipeline::state`]).
+pub const STATE_MEDIA_TYPE: &str = "application/vnd.afterimage.state";
+
+/// `GET /v1/sessions/{id}/state`: the session's filter state as a state file.
+async fn get_state(
+    State(svc): State<Service>,
+    Auth(caller): Auth,
+    Path(id): Path<String>,
+) -> HttpResult<Response> {
+    let info = counted(&svc, svc.sessions.get(&caller, &id))?;
+    let co = counted(&svc, svc.sessions.checkout(&caller, &id))?;
+    // The copy of the history and the file made from it.
+    let hold = counted(
+        &svc,
+        svc.sessions.reserve(&caller, info.state_bytes, "a state export"),
+    )?;
+    let bytes = svc
+        .on_pool(move |_| {
+            let mut co = co;
+            co.export_state()
+        })
+        .await?;
+    drop(hold);
+    Ok(([(header::CONTENT_TYPE, STATE_MEDIA_TYPE)], bytes).into_response())
+}
+
+/// `PUT /v1/sessions/{id}/state`: continue the session from a state file (a body of at
+/// most the session's reserved state plus a header).
+async fn put_state(
+    State(svc): State<Service>,
+    Auth(caller): Auth,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> HttpResult<Response> {
+    let _in_flight = svc.begin();
+    let early = svc.sessions.get(&caller, &id).and_then(|info| {
+        let co = svc.sessions.checkout(&caller, &id)?;
+        let declared = content_length(&headers)?;
+        Ok((info, co, declared))
+    });
+    let (info, co, declared) = match early {
+        Ok(v) => v,
+        Err(e) => return refuse_early(&svc, &headers, body, e),
+    };
+    let max = info
+        .state_bytes
+        .saturating_add(crate::pipeline::state::MAX_HEADER_BYTES as u64 + 64);
+    if let Some(n) = declared.filter(|&n| n > max) {
+        return counted(
+            &svc,
+            Err(SessionError::too_large(
+                "body",
+                format!("{n} bytes, a state file for this session is at most {max} bytes"),
+            )),
+        );
+    }
+    // The body, and the planes decoded from it.
+    let hold = counted(
+        &svc,
+        svc.sessions.reserve(
+            &caller,
+            declared.unwrap_or(max).saturating_mul(2),
+            "a state import",
+        ),
+    )?;
+    let bytes = counted(
+        &svc,
+        read_body(body, max, Duration::from_secs(svc.config.request_timeout_s)).await,
+    )?;
+    svc.on_pool(move |_| {
+        let mut co = co;
+        co.import_state(&bytes)
+    })
+    .await?;
+    drop(hold);
+    Ok(Json(counted(&svc, svc.sessions.get(&caller, &id))?).into_response())
+}
+
 /// The `Content-Length` a client declared, if any.
 fn content_length(headers: &HeaderMap) -> Result<Option<u64>, SessionError> {
     headers
@@ -200,11 +279,24 @@ async fn read_body(body: Body, limit: u64, timeout: Duration) -> Result<Bytes, S
         )),
         Ok(Err(e)) if e.is::<http_body_util::LengthLimitError>() => Err(SessionError::too_large(
             "body",
-            format!("more than the {limit} bytes an EXR for this session can need"),
+            format!("more than the {limit} bytes this request can need for this session"),
         )),
         Ok(Err(e)) => Err(SessionError::invalid("body", format!("could not be read: {e}"))),
         Ok(Ok(c)) => Ok(c.to_bytes()),
     }
+}
+
+/// Answers a request refused before its body was read. A proxy in front (nginx) sends the
+/// whole body before it reads the answer and turns a connection closed under it into 502,
+/// so a body of at most `max_frame_mib` is read and dropped after the answer, in the
+/// background, within the request timeout; a larger one is not read.
+fn refuse_early(svc: &Service, headers: &HeaderMap, body: Body, e: SessionError) -> HttpResult<Response> {
+    let cap = svc.config.max_frame_mib << 20;
+    if content_length(headers).ok().flatten().is_some_and(|n| n <= cap) {
+        let timeout = Duration::from_secs(svc.config.request_timeout_s);
+        tokio::spawn(tokio::time::timeout(timeout, discard(body)));
+    }
+    counted(svc, Err(e))
 }
 
 /// Reads a body to its end, keeping nothing.
@@ -390,24 +482,14 @@ async fn post_frame(
 ) -> HttpResult<Response> {
     let _in_flight = svc.begin();
     // The session first: unknown, busy or failed sessions are answered at once, before the
-    // body is read (and bad options or headers too). A proxy in front (nginx) sends the
-    // whole body before it reads the answer and turns a connection closed under it into
-    // 502, so a body of at most `max_frame_mib` is read and dropped after the answer, in
-    // the background, within the request timeout; a larger one is not read.
+    // body is read (and bad options or headers too; see `refuse_early`).
     let early = output_options(query).and_then(|output| {
         let given = FrameHeaders::parse(&headers)?;
         Ok((output, given, svc.sessions.checkout(&caller, &id)?))
     });
     let (output, given, co) = match early {
         Ok(v) => v,
-        Err(e) => {
-            let cap = svc.config.max_frame_mib << 20;
-            if content_length(&headers).ok().flatten().is_some_and(|n| n <= cap) {
-                let timeout = Duration::from_secs(svc.config.request_timeout_s);
-                tokio::spawn(tokio::time::timeout(timeout, discard(body)));
-            }
-            return counted(&svc, Err(e));
-        }
+        Err(e) => return refuse_early(&svc, &headers, body, e),
     };
     let shape = co.shape();
     let max = svc.max_exr_body(shape);
@@ -543,6 +625,7 @@ pub fn router(svc: Service) -> Router {
         .route("/v1/sessions/{id}", get(get_session).delete(delete_session))
         .route("/v1/sessions/{id}/frames", post(post_frame))
         .route("/v1/sessions/{id}/flush", post(post_flush))
+        .route("/v1/sessions/{id}/state", get(get_state).put(put_state))
         .layer(DefaultBodyLimit::max(MAX_JSON_BYTES))
         .with_state(svc)
 }

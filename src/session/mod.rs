@@ -26,7 +26,7 @@ use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, MotionConvention, 
 use crate::io::InputImage;
 use crate::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
 use crate::pipeline::exec::panic_text;
-use crate::pipeline::{self, Filter, FilterError, FrameRecord};
+use crate::pipeline::{self, Filter, FilterError, FilterState, FrameRecord};
 use access::SessionSlot;
 use error::filter_error;
 use serde::Serialize;
@@ -220,6 +220,11 @@ struct Pending {
     meta: FrameMeta,
     input: Option<KeptInput>,
 }
+
+/// State-file notes a session adds to its filter's state.
+const NOTE_NEXT_INDEX: &str = "session.next_index";
+const NOTE_JITTER_PREV: &str = "session.jitter_prev";
+const NOTE_METRIC_SPACE: &str = "session.metric_space";
 
 /// A session's filter and everything that changes frame by frame: owned by whoever has the
 /// session checked out.
@@ -848,6 +853,89 @@ impl Checkout {
             outs.into_iter().map(|o| measured(inner, o)).collect();
         inner.pending.clear();
         outs
+    }
+
+    /// The session's state as a state file ([`crate::pipeline::state`]): the filter's
+    /// history, with the session's next frame index and last jitter in its notes. Imported
+    /// into a session of the same filter, parameters and size, the frames that follow give
+    /// what this session would have given. Refused while outputs wait to be handed over
+    /// (flush first) and for a windowed filter (its state is its window of frames).
+    pub fn export_state(&mut self) -> Result<Vec<u8>, SessionError> {
+        let inner = self.inner()?;
+        if !inner.pending.is_empty() || !inner.ready.is_empty() {
+            return Err(SessionError::invalid(
+                "state",
+                format!(
+                    "{} frames are in the filter's window and {} outputs wait to be handed over; flush the session first",
+                    inner.pending.len(),
+                    inner.ready.len()
+                ),
+            ));
+        }
+        let mut st = inner
+            .filter
+            .save_state()
+            .map_err(|e| SessionError::invalid("state", e.to_string()))?;
+        st.notes.insert(NOTE_NEXT_INDEX.into(), inner.next_index.into());
+        st.notes.insert(
+            NOTE_JITTER_PREV.into(),
+            serde_json::to_value(inner.jitter_prev).unwrap_or_default(),
+        );
+        st.notes.insert(
+            NOTE_METRIC_SPACE.into(),
+            serde_json::to_value(inner.space).unwrap_or_default(),
+        );
+        Ok(st.encode())
+    }
+
+    /// Continues from a state file [`Checkout::export_state`] gave (untrusted bytes: checked
+    /// against the session's size before anything is allocated, then against its filter and
+    /// parameters). On error the session is as it was.
+    pub fn import_state(&mut self, bytes: &[u8]) -> Result<(), SessionError> {
+        let (w, h) = (
+            self.session.info.width as usize,
+            self.session.info.height as usize,
+        );
+        let bad = |message: String| SessionError::invalid("state", message);
+        let st = FilterState::decode(bytes, (w * h) as u64).map_err(|e| bad(e.to_string()))?;
+        if let Some((sw, sh)) = st.size.filter(|&s| s != (w, h)) {
+            return Err(bad(format!("the state is {sw}x{sh}, the session {w}x{h}")));
+        }
+        let next_index = match st.notes.get(NOTE_NEXT_INDEX) {
+            Some(v) => v
+                .as_u64()
+                .ok_or_else(|| bad(format!("note {NOTE_NEXT_INDEX}: expected a frame index, got {v}")))?,
+            None => 0,
+        };
+        let jitter_prev: Option<[f32; 2]> = match st.notes.get(NOTE_JITTER_PREV) {
+            Some(v) => serde_json::from_value(v.clone()).map_err(|_| {
+                bad(format!(
+                    "note {NOTE_JITTER_PREV}: expected null or [x, y], got {v}"
+                ))
+            })?,
+            None => None,
+        };
+        let space: Option<MetricSpace> = match st.notes.get(NOTE_METRIC_SPACE) {
+            Some(v) => serde_json::from_value(v.clone()).map_err(|_| {
+                bad(format!(
+                    "note {NOTE_METRIC_SPACE}: expected null or a metric space"
+                ))
+            })?,
+            None => None,
+        };
+        let inner = self.inner()?;
+        if !inner.pending.is_empty() || !inner.ready.is_empty() {
+            return Err(bad(format!(
+                "{} frames are in the filter's window; flush the session first",
+                inner.pending.len() + inner.ready.len()
+            )));
+        }
+        inner.filter.load_state(&st).map_err(|e| bad(e.to_string()))?;
+        inner.next_index = next_index;
+        inner.jitter_prev = jitter_prev;
+        inner.space = space;
+        self.account_state();
+        Ok(())
     }
 
     /// Hands an output's planes back to the filter for reuse (see [`Filter::recycle`]).

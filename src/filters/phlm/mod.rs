@@ -48,7 +48,9 @@ use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, tonemap};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind, PixelCounts};
+use crate::pipeline::{
+    Filter, FilterError, FilterKind, FilterState, Output, ParamKind, PixelCounts, StateError,
+};
 use rls::{D, P_LEN};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
@@ -339,6 +341,14 @@ impl Filter for Phlm {
 
     fn state_bytes(&self) -> usize {
         self.hist.buffer.bytes()
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(self.hist.save(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        self.hist.load(state, Self::NAME, &self.params())
     }
 }
 

@@ -25,7 +25,7 @@ pub mod reference;
 use super::passes::{convert_texel_history, Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
-use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind};
+use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -167,6 +167,14 @@ impl Filter for Taa {
 
     fn state_bytes(&self) -> usize {
         self.hist.buffer.bytes()
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(self.hist.save(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        self.hist.load(state, Self::NAME, &self.params())
     }
 }
 

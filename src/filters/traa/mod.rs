@@ -53,7 +53,7 @@ use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind};
+use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -248,6 +248,14 @@ impl Filter for Traa {
 
     fn state_bytes(&self) -> usize {
         self.hist.buffer.bytes()
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(self.hist.save(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        self.hist.load(state, Self::NAME, &self.params())
     }
 }
 

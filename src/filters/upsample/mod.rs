@@ -65,7 +65,7 @@ pub use temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
-use crate::pipeline::{Filter, FilterError, FilterKind, Output, ParamKind};
+use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -250,6 +250,14 @@ impl Filter for Upsample {
 
     fn state_bytes(&self) -> usize {
         self.hist.buffer.bytes()
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(self.hist.save(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        self.hist.load(state, Self::NAME, &self.params())
     }
 }
 
