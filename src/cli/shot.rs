@@ -1,8 +1,9 @@
 //! Filtering one shot: what `afterimage filter` runs, and `afterimage batch` for each shot.
 //!
 //! - **Streams**: frames are read (and decoded) up to [`READ_AHEAD`] ahead on a thread of
-//!   their own, and encoded and written up to [`WRITE_BEHIND`] behind on another, so I/O
-//!   overlaps filtering; never more than those few frames are held. Inputs and outputs are
+//!   their own, encoded up to [`WRITE_BEHIND`] behind on another, and written (put) on a
+//!   third while the next is encoded, so I/O overlaps filtering and encoding; never more
+//!   than those few frames are held. Inputs and outputs are
 //!   local files or an object store ([`super::store`]), each output whole or not at all.
 //! - **Checkpoints** (batch): every N frames, once the outputs before them are written, the
 //!   filter's state ([`afterimage::pipeline::state`]), the measurement's last frame pair and
@@ -177,6 +178,17 @@ enum Job {
         text: Vec<u8>,
         stale: Vec<PathBuf>,
     },
+}
+
+/// Work for the uploader thread, in order: a file or object to put (a frame's counts on
+/// the progress bar), or one to delete.
+enum Put {
+    File {
+        path: PathBuf,
+        bytes: Vec<u8>,
+        frame: bool,
+    },
+    Delete(PathBuf),
 }
 
 /// A filtered frame for the writer.
@@ -411,9 +423,27 @@ pub fn run_shot(
         });
         let (jobs, job_rx) = sync_channel::<Job>(WRITE_BEHIND);
         let (back_tx, back_rx) = channel::<Rgb>();
+        let (puts, put_rx) = sync_channel::<Put>(1);
         let out_store = &*out_store;
         let write = &write;
+        // Writes and deletes, in order, on a thread of their own: an object store's put
+        // waits on the network, and the encoder goes on meanwhile.
+        let uploader = s.spawn(move || -> anyhow::Result<()> {
+            for put in put_rx {
+                match put {
+                    Put::File { path, bytes, frame } => {
+                        out_store.put(&path, &bytes)?;
+                        if frame {
+                            bar.inc(1);
+                        }
+                    }
+                    Put::Delete(path) => out_store.delete(&path)?,
+                }
+            }
+            Ok(())
+        });
         let writer = s.spawn(move || -> anyhow::Result<()> {
+            let put = |p: Put| puts.send(p).map_err(|_| anyhow::anyhow!("the uploader stopped"));
             for job in job_rx {
                 match job {
                     Job::Frame(job) => {
@@ -433,12 +463,15 @@ pub fn run_shot(
                         };
                         let bytes = encode_filtered_for(&path, &frame, write)
                             .with_context(|| format!("writing {}", path.display()))?;
-                        out_store.put(&path, &bytes)?;
                         if let Some((png, hdr)) = png {
                             write_png(&png, &color, hdr)?;
                         }
                         back_tx.send(color).ok();
-                        bar.inc(1);
+                        put(Put::File {
+                            path,
+                            bytes,
+                            frame: true,
+                        })?;
                     }
                     Job::Checkpoint {
                         files,
@@ -446,12 +479,20 @@ pub fn run_shot(
                         text,
                         stale,
                     } => {
-                        for (path, bytes) in &files {
-                            out_store.put(path, bytes)?;
+                        for (path, bytes) in files {
+                            put(Put::File {
+                                path,
+                                bytes,
+                                frame: false,
+                            })?;
                         }
-                        out_store.put(&progress, &text)?;
+                        put(Put::File {
+                            path: progress,
+                            bytes: text,
+                            frame: false,
+                        })?;
                         for path in stale {
-                            out_store.delete(&path)?;
+                            put(Put::Delete(path))?;
                         }
                     }
                 }
@@ -506,8 +547,12 @@ pub fn run_shot(
         let written = writer
             .join()
             .map_err(|_| anyhow::anyhow!("the writer thread panicked"))?;
-        // The writer's error explains a failed hand-over; otherwise the filter's stands.
-        written.and(filtered)
+        let uploaded = uploader
+            .join()
+            .map_err(|_| anyhow::anyhow!("the uploader thread panicked"))?;
+        // A later stage's error explains a failed hand-over to it; otherwise the filter's
+        // stands.
+        uploaded.and(written).and(filtered)
     })?;
     let summary = shot.eval.summary();
     let mut frames = shot.earlier;
