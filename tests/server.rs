@@ -860,20 +860,6 @@ async fn http_frame_values_come_from_headers() {
         .as_str()
         .unwrap()
         .to_string();
-    // Colour alone, no attributes at all (as a renderer without our attributes writes it).
-    let plain = |f: &Frame| {
-        use exr::prelude::*;
-        let list = f
-            .color()
-            .iter()
-            .zip(["R", "G", "B"])
-            .map(|(p, n)| AnyChannel::new(n, FlatSamples::F32(p.data().to_vec())))
-            .collect();
-        let image = Image::from_channels((64, 36), AnyChannels::sort(list));
-        let mut out = std::io::Cursor::new(Vec::new());
-        image.write().to_buffered(&mut out).unwrap();
-        out.into_inner()
-    };
     let fr = frames("fence", 3, 1);
     let post = |headers: String, body: Vec<u8>| {
         let id = id.clone();
@@ -891,7 +877,7 @@ async fn http_frame_values_come_from_headers() {
     // Index and jitter from headers; the reply's record and attributes say so.
     let (st, _, body) = post(
         "x-afterimage-index: 1001\r\nx-afterimage-jitter: 0.25,-0.125\r\n".into(),
-        plain(&fr[0]),
+        plain_exr(&fr[0]),
     )
     .await;
     assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
@@ -900,10 +886,10 @@ async fn http_frame_values_come_from_headers() {
         .unwrap();
     assert_eq!((f.meta.index, f.meta.jitter), (1001, [0.25, -0.125]));
     // Without one, the next index follows the last.
-    let (_, _, body) = post(String::new(), plain(&fr[1])).await;
+    let (_, _, body) = post(String::new(), plain_exr(&fr[1])).await;
     assert_eq!(exr_record(&body)["index"], 1002);
     // A reset from a header drops the history.
-    let (_, _, body) = post("x-afterimage-reset: 1\r\n".into(), plain(&fr[2])).await;
+    let (_, _, body) = post("x-afterimage-reset: 1\r\n".into(), plain_exr(&fr[2])).await;
     assert_eq!(exr_record(&body)["pixels"]["history_reset"], 64 * 36);
     // Bad values are refused, naming the header.
     for (h, want) in [
@@ -912,7 +898,7 @@ async fn http_frame_values_come_from_headers() {
         ("x-afterimage-jitter: 0.5", "x-afterimage-jitter"),
         ("x-afterimage-jitter: 7,0", "-1..=1"),
     ] {
-        let (st, _, body) = post(format!("{h}\r\n"), plain(&fr[0])).await;
+        let (st, _, body) = post(format!("{h}\r\n"), plain_exr(&fr[0])).await;
         let text = String::from_utf8_lossy(&body);
         assert!(st == 400 && text.contains(want), "{h}: {st} {text}");
     }
@@ -921,7 +907,7 @@ async fn http_frame_values_come_from_headers() {
         addr,
         "POST",
         &format!("/v1/sessions/{id}/frames?keep=none&precision=half&compression=piz"),
-        &plain(&fr[0]),
+        &plain_exr(&fr[0]),
         "image/x-exr",
     )
     .await;
@@ -985,7 +971,7 @@ async fn http_frame_values_come_from_headers() {
         addr,
         "POST",
         &format!("/v1/sessions/{id}/frames?keep=most"),
-        &plain(&fr[0]),
+        &plain_exr(&fr[0]),
         "image/x-exr",
     )
     .await;
@@ -1579,6 +1565,22 @@ async fn keyed_server(tweak: impl FnOnce(&mut Config)) -> (Running, tempfile::Te
     })
     .await;
     (r, dir)
+}
+
+/// An EXR of `f`'s colour alone as `R,G,B`, no attributes at all (as a renderer without
+/// our attributes writes it).
+fn plain_exr(f: &Frame) -> Vec<u8> {
+    use exr::prelude::*;
+    let list = f
+        .color()
+        .iter()
+        .zip(["R", "G", "B"])
+        .map(|(p, n)| AnyChannel::new(n, FlatSamples::F32(p.data().to_vec())))
+        .collect();
+    let image = Image::from_channels((f.width(), f.height()), AnyChannels::sort(list));
+    let mut out = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut out).unwrap();
+    out.into_inner()
 }
 
 const STATE_TYPE: &str = "application/vnd.afterimage.state";
@@ -2404,34 +2406,29 @@ async fn an_exported_session_continues_in_another() {
         compression: Compression::Zip,
     };
     let fr = frames("flyover", 6, 1);
-    let post = |id: String, f: &Frame| {
-        let exr = write_exr_bytes(f, &full).unwrap();
-        async move {
-            let (st, _, body) = http(
-                addr,
-                "POST",
-                &format!("/v1/sessions/{id}/frames"),
-                &exr,
-                "image/x-exr",
-            )
-            .await;
-            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
-            let f = afterimage::io::read_exr_frame_bytes(
-                &body,
-                std::path::Path::new("reply"),
-                &Default::default(),
-            )
-            .unwrap();
-            let bits: Vec<u32> = f
-                .color()
-                .iter()
-                .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
-                .collect();
-            (exr_record(&body)["index"].as_u64().unwrap(), bits)
-        }
+    // Posts an EXR to a session; its reply's frame index and colour bits.
+    let post = |id: String, exr: Vec<u8>| async move {
+        let (st, _, body) = http(
+            addr,
+            "POST",
+            &format!("/v1/sessions/{id}/frames"),
+            &exr,
+            "image/x-exr",
+        )
+        .await;
+        assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
+        let f =
+            afterimage::io::read_exr_frame_bytes(&body, std::path::Path::new("reply"), &Default::default())
+                .unwrap();
+        let bits: Vec<u32> = f
+            .color()
+            .iter()
+            .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+            .collect();
+        (exr_record(&body)["index"].as_u64().unwrap(), bits)
     };
     for f in &fr[..3] {
-        post(a.clone(), f).await;
+        post(a.clone(), write_exr_bytes(f, &full).unwrap()).await;
     }
     let (st, head, state) = http(addr, "GET", &format!("/v1/sessions/{a}/state"), b"", "text/plain").await;
     assert_eq!(st, 200, "{}", String::from_utf8_lossy(&state));
@@ -2457,44 +2454,9 @@ async fn an_exported_session_continues_in_another() {
     for f in &fr[3..] {
         let mut f = f.clone();
         f.meta.index = 0;
-        let plain = |f: &Frame| {
-            use exr::prelude::*;
-            let list = f
-                .color()
-                .iter()
-                .zip(["R", "G", "B"])
-                .map(|(p, n)| AnyChannel::new(n, FlatSamples::F32(p.data().to_vec())))
-                .collect();
-            let mut out = std::io::Cursor::new(Vec::new());
-            Image::from_channels((64, 36), AnyChannels::sort(list))
-                .write()
-                .to_buffered(&mut out)
-                .unwrap();
-            out.into_inner()
-        };
         let mut replies = Vec::new();
         for id in [&a, &b] {
-            let (st, _, body) = http(
-                addr,
-                "POST",
-                &format!("/v1/sessions/{id}/frames"),
-                &plain(&f),
-                "image/x-exr",
-            )
-            .await;
-            assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
-            let g = afterimage::io::read_exr_frame_bytes(
-                &body,
-                std::path::Path::new("reply"),
-                &Default::default(),
-            )
-            .unwrap();
-            let bits: Vec<u32> = g
-                .color()
-                .iter()
-                .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
-                .collect();
-            replies.push((exr_record(&body)["index"].as_u64().unwrap(), bits));
+            replies.push(post(id.clone(), plain_exr(&f)).await);
         }
         assert!(
             replies[0] == replies[1],
@@ -2533,7 +2495,7 @@ async fn an_exported_session_continues_in_another() {
         "{st}"
     );
     // The session refused a state goes on from its own.
-    let (index, _) = post(b.clone(), &fr[5]).await;
+    let (index, _) = post(b.clone(), write_exr_bytes(&fr[5], &full).unwrap()).await;
     assert_eq!(index, fr[5].meta.index);
     r.shutdown().await.unwrap();
 }

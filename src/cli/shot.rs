@@ -555,10 +555,7 @@ pub fn run_shot(
         uploaded.and(written).and(filtered)
     })?;
     let summary = shot.eval.summary();
-    let mut frames = shot.earlier;
-    for r in &shot.records {
-        frames.push(serde_json::to_value(r)?);
-    }
+    let frames = shot.all_records()?;
     let doc = json!({
         "filter": args.filter,
         "params": filter.params(),
@@ -601,6 +598,15 @@ struct Emitter<'a> {
 }
 
 impl Emitter<'_> {
+    /// Every frame's record so far: an earlier run's, then this run's.
+    fn all_records(&self) -> serde_json::Result<Vec<Value>> {
+        let mut all = self.earlier.clone();
+        for r in &self.records {
+            all.push(serde_json::to_value(r)?);
+        }
+        Ok(all)
+    }
+
     /// Measures `out` and hands it to the writer through `jobs` (owned by the caller, so
     /// that a panic here drops it and the writer ends instead of waiting forever).
     fn emit(&mut self, out: Output, filter: &mut dyn Filter, jobs: &SyncSender<Job>) -> anyhow::Result<()> {
@@ -657,10 +663,7 @@ impl Emitter<'_> {
             }
             None => None,
         };
-        let mut records = self.earlier.clone();
-        for r in &self.records {
-            records.push(serde_json::to_value(r)?);
-        }
+        let records = self.all_records()?;
         let progress = Progress {
             version: PROGRESS_VERSION,
             fingerprint: self.fingerprint.to_string(),
