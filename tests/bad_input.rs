@@ -267,7 +267,7 @@ mod fuzz {
                 1 if len > 0 => data[at] = [0u8, 1, 0x7f, 0x80, 0xff][below(rng, 5)],
                 2 if len >= 4 => {
                     let at = below(rng, len - 3);
-                    let v = if rng.next_u64() % 3 == 0 {
+                    let v = if rng.next_u64().is_multiple_of(3) {
                         rng.next_u64() as u32
                     } else {
                         INTERESTING_32[below(rng, INTERESTING_32.len())]
@@ -448,10 +448,10 @@ mod fuzz {
             } else {
                 seeds[below(&mut rng, seeds.len())].clone()
             };
-            if rng.next_u64() % 2 == 0 {
+            if rng.next_u64().is_multiple_of(2) {
                 mutate_size_attribute(&mut rng, &mut data);
             }
-            if rng.next_u64() % 2 == 0 {
+            if rng.next_u64().is_multiple_of(2) {
                 mutate(&mut rng, &mut data, EXR_TOKENS);
             }
             let (r, alloc) = measured(|| {
@@ -606,7 +606,7 @@ mod fuzz {
         use serde_json::{json, Value};
         match below(rng, if depth > 2 { 6 } else { 8 }) {
             0 => Value::Null,
-            1 => Value::Bool(rng.next_u64() % 2 == 0),
+            1 => Value::Bool(rng.next_u64().is_multiple_of(2)),
             2 => [
                 json!(0),
                 json!(1),
@@ -672,7 +672,7 @@ mod fuzz {
                 let mut body = serde_json::json!({"filter": name, "width": 1 + below(&mut rng, 48), "height": 1 + below(&mut rng, 48)});
                 let mut p = serde_json::Map::new();
                 for _ in 0..below(&mut rng, 3) {
-                    let key = if params.is_empty() || rng.next_u64() % 4 == 0 { "nope".to_string() } else { params[below(&mut rng, params.len())].clone() };
+                    let key = if params.is_empty() || rng.next_u64().is_multiple_of(4) { "nope".to_string() } else { params[below(&mut rng, params.len())].clone() };
                     p.insert(key, json_value(&mut rng, 0));
                 }
                 body["params"] = p.into();
@@ -684,7 +684,7 @@ mod fuzz {
                     _ => {}
                 }
                 let mut bytes = serde_json::to_vec(&body).unwrap();
-                if rng.next_u64() % 3 == 0 {
+                if rng.next_u64().is_multiple_of(3) {
                     mutate(&mut rng, &mut bytes, &[b"{", b"}", b"\"", b"\\u0000", b"1e999", b"-"]);
                 }
                 let req = axum::http::Request::post("/v1/sessions")
@@ -787,18 +787,18 @@ mod fuzz {
                             drop(held);
                         }
                         _ => {
-                            let (fw, fh) = if rng.next_u64() % 8 == 0 {
+                            let (fw, fh) = if rng.next_u64().is_multiple_of(8) {
                                 (w + 1, h)
                             } else {
                                 (w, h)
                             };
                             let mut f = synthetic_frame(fw, fh, open[k].3);
                             f.meta.index = open[k].3;
-                            f.meta.reset = rng.next_u64() % 10 == 0;
-                            if rng.next_u64() % 8 == 0 {
+                            f.meta.reset = rng.next_u64().is_multiple_of(10);
+                            if rng.next_u64().is_multiple_of(8) {
                                 f.remove(ChannelKind::Motion);
                             }
-                            if rng.next_u64() % 8 == 0 {
+                            if rng.next_u64().is_multiple_of(8) {
                                 let frac = rng.next_f64();
                                 for p in f.color_mut() {
                                     for v in p.iter_mut() {

@@ -636,7 +636,7 @@ impl Emitter<'_> {
         })))?;
         let done = p.position + 1;
         if let Some(c) = self.checkpoints {
-            if c.every > 0 && done % c.every == 0 && done < self.frames.len() {
+            if c.every > 0 && done.is_multiple_of(c.every) && done < self.frames.len() {
                 send(self.checkpoint(c, done, filter)?)?;
             }
         }

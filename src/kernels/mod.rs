@@ -21,7 +21,8 @@ pub use neighborhood::{
     NeighborhoodStats, CROSS,
 };
 pub use sample::{
-    bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texels, nearest_texel, TEXEL,
+    bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texel, catmull_rom_texels,
+    nearest_texel, Footprint, FootprintLanes, TEXEL,
 };
 pub use sharpen::sharpen_cross;
 pub use sobel::{sobel_magnitude, sobel_plane};

@@ -1,5 +1,8 @@
 //! Resampling of history planes at sub-pixel positions: bilinear and Catmull-Rom.
 
+use super::lanes::{block, each, Lanes, LANES};
+use wide::{f32x4, f32x8};
+
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
 #[inline]
 pub fn bilinear<const N: usize>(
@@ -59,11 +62,128 @@ fn catmull_rom_weights(t: f32) -> [f32; 4] {
     ]
 }
 
+/// Where a Catmull-Rom sample at one position reads, and with what weights.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Footprint {
+    /// Column and row of tap 1 (the texel left of and above the position), as whole
+    /// numbers in f32: possibly negative, past the edge, huge or NaN.
+    pub x1: f32,
+    /// See `x1`.
+    pub y1: f32,
+    /// The position's fraction past tap 1, horizontally and vertically.
+    pub tx: f32,
+    /// See `tx`.
+    pub ty: f32,
+    /// Horizontal weights of taps 0 to 3.
+    pub wx: [f32; 4],
+    /// Vertical weights of taps 0 to 3, divided by the sum of the twelve weights used.
+    pub wy: [f32; 4],
+}
+
+impl Footprint {
+    /// The footprint of a sample at `(x, y)` (pixel units, centres at +0.5).
+    #[inline(always)]
+    pub fn at(x: f32, y: f32) -> Self {
+        let fx = x - 0.5;
+        let fy = y - 0.5;
+        let x1 = fx.floor();
+        let y1 = fy.floor();
+        let (tx, ty) = (fx - x1, fy - y1);
+        let wx = catmull_rom_weights(tx);
+        let wy = catmull_rom_weights(ty);
+        // The twelve weights' sum, grouped by row: the outer rows take the middle two
+        // columns, the inner rows all four.
+        let middle = wx[1] + wx[2];
+        let all = (wx[0] + wx[1]) + (wx[2] + wx[3]);
+        let wsum = middle * (wy[0] + wy[3]) + all * (wy[1] + wy[2]);
+        let wy = wy.map(|w| w / wsum);
+        Footprint {
+            x1,
+            y1,
+            tx,
+            ty,
+            wx,
+            wy,
+        }
+    }
+
+    /// Whether the whole 4x4 footprint lies inside a `width` x `height` image.
+    #[inline(always)]
+    fn inside(&self, width: usize, height: usize) -> bool {
+        self.x1 >= 1.0 && self.y1 >= 1.0 && self.x1 + 2.0 < width as f32 && self.y1 + 2.0 < height as f32
+    }
+
+    /// The four tap columns (or rows, from `y1`) clamped into `0..n`.
+    #[inline(always)]
+    fn clamped(i1: f32, n: usize) -> [usize; 4] {
+        [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(i1 + d, n))
+    }
+}
+
+/// The footprints of eight positions, one field per lane: [`Footprint::at`] lane by lane
+/// (the same operations, so the same bits), in vector instructions.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct FootprintLanes {
+    x1: Lanes,
+    y1: Lanes,
+    tx: Lanes,
+    ty: Lanes,
+    wx: [Lanes; 4],
+    wy: [Lanes; 4],
+}
+
+impl FootprintLanes {
+    /// The footprints of positions `(x[l], y[l])`.
+    #[inline(always)]
+    pub fn at(x: &Lanes, y: &Lanes) -> Self {
+        let mut f = FootprintLanes::default();
+        for l in 0..LANES {
+            let p = Footprint::at(x[l], y[l]);
+            (f.x1[l], f.y1[l], f.tx[l], f.ty[l]) = (p.x1, p.y1, p.tx, p.ty);
+            for k in 0..4 {
+                (f.wx[k][l], f.wy[k][l]) = (p.wx[k], p.wy[k]);
+            }
+        }
+        f
+    }
+
+    /// Lane `l`'s footprint.
+    #[inline(always)]
+    pub fn lane(&self, l: usize) -> Footprint {
+        Footprint {
+            x1: self.x1[l],
+            y1: self.y1[l],
+            tx: self.tx[l],
+            ty: self.ty[l],
+            wx: self.wx.map(|w| w[l]),
+            wy: self.wy.map(|w| w[l]),
+        }
+    }
+}
+
+/// One row's two partial sums of the Catmull-Rom kernel for value `v(i)` at column tap
+/// `i`: the inner rows (`inner`) split their four taps into columns 0 and 2 (`lo`) and
+/// columns 1 and 3 (`hi`); the outer rows keep their middle two, column 1 in `lo` and 2
+/// in `hi`. This pairing is what two adjacent texels in one vector compute (see
+/// [`catmull_rom_texel`]), so both functions give the same bits.
+#[inline(always)]
+fn catmull_rom_row(wx: &[f32; 4], inner: bool, v: impl Fn(usize) -> f32) -> (f32, f32) {
+    if inner {
+        (wx[0] * v(0) + wx[2] * v(2), wx[1] * v(1) + wx[3] * v(3))
+    } else {
+        (wx[1] * v(1), wx[2] * v(2))
+    }
+}
+
 /// Catmull-Rom sample of `N` planes at `(x, y)`: the 4x4 bicubic kernel without its four
 /// corner taps, renormalised. This is exactly what the "5-tap" GPU formulation computes
 /// with bilinear fetches (Jimenez 2016, used by Karis 2014 and Bevy's TAA); on a CPU the 12
 /// taps are read directly. Sharper than bilinear for history reprojection, but it
 /// overshoots near edges: callers clip or clamp the result.
+///
+/// The taps are summed row by row in two halves ([`catmull_rom_row`]), each row scaled by
+/// its normalised vertical weight, and the halves added last; [`catmull_rom_texel`] sums
+/// in the same order with vectors.
 #[inline]
 pub fn catmull_rom<const N: usize>(
     planes: [&[f32]; N],
@@ -72,46 +192,22 @@ pub fn catmull_rom<const N: usize>(
     x: f32,
     y: f32,
 ) -> [f32; N] {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x1 = fx.floor();
-    let y1 = fy.floor();
-    let wx = catmull_rom_weights(fx - x1);
-    let wy = catmull_rom_weights(fy - y1);
-    if x1 >= 1.0 && y1 >= 1.0 && x1 + 2.0 < width as f32 && y1 + 2.0 < height as f32 {
-        // The whole 4x4 footprint is inside: no clamping, one base index.
-        let base = (y1 as usize - 1) * width + x1 as usize - 1;
-        let mut acc = [0.0f32; N];
-        let mut wsum = 0.0f32;
-        for (j, wyj) in wy.iter().enumerate() {
-            let (lo, hi) = if j == 0 || j == 3 { (1, 3) } else { (0, 4) };
-            let row = base + j * width;
-            for (i, wxi) in wx.iter().enumerate().take(hi).skip(lo) {
-                let wgt = wxi * wyj;
-                wsum += wgt;
-                for (a, p) in acc.iter_mut().zip(planes.iter()) {
-                    *a += wgt * p[row + i];
-                }
+    let f = Footprint::at(x, y);
+    let xs = Footprint::clamped(f.x1, width);
+    let ys = Footprint::clamped(f.y1, height).map(|r| r * width);
+    std::array::from_fn(|c| {
+        let p = planes[c];
+        let (mut lo, mut hi) = (0.0f32, 0.0f32);
+        for (j, &row) in ys.iter().enumerate() {
+            let (a, b) = catmull_rom_row(&f.wx, j == 1 || j == 2, |i| p[row + xs[i]]);
+            if j == 0 {
+                (lo, hi) = (f.wy[0] * a, f.wy[0] * b);
+            } else {
+                (lo, hi) = (lo + f.wy[j] * a, hi + f.wy[j] * b);
             }
         }
-        return acc.map(|a| a / wsum);
-    }
-    let xs = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(x1 + d, width));
-    let ys = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(y1 + d, height) * width);
-    let mut acc = [0.0f32; N];
-    let mut wsum = 0.0f32;
-    for (j, &row) in ys.iter().enumerate() {
-        // Corner taps are dropped: rows 0 and 3 use only the middle two columns.
-        let cols = if j == 0 || j == 3 { 1..3 } else { 0..4 };
-        for i in cols {
-            let w = wx[i] * wy[j];
-            wsum += w;
-            for (a, p) in acc.iter_mut().zip(planes.iter()) {
-                *a += w * p[row + xs[i]];
-            }
-        }
-    }
-    acc.map(|a| a / wsum)
+        lo + hi
+    })
 }
 
 /// Channels of one texel of an interleaved history (e.g. Y, Co, Cg and a sample count).
@@ -123,81 +219,67 @@ fn texel(tex: &[f32], i: usize) -> [f32; TEXEL] {
     *<&[f32; TEXEL]>::try_from(&tex[i * TEXEL..i * TEXEL + TEXEL]).expect("a texel")
 }
 
-/// `acc + w * t` per channel (a multiply, then an add: the compiler keeps the two
-/// roundings of the scalar code, so this is exactly four scalar steps, in one vector).
+/// [`catmull_rom`] of the first three channels and [`bilinear`] of the fourth, of a plane
+/// of interleaved 4-channel texels (`tex[4 * (y * width + x) + c]`), with footprint `f`:
+/// the same values, bit for bit, as the planar functions on the planes taken apart.
+///
+/// A footprint row's four texels are 16 floats; an 8-float vector holds two texels, so a
+/// row is two multiplies and an add (inner rows: texels 0 and 1 against 2 and 3) or one
+/// multiply (outer rows: texels 1 and 2), each row scaled by its vertical weight into one
+/// 8-float sum, whose halves are added at the end.
 #[inline(always)]
-fn accumulate(acc: [f32; TEXEL], w: f32, t: [f32; TEXEL]) -> [f32; TEXEL] {
-    std::array::from_fn(|c| acc[c] + w * t[c])
+pub fn catmull_rom_texel(tex: &[f32], width: usize, height: usize, f: &Footprint) -> [f32; TEXEL] {
+    let interior = f.inside(width, height);
+    let gathered: [[f32; 4 * TEXEL]; 4];
+    let rows: [&[f32; 4 * TEXEL]; 4] = if interior {
+        // The whole 4x4 footprint is inside: each row's four texels in one bounds check.
+        let base = ((f.y1 as usize - 1) * width + f.x1 as usize - 1) * TEXEL;
+        std::array::from_fn(|j| block(tex, base + j * width * TEXEL))
+    } else {
+        let xs = Footprint::clamped(f.x1, width);
+        gathered = Footprint::clamped(f.y1, height).map(|y| {
+            let mut r = [0.0; 4 * TEXEL];
+            for (i, &x) in xs.iter().enumerate() {
+                r[i * TEXEL..(i + 1) * TEXEL].copy_from_slice(&texel(tex, y * width + x));
+            }
+            r
+        });
+        std::array::from_fn(|j| &gathered[j])
+    };
+    let wx = f.wx;
+    // Column weights per lane: texels 0|1, 2|3 and 1|2 of a row.
+    let half = |a: usize| -> f32x8 { f32x8::from(each::<f32, 8>(|l| wx[a + l / TEXEL])) };
+    let (w01, w23, w12) = (half(0), half(2), half(1));
+    let load = |r: &[f32; 4 * TEXEL], at: usize| f32x8::from(*block::<f32, 8>(r, at));
+    let inner = |r| w01 * load(r, 0) + w23 * load(r, 2 * TEXEL);
+    let outer = |r| w12 * load(r, TEXEL);
+    let mut acc = f32x8::splat(f.wy[0]) * outer(rows[0]);
+    acc += f32x8::splat(f.wy[1]) * inner(rows[1]);
+    acc += f32x8::splat(f.wy[2]) * inner(rows[2]);
+    acc += f32x8::splat(f.wy[3]) * outer(rows[3]);
+    let acc = acc.to_array();
+    let lo = f32x4::from(*block::<f32, TEXEL>(&acc, 0));
+    let hi = f32x4::from(*block::<f32, TEXEL>(&acc, TEXEL));
+    let mut out = (lo + hi).to_array();
+    // The count: bilinear over the four centre taps, which are bilinear's own taps inside
+    // the image (at the border, bilinear's clamped taps).
+    let k = TEXEL - 1;
+    out[k] = if interior {
+        let (c11, c12) = (rows[1][TEXEL + k], rows[1][2 * TEXEL + k]);
+        let (c21, c22) = (rows[2][TEXEL + k], rows[2][2 * TEXEL + k]);
+        let top = c11 + (c12 - c11) * f.tx;
+        let bottom = c21 + (c22 - c21) * f.tx;
+        top + (bottom - top) * f.ty
+    } else {
+        bilinear_channel_from(tex, width, height, [f.x1, f.y1], [f.tx, f.ty], k)
+    };
+    out
 }
 
-/// [`catmull_rom`] of the first three channels and [`bilinear`] of the fourth, of a plane
-/// of interleaved 4-channel texels (`tex[4 * (y * width + x) + c]`), at `(x, y)`: the
-/// same values, bit for bit, as the planar functions on the planes taken apart, with one
-/// vector load and one vector multiply-add per tap instead of four of each.
+/// [`catmull_rom_texel`] at one position `(x, y)`.
 #[inline]
 pub fn catmull_rom_texels(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; TEXEL] {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x1 = fx.floor();
-    let y1 = fy.floor();
-    let (tx, ty) = (fx - x1, fy - y1);
-    let wx = catmull_rom_weights(tx);
-    let wy = catmull_rom_weights(ty);
-    if x1 >= 1.0 && y1 >= 1.0 && x1 + 2.0 < width as f32 && y1 + 2.0 < height as f32 {
-        // The whole 4x4 footprint is inside: each row's four texels in one bounds check,
-        // the taps in the planar function's order (rows 0..4, corners dropped).
-        let base = (y1 as usize - 1) * width + x1 as usize - 1;
-        let row = |j: usize| -> &[f32; 4 * TEXEL] {
-            let at = (base + j * width) * TEXEL;
-            tex[at..at + 4 * TEXEL].try_into().expect("four texels")
-        };
-        let tap =
-            |r: &[f32; 4 * TEXEL], i: usize| -> [f32; TEXEL] { std::array::from_fn(|c| r[i * TEXEL + c]) };
-        let (r0, r1, r2, r3) = (row(0), row(1), row(2), row(3));
-        let mut acc = [0.0f32; TEXEL];
-        let mut wsum = 0.0f32;
-        let mut add = |w: f32, t: [f32; TEXEL]| {
-            wsum += w;
-            acc = accumulate(acc, w, t);
-        };
-        add(wx[1] * wy[0], tap(r0, 1));
-        add(wx[2] * wy[0], tap(r0, 2));
-        let (c11, c12) = (tap(r1, 1), tap(r1, 2));
-        add(wx[0] * wy[1], tap(r1, 0));
-        add(wx[1] * wy[1], c11);
-        add(wx[2] * wy[1], c12);
-        add(wx[3] * wy[1], tap(r1, 3));
-        let (c21, c22) = (tap(r2, 1), tap(r2, 2));
-        add(wx[0] * wy[2], tap(r2, 0));
-        add(wx[1] * wy[2], c21);
-        add(wx[2] * wy[2], c22);
-        add(wx[3] * wy[2], tap(r2, 3));
-        add(wx[1] * wy[3], tap(r3, 1));
-        add(wx[2] * wy[3], tap(r3, 2));
-        let mut out = acc.map(|a| a / wsum);
-        // The count: bilinear over the four centre taps, which are bilinear's own taps here.
-        let k = TEXEL - 1;
-        let top = c11[k] + (c12[k] - c11[k]) * tx;
-        let bottom = c21[k] + (c22[k] - c21[k]) * tx;
-        out[k] = top + (bottom - top) * ty;
-        return out;
-    }
-    let xs = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(x1 + d, width));
-    let ys = [-1.0, 0.0, 1.0, 2.0].map(|d| clamp_index(y1 + d, height) * width);
-    let mut acc = [0.0f32; TEXEL];
-    let mut wsum = 0.0f32;
-    for (j, &row) in ys.iter().enumerate() {
-        let cols = if j == 0 || j == 3 { 1..3 } else { 0..4 };
-        for i in cols {
-            let wgt = wx[i] * wy[j];
-            wsum += wgt;
-            acc = accumulate(acc, wgt, texel(tex, row + xs[i]));
-        }
-    }
-    let mut out = acc.map(|a| a / wsum);
-    // At the border bilinear clamps its taps on its own.
-    out[TEXEL - 1] = bilinear_texel_channel(tex, width, height, x, y, TEXEL - 1);
-    out
+    catmull_rom_texel(tex, width, height, &Footprint::at(x, y))
 }
 
 /// [`bilinear`] of channel `c` of an interleaved 4-channel plane.
@@ -207,16 +289,29 @@ pub fn bilinear_texel_channel(tex: &[f32], width: usize, height: usize, x: f32, 
     let fy = y - 0.5;
     let x0 = fx.floor();
     let y0 = fy.floor();
-    let tx = fx - x0;
-    let ty = fy - y0;
+    bilinear_channel_from(tex, width, height, [x0, y0], [fx - x0, fy - y0], c)
+}
+
+/// [`bilinear_texel_channel`] from the top-left tap `x0y0` (whole numbers, clamped here)
+/// and the fraction `t` past it.
+#[inline(always)]
+fn bilinear_channel_from(
+    tex: &[f32],
+    width: usize,
+    height: usize,
+    x0y0: [f32; 2],
+    t: [f32; 2],
+    c: usize,
+) -> f32 {
+    let [x0, y0] = x0y0;
     let xa = clamp_index(x0, width);
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
     let yb = clamp_index(y0 + 1.0, height) * width;
     let p = |i: usize| tex[i * TEXEL + c];
-    let top = p(ya + xa) + (p(ya + xb) - p(ya + xa)) * tx;
-    let bottom = p(yb + xa) + (p(yb + xb) - p(yb + xa)) * tx;
-    top + (bottom - top) * ty
+    let top = p(ya + xa) + (p(ya + xb) - p(ya + xa)) * t[0];
+    let bottom = p(yb + xa) + (p(yb + xb) - p(yb + xa)) * t[0];
+    top + (bottom - top) * t[1]
 }
 
 /// [`bilinear`] of every channel of a plane of interleaved `N`-channel texels (the same
@@ -399,6 +494,44 @@ pub(crate) mod tests {
             // callers never produce: they test positions before fetching).
             let _ = bilinear([&p], w, h, x, y);
             let _ = catmull_rom([&p], w, h, x, y);
+        }
+    }
+
+    #[test]
+    fn footprint_lanes_give_each_lanes_scalar_footprint() {
+        let mut rng = SplitMix64::new(15);
+        let wild = [
+            f32::NAN,
+            f32::INFINITY,
+            -f32::INFINITY,
+            1e30,
+            -1e30,
+            0.0,
+            -0.0,
+            0.5,
+            16_777_217.0,
+            f32::MIN_POSITIVE,
+        ];
+        for k in 0..2000 {
+            let pick = |rng: &mut SplitMix64, l: usize| {
+                if (k + l).is_multiple_of(7) {
+                    wild[(k * 3 + l) % wild.len()]
+                } else {
+                    rng.range(-4.0, 1924.0) as f32
+                }
+            };
+            let x: Lanes = each(|l| pick(&mut rng, l));
+            let y: Lanes = each(|l| pick(&mut rng, l + 1));
+            let lanes = FootprintLanes::at(&x, &y);
+            for l in 0..LANES {
+                let (got, want) = (lanes.lane(l), Footprint::at(x[l], y[l]));
+                let bits = |f: &Footprint| {
+                    let mut v = vec![f.x1, f.y1, f.tx, f.ty];
+                    v.extend(f.wx.iter().chain(&f.wy));
+                    v.into_iter().map(f32::to_bits).collect::<Vec<_>>()
+                };
+                assert_eq!(bits(&got), bits(&want), "lane {l} at ({}, {})", x[l], y[l]);
+            }
         }
     }
 

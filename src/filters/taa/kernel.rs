@@ -3,8 +3,11 @@
 //! each row is dilated, reprojected, tested for depth, resolved and brought back to linear
 //! colour while its data is in cache. The full-plane temporaries of the reference (working
 //! colour, YCoCg, dilated motion, reprojected history: 12 planes written and read again)
-//! are gone, and the arithmetic of each stage runs in row loops the compiler vectorises;
-//! only the history fetch, a gather at each pixel's own position, stays scalar.
+//! are gone, and the arithmetic of each stage runs in row loops the compiler vectorises.
+//! The history fetch is a gather at each pixel's own position: its Catmull-Rom footprints
+//! (tap positions and weights) are computed for eight pixels at once, and each pixel's
+//! twelve taps are read and weighted two texels to an 8-float vector
+//! ([`crate::kernels::catmull_rom_texel`]).
 //!
 //! Every stage computes what the reference ([`super::reference`]) computes, with the same
 //! float operations in the same order, so the outputs are the same bits; the tests compare
@@ -18,8 +21,8 @@ use crate::filters::passes::{
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear, bilinear_texels, box_from_columns, catmull_rom_texels, clip_toward_center, fmax, fmin,
-    rgb_to_ycocg, variance_box, ycocg_to_rgb, NeighborhoodStats,
+    bilinear, bilinear_texels, box_from_columns, catmull_rom_texel, clip_toward_center, fmax, fmin,
+    rgb_to_ycocg, variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
@@ -350,18 +353,28 @@ fn reproject_row(
     let [hy, hco, hcg, hn] = dst;
     let (mx, my) = (&m[0][..w], &m[1][..w]);
     let (hy, hco, hcg, hn) = (&mut hy[..w], &mut hco[..w], &mut hcg[..w], &mut hn[..w]);
-    for x in 0..w {
-        let px = x as f32 + 0.5 + mx[x];
-        let py = y as f32 + 0.5 + my[x];
-        if !on_screen(px, py, w, h) {
-            hn[x] = 0.0;
-            continue;
-        }
-        let t = match filter {
-            HistoryFilter::CatmullRom => catmull_rom_texels(texels, w, h, px, py),
-            HistoryFilter::Bilinear => bilinear_texels::<4>(texels, w, h, px, py),
+    for x0 in (0..w).step_by(LANES) {
+        // A row's last block repeats its last pixel in the lanes past the end.
+        let at = |l: usize| (x0 + l).min(w - 1);
+        let px: Lanes = lanes::each(|l| at(l) as f32 + 0.5 + mx[at(l)]);
+        let py: Lanes = lanes::each(|l| y as f32 + 0.5 + my[at(l)]);
+        let on: Mask = lanes::each(|l| on_screen(px[l], py[l], w, h));
+        let footprints = match filter {
+            HistoryFilter::CatmullRom => Some(FootprintLanes::at(&px, &py)),
+            HistoryFilter::Bilinear => None,
         };
-        (hy[x], hco[x], hcg[x], hn[x]) = (t[0], t[1], t[2], t[3]);
+        for l in 0..LANES.min(w - x0) {
+            let x = x0 + l;
+            if !on[l] {
+                hn[x] = 0.0;
+                continue;
+            }
+            let t = match &footprints {
+                Some(f) => catmull_rom_texel(texels, w, h, &f.lane(l)),
+                None => bilinear_texels::<4>(texels, w, h, px[l], py[l]),
+            };
+            (hy[x], hco[x], hcg[x], hn[x]) = (t[0], t[1], t[2], t[3]);
+        }
     }
 }
 
