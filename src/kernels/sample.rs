@@ -70,6 +70,10 @@ pub struct Footprint {
     pub x1: f32,
     /// See `x1`.
     pub y1: f32,
+    /// `x1` as an integer (saturating: exact wherever the footprint is inside the image).
+    pub ix: i32,
+    /// `y1` as an integer, likewise.
+    pub iy: i32,
     /// The position's fraction past tap 1, horizontally and vertically.
     pub tx: f32,
     /// See `tx`.
@@ -97,9 +101,12 @@ impl Footprint {
         let all = (wx[0] + wx[1]) + (wx[2] + wx[3]);
         let wsum = middle * (wy[0] + wy[3]) + all * (wy[1] + wy[2]);
         let wy = wy.map(|w| w / wsum);
+        let (ix, iy) = (x1 as i32, y1 as i32);
         Footprint {
             x1,
             y1,
+            ix,
+            iy,
             tx,
             ty,
             wx,
@@ -126,6 +133,8 @@ impl Footprint {
 pub struct FootprintLanes {
     x1: Lanes,
     y1: Lanes,
+    ix: [i32; LANES],
+    iy: [i32; LANES],
     tx: Lanes,
     ty: Lanes,
     wx: [Lanes; 4],
@@ -140,6 +149,7 @@ impl FootprintLanes {
         for l in 0..LANES {
             let p = Footprint::at(x[l], y[l]);
             (f.x1[l], f.y1[l], f.tx[l], f.ty[l]) = (p.x1, p.y1, p.tx, p.ty);
+            (f.ix[l], f.iy[l]) = (p.ix, p.iy);
             for k in 0..4 {
                 (f.wx[k][l], f.wy[k][l]) = (p.wx[k], p.wy[k]);
             }
@@ -153,6 +163,8 @@ impl FootprintLanes {
         Footprint {
             x1: self.x1[l],
             y1: self.y1[l],
+            ix: self.ix[l],
+            iy: self.iy[l],
             tx: self.tx[l],
             ty: self.ty[l],
             wx: self.wx.map(|w| w[l]),
@@ -233,7 +245,8 @@ pub fn catmull_rom_texel(tex: &[f32], width: usize, height: usize, f: &Footprint
     let gathered: [[f32; 4 * TEXEL]; 4];
     let rows: [&[f32; 4 * TEXEL]; 4] = if interior {
         // The whole 4x4 footprint is inside: each row's four texels in one bounds check.
-        let base = ((f.y1 as usize - 1) * width + f.x1 as usize - 1) * TEXEL;
+        // Inside, `ix` and `iy` are at least 1 (so the casts are exact) and exact.
+        let base = ((f.iy as usize - 1) * width + f.ix as usize - 1) * TEXEL;
         std::array::from_fn(|j| block(tex, base + j * width * TEXEL))
     } else {
         let xs = Footprint::clamped(f.x1, width);
@@ -528,7 +541,9 @@ pub(crate) mod tests {
                 let bits = |f: &Footprint| {
                     let mut v = vec![f.x1, f.y1, f.tx, f.ty];
                     v.extend(f.wx.iter().chain(&f.wy));
-                    v.into_iter().map(f32::to_bits).collect::<Vec<_>>()
+                    let mut bits: Vec<u32> = v.into_iter().map(f32::to_bits).collect();
+                    bits.extend([f.ix as u32, f.iy as u32]);
+                    bits
                 };
                 assert_eq!(bits(&got), bits(&want), "lane {l} at ({}, {})", x[l], y[l]);
             }
