@@ -532,6 +532,18 @@ async fn flush_all(addr: std::net::SocketAddr, id: &str) -> Vec<(String, Vec<u8>
     }
 }
 
+/// `POST /v1/sessions/{id}/frames` with an EXR body.
+async fn post_frame(addr: std::net::SocketAddr, id: &str, exr: &[u8]) -> (u16, String, Vec<u8>) {
+    http(
+        addr,
+        "POST",
+        &format!("/v1/sessions/{id}/frames"),
+        exr,
+        "image/x-exr",
+    )
+    .await
+}
+
 /// A minimal HTTP/1.1 exchange over a real socket.
 async fn http(
     addr: std::net::SocketAddr,
@@ -566,14 +578,7 @@ async fn http_frames_are_bit_identical_too() {
     };
     for (i, f) in fr.iter().enumerate() {
         let exr = write_exr_bytes(f, &opts).unwrap();
-        let (st, headers, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{id}/frames"),
-            &exr,
-            "image/x-exr",
-        )
-        .await;
+        let (st, headers, body) = post_frame(addr, &id, &exr).await;
         assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
         assert!(
             headers.to_ascii_lowercase().contains("x-afterimage-record: {"),
@@ -601,14 +606,7 @@ async fn http_frames_are_bit_identical_too() {
     let want = in_process("upsample", &sparse);
     for (i, f) in sparse.iter().enumerate() {
         let exr = write_exr_bytes(f, &opts).unwrap();
-        let (st, _, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{uid}/frames"),
-            &exr,
-            "image/x-exr",
-        )
-        .await;
+        let (st, _, body) = post_frame(addr, &uid, &exr).await;
         assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
         same(
             &[exr_color(&body)],
@@ -641,14 +639,7 @@ async fn http_frames_are_bit_identical_too() {
     let mut got = Vec::new();
     for (i, f) in fr.iter().enumerate() {
         let exr = write_exr_bytes(f, &opts).unwrap();
-        let (st, _, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{pid}/frames"),
-            &exr,
-            "image/x-exr",
-        )
-        .await;
+        let (st, _, body) = post_frame(addr, &pid, &exr).await;
         if i < 2 {
             assert_eq!(st, 202, "{}", String::from_utf8_lossy(&body));
             let v: Value = serde_json::from_slice(&body).unwrap();
@@ -686,14 +677,7 @@ async fn http_frames_are_bit_identical_too() {
     assert!(String::from_utf8_lossy(&body).contains("alpha"));
     let (st, _, _) = http(addr, "POST", "/v1/sessions/nope/frames", b"x", "image/x-exr").await;
     assert_eq!(st, 404);
-    let (st, _, body) = http(
-        addr,
-        "POST",
-        &format!("/v1/sessions/{id}/frames"),
-        b"not an exr",
-        "image/x-exr",
-    )
-    .await;
+    let (st, _, body) = post_frame(addr, &id, b"not an exr").await;
     assert_eq!(st, 400, "{}", String::from_utf8_lossy(&body));
     let (st, _, body) = http(addr, "GET", "/v1/filters", b"", "text/plain").await;
     assert_eq!(st, 200);
@@ -767,14 +751,7 @@ async fn replies_and_stream_outputs_replace_their_inputs() {
             let mut replies = Vec::new();
             for n in 1..=3 {
                 let file = std::fs::read(input.join(format!("frame_{n:04}.exr"))).unwrap();
-                let (st, _, body) = http(
-                    addr,
-                    "POST",
-                    &format!("/v1/sessions/{id}/frames"),
-                    &file,
-                    "image/x-exr",
-                )
-                .await;
+                let (st, _, body) = post_frame(addr, &id, &file).await;
                 assert!(
                     st == 200 || st == 202,
                     "{name} {filter}: {st} {}",
@@ -1195,14 +1172,7 @@ async fn concurrent_frames_to_one_session_are_refused_not_deadlocked() {
         tasks.push(tokio::spawn(async move {
             let mut codes = Vec::new();
             for _ in 0..6 {
-                let (st, _, body) = http(
-                    addr,
-                    "POST",
-                    &format!("/v1/sessions/{id}/frames"),
-                    &exr,
-                    "image/x-exr",
-                )
-                .await;
+                let (st, _, body) = post_frame(addr, &id, &exr).await;
                 if st == 409 {
                     let b = String::from_utf8_lossy(&body);
                     assert!(b.contains("session busy: "), "{b}");
@@ -1292,14 +1262,7 @@ async fn bodies_and_frames_larger_than_the_session_are_refused_before_reading() 
         };
         write_exr_bytes(&f, &opts).unwrap()
     };
-    let (st, _, body) = http(
-        addr,
-        "POST",
-        &format!("/v1/sessions/{id}/frames"),
-        &big,
-        "image/x-exr",
-    )
-    .await;
+    let (st, _, body) = post_frame(addr, &id, &big).await;
     let body = String::from_utf8_lossy(&body);
     assert_eq!(st, 400, "{body}");
     assert!(
@@ -1484,14 +1447,7 @@ async fn shutdown_drains_readyz_503_while_a_frame_finishes() {
     };
     for i in 0..16 {
         let exr = write_exr_bytes(&synthetic_frame(w, h, i), &opts).unwrap();
-        let (st, _, b) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{id}/frames"),
-            &exr,
-            "image/x-exr",
-        )
-        .await;
+        let (st, _, b) = post_frame(addr, &id, &exr).await;
         assert_eq!(st, 202, "{}", String::from_utf8_lossy(&b));
     }
     let flush = tokio::spawn(async move {
@@ -2408,14 +2364,7 @@ async fn an_exported_session_continues_in_another() {
     let fr = frames("flyover", 6, 1);
     // Posts an EXR to a session; its reply's frame index and colour bits.
     let post = |id: String, exr: Vec<u8>| async move {
-        let (st, _, body) = http(
-            addr,
-            "POST",
-            &format!("/v1/sessions/{id}/frames"),
-            &exr,
-            "image/x-exr",
-        )
-        .await;
+        let (st, _, body) = post_frame(addr, &id, &exr).await;
         assert_eq!(st, 200, "{}", String::from_utf8_lossy(&body));
         let f =
             afterimage::io::read_exr_frame_bytes(&body, std::path::Path::new("reply"), &Default::default())
