@@ -9,6 +9,7 @@
 
 use super::clip::CLIP_EPS;
 use super::neighborhood::{fmax, fmin};
+use wide::f32x8;
 
 /// Pixels per block.
 pub const LANES: usize = 8;
@@ -200,6 +201,42 @@ pub fn ycocg_to_rgb(c: &[Lanes; 3]) -> [Lanes; 3] {
     ]
 }
 
+/// A block's `N` values per pixel written as interleaved texels: pixel `l`'s values to
+/// `out[l * N..(l + 1) * N]`, for the `out.len() / N` (at most [`LANES`]) first pixels.
+/// Each eight values go by one 8x8 transpose in vectors, the `N % 8` left lane by lane.
+#[inline(always)]
+pub fn store_texels<const N: usize>(cols: &[Lanes; N], out: &mut [f32]) {
+    let whole = N / LANES * LANES;
+    for g in (0..whole).step_by(LANES) {
+        let rows = f32x8::transpose(std::array::from_fn(|k| f32x8::from(cols[g + k])));
+        for (t, row) in out.chunks_exact_mut(N).zip(rows) {
+            t[g..g + LANES].copy_from_slice(&row.to_array());
+        }
+    }
+    for (l, t) in out.chunks_exact_mut(N).enumerate().take(LANES) {
+        for c in whole..N {
+            t[c] = cols[c][l];
+        }
+    }
+}
+
+/// The inverse of [`store_texels`]: eight texels of `N` values as `N` lanes.
+#[inline(always)]
+pub fn load_texels<const N: usize>(texels: &[[f32; N]; LANES]) -> [Lanes; N] {
+    let mut cols = [[0.0; LANES]; N];
+    let whole = N / LANES * LANES;
+    for g in (0..whole).step_by(LANES) {
+        let rows = std::array::from_fn(|l| f32x8::from(*block::<f32, LANES>(&texels[l], g)));
+        for (k, v) in f32x8::transpose(rows).into_iter().enumerate() {
+            cols[g + k] = v.to_array();
+        }
+    }
+    for (c, col) in cols.iter_mut().enumerate().skip(whole) {
+        *col = each(|l| texels[l][c]);
+    }
+    cols
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -213,6 +250,42 @@ mod tests {
             1 => 0.25,
             _ => (rng.next_f64() * 2.0 - 0.5) as f32 * scale as f32,
         })
+    }
+
+    /// The vector transposes put every value where the plain loops put it, for texels of
+    /// fewer, exactly and more than eight values and for partial blocks.
+    #[test]
+    fn texels_and_lanes_transpose_like_the_plain_loops() {
+        fn case<const N: usize>(rng: &mut SplitMix64) {
+            let cols: [Lanes; N] = std::array::from_fn(|_| block(rng, 3.0));
+            for n in 0..=LANES {
+                let mut out = vec![f32::NAN; n * N + 3];
+                store_texels(&cols, &mut out[..n * N]);
+                for l in 0..n {
+                    for c in 0..N {
+                        assert_eq!(out[l * N + c].to_bits(), cols[c][l].to_bits(), "N {N} n {n}");
+                    }
+                }
+                assert!(
+                    out[n * N..].iter().all(|v| v.is_nan()),
+                    "N {N} n {n}: wrote past the end"
+                );
+            }
+            let texels: [[f32; N]; LANES] =
+                std::array::from_fn(|_| std::array::from_fn(|_| rng.next_f64() as f32));
+            let back = load_texels(&texels);
+            for l in 0..LANES {
+                for c in 0..N {
+                    assert_eq!(back[c][l].to_bits(), texels[l][c].to_bits(), "N {N}");
+                }
+            }
+        }
+        let mut rng = SplitMix64::new(5);
+        case::<1>(&mut rng);
+        case::<3>(&mut rng);
+        case::<8>(&mut rng);
+        case::<9>(&mut rng);
+        case::<25>(&mut rng);
     }
 
     #[test]

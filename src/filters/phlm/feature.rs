@@ -66,12 +66,12 @@ pub fn accumulate_lanes(
     p: &Params,
 ) -> [Lanes; 3] {
     let fl = lanes::map3(&prev[0], &prev[1], &prev[2], |r, g, b| y_of([r, g, b]));
-    let a: Lanes = std::array::from_fn(|k| {
+    let a: Lanes = lanes::each(|k| {
         let l = (lo[k] - fl[k]).max(fl[k] - hi[k]).max(0.0);
         let phi = p.feature_a * l * l + p.feature_b * v[k] * l * l * l;
         (phi / (l + (hi[k] - lo[k]) + EPS)).clamp(p.feature_alpha_min, 1.0)
     });
-    std::array::from_fn(|c| std::array::from_fn(|k| prev[c][k] + a[k] * (lowpass[c][k] - prev[c][k])))
+    lanes::each(|c| lanes::each(|k| prev[c][k] + a[k] * (lowpass[c][k] - prev[c][k])))
 }
 
 #[cfg(test)]

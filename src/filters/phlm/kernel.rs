@@ -85,14 +85,22 @@ struct Band {
     /// Per-column 3-row min, max and sum of each channel, with one clamped column on each
     /// side and padding to whole blocks.
     cols: [Vec<f32>; 9],
-    /// This row's fetched state, one row per state float.
-    fetched: [Vec<f32>; TEXEL],
-    /// This row's pixels without history (first frame, reset, off screen, padding).
-    nothing: Vec<bool>,
-    /// This row's motion length.
-    speed: Vec<f32>,
-    /// This row's new feature.
-    z: [Vec<f32>; 3],
+    /// This row's fetched state, block by block.
+    fetched: Vec<Fetched>,
+    /// This row's new feature, block by block.
+    z: Vec<[Lanes; 3]>,
+}
+
+/// What stage `reproject` hands the feature and the model for one block of pixels.
+#[derive(Clone, Copy, Default)]
+struct Fetched {
+    /// The previous state (beta, R, z; [`TEXEL`] floats), one lane per pixel; zero where
+    /// there is none.
+    state: [Lanes; TEXEL],
+    /// Pixels without history (first frame, reset, off screen, padding).
+    none: Mask,
+    /// Motion length.
+    speed: Lanes,
 }
 
 /// Runs `phlm`'s stages from `tonemap` to `untonemap` for one frame.
@@ -187,8 +195,6 @@ fn run_band(
         work,
         cols,
         fetched,
-        nothing,
-        speed,
         z,
     } = band;
     let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
@@ -226,34 +232,19 @@ fn run_band(
         let at = y * w..(y + 1) * w;
         let band_row = |r: usize| (r - r0) * w..(r - r0 + 1) * w;
         let fetch_stage = if plan.reproject { REPROJECT } else { MODEL };
-        let nothing = sized(nothing, wp);
-        let speed = sized(speed, wp);
-        let mut fetched = fetched.each_mut().map(|v| sized(v, wp));
-        clock.time(fetch_stage, || {
-            fetch_row(src, plan, y, &mut fetched, nothing, speed)
-        });
+        let fetched = sized(fetched, wp / LANES);
+        clock.time(fetch_stage, || fetch_row(src, plan, y, fetched));
         let cols = cols.each_mut().map(|v| sized(v, wp + 2));
         let rows3 = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(band_row);
         let centre = band_row(y);
         let stats = clock.time(FEATURE, || column_stats(&cur, &rows3, w, cols));
-        let zrow = z.each_mut().map(|v| sized(v, wp));
+        let z = sized(z, wp / LANES);
         let working = work.each_ref().map(|c| &c[centre.clone()]);
         let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
         let invalid = src.invalid.map(|v| &v[at.clone()]);
-        let fetched = fetched.each_ref().map(|v| &**v);
-        let [z0, z1, z2] = zrow;
+        let fetched = &*fetched;
         clock.time(FEATURE, || {
-            feature_row(
-                &stats,
-                working,
-                &fetched,
-                nothing,
-                speed,
-                invalid,
-                plan.p,
-                w,
-                [&mut *z0, &mut *z1, &mut *z2],
-            )
+            feature_row(&stats, working, fetched, invalid, plan.p, w, z)
         });
         let k = y - rows.start;
         let o = k * w..(k + 1) * w;
@@ -261,17 +252,7 @@ fn run_band(
         let texels = &mut next[TEXEL * o.start..TEXEL * o.end];
         counts += clock.time(MODEL, || {
             model_row(
-                &stats,
-                working,
-                ycocg,
-                &fetched,
-                nothing,
-                [&*z0, &*z1, &*z2],
-                invalid,
-                plan,
-                w,
-                row_out,
-                texels,
+                &stats, working, ycocg, fetched, z, invalid, plan, w, row_out, texels,
             )
         });
         if plan.tonemap {
@@ -288,55 +269,53 @@ fn run_band(
 }
 
 /// Stage `reproject` of row `y` (or the in-place read when nothing moves): each pixel's
-/// previous state (bilinear or nearest at `p + motion`, or its own) into `fetched`, one
-/// row per state float; `nothing` where there is none (no history, off screen, padding);
-/// the motion length for the feature.
-fn fetch_row(
-    src: &Sources,
-    plan: &Plan,
-    y: usize,
-    fetched: &mut [&mut [f32]; TEXEL],
-    nothing: &mut [bool],
-    speed: &mut [f32],
-) {
+/// previous state (bilinear or nearest at `p + motion`, or its own) into its block's
+/// lanes, with the motion length for the feature; `none` (and a zero state) where there
+/// is no state (no history, off screen, padding).
+fn fetch_row(src: &Sources, plan: &Plan, y: usize, blocks: &mut [Fetched]) {
     let (w, h) = (src.w, src.h);
-    nothing.fill(true);
-    speed.fill(0.0);
-    if let Some([mx, my]) = src.motion {
-        let (mx, my) = (&mx[y * w..(y + 1) * w], &my[y * w..(y + 1) * w]);
-        for x in 0..w {
-            speed[x] = (mx[x] * mx[x] + my[x] * my[x]).sqrt();
-        }
-    }
-    let Some(state) = src.state else { return };
-    let put = |fetched: &mut [&mut [f32]; TEXEL], x: usize, t: &[f32; TEXEL]| {
-        for c in 0..TEXEL {
-            fetched[c][x] = t[c];
-        }
+    let row = y * w..(y + 1) * w;
+    let moving = match (plan.reproject, src.motion) {
+        (true, Some(m)) => Some(m),
+        _ => None,
     };
-    match (plan.reproject, src.motion) {
-        (true, Some([mx, my])) => {
-            for x in 0..w {
+    for (b, blk) in blocks.iter_mut().enumerate() {
+        let x0 = b * LANES;
+        blk.none = [true; LANES];
+        blk.speed = [0.0; LANES];
+        if let Some([mx, my]) = src.motion {
+            let (mx, my) = (
+                lanes_of(&mx[row.clone()], x0, w, 0.0),
+                lanes_of(&my[row.clone()], x0, w, 0.0),
+            );
+            blk.speed = lanes::each(|l| (mx[l] * mx[l] + my[l] * my[l]).sqrt());
+        }
+        let Some(state) = src.state else {
+            blk.state = [[0.0; LANES]; TEXEL];
+            continue;
+        };
+        let mut texels = [[0.0; TEXEL]; LANES];
+        for (l, texel) in texels.iter_mut().enumerate() {
+            let x = x0 + l;
+            let t: Option<[f32; TEXEL]> = if x >= w {
+                None
+            } else if let Some([mx, my]) = moving {
                 let i = y * w + x;
                 let (px, py) = (x as f32 + 0.5 + mx[i], y as f32 + 0.5 + my[i]);
-                if !on_screen(px, py, w, h) {
-                    continue;
-                }
-                nothing[x] = false;
-                let t: [f32; TEXEL] = match plan.p.model_fetch {
+                on_screen(px, py, w, h).then(|| match plan.p.model_fetch {
                     ModelFetch::Bilinear => bilinear_texels(state, w, h, px, py),
                     ModelFetch::Nearest => nearest_texel(state, w, h, px, py),
-                };
-                put(fetched, x, &t);
-            }
-        }
-        _ => {
-            for x in 0..w {
+                })
+            } else {
                 let i = (y * w + x) * TEXEL;
-                nothing[x] = false;
-                put(fetched, x, state[i..i + TEXEL].try_into().expect("a texel"));
+                Some(*lanes::block(state, i))
+            };
+            blk.none[l] = t.is_none();
+            if let Some(t) = t {
+                *texel = t;
             }
         }
+        blk.state = lanes::load_texels(&texels);
     }
 }
 
@@ -390,9 +369,9 @@ impl RowStats<'_> {
                     .expect("a block")
             };
             let (mn, mx, sm) = (col(0), col(1), col(2));
-            out[0][c] = std::array::from_fn(|l| fmin(fmin(mn[l], mn[l + 1]), mn[l + 2]));
-            out[1][c] = std::array::from_fn(|l| fmax(fmax(mx[l], mx[l + 1]), mx[l + 2]));
-            out[2][c] = std::array::from_fn(|l| (sm[l] + sm[l + 1] + sm[l + 2]) * (1.0 / 9.0));
+            out[0][c] = lanes::each(|l| fmin(fmin(mn[l], mn[l + 1]), mn[l + 2]));
+            out[1][c] = lanes::each(|l| fmax(fmax(mx[l], mx[l + 1]), mx[l + 2]));
+            out[2][c] = lanes::each(|l| (sm[l] + sm[l + 1] + sm[l + 2]) * (1.0 / 9.0));
         }
         out
     }
@@ -416,36 +395,34 @@ fn lanes_of<T: Copy>(s: &[T], x0: usize, n: usize, pad: T) -> [T; LANES] {
 fn feature_row(
     stats: &RowStats,
     working: [&[f32]; 3],
-    fetched: &[&[f32]; TEXEL],
-    nothing: &[bool],
-    speed: &[f32],
+    fetched: &[Fetched],
     invalid: Option<&[bool]>,
     p: &Params,
     w: usize,
-    z: [&mut [f32]; 3],
+    z: &mut [[Lanes; 3]],
 ) {
-    let [z0, z1, z2] = z;
-    for x0 in (0..w).step_by(LANES) {
+    for ((b, f), zb) in fetched.iter().enumerate().zip(z) {
+        let x0 = b * LANES;
         let [min, max, mean] = stats.block(x0);
         let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
-        let prev: [Lanes; 3] = std::array::from_fn(|c| lanes_of(fetched[Z + c], x0, w, 0.0));
-        let none: Mask = lanes_of(nothing, x0, w, true);
+        let prev: [Lanes; 3] = lanes::each(|c| f.state[Z + c]);
         let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
-        let v: Lanes = lanes_of(speed, x0, w, 0.0);
         let lowpass = lanes::ycocg_to_rgb(&mean);
-        let acc = accumulate_lanes(&prev, &lowpass, &min[0], &max[0], &v, p);
-        for (c, zr) in [&mut *z0, &mut *z1, &mut *z2].into_iter().enumerate() {
+        let acc = accumulate_lanes(&prev, &lowpass, &min[0], &max[0], &f.speed, p);
+        *zb = lanes::each(|c| {
             let kept = lanes::select(&inv, &prev[c], &acc[c]);
-            let zc = lanes::select(&none, &input[c], &kept);
-            let n = LANES.min(w - x0);
-            zr[x0..x0 + n].copy_from_slice(&zc[..n]);
-        }
+            lanes::select(&f.none, &input[c], &kept)
+        });
     }
 }
 
 /// A model reset to colour `c` with `P = p I` ([`super::Model::reset`]) where `m` is set.
 #[inline(always)]
 fn reset_where(m: &Mask, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: &[Lanes; 3], p: f32) {
+    // Most blocks reset nothing (a reset follows a cut, a disocclusion or a clip).
+    if !m.contains(&true) {
+        return;
+    }
     let init = rls::init_information(p);
     for ch in 0..3 {
         beta[ch][0] = lanes::select(m, &c[ch], &beta[ch][0]);
@@ -466,9 +443,8 @@ fn model_row(
     stats: &RowStats,
     working: [&[f32]; 3],
     ycocg: [&[f32]; 3],
-    fetched: &[&[f32]; TEXEL],
-    nothing: &[bool],
-    z: [&[f32]; 3],
+    fetched: &[Fetched],
+    z: &[[Lanes; 3]],
     invalid: Option<&[bool]>,
     plan: &Plan,
     w: usize,
@@ -478,26 +454,25 @@ fn model_row(
     let p = plan.p;
     let [or, og, ob] = out;
     let mut counts = Counts::default();
-    for x0 in (0..w).step_by(LANES) {
+    for ((b, f), zl) in fetched.iter().enumerate().zip(z) {
+        let x0 = b * LANES;
         let n = LANES.min(w - x0);
-        let real: Mask = std::array::from_fn(|l| l < n);
+        let real: Mask = lanes::each(|l| l < n);
         let [min, max, _] = stats.block(x0);
         let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
         let cur: [Lanes; 3] = ycocg.map(|c| lanes_of(c, x0, w, 0.0));
-        let zl: [Lanes; 3] = z.map(|c| lanes_of(c, x0, w, 0.0));
-        let none: Mask = lanes_of(nothing, x0, w, true);
+        let none = f.none;
         let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
-        let mut beta: [[Lanes; D]; 3] =
-            std::array::from_fn(|c| std::array::from_fn(|j| lanes_of(fetched[BETA + c * D + j], x0, w, 0.0)));
-        let mut r: [Lanes; P_LEN] = std::array::from_fn(|k| lanes_of(fetched[R + k], x0, w, 0.0));
+        let mut beta: [[Lanes; D]; 3] = lanes::each(|c| lanes::each(|j| f.state[BETA + c * D + j]));
+        let mut r: [Lanes; P_LEN] = lanes::each(|k| f.state[R + k]);
         reset_where(&none, &mut beta, &mut r, &input, p.p0);
-        let fresh: Mask = std::array::from_fn(|l| none[l] && real[l]);
+        let fresh: Mask = lanes::each(|l| none[l] && real[l]);
         let x: [Lanes; D] = [lanes::splat(1.0), zl[0], zl[1], zl[2]];
         // Lines 12-19: predict; outside the 3x3 box -> clip toward the input and reset.
-        let active: Mask = std::array::from_fn(|l| !inv[l]);
+        let active: Mask = lanes::each(|l| !inv[l]);
         let pred = rls::predict_lanes(&beta, &x);
         let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &min, &max);
-        let moved: Mask = std::array::from_fn(|l| moved[l] && active[l]);
+        let moved: Mask = lanes::each(|l| moved[l] && active[l]);
         reset_where(
             &moved,
             &mut beta,
@@ -507,12 +482,18 @@ fn model_row(
         );
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
-        let e: [Lanes; 3] = std::array::from_fn(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
+        let e: [Lanes; 3] = lanes::each(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
         let (trace, failed) =
             rls::update_information_lanes(&mut beta, &mut r, &x, &e, p.lambda, plan.prior, &active);
         reset_where(&failed, &mut beta, &mut r, &input, p.p0);
-        let broken: Mask =
-            std::array::from_fn(|l| active[l] && !beta.iter().flatten().all(|b| b[l].is_finite()));
+        // Every coefficient finite: `b * 0` is zero for a finite `b` and NaN for an
+        // infinite or NaN one, so the sum is zero exactly when all are finite (float
+        // lanes, which stay in vectors where a flag per coefficient would not).
+        let mut probe: Lanes = [0.0; LANES];
+        for b in beta.iter().flatten() {
+            probe = lanes::each(|l| probe[l] + b[l] * 0.0);
+        }
+        let broken: Mask = lanes::each(|l| active[l] & (probe[l] != 0.0));
         reset_where(&broken, &mut beta, &mut r, &input, p.p0);
         // Line 22: the output.
         let o = rls::predict_lanes(&beta, &x);
@@ -524,23 +505,27 @@ fn model_row(
             counts.max_trace = counts.max_trace.max(trace[l]);
         }
         for (c, row) in [&mut *or, &mut *og, &mut *ob].into_iter().enumerate() {
-            for l in 0..n {
-                row[x0 + l] = o[c][l].clamp(0.0, plan.hi);
-            }
-        }
-        let texels: &mut [f32] = &mut next[TEXEL * x0..TEXEL * (x0 + n)];
-        for l in 0..n {
-            let t = &mut texels[TEXEL * l..TEXEL * (l + 1)];
-            for c in 0..3 {
-                for j in 0..D {
-                    t[BETA + c * D + j] = beta[c][j][l];
+            // `f32::clamp` written as comparisons (NaN passes, as there), which vectorise.
+            let v: Lanes = lanes::map(&o[c], |v| {
+                if v < 0.0 {
+                    0.0
+                } else if v > plan.hi {
+                    plan.hi
+                } else {
+                    v
                 }
-                t[Z + c] = zl[c][l];
-            }
-            for k in 0..P_LEN {
-                t[R + k] = r[k][l];
-            }
+            });
+            row[x0..x0 + n].copy_from_slice(&v[..n]);
         }
+        let mut state = [[0.0; LANES]; TEXEL];
+        for c in 0..3 {
+            for j in 0..D {
+                state[BETA + c * D + j] = beta[c][j];
+            }
+            state[Z + c] = zl[c];
+        }
+        state[R..R + P_LEN].copy_from_slice(&r);
+        lanes::store_texels(&state, &mut next[TEXEL * x0..TEXEL * (x0 + n)]);
     }
     counts
 }

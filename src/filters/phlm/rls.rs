@@ -33,7 +33,7 @@
 //! noisy feature P's condition grows without bound and f32 P turned NaN between 20,000 and
 //! 200,000 frames).
 
-use crate::kernels::lanes::{Lanes, Mask, LANES};
+use crate::kernels::lanes::{each, Lanes, Mask, LANES};
 
 /// Number of features: the intercept and three feature channels (000, sec. 6, "the final
 /// dimension d ... is 4").
@@ -296,98 +296,150 @@ pub fn update_information_lanes(
     prior: f32,
     active: &Mask,
 ) -> (Lanes, Mask) {
+    // Written out entry by entry (4x4 is small): each named value is one or two vector
+    // registers, with no array the compiler would zero first and index after. The
+    // operations and their order are those of [`forgotten`], [`cholesky`], [`solve`] and
+    // [`trace_of_inverse`], so every lane gets the scalar function's bits.
     let l = lambda as f64;
     let q = (1.0 - l) * prior as f64;
-    let xd: [Lanes64; D] = std::array::from_fn(|i| std::array::from_fn(|k| x[i][k] as f64));
-    // lambda R + (1 - lambda) prior I + x x^T, as [`forgotten`] sums it.
-    let mut a = [[[0.0f64; LANES]; D]; D];
-    for i in 0..D {
-        for j in i..D {
-            let extra = if i == j { q } else { 0.0 };
-            let v: Lanes64 =
-                std::array::from_fn(|k| l * r[SYM[i][j]][k] as f64 + xd[i][k] * xd[j][k] + extra);
-            a[i][j] = v;
-            a[j][i] = v;
-        }
-    }
-    // Cholesky with reciprocal pivots, every lane; `ok` where every pivot is positive.
-    let mut ch = [[[0.0f64; LANES]; D]; D];
-    let mut inv = [[0.0f64; LANES]; D];
-    let mut ok = *active;
-    for i in 0..D {
-        for j in 0..=i {
-            let mut sum = a[i][j];
-            for k in 0..j {
-                sum = std::array::from_fn(|m| sum[m] - ch[i][k][m] * ch[j][k][m]);
-            }
-            if i == j {
-                ok = std::array::from_fn(|m| ok[m] && sum[m] > 0.0 && sum[m].is_finite());
-                ch[i][i] = std::array::from_fn(|m| sum[m].sqrt());
-                inv[i] = std::array::from_fn(|m| 1.0 / ch[i][i][m]);
-            } else {
-                ch[i][j] = std::array::from_fn(|m| sum[m] * inv[j][m]);
-            }
-        }
-    }
-    // g = R^-1 x ([`solve`]).
-    let mut w = [[0.0f64; LANES]; D];
-    for i in 0..D {
-        let mut v = xd[i];
-        for k in 0..i {
-            v = std::array::from_fn(|m| v[m] - ch[i][k][m] * w[k][m]);
-        }
-        w[i] = std::array::from_fn(|m| v[m] * inv[i][m]);
-    }
-    let mut g = [[0.0f64; LANES]; D];
-    for i in (0..D).rev() {
-        let mut v = w[i];
-        for k in i + 1..D {
-            v = std::array::from_fn(|m| v[m] - ch[k][i][m] * g[k][m]);
-        }
-        g[i] = std::array::from_fn(|m| v[m] * inv[i][m]);
-    }
+    let [x0, x1, x2, x3]: [Lanes64; D] = each(|i| each(|m| x[i][m] as f64));
+    let xs = [&x0, &x1, &x2, &x3];
+    // lambda R + (1 - lambda) prior I + x x^T ([`forgotten`]).
+    let a: [Lanes64; P_LEN] = each(|k| {
+        let (i, j) = PAIRS[k];
+        let extra = if i == j { q } else { 0.0 };
+        each(|m| l * r[k][m] as f64 + xs[i][m] * xs[j][m] + extra)
+    });
+    let at = |i: usize, j: usize| &a[SYM[i][j]];
+    // Cholesky with reciprocal pivots ([`cholesky`]); `bad` is 1 in a lane once a pivot
+    // is not in (0, inf) (NaN included), kept as a float so the lanes stay in vectors.
+    let s0 = *at(0, 0);
+    let i0 = reciprocal_sqrt(&s0);
+    let l10: Lanes64 = each(|m| at(1, 0)[m] * i0[m]);
+    let s1: Lanes64 = each(|m| at(1, 1)[m] - l10[m] * l10[m]);
+    let i1 = reciprocal_sqrt(&s1);
+    let l20: Lanes64 = each(|m| at(2, 0)[m] * i0[m]);
+    let l21: Lanes64 = each(|m| (at(2, 1)[m] - l20[m] * l10[m]) * i1[m]);
+    let s2: Lanes64 = each(|m| at(2, 2)[m] - l20[m] * l20[m] - l21[m] * l21[m]);
+    let i2 = reciprocal_sqrt(&s2);
+    let l30: Lanes64 = each(|m| at(3, 0)[m] * i0[m]);
+    let l31: Lanes64 = each(|m| (at(3, 1)[m] - l30[m] * l10[m]) * i1[m]);
+    let l32: Lanes64 = each(|m| (at(3, 2)[m] - l30[m] * l20[m] - l31[m] * l21[m]) * i2[m]);
+    let s3: Lanes64 = each(|m| at(3, 3)[m] - l30[m] * l30[m] - l31[m] * l31[m] - l32[m] * l32[m]);
+    let i3 = reciprocal_sqrt(&s3);
+    // Every pivot in (0, inf), as [`cholesky`] requires (NaN fails): the smallest above 0
+    // and the largest below inf, with `min`/`max` that pass NaN on (`f64::min` would drop
+    // it), so the test stays in vectors.
+    let lo: Lanes64 = each(|m| nan_min(nan_min(s0[m], s1[m]), nan_min(s2[m], s3[m])));
+    let hi: Lanes64 = each(|m| nan_max(nan_max(s0[m], s1[m]), nan_max(s2[m], s3[m])));
+    let ok: Mask = each(|m| active[m] & (lo[m] > 0.0) & (hi[m] < f64::INFINITY));
+    // g = R^-1 x ([`solve`]): forward, then back substitution.
+    let w0: Lanes64 = each(|m| x0[m] * i0[m]);
+    let w1: Lanes64 = each(|m| (x1[m] - l10[m] * w0[m]) * i1[m]);
+    let w2: Lanes64 = each(|m| (x2[m] - l20[m] * w0[m] - l21[m] * w1[m]) * i2[m]);
+    let w3: Lanes64 = each(|m| (x3[m] - l30[m] * w0[m] - l31[m] * w1[m] - l32[m] * w2[m]) * i3[m]);
+    let g3: Lanes64 = each(|m| w3[m] * i3[m]);
+    let g2: Lanes64 = each(|m| (w2[m] - l32[m] * g3[m]) * i2[m]);
+    let g1: Lanes64 = each(|m| (w1[m] - l21[m] * g2[m] - l31[m] * g3[m]) * i1[m]);
+    let g0: Lanes64 = each(|m| (w0[m] - l10[m] * g1[m] - l20[m] * g2[m] - l30[m] * g3[m]) * i0[m]);
+    let g = [&g0, &g1, &g2, &g3];
+    // The new beta and R where the factorisation succeeded; every lane of most blocks
+    // did, and then no lane needs a blend.
+    let every = ok == [true; LANES];
     for c in 0..3 {
         for j in 0..D {
-            beta[c][j] = std::array::from_fn(|m| {
-                let b = beta[c][j][m] + (g[j][m] * e[c][m] as f64) as f32;
-                if ok[m] {
-                    b
-                } else {
-                    beta[c][j][m]
-                }
-            });
+            let b = each(|m| beta[c][j][m] + (g[j][m] * e[c][m] as f64) as f32);
+            beta[c][j] = if every {
+                b
+            } else {
+                each(|m| if ok[m] { b[m] } else { beta[c][j][m] })
+            };
         }
     }
-    for i in 0..D {
-        for j in i..D {
-            let k = SYM[i][j];
-            r[k] = std::array::from_fn(|m| if ok[m] { a[i][j][m] as f32 } else { r[k][m] });
-        }
+    for k in 0..P_LEN {
+        let v = each(|m| a[k][m] as f32);
+        r[k] = if every {
+            v
+        } else {
+            each(|m| if ok[m] { v[m] } else { r[k][m] })
+        };
     }
-    // trace(R^-1) = ||L^-1||_F^2 ([`trace_of_inverse`]).
-    let mut li = [[[0.0f64; LANES]; D]; D];
-    let mut sum = [0.0f64; LANES];
-    for j in 0..D {
-        for i in j..D {
-            let mut v = [if i == j { 1.0 } else { 0.0 }; LANES];
-            for k in j..i {
-                v = std::array::from_fn(|m| v[m] - ch[i][k][m] * li[k][j][m]);
-            }
-            li[i][j] = std::array::from_fn(|m| v[m] * inv[i][m]);
-            sum = std::array::from_fn(|m| sum[m] + li[i][j][m] * li[i][j][m]);
-        }
-    }
-    let trace = std::array::from_fn(|m| if ok[m] { sum[m] as f32 } else { 0.0 });
-    let failed = std::array::from_fn(|m| active[m] && !ok[m]);
+    // trace(R^-1) = ||L^-1||_F^2 ([`trace_of_inverse`]), column by column of L^-1.
+    let v00 = i0;
+    let v10: Lanes64 = each(|m| (0.0 - l10[m] * v00[m]) * i1[m]);
+    let v20: Lanes64 = each(|m| (0.0 - l20[m] * v00[m] - l21[m] * v10[m]) * i2[m]);
+    let v30: Lanes64 = each(|m| (0.0 - l30[m] * v00[m] - l31[m] * v10[m] - l32[m] * v20[m]) * i3[m]);
+    let v11 = i1;
+    let v21: Lanes64 = each(|m| (0.0 - l21[m] * v11[m]) * i2[m]);
+    let v31: Lanes64 = each(|m| (0.0 - l31[m] * v11[m] - l32[m] * v21[m]) * i3[m]);
+    let v22 = i2;
+    let v32: Lanes64 = each(|m| (0.0 - l32[m] * v22[m]) * i3[m]);
+    let v33 = i3;
+    let sq = |v: &Lanes64, m: usize| v[m] * v[m];
+    let sum: Lanes64 = each(|m| {
+        0.0 + sq(&v00, m)
+            + sq(&v10, m)
+            + sq(&v20, m)
+            + sq(&v30, m)
+            + sq(&v11, m)
+            + sq(&v21, m)
+            + sq(&v31, m)
+            + sq(&v22, m)
+            + sq(&v32, m)
+            + sq(&v33, m)
+    });
+    let trace = each(|m| if ok[m] { sum[m] as f32 } else { 0.0 });
+    let failed = each(|m| active[m] & !ok[m]);
     (trace, failed)
 }
+
+/// `1 / sqrt(s)` as [`cholesky`] computes it (the square root, then its reciprocal).
+#[inline(always)]
+fn reciprocal_sqrt(s: &Lanes64) -> Lanes64 {
+    each(|m| 1.0 / s[m].sqrt())
+}
+
+/// The smaller of two values, NaN if either is NaN.
+#[inline(always)]
+fn nan_min(a: f64, b: f64) -> f64 {
+    if a < b || a.is_nan() {
+        a
+    } else {
+        b
+    }
+}
+
+/// The larger of two values, NaN if either is NaN.
+#[inline(always)]
+fn nan_max(a: f64, b: f64) -> f64 {
+    if a > b || a.is_nan() {
+        a
+    } else {
+        b
+    }
+}
+
+/// The `(i, j)` of each packed index, `i <= j` (the inverse of [`SYM`]'s upper triangle).
+const PAIRS: [(usize, usize); P_LEN] = {
+    let mut t = [(0, 0); P_LEN];
+    let mut i = 0;
+    while i < D {
+        let mut j = i;
+        while j < D {
+            t[SYM[i][j]] = (i, j);
+            j += 1;
+        }
+        i += 1;
+    }
+    t
+};
 
 /// [`predict`] for a block of pixels.
 #[inline(always)]
 pub fn predict_lanes(beta: &[[Lanes; D]; 3], x: &[Lanes; D]) -> [Lanes; 3] {
-    std::array::from_fn(|c| {
+    each(|c| {
         let b = &beta[c];
-        std::array::from_fn(|k| b[0][k] * x[0][k] + b[1][k] * x[1][k] + b[2][k] * x[2][k] + b[3][k] * x[3][k])
+        each(|k| b[0][k] * x[0][k] + b[1][k] * x[1][k] + b[2][k] * x[2][k] + b[3][k] * x[3][k])
     })
 }
 
