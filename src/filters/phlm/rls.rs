@@ -311,8 +311,7 @@ pub fn update_information_lanes(
         each(|m| l * r[k][m] as f64 + xs[i][m] * xs[j][m] + extra)
     });
     let at = |i: usize, j: usize| &a[SYM[i][j]];
-    // Cholesky with reciprocal pivots ([`cholesky`]); `bad` is 1 in a lane once a pivot
-    // is not in (0, inf) (NaN included), kept as a float so the lanes stay in vectors.
+    // Cholesky with reciprocal pivots ([`cholesky`]).
     let s0 = *at(0, 0);
     let i0 = reciprocal_sqrt(&s0);
     let l10: Lanes64 = each(|m| at(1, 0)[m] * i0[m]);
