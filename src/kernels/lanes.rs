@@ -68,6 +68,25 @@ pub fn select(m: &Mask, a: &Lanes, b: &Lanes) -> Lanes {
     each(|l| if m[l] { a[l] } else { b[l] })
 }
 
+/// A block's lanes as one vector.
+#[inline(always)]
+pub fn v(a: &Lanes) -> f32x8 {
+    f32x8::from(*a)
+}
+
+/// The flags of a vector mask (all bits set where true).
+#[inline(always)]
+pub fn mask_of(m: f32x8) -> Mask {
+    let bits = m.to_bitmask();
+    each(|l| (bits >> l) & 1 == 1)
+}
+
+/// A vector mask of flags (all bits set where true).
+#[inline(always)]
+pub fn mask_from(m: &Mask) -> f32x8 {
+    f32x8::from(each(|l| if m[l] { f32::from_bits(u32::MAX) } else { 0.0 }))
+}
+
 /// The 3x3 statistics of a block from per-column statistics of three rows: `cols[4c..4c+4]`
 /// are channel `c`'s column min, max, sum and sum of squares from one column left of the
 /// block to one right of it. Returns min, max, mean and mean of squares per channel, as
@@ -126,24 +145,43 @@ pub fn variance_box(
 /// it is inside; returns the points and which moved.
 #[inline(always)]
 pub fn clip_toward_center(q: &[Lanes; 3], min: &[Lanes; 3], max: &[Lanes; 3]) -> ([Lanes; 3], Mask) {
-    let mut worst = splat(0.0);
-    let mut center = [[0.0; LANES]; 3];
-    let mut v = [[0.0; LANES]; 3];
+    let (p, moved) = clip_toward_center_v(&q.map(|c| v(&c)), &min.map(|c| v(&c)), &max.map(|c| v(&c)));
+    (p.map(|c| c.to_array()), mask_of(moved))
+}
+
+/// [`clip_toward_center`] on vectors, with the moved lanes as a vector mask. In `f32x8`
+/// with float masks: as plain lane loops, the flag and the select compiled to a compare,
+/// a branch and a division per lane.
+#[inline(always)]
+pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) -> ([f32x8; 3], f32x8) {
+    let half = f32x8::splat(0.5);
+    let mut worst = f32x8::splat(0.0);
+    let mut center = [f32x8::splat(0.0); 3];
+    let mut d = [f32x8::splat(0.0); 3];
     for k in 0..3 {
-        center[k] = map2(&max[k], &min[k], |a, b| 0.5 * (a + b));
-        let extent = map2(&max[k], &min[k], |a, b| 0.5 * (a - b) + CLIP_EPS);
-        v[k] = map2(&q[k], &center[k], |a, b| a - b);
-        let r = map2(&v[k], &extent, |a, b| (a / b).abs());
-        worst = map2(&worst, &r, f32::max);
+        center[k] = half * (max[k] + min[k]);
+        let extent = half * (max[k] - min[k]) + f32x8::splat(CLIP_EPS);
+        d[k] = q[k] - center[k];
+        // `worst.max(r)`: `worst` is never NaN (it starts at 0), so a NaN `r` keeps it.
+        worst = max_of(worst, (d[k] / extent).abs());
     }
-    let moved: Mask = each(|l| worst[l] > 1.0);
-    let s = map(&worst, |w| 1.0 / w);
-    let mut p = [[0.0; LANES]; 3];
-    for k in 0..3 {
-        let clipped = map3(&center[k], &v[k], &s, |c, v, s| c + v * s);
-        p[k] = select(&moved, &clipped, &q[k]);
-    }
-    (p, moved)
+    let moved = worst.simd_gt(f32x8::splat(1.0));
+    let s = f32x8::splat(1.0) / worst;
+    (each(|k| moved.select(center[k] + d[k] * s, q[k])), moved)
+}
+
+/// `a.max(b)` lane by lane for an `a` that is never NaN: `b` where `b > a`, else `a` (so
+/// a NaN `b` gives `a`, as `f32::max` does).
+#[inline(always)]
+pub fn max_of(a: f32x8, b: f32x8) -> f32x8 {
+    b.simd_gt(a).select(b, a)
+}
+
+/// `a.min(b)` lane by lane for a `b` that is never NaN: `a` where `a < b`, else `b` (so a
+/// NaN `a` gives `b`, as `f32::min` does).
+#[inline(always)]
+pub fn min_of(a: f32x8, b: f32x8) -> f32x8 {
+    a.simd_lt(b).select(a, b)
 }
 
 /// [`super::clip_toward_point`] in lanes: each `q` outside its box moved along the ray
@@ -156,28 +194,27 @@ pub fn clip_toward_point(
     min: &[Lanes; 3],
     max: &[Lanes; 3],
 ) -> ([Lanes; 3], Mask) {
-    let mut t = splat(0.0);
-    let mut outside = [false; LANES];
-    let mut tgt = [[0.0; LANES]; 3];
+    // In `f32x8` vectors with float masks, as [`clip_toward_center_v`].
+    let [q, target, min, max] = [q, target, min, max].map(|a| a.map(|c| v(&c)));
+    let one = f32x8::splat(1.0);
+    let mut t = f32x8::splat(0.0);
+    let mut outside = f32x8::splat(0.0);
+    let mut tgt = [f32x8::splat(0.0); 3];
     for k in 0..3 {
-        tgt[k] = map3(&target[k], &min[k], &max[k], |t, mn, mx| t.max(mn).min(mx));
-        let below: Mask = each(|l| q[k][l] < min[k][l]);
-        let out: Mask = each(|l| below[l] || q[k][l] > max[k][l]);
-        let bound = select(&below, &min[k], &max[k]);
-        let step: Lanes = each(|l| ((bound[l] - q[k][l]) / (tgt[k][l] - q[k][l])).min(1.0));
-        t = each(|l| if out[l] { t[l].max(step[l]) } else { t[l] });
-        outside = each(|l| outside[l] || out[l]);
+        // `f32::max` and `f32::min` (a NaN operand gives the other): wide's `max`/`min`.
+        tgt[k] = target[k].max(min[k]).min(max[k]);
+        let below = q[k].simd_lt(min[k]);
+        let out = below | q[k].simd_gt(max[k]);
+        let bound = below.select(min[k], max[k]);
+        let step = ((bound - q[k]) / (tgt[k] - q[k])).min(one);
+        t = out.select(max_of(t, step), t);
+        outside |= out;
     }
-    let mut p = [[0.0; LANES]; 3];
-    for k in 0..3 {
-        let moved: Lanes = each(|l| {
-            (q[k][l] + t[l] * (tgt[k][l] - q[k][l]))
-                .max(min[k][l])
-                .min(max[k][l])
-        });
-        p[k] = select(&outside, &moved, &q[k]);
-    }
-    (p, outside)
+    let p = each(|k| {
+        let moved = (q[k] + t * (tgt[k] - q[k])).max(min[k]).min(max[k]);
+        outside.select(moved, q[k]).to_array()
+    });
+    (p, mask_of(outside))
 }
 
 /// [`super::rgb_to_ycocg`] in lanes.

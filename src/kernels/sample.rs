@@ -62,6 +62,20 @@ fn catmull_rom_weights(t: f32) -> [f32; 4] {
     ]
 }
 
+/// [`catmull_rom_weights`] of eight fractions.
+#[inline(always)]
+fn catmull_rom_weights_v(t: f32x8) -> [f32x8; 4] {
+    let s = f32x8::splat;
+    let t2 = t * t;
+    let t3 = t2 * t;
+    [
+        s(-0.5) * t + t2 - s(0.5) * t3,
+        s(1.0) - s(2.5) * t2 + s(1.5) * t3,
+        s(0.5) * t + s(2.0) * t2 - s(1.5) * t3,
+        s(-0.5) * t2 + s(0.5) * t3,
+    ]
+}
+
 /// Where a Catmull-Rom sample at one position reads, and with what weights.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Footprint {
@@ -145,16 +159,29 @@ impl FootprintLanes {
     /// The footprints of positions `(x[l], y[l])`.
     #[inline(always)]
     pub fn at(x: &Lanes, y: &Lanes) -> Self {
-        let mut f = FootprintLanes::default();
-        for l in 0..LANES {
-            let p = Footprint::at(x[l], y[l]);
-            (f.x1[l], f.y1[l], f.tx[l], f.ty[l]) = (p.x1, p.y1, p.tx, p.ty);
-            (f.ix[l], f.iy[l]) = (p.ix, p.iy);
-            for k in 0..4 {
-                (f.wx[k][l], f.wy[k][l]) = (p.wx[k], p.wy[k]);
-            }
+        // In `f32x8` vectors: as a loop over lanes the integer conversions and the
+        // weights stayed scalar. `floor` and `trunc_int` (NaN to 0, saturating) are what
+        // `f32::floor` and `as i32` compute.
+        let half = f32x8::splat(0.5);
+        let fx = f32x8::from(*x) - half;
+        let fy = f32x8::from(*y) - half;
+        let (x1, y1) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - x1, fy - y1);
+        let wx = catmull_rom_weights_v(tx);
+        let wy = catmull_rom_weights_v(ty);
+        let middle = wx[1] + wx[2];
+        let all = (wx[0] + wx[1]) + (wx[2] + wx[3]);
+        let wsum = middle * (wy[0] + wy[3]) + all * (wy[1] + wy[2]);
+        FootprintLanes {
+            x1: x1.to_array(),
+            y1: y1.to_array(),
+            ix: x1.trunc_int().to_array(),
+            iy: y1.trunc_int().to_array(),
+            tx: tx.to_array(),
+            ty: ty.to_array(),
+            wx: wx.map(|w| w.to_array()),
+            wy: wy.map(|w| (w / wsum).to_array()),
         }
-        f
     }
 
     /// Lane `l`'s footprint.

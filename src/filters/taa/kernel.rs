@@ -27,6 +27,7 @@ use crate::kernels::{
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
+use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
 const STAGES: [&str; 7] = [
@@ -499,6 +500,9 @@ const SPAN: usize = LANES + 2;
 
 /// [`resolve_pixel`] for a block of pixels in lanes: statistics from the block's columns
 /// `c`, the input `cur`, the history colour and count `n`, the repaired-input flags.
+/// Returns the new colour and count, and the masks of reset and clipped pixels. After the
+/// statistics it runs in `f32x8` vectors with float masks: written as lane loops, its
+/// flags and selects compiled to a branch per lane.
 #[inline(always)]
 fn resolve_lanes(
     c: &[&[f32; SPAN]; 12],
@@ -507,30 +511,29 @@ fn resolve_lanes(
     n: &Lanes,
     invalid: &Mask,
     k: &Knobs,
-) -> ([Lanes; 3], Lanes, Mask, Mask) {
+) -> ([f32x8; 3], f32x8, f32x8, f32x8) {
     let [min, max, mean, mean_sq] = lanes::box_stats(c);
     let (lo, hi) = lanes::variance_box(&min, &max, &mean, &mean_sq, k.gamma);
-    let (hc, moved) = lanes::clip_toward_center(hist, &lo, &hi);
-    let a = lanes::map(n, |n| k.alpha.max(1.0 / (n + 1.0)));
+    let (cur, hist) = (cur.map(|c| lanes::v(&c)), hist.map(|c| lanes::v(&c)));
+    let (hc, moved) =
+        lanes::clip_toward_center_v(&hist, &lo.map(|c| lanes::v(&c)), &hi.map(|c| lanes::v(&c)));
+    let (zero, one, n) = (f32x8::splat(0.0), f32x8::splat(1.0), lanes::v(n));
+    let a = lanes::max_of(f32x8::splat(k.alpha), one / (n + one));
     let (wc, wh) = if k.luminance_weighting {
         (
-            lanes::map2(&a, &cur[0], |a, c| a / (1.0 + c.max(0.0))),
-            lanes::map2(&a, &hc[0], |a, h| (1.0 - a) / (1.0 + h.max(0.0))),
+            a / (one + lanes::max_of(zero, cur[0])),
+            (one - a) / (one + lanes::max_of(zero, hc[0])),
         )
     } else {
-        (a, lanes::map(&a, |a| 1.0 - a))
+        (a, one - a)
     };
-    let kk = lanes::map2(&wc, &wh, |c, h| 1.0 / (c + h));
-    let reset: Mask = std::array::from_fn(|l| n[l] < 0.5);
-    let keep: Mask = std::array::from_fn(|l| !reset[l] && invalid[l]);
-    let mut value = [[0.0; LANES]; 3];
-    for j in 0..3 {
-        let blend: Lanes = std::array::from_fn(|l| (wc[l] * cur[j][l] + wh[l] * hc[j][l]) * kk[l]);
-        value[j] = lanes::select(&reset, &cur[j], &lanes::select(&keep, &hist[j], &blend));
-    }
-    let grown = lanes::map(n, |n| (n + 1.0).min(MAX_COUNT));
-    let count = lanes::select(&reset, &lanes::splat(1.0), &lanes::select(&keep, n, &grown));
-    let clipped: Mask = std::array::from_fn(|l| moved[l] && !reset[l] && !keep[l]);
+    let kk = one / (wc + wh);
+    let reset = n.simd_lt(f32x8::splat(0.5));
+    let keep = reset.select(zero, lanes::mask_from(invalid));
+    let value = lanes::each(|j| reset.select(cur[j], keep.select(hist[j], (wc * cur[j] + wh * hc[j]) * kk)));
+    let grown = lanes::min_of(n + one, f32x8::splat(MAX_COUNT));
+    let count = reset.select(one, keep.select(n, grown));
+    let clipped = (reset | keep).select(zero, moved);
     (value, count, reset, clipped)
 }
 
@@ -571,13 +574,12 @@ fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
             *hs[3]
         };
         let (value, cnt, reset, clipped) = resolve_lanes(&c, &cur, &hist3, &n, &iv, k);
+        let (value, cnt) = (value.map(|c| c.to_array()), cnt.to_array());
         let v = value;
         let mut rgb = lanes::ycocg_to_rgb(&value);
         for c in &mut rgb {
             *c = lanes::map(c, |v| v.max(0.0));
         }
-        let rs = reset;
-        let cl = clipped;
         let at = x0..x0 + LANES;
         for ch in 0..3 {
             out.rgb[ch][at.clone()].copy_from_slice(&rgb[ch]);
@@ -588,8 +590,8 @@ fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
         for l in 0..LANES {
             texels[4 * l..4 * l + 4].copy_from_slice(&[v[0][l], v[1][l], v[2][l], cnt[l]]);
         }
-        resets += rs.iter().map(|&b| b as u32).sum::<u32>();
-        clips += cl.iter().map(|&b| b as u32).sum::<u32>();
+        resets += reset.to_bitmask().count_ones();
+        clips += clipped.to_bitmask().count_ones();
         x0 += LANES;
     }
     (x0, resets, clips)
