@@ -4,7 +4,7 @@ use super::lanes::{block, each, Lanes, LANES};
 use wide::{f32x4, f32x8};
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
-#[inline]
+#[inline(always)]
 pub fn bilinear<const N: usize>(
     planes: [&[f32]; N],
     width: usize,
@@ -356,7 +356,7 @@ fn bilinear_channel_from(
 
 /// [`bilinear`] of every channel of a plane of interleaved `N`-channel texels (the same
 /// bits as the planar function per channel).
-#[inline]
+#[inline(always)]
 pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; N] {
     let fx = x - 0.5;
     let fy = y - 0.5;

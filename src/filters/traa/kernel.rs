@@ -30,6 +30,7 @@ use crate::kernels::{
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
+use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
 const STAGES: [&str; 10] = [
@@ -904,18 +905,29 @@ fn resolve_row<const N: usize>(
                 }
             }
         }
-        let (hc, moved) = lanes::clip_toward_center(&hs, &lo, &hi);
+        // From the clip on in `f32x8` vectors with float masks (as lane loops over flags,
+        // the clip and the selects compiled to a branch per lane).
+        let (hc, moved) = lanes::clip_toward_center_v(
+            &hs.map(|c| lanes::v(&c)),
+            &lo.map(|c| lanes::v(&c)),
+            &hi.map(|c| lanes::v(&c)),
+        );
+        let hcv = hc;
+        let hc: [Lanes; 3] = hc.map(|c| c.to_array());
         let k: Lanes = lanes::each(|l| {
             let lc = luma([current[0][l], current[1][l], current[2][l]]);
             let lh = luma([hc[0][l], hc[1][l], hc[2][l]]);
             feedback(lc, lh, fb_min, fb_max)
         });
-        let keep: Mask = lanes::each(|l| ok[l] && iv[l]);
-        let blend: Mask = lanes::each(|l| ok[l] && !iv[l]);
+        let (zero, one, kv) = (f32x8::splat(0.0), f32x8::splat(1.0), lanes::v(&k));
+        let (okv, ivv) = (lanes::mask_from(ok), lanes::mask_from(iv));
+        let keep = okv & ivv;
+        let blend = ivv.select(zero, okv);
         let value: [Lanes; 3] = lanes::each(|c| {
-            let b: Lanes = lanes::each(|l| mix(current[c][l], hc[c][l], k[l]).max(0.0));
-            let v = lanes::select(&blend, &b, &current[c]);
-            lanes::select(&keep, &hs[c], &v)
+            let cur = lanes::v(&current[c]);
+            // `mix(current, hc, k).max(0.0)`.
+            let b = lanes::max_of(zero, cur * (one - kv) + hcv[c] * kv);
+            keep.select(lanes::v(&hs[c]), blend.select(b, cur)).to_array()
         });
         for c in 0..3 {
             out[c][x0..x0 + n].copy_from_slice(&value[c][..n]);
@@ -942,7 +954,8 @@ fn resolve_row<const N: usize>(
             (1u64 << (8 * n)) - 1
         };
         resets += n as u32 - (bits(ok) & pixels).count_ones();
-        clips += (bits(&blend) & bits(&moved) & pixels).count_ones();
+        let lanes_in = (1u32 << n) - 1;
+        clips += ((blend & moved).to_bitmask() & lanes_in).count_ones();
     }
     PixelCounts {
         history_reset: resets as u64,
