@@ -74,6 +74,18 @@ pub fn v(a: &Lanes) -> f32x8 {
     f32x8::from(*a)
 }
 
+/// Three channels' lanes as vectors (written out: `map`'s closure can stay out of line).
+#[inline(always)]
+pub fn v3(a: &[Lanes; 3]) -> [f32x8; 3] {
+    [v(&a[0]), v(&a[1]), v(&a[2])]
+}
+
+/// Three vectors as lanes.
+#[inline(always)]
+pub fn arrays3(a: &[f32x8; 3]) -> [Lanes; 3] {
+    [a[0].to_array(), a[1].to_array(), a[2].to_array()]
+}
+
 /// The flags of a vector mask (all bits set where true).
 #[inline(always)]
 pub fn mask_of(m: f32x8) -> Mask {
@@ -145,8 +157,8 @@ pub fn variance_box(
 /// it is inside; returns the points and which moved.
 #[inline(always)]
 pub fn clip_toward_center(q: &[Lanes; 3], min: &[Lanes; 3], max: &[Lanes; 3]) -> ([Lanes; 3], Mask) {
-    let (p, moved) = clip_toward_center_v(&q.map(|c| v(&c)), &min.map(|c| v(&c)), &max.map(|c| v(&c)));
-    (p.map(|c| c.to_array()), mask_of(moved))
+    let (p, moved) = clip_toward_center_v(&v3(q), &v3(min), &v3(max));
+    (arrays3(&p), mask_of(moved))
 }
 
 /// [`clip_toward_center`] on vectors, with the moved lanes as a vector mask. In `f32x8`
@@ -195,7 +207,7 @@ pub fn clip_toward_point(
     max: &[Lanes; 3],
 ) -> ([Lanes; 3], Mask) {
     // In `f32x8` vectors with float masks, as [`clip_toward_center_v`].
-    let [q, target, min, max] = [q, target, min, max].map(|a| a.map(|c| v(&c)));
+    let [q, target, min, max] = [v3(q), v3(target), v3(min), v3(max)];
     let one = f32x8::splat(1.0);
     let mut t = f32x8::splat(0.0);
     let mut outside = f32x8::splat(0.0);

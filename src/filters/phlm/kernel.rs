@@ -404,7 +404,7 @@ fn feature_row(
     for ((b, f), zb) in fetched.iter().enumerate().zip(z) {
         let x0 = b * LANES;
         let [min, max, mean] = stats.block(x0);
-        let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
+        let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
         let prev: [Lanes; 3] = lanes::each(|c| f.state[Z + c]);
         let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
         let lowpass = lanes::ycocg_to_rgb(&mean);
@@ -459,8 +459,8 @@ fn model_row(
         let n = LANES.min(w - x0);
         let real: Mask = lanes::each(|l| l < n);
         let [min, max, _] = stats.block(x0);
-        let input: [Lanes; 3] = working.map(|c| lanes_of(c, x0, w, 0.0));
-        let cur: [Lanes; 3] = ycocg.map(|c| lanes_of(c, x0, w, 0.0));
+        let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
+        let cur: [Lanes; 3] = lanes::each(|c| lanes_of(ycocg[c], x0, w, 0.0));
         let none = f.none;
         let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
         let mut beta: [[Lanes; D]; 3] = lanes::each(|c| lanes::each(|j| f.state[BETA + c * D + j]));

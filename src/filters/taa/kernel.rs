@@ -514,9 +514,8 @@ fn resolve_lanes(
 ) -> ([f32x8; 3], f32x8, f32x8, f32x8) {
     let [min, max, mean, mean_sq] = lanes::box_stats(c);
     let (lo, hi) = lanes::variance_box(&min, &max, &mean, &mean_sq, k.gamma);
-    let (cur, hist) = (cur.map(|c| lanes::v(&c)), hist.map(|c| lanes::v(&c)));
-    let (hc, moved) =
-        lanes::clip_toward_center_v(&hist, &lo.map(|c| lanes::v(&c)), &hi.map(|c| lanes::v(&c)));
+    let (cur, hist) = (lanes::v3(cur), lanes::v3(hist));
+    let (hc, moved) = lanes::clip_toward_center_v(&hist, &lanes::v3(&lo), &lanes::v3(&hi));
     let (zero, one, n) = (f32x8::splat(0.0), f32x8::splat(1.0), lanes::v(n));
     let a = lanes::max_of(f32x8::splat(k.alpha), one / (n + one));
     let (wc, wh) = if k.luminance_weighting {
@@ -574,7 +573,7 @@ fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
             *hs[3]
         };
         let (value, cnt, reset, clipped) = resolve_lanes(&c, &cur, &hist3, &n, &iv, k);
-        let (value, cnt) = (value.map(|c| c.to_array()), cnt.to_array());
+        let (value, cnt) = (lanes::arrays3(&value), cnt.to_array());
         let v = value;
         let mut rgb = lanes::ycocg_to_rgb(&value);
         for c in &mut rgb {

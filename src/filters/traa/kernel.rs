@@ -907,13 +907,9 @@ fn resolve_row<const N: usize>(
         }
         // From the clip on in `f32x8` vectors with float masks (as lane loops over flags,
         // the clip and the selects compiled to a branch per lane).
-        let (hc, moved) = lanes::clip_toward_center_v(
-            &hs.map(|c| lanes::v(&c)),
-            &lo.map(|c| lanes::v(&c)),
-            &hi.map(|c| lanes::v(&c)),
-        );
+        let (hc, moved) = lanes::clip_toward_center_v(&lanes::v3(&hs), &lanes::v3(&lo), &lanes::v3(&hi));
         let hcv = hc;
-        let hc: [Lanes; 3] = hc.map(|c| c.to_array());
+        let hc: [Lanes; 3] = lanes::arrays3(&hc);
         let k: Lanes = lanes::each(|l| {
             let lc = luma([current[0][l], current[1][l], current[2][l]]);
             let lh = luma([hc[0][l], hc[1][l], hc[2][l]]);

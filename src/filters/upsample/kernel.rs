@@ -365,7 +365,10 @@ impl PixelGeo {
                 [0.0; LANES]
             },
             normal: if N {
-                fr.normal.expect("N").map(|n| ld(&n[row.clone()], x0))
+                // `three`, not `map`: `map`'s closure stayed out of line (a call per
+                // channel and block, its result passed through memory).
+                let n = fr.normal.expect("N");
+                three(|c| ld(&n[c][row.clone()], x0))
             } else {
                 [[0.0; LANES]; 3]
             },
@@ -422,7 +425,7 @@ fn gather_lanes<const D: bool, const N: bool>(
 /// [`super::spatial::Gathered::mean`] in lanes, 0 where no sample had weight.
 #[inline(always)]
 fn mean(sum: &[Lanes; 3], wsum: &Lanes) -> [Lanes; 3] {
-    sum.map(|s| each(|l| if wsum[l] > 0.0 { s[l] / wsum[l] } else { 0.0 }))
+    three(|c| each(|l| if wsum[l] > 0.0 { sum[c][l] / wsum[l] } else { 0.0 }))
 }
 
 /// The colour of each lane's own sample, and which lanes have one (shaded this frame:
