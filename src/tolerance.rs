@@ -56,6 +56,13 @@ impl Tolerance {
         (a - b).abs() <= self.abs + self.rel * a.abs().max(b.abs())
     }
 
+    /// Whether two f32 are the same bits, or both NaN: what a fast kernel that repeats its
+    /// reference's operations must give. (Rust leaves the sign and payload of a NaN made by
+    /// arithmetic unspecified, and the compiler may swap the operands of `+` and `*`.)
+    pub fn same_bits(a: f32, b: f32) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
     /// `Ok` when `a` and `b` agree, otherwise a message naming `what`, both values and
     /// the tolerance: handy in tests (`.unwrap()` prints it).
     pub fn check(&self, what: &str, a: f64, b: f64) -> Result<(), String> {

@@ -174,7 +174,6 @@ pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) 
         center[k] = half * (max[k] + min[k]);
         let extent = half * (max[k] - min[k]) + f32x8::splat(CLIP_EPS);
         d[k] = q[k] - center[k];
-        // `worst.max(r)`: `worst` is never NaN (it starts at 0), so a NaN `r` keeps it.
         worst = max_of(worst, (d[k] / extent).abs());
     }
     let moved = worst.simd_gt(f32x8::splat(1.0));
@@ -182,18 +181,19 @@ pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) 
     (each(|k| moved.select(center[k] + d[k] * s, q[k])), moved)
 }
 
-/// `a.max(b)` lane by lane for an `a` that is never NaN: `b` where `b > a`, else `a` (so
-/// a NaN `b` gives `a`, as `f32::max` does).
+/// `a.max(b)` lane by lane, with the scalar code's bits: a NaN operand gives the other,
+/// and of two equal values (`+0` and `-0`) it gives `a`, as the compiled `f32::max` does
+/// here (test `vector_clips_give_the_scalar_bits_on_special_values`; wide's `max` gives
+/// `b`).
 #[inline(always)]
 pub fn max_of(a: f32x8, b: f32x8) -> f32x8 {
-    b.simd_gt(a).select(b, a)
+    a.is_nan().select(b, b.simd_gt(a).select(b, a))
 }
 
-/// `a.min(b)` lane by lane for a `b` that is never NaN: `a` where `a < b`, else `b` (so a
-/// NaN `a` gives `b`, as `f32::min` does).
+/// `a.min(b)` lane by lane, with the scalar code's bits (see [`max_of`]).
 #[inline(always)]
 pub fn min_of(a: f32x8, b: f32x8) -> f32x8 {
-    a.simd_lt(b).select(a, b)
+    a.is_nan().select(b, b.simd_lt(a).select(b, a))
 }
 
 /// [`super::clip_toward_point`] in lanes: each `q` outside its box moved along the ray
@@ -213,17 +213,16 @@ pub fn clip_toward_point(
     let mut outside = f32x8::splat(0.0);
     let mut tgt = [f32x8::splat(0.0); 3];
     for k in 0..3 {
-        // `f32::max` and `f32::min` (a NaN operand gives the other): wide's `max`/`min`.
-        tgt[k] = target[k].max(min[k]).min(max[k]);
+        tgt[k] = min_of(max_of(target[k], min[k]), max[k]);
         let below = q[k].simd_lt(min[k]);
         let out = below | q[k].simd_gt(max[k]);
         let bound = below.select(min[k], max[k]);
-        let step = ((bound - q[k]) / (tgt[k] - q[k])).min(one);
+        let step = min_of((bound - q[k]) / (tgt[k] - q[k]), one);
         t = out.select(max_of(t, step), t);
         outside |= out;
     }
     let p = each(|k| {
-        let moved = (q[k] + t * (tgt[k] - q[k])).max(min[k]).min(max[k]);
+        let moved = min_of(max_of(q[k] + t * (tgt[k] - q[k]), min[k]), max[k]);
         outside.select(moved, q[k]).to_array()
     });
     (p, mask_of(outside))
@@ -291,6 +290,7 @@ mod tests {
     use super::*;
     use crate::kernels::{clip, color, for_each_row_stats, neighborhood, NeighborhoodStats};
     use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
 
     /// Random blocks of values at several scales, with exact ties, zeros and flat boxes.
     fn block(rng: &mut SplitMix64, scale: f64) -> Lanes {
@@ -375,6 +375,64 @@ mod tests {
                     );
                 }
             });
+        }
+    }
+
+    /// The vector clips against the scalar ones on special values: NaN, infinities, signed
+    /// zeros, points on the box's faces, empty boxes.
+    #[test]
+    fn vector_clips_give_the_scalar_bits_on_special_values() {
+        const SPECIAL: [f32; 10] = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            0.5,
+            1e-30,
+            3e38,
+        ];
+        let mut rng = SplitMix64::new(73);
+        let pick = |rng: &mut SplitMix64| -> f32 {
+            if rng.next_f64() < 0.5 {
+                SPECIAL[(rng.next_f64() * SPECIAL.len() as f64) as usize % SPECIAL.len()]
+            } else {
+                (rng.next_f64() * 4.0 - 2.0) as f32
+            }
+        };
+        for case in 0..20_000 {
+            let mut gen =
+                || -> [Lanes; 3] { std::array::from_fn(|_| std::array::from_fn(|_| pick(&mut rng))) };
+            let (q, target, a, b) = (gen(), gen(), gen(), gen());
+            // Boxes as the filters build them, `min <= max` (a NaN bound stays NaN).
+            let min: [Lanes; 3] = each(|c| each(|l| fmin(a[c][l], b[c][l])));
+            let max: [Lanes; 3] = each(|c| each(|l| fmax(a[c][l], b[c][l])));
+            let (pc, mc) = clip_toward_center(&q, &min, &max);
+            let (pp, mp) = clip_toward_point(&q, &target, &min, &max);
+            for l in 0..LANES {
+                let at = |v: &[Lanes; 3]| [0, 1, 2].map(|c| v[c][l]);
+                let same = |a: [f32; 3], b: [f32; 3]| (0..3).all(|c| Tolerance::same_bits(a[c], b[c]));
+                let (sc, smc) = clip::clip_toward_center(at(&q), at(&min), at(&max));
+                assert_eq!(smc, mc[l], "case {case} lane {l}: centre, moved");
+                assert!(
+                    same(sc, at(&pc)),
+                    "case {case} lane {l}: centre {:?} scalar {:?} lanes {:?}",
+                    (at(&q), at(&min), at(&max)),
+                    sc,
+                    at(&pc)
+                );
+                let (sp, smp) = clip::clip_toward_point(at(&q), at(&target), at(&min), at(&max));
+                assert_eq!(smp, mp[l], "case {case} lane {l}: point, moved");
+                assert!(
+                    same(sp, at(&pp)),
+                    "case {case} lane {l}: point {:?} scalar {:?} lanes {:?}",
+                    (at(&q), at(&target), at(&min), at(&max)),
+                    sp,
+                    at(&pp)
+                );
+            }
         }
     }
 

@@ -520,8 +520,8 @@ fn resolve_lanes(
     let a = lanes::max_of(f32x8::splat(k.alpha), one / (n + one));
     let (wc, wh) = if k.luminance_weighting {
         (
-            a / (one + lanes::max_of(zero, cur[0])),
-            (one - a) / (one + lanes::max_of(zero, hc[0])),
+            a / (one + lanes::max_of(cur[0], zero)),
+            (one - a) / (one + lanes::max_of(hc[0], zero)),
         )
     } else {
         (a, one - a)

@@ -922,7 +922,7 @@ fn resolve_row<const N: usize>(
         let value: [Lanes; 3] = lanes::each(|c| {
             let cur = lanes::v(&current[c]);
             // `mix(current, hc, k).max(0.0)`.
-            let b = lanes::max_of(zero, cur * (one - kv) + hcv[c] * kv);
+            let b = lanes::max_of(cur * (one - kv) + hcv[c] * kv, zero);
             keep.select(lanes::v(&hs[c]), blend.select(b, cur)).to_array()
         });
         for c in 0..3 {
