@@ -201,16 +201,17 @@ impl AsyncWrite for Conn {
 
 /// Accepts on `listener` until `stop` turns true; every connection that gets a slot and
 /// finishes its TLS handshake in time comes out of the returned channel. `what` names the
-/// port in logs.
+/// port in logs. The task ends, and the listener is closed, when `stop` turns true:
+/// await the returned handle to know the port no longer accepts.
 pub fn accept(
     listener: TcpListener,
     settings: ConnSettings,
     metrics: Arc<Metrics>,
     mut stop: watch::Receiver<bool>,
     what: &'static str,
-) -> mpsc::Receiver<Conn> {
+) -> (mpsc::Receiver<Conn>, tokio::task::JoinHandle<()>) {
     let (tx, rx) = mpsc::channel::<Conn>(64);
-    tokio::spawn(async move {
+    let task = tokio::spawn(async move {
         loop {
             let (tcp, remote) = tokio::select! {
                 r = listener.accept() => match r {
@@ -265,7 +266,7 @@ pub fn accept(
             });
         }
     });
-    rx
+    (rx, task)
 }
 
 /// HTTP/1 and HTTP/2 limits of the HTTP port.

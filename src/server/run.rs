@@ -140,7 +140,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
             }
         })
     };
-    let grpc_conns = accept(
+    let (grpc_conns, grpc_accept) = accept(
         grpc_l,
         ConnSettings {
             tls: grpc_tls,
@@ -150,7 +150,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         closed.clone(),
         "gRPC",
     );
-    let http_conns = accept(
+    let (http_conns, http_accept) = accept(
         http_l,
         ConnSettings {
             tls: http_tls,
@@ -191,8 +191,11 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         }
         let _ = close.send(true);
         let left = deadline.saturating_sub(started.elapsed());
-        match tokio::time::timeout(left, async { (grpc.await, http.await) }).await {
-            Ok((g, h)) => {
+        // The accept loops close their listeners on `close`; waiting for them means a
+        // stopped server's ports refuse connections.
+        let served = async { (grpc.await, http.await, grpc_accept.await, http_accept.await) };
+        match tokio::time::timeout(left, served).await {
+            Ok((g, h, _, _)) => {
                 if let Ok(Err(e)) = g {
                     return Err(ServeError::Run(format!("gRPC: {e}")));
                 }
