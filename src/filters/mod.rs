@@ -7,9 +7,9 @@
 //! | `fxaa` | FXAA 3.11, quality preset 12 (Lottes 2011): spatial only |
 //! | `taa` | industry TAA (Karis 2014, Salvi 2016): dilation, Catmull-Rom, YCoCg variance clip |
 //! | `traa` | the thesis's TRAA (Oliveros 2018): INSIDE/Uncharted 4 baseline or the improved variant |
-//! | `phlm` | Pixel History Linear Models (000): per-pixel RLS models, bounded forgetting |
-//! | `pixel_trace` | Shinya's pixel-tracing filter (002): a window of frames along motion paths, offline |
-//! | `upsample` | Herzog et al.'s spatio-temporal upsampling (001) of sparse shading, and its baselines |
+//! | `phlm` | Pixel History Linear Models (Iglesias-Guitian et al. 2016): per-pixel RLS models, bounded forgetting |
+//! | `pixel_trace` | Shinya's pixel-tracing filter (Shinya 1993): a window of frames along motion paths, offline |
+//! | `upsample` | Herzog et al.'s spatio-temporal upsampling (Herzog et al. 2010) of sparse shading, and its baselines |
 
 #[cfg(test)]
 pub(crate) mod check;

@@ -33,7 +33,7 @@ pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3
 
 /// Clips `q` along the ray toward `target` (a point inside the box, e.g. the current input
 /// colour): if `q` lies outside `[min, max]`, returns the first point of the segment from
-/// `q` to `target` inside the box, else `q` unchanged (PHLM 000, Algorithm 1 lines 14-17:
+/// `q` to `target` inside the box, else `q` unchanged (Iglesias-Guitian et al. 2016, Algorithm 1 lines 14-17:
 /// `ray_ori = f, ray_dir = y - f`, `f = ray_ori + ray_hit * ray_dir`). A `target` outside
 /// the box is clamped into it first, so the result is always inside. Returns the point and
 /// whether it moved.
@@ -65,7 +65,7 @@ pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32
 }
 
 /// Clamps each component of `q` into `[min, max]` (the thesis's one-channel Sobel history
-/// uses clamping, 004 sec. 4.3.3). Returns the value and whether it moved.
+/// uses clamping, Oliveros 2018 sec. 4.3.3). Returns the value and whether it moved.
 #[inline]
 pub fn clamp_to_box(q: f32, min: f32, max: f32) -> (f32, bool) {
     let c = q.max(min).min(max);

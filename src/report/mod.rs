@@ -219,7 +219,7 @@ pub struct UpsamplingConfig {
 }
 
 impl UpsamplingConfig {
-    /// Seed 001's comparison: `upsample` and its three baselines on the three dynamic
+    /// Herzog et al. 2010's comparison: `upsample` and its three baselines on the three dynamic
     /// scenes of issue 8 (camera motion, object motion with disocclusion, moving light),
     /// 2x2 shading.
     pub fn standard() -> UpsamplingConfig {

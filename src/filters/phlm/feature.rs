@@ -1,4 +1,4 @@
-//! PHLM's temporal feature `z` (000, sec. 5.1): an exponential accumulation (eq. 1) of a
+//! PHLM's temporal feature `z` (Iglesias-Guitian et al. 2016, sec. 5.1): an exponential accumulation (eq. 1) of a
 //! low-pass of the input, with a per-pixel convergence factor from luma contrast.
 //!
 //! The paper gives `alpha = phi(v, l) / (l + Delta(Y))`, `phi = a l^2 + b v l^3`, with
@@ -21,9 +21,9 @@
 use super::Params;
 use crate::kernels::lanes::{self, Lanes};
 
-/// `a = 0.125` (000, sec. 5.1: "we have used a = 0.125 and b = 0.25").
+/// `a = 0.125` (Iglesias-Guitian et al. 2016, sec. 5.1: "we have used a = 0.125 and b = 0.25").
 pub const DEFAULT_A: f32 = 0.125;
-/// `b = 0.25` (000, sec. 5.1).
+/// `b = 0.25` (Iglesias-Guitian et al. 2016, sec. 5.1).
 pub const DEFAULT_B: f32 = 0.25;
 /// Floor of the convergence factor (our choice; see the module docs): 0.03, a memory of
 /// about 33 frames. Measured on the scene catalogue (128x72, 32 frames, `clip_p = 1`):

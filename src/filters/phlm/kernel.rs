@@ -387,7 +387,7 @@ fn lanes_of<T: Copy>(s: &[T], x0: usize, n: usize, pad: T) -> [T; LANES] {
     }
 }
 
-/// Stage `feature` of one row (000, sec. 5.1): the temporal feature `z` of each pixel from
+/// Stage `feature` of one row (Iglesias-Guitian et al. 2016, sec. 5.1): the temporal feature `z` of each pixel from
 /// its previous feature, the 3x3 mean (the low-pass) and luma range, and its speed; the
 /// input itself where there is no history, the previous feature where the input was
 /// repaired.
@@ -435,7 +435,7 @@ fn reset_where(m: &Mask, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: 
     }
 }
 
-/// Stage `model` of one row: Algorithm 1 lines 11-22 (000) on blocks of eight pixels: the
+/// Stage `model` of one row: Algorithm 1 lines 11-22 (Iglesias-Guitian et al. 2016) on blocks of eight pixels: the
 /// fetched model (or a new one), its prediction tested against the 3x3 box and clipped
 /// toward the input with a reset, the RLS update, the output; writes the state texels.
 #[allow(clippy::too_many_arguments)]

@@ -93,10 +93,10 @@ filter_params! {
     }
 }
 
-/// RLS forgetting factor `lambda = 0.998` (000, sec. 4 after eq. 6: "we used lambda = 0.998
+/// RLS forgetting factor `lambda = 0.998` (Iglesias-Guitian et al. 2016, sec. 4 after eq. 6: "we used lambda = 0.998
 /// as widely used in real-time tracking systems").
 pub const DEFAULT_LAMBDA: f32 = 0.998;
-/// Initial diagonal of P (000, sec. 6: "initialized with a relatively high value, e.g. 1000").
+/// Initial diagonal of P (Iglesias-Guitian et al. 2016, sec. 6: "initialized with a relatively high value, e.g. 1000").
 pub const DEFAULT_P0: f32 = 1000.0;
 
 /// Diagonal of P after a clip reset: 1 (our choice, measured). The paper resets a clipped
@@ -126,7 +126,7 @@ pub(crate) struct Model {
 }
 
 impl Model {
-    /// Reset to colour `c` with `P = p0 I` (000, sec. 6: intercept = colour, slopes 0).
+    /// Reset to colour `c` with `P = p0 I` (Iglesias-Guitian et al. 2016, sec. 6: intercept = colour, slopes 0).
     #[inline(always)]
     pub(crate) fn reset(c: [f32; 3], z: [f32; 3], p0: f32) -> Model {
         Model {
@@ -214,7 +214,7 @@ pub struct Phlm {
 impl FilterKind for Phlm {
     const NAME: &'static str = "phlm";
     const SUMMARY: &'static str =
-        "Pixel History Linear Models (000): per-pixel RLS linear models over a temporal feature, box-clipped, with bounded (regularized) forgetting";
+        "Pixel History Linear Models (Iglesias-Guitian et al. 2016): per-pixel RLS linear models over a temporal feature, box-clipped, with bounded (regularized) forgetting";
     const STAGES: &'static [&'static str] = &[
         "repair",
         "tonemap",

@@ -1,4 +1,4 @@
-//! Recursive least squares for PHLM's per-pixel linear models (000, sec. 4, eq. 5-7): three
+//! Recursive least squares for PHLM's per-pixel linear models (Iglesias-Guitian et al. 2016, sec. 4, eq. 5-7): three
 //! outputs (R, G, B) over one feature vector `x = [1, z_r, z_g, z_b]`, sharing one 4x4
 //! inverse covariance `P`, stored as its packed upper triangle (10 floats) so it is exactly
 //! symmetric by construction.
@@ -35,7 +35,7 @@
 
 use crate::kernels::lanes::{each, Lanes, Mask, LANES};
 
-/// Number of features: the intercept and three feature channels (000, sec. 6, "the final
+/// Number of features: the intercept and three feature channels (Iglesias-Guitian et al. 2016, sec. 6, "the final
 /// dimension d ... is 4").
 pub const D: usize = 4;
 /// Floats of the packed upper triangle of a symmetric `D x D` matrix.
@@ -78,7 +78,7 @@ pub enum Forgetting {
     Directional,
 }
 
-/// `P = p0 I` (000, sec. 6: "all elements to zeroes except the diagonal terms which are
+/// `P = p0 I` (Iglesias-Guitian et al. 2016, sec. 6: "all elements to zeroes except the diagonal terms which are
 /// initialized with a relatively high value, e.g. 1000").
 #[inline]
 pub fn init_p(p0: f32) -> [f32; P_LEN] {
@@ -103,13 +103,13 @@ pub fn trace(p: &[f32; P_LEN]) -> f32 {
     DIAG.iter().map(|&d| p[d]).sum()
 }
 
-/// The model's prediction `beta^T x` per channel (000, eq. 4).
+/// The model's prediction `beta^T x` per channel (Iglesias-Guitian et al. 2016, eq. 4).
 #[inline(always)]
 pub fn predict(beta: &[[f32; D]; 3], x: &[f32; D]) -> [f32; 3] {
     beta.map(|b| b[0] * x[0] + b[1] * x[1] + b[2] * x[2] + b[3] * x[3])
 }
 
-/// One RLS step (000, eq. 5-7) for the three channels: `e` is the a-priori error
+/// One RLS step (Iglesias-Guitian et al. 2016, eq. 5-7) for the three channels: `e` is the a-priori error
 /// `y - beta^T x`; `beta` moves by `Q e` and `P` is updated with `forgetting`.
 #[inline(always)]
 pub fn update(

@@ -1,4 +1,4 @@
-//! The scalar reference of the pixel-tracing filter (Shinya 1993, 002): the implementation
+//! The scalar reference of the pixel-tracing filter (Shinya 1993): the implementation
 //! before the fast path of `trace.rs`, kept as it was, one pixel at a time and one
 //! operation at a time, for the tests to check the fast path against (`tests.rs`). Same
 //! algorithm and the same floating-point operations in the same order: the two agree to

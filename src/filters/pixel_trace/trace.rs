@@ -1,4 +1,4 @@
-//! One output frame of the pixel-tracing filter (Shinya 1993, 002): motion paths through
+//! One output frame of the pixel-tracing filter (Shinya 1993): motion paths through
 //! the window, the primary flow gathered along each pixel's path (eq. 11, 14-16), missed
 //! objects scattered in from the other frames (eq. 13, 16), front-to-back blend (eq. 17).
 //!
