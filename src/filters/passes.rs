@@ -3,6 +3,7 @@
 
 use crate::frame::{ChannelKind, ChannelSet};
 use crate::frame::{Frame, Plane, Rgb};
+use crate::kernels::lanes::{block, each, Lanes, IOTA, LANES};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{
@@ -10,6 +11,7 @@ use crate::pipeline::{
     ModelHealth, Output, PixelCounts, Recorder, Scratch, Skip, StateError,
 };
 use std::borrow::Cow;
+use wide::f32x8;
 
 /// Empty planes of the given size.
 pub fn planes<const N: usize>(width: usize, height: usize) -> [Plane<f32>; N] {
@@ -151,7 +153,27 @@ pub fn dilate_row(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, y: usize, mx: &
     let xr = rows.clone().map(|r| &m[0][r]);
     let yr = rows.map(|r| &m[1][r]);
     let (mx, my) = (&mut mx[1..w - 1], &mut my[1..w - 1]);
-    for i in 0..n {
+    // Eight pixels at a time in vectors (the same compares and picks, lane by lane), then
+    // the rest one by one.
+    let whole = n / LANES * LANES;
+    let load = |r: &[f32], at: usize| f32x8::from(*block::<f32, LANES>(r, at));
+    for i in (0..whole).step_by(LANES) {
+        let mut bd = load(dr[1], i + 1);
+        let mut bx = load(xr[1], i + 1);
+        let mut by = load(yr[1], i + 1);
+        for r in 0..3 {
+            for c in 0..3 {
+                let dv = load(dr[r], i + c);
+                let take = dv.simd_lt(bd);
+                bd = take.select(dv, bd);
+                bx = take.select(load(xr[r], i + c), bx);
+                by = take.select(load(yr[r], i + c), by);
+            }
+        }
+        mx[i..i + LANES].copy_from_slice(&bx.to_array());
+        my[i..i + LANES].copy_from_slice(&by.to_array());
+    }
+    for i in whole..n {
         // Candidates in the reference's order; the centre (row 1, column i + 1) first.
         let mut bd = dr[1][i + 1];
         let mut bx = xr[1][i + 1];
@@ -494,4 +516,37 @@ impl Reprojection {
 #[inline(always)]
 pub fn on_screen(px: f32, py: f32, w: usize, h: usize) -> bool {
     px >= 0.0 && px <= w as f32 && py >= 0.0 && py <= h as f32
+}
+
+/// The previous positions `p + motion` (pixel units) of row `y`'s block from column `x0`; a
+/// row's last block repeats its last pixel in the lanes past the end.
+#[inline(always)]
+pub fn previous_positions(mx: &[f32], my: &[f32], x0: usize, y: usize) -> [Lanes; 2] {
+    let w = mx.len();
+    let row = y as f32 + 0.5;
+    if x0 + LANES <= w {
+        let (bx, by) = (block::<f32, LANES>(mx, x0), block::<f32, LANES>(my, x0));
+        // `x0` is a multiple of 8, so `x0 as f32` is exact below 2^27 columns, and the
+        // f32 sum `x0 + l` rounds like `(x0 + l) as f32`: the same numbers, by one vector
+        // add.
+        let x = f32x8::splat(x0 as f32) + f32x8::from(IOTA);
+        let px = x + f32x8::splat(0.5) + f32x8::from(*bx);
+        return [px.to_array(), (f32x8::splat(row) + f32x8::from(*by)).to_array()];
+    }
+    let at = |l: usize| (x0 + l).min(w - 1);
+    [
+        each(|l| at(l) as f32 + 0.5 + mx[at(l)]),
+        each(|l| row + my[at(l)]),
+    ]
+}
+
+/// [`on_screen`] of eight positions, as bits (lane `l` is bit `l`).
+#[inline(always)]
+pub fn on_screen_bits(px: &Lanes, py: &Lanes, w: usize, h: usize) -> u32 {
+    let (x, y, zero) = (f32x8::from(*px), f32x8::from(*py), f32x8::splat(0.0));
+    let on = x.simd_ge(zero)
+        & x.simd_le(f32x8::splat(w as f32))
+        & y.simd_ge(zero)
+        & y.simd_le(f32x8::splat(h as f32));
+    on.to_bitmask()
 }

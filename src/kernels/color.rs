@@ -1,5 +1,7 @@
 //! Colour transforms: luma, YCoCg, and the reversible tonemap used for HDR accumulation.
 
+use wide::f32x8;
+
 /// Rec. 709 luma weights (linear RGB), as used by the metrics.
 pub const LUMA_REC709: [f32; 3] = [0.2126, 0.7152, 0.0722];
 
@@ -7,6 +9,13 @@ pub const LUMA_REC709: [f32; 3] = [0.2126, 0.7152, 0.0722];
 #[inline(always)]
 pub fn luma(c: [f32; 3]) -> f32 {
     LUMA_REC709[0] * c[0] + LUMA_REC709[1] * c[1] + LUMA_REC709[2] * c[2]
+}
+
+/// [`luma`] of eight colours, lane by lane (the same operations, so the same bits).
+#[inline(always)]
+pub fn luma_v(c: &[f32x8; 3]) -> f32x8 {
+    let k = LUMA_REC709.map(f32x8::splat);
+    k[0] * c[0] + k[1] * c[1] + k[2] * c[2]
 }
 
 /// RGB to YCoCg (Malvar and Sullivan 2003): Y = R/4 + G/2 + B/4, Co = (R - B)/2,

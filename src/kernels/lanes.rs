@@ -17,6 +17,9 @@ pub const LANES: usize = 8;
 /// One value for each pixel of a block.
 pub type Lanes = [f32; LANES];
 
+/// Each lane's index: `[0, 1, ..., 7]`.
+pub const IOTA: Lanes = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+
 /// One flag for each pixel of a block.
 pub type Mask = [bool; LANES];
 
@@ -181,6 +184,26 @@ pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) 
     (each(|k| moved.select(center[k] + d[k] * s, q[k])), moved)
 }
 
+/// [`fmin`] lane by lane: `a` where `a < b`, else `b` (the same bits).
+#[inline(always)]
+pub fn fmin_v(a: f32x8, b: f32x8) -> f32x8 {
+    a.simd_lt(b).select(a, b)
+}
+
+/// [`fmax`] lane by lane: `a` where `a > b`, else `b` (the same bits).
+#[inline(always)]
+pub fn fmax_v(a: f32x8, b: f32x8) -> f32x8 {
+    a.simd_gt(b).select(a, b)
+}
+
+/// `f32::clamp(x, 0, 1)` lane by lane (NaN stays NaN, `-0` stays `-0`).
+#[inline(always)]
+pub fn clamp01(x: f32x8) -> f32x8 {
+    let (zero, one) = (f32x8::splat(0.0), f32x8::splat(1.0));
+    let x = x.simd_lt(zero).select(zero, x);
+    x.simd_gt(one).select(one, x)
+}
+
 /// `a.max(b)` lane by lane, with the scalar code's bits: a NaN operand gives the other,
 /// and of two equal values (`+0` and `-0`) it gives `a`, as the compiled `f32::max` does
 /// here (test `vector_clips_give_the_scalar_bits_on_special_values`; wide's `max` gives
@@ -279,11 +302,28 @@ pub fn load_texels<const N: usize>(texels: &[[f32; N]; LANES]) -> [Lanes; N] {
             cols[g + k] = v.to_array();
         }
     }
-    for (c, col) in cols.iter_mut().enumerate().skip(whole) {
-        *col = each(|l| texels[l][c]);
+    let tail = N - whole;
+    if tail >= TAIL_BY_TRANSPOSE {
+        // The last values padded to eight with zeros, and transposed like the others.
+        let rows = std::array::from_fn(|l| {
+            let mut r = [0.0; LANES];
+            r[..tail].copy_from_slice(&texels[l][whole..]);
+            f32x8::from(r)
+        });
+        for (k, v) in f32x8::transpose(rows).into_iter().take(tail).enumerate() {
+            cols[whole + k] = v.to_array();
+        }
+    } else {
+        for (c, col) in cols.iter_mut().enumerate().skip(whole) {
+            *col = each(|l| texels[l][c]);
+        }
     }
     cols
 }
+
+/// From how many values past the last eight [`load_texels`] transposes them too (below
+/// that, lane-by-lane loads are fewer instructions).
+const TAIL_BY_TRANSPOSE: usize = 4;
 
 #[cfg(test)]
 mod tests {

@@ -15,17 +15,17 @@ pub mod sharpen;
 pub mod sobel;
 
 pub use clip::{clamp_to_box, clip_toward_center, clip_toward_point};
-pub use color::{luma, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
+pub use color::{luma, luma_v, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
 pub use neighborhood::{
     box_from_columns, cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box,
     NeighborhoodStats, CROSS,
 };
 pub use sample::{
     bilinear, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_texel, catmull_rom_texels,
-    nearest_texel, Footprint, FootprintLanes, TEXEL,
+    nearest_texel, BilinearLanes, Footprint, FootprintLanes, TEXEL,
 };
 pub use sharpen::sharpen_cross;
-pub use sobel::{sobel_magnitude, sobel_plane};
+pub use sobel::{sobel_magnitude, sobel_magnitude_v, sobel_plane};
 
 /// Reads `plane[x, y]` with coordinates clamped into the `width` x `height` image.
 #[inline(always)]

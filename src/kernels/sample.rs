@@ -198,6 +198,45 @@ impl FootprintLanes {
             wy: self.wy.map(|w| w[l]),
         }
     }
+
+    /// The lanes whose whole 4x4 footprint lies inside a `width` x `height` image
+    /// ([`Footprint::inside`]), as bits (lane `l` is bit `l`).
+    #[inline(always)]
+    pub fn inside_bits(&self, width: usize, height: usize) -> u32 {
+        let (x1, y1) = (f32x8::from(self.x1), f32x8::from(self.y1));
+        let (one, two) = (f32x8::splat(1.0), f32x8::splat(2.0));
+        let inside = x1.simd_ge(one)
+            & y1.simd_ge(one)
+            & (x1 + two).simd_lt(f32x8::splat(width as f32))
+            & (y1 + two).simd_lt(f32x8::splat(height as f32));
+        inside.to_bitmask()
+    }
+
+    /// [`catmull_rom_texel`] of each lane's footprint for the lanes set in `on` (lane `l`
+    /// is bit `l`); zero texels in the others. The fields of the lanes inside the image
+    /// are read in place, one lane at a time.
+    #[inline(always)]
+    pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [[f32; TEXEL]; LANES] {
+        let inside = self.inside_bits(width, height) & on;
+        let mut out = [[0.0; TEXEL]; LANES];
+        for (l, o) in out.iter_mut().enumerate() {
+            if inside >> l & 1 != 0 {
+                let (wx, wy) = (&self.wx, &self.wy);
+                *o = catmull_rom_inside(
+                    tex,
+                    width,
+                    // Inside, `ix` and `iy` are at least 1 and exact.
+                    [self.ix[l] as usize, self.iy[l] as usize],
+                    [wx[0][l], wx[1][l], wx[2][l], wx[3][l]],
+                    [wy[0][l], wy[1][l], wy[2][l], wy[3][l]],
+                    [self.tx[l], self.ty[l]],
+                );
+            } else if on >> l & 1 != 0 {
+                *o = catmull_rom_texel(tex, width, height, &self.lane(l));
+            }
+        }
+        out
+    }
 }
 
 /// One row's two partial sums of the Catmull-Rom kernel for value `v(i)` at column tap
@@ -268,52 +307,85 @@ fn texel(tex: &[f32], i: usize) -> [f32; TEXEL] {
 /// 8-float sum, whose halves are added at the end.
 #[inline(always)]
 pub fn catmull_rom_texel(tex: &[f32], width: usize, height: usize, f: &Footprint) -> [f32; TEXEL] {
-    let interior = f.inside(width, height);
-    let gathered: [[f32; 4 * TEXEL]; 4];
-    let rows: [&[f32; 4 * TEXEL]; 4] = if interior {
-        // The whole 4x4 footprint is inside: each row's four texels in one bounds check.
+    if f.inside(width, height) {
         // Inside, `ix` and `iy` are at least 1 (so the casts are exact) and exact.
-        let base = ((f.iy as usize - 1) * width + f.ix as usize - 1) * TEXEL;
-        std::array::from_fn(|j| block(tex, base + j * width * TEXEL))
-    } else {
-        let xs = Footprint::clamped(f.x1, width);
-        gathered = Footprint::clamped(f.y1, height).map(|y| {
-            let mut r = [0.0; 4 * TEXEL];
-            for (i, &x) in xs.iter().enumerate() {
-                r[i * TEXEL..(i + 1) * TEXEL].copy_from_slice(&texel(tex, y * width + x));
-            }
-            r
-        });
-        std::array::from_fn(|j| &gathered[j])
-    };
-    let wx = f.wx;
+        return catmull_rom_inside(
+            tex,
+            width,
+            [f.ix as usize, f.iy as usize],
+            f.wx,
+            f.wy,
+            [f.tx, f.ty],
+        );
+    }
+    let xs = Footprint::clamped(f.x1, width);
+    let gathered = Footprint::clamped(f.y1, height).map(|y| {
+        let mut r = [0.0; 4 * TEXEL];
+        for (i, &x) in xs.iter().enumerate() {
+            r[i * TEXEL..(i + 1) * TEXEL].copy_from_slice(&texel(tex, y * width + x));
+        }
+        r
+    });
+    let mut out = catmull_rom_rows(
+        [&gathered[0], &gathered[1], &gathered[2], &gathered[3]],
+        f.wx,
+        f.wy,
+    );
+    // The count: bilinear, from bilinear's clamped taps.
+    let k = TEXEL - 1;
+    out[k] = bilinear_channel_from(tex, width, height, [f.x1, f.y1], [f.tx, f.ty], k);
+    out
+}
+
+/// [`catmull_rom_texel`] of a footprint inside the image ([`Footprint::inside`]), whose tap
+/// 1 is texel `i1 = [column, row]`: no clamping, each row's four texels in one bounds check.
+#[inline(always)]
+fn catmull_rom_inside(
+    tex: &[f32],
+    width: usize,
+    i1: [usize; 2],
+    wx: [f32; 4],
+    wy: [f32; 4],
+    t: [f32; 2],
+) -> [f32; TEXEL] {
+    let base = ((i1[1] - 1) * width + i1[0] - 1) * TEXEL;
+    let stride = width * TEXEL;
+    let rows: [&[f32; 4 * TEXEL]; 4] = [
+        block(tex, base),
+        block(tex, base + stride),
+        block(tex, base + 2 * stride),
+        block(tex, base + 3 * stride),
+    ];
+    let mut out = catmull_rom_rows(rows, wx, wy);
+    // The count: bilinear over the four centre taps, which are bilinear's own taps inside
+    // the image.
+    let k = TEXEL - 1;
+    let (c11, c12) = (rows[1][TEXEL + k], rows[1][2 * TEXEL + k]);
+    let (c21, c22) = (rows[2][TEXEL + k], rows[2][2 * TEXEL + k]);
+    let top = c11 + (c12 - c11) * t[0];
+    let bottom = c21 + (c22 - c21) * t[0];
+    out[TEXEL - 1] = top + (bottom - top) * t[1];
+    out
+}
+
+/// The Catmull-Rom sum of a footprint's four rows of four texels with column weights `wx`
+/// and normalised row weights `wy`, every channel (the caller replaces the count).
+#[inline(always)]
+fn catmull_rom_rows(rows: [&[f32; 4 * TEXEL]; 4], wx: [f32; 4], wy: [f32; 4]) -> [f32; TEXEL] {
     // Column weights per lane: texels 0|1, 2|3 and 1|2 of a row.
     let half = |a: usize| -> f32x8 { f32x8::from(each::<f32, 8>(|l| wx[a + l / TEXEL])) };
     let (w01, w23, w12) = (half(0), half(2), half(1));
     let load = |r: &[f32; 4 * TEXEL], at: usize| f32x8::from(*block::<f32, 8>(r, at));
     let inner = |r| w01 * load(r, 0) + w23 * load(r, 2 * TEXEL);
     let outer = |r| w12 * load(r, TEXEL);
-    let mut acc = f32x8::splat(f.wy[0]) * outer(rows[0]);
-    acc += f32x8::splat(f.wy[1]) * inner(rows[1]);
-    acc += f32x8::splat(f.wy[2]) * inner(rows[2]);
-    acc += f32x8::splat(f.wy[3]) * outer(rows[3]);
+    let mut acc = f32x8::splat(wy[0]) * outer(rows[0]);
+    acc += f32x8::splat(wy[1]) * inner(rows[1]);
+    acc += f32x8::splat(wy[2]) * inner(rows[2]);
+    acc += f32x8::splat(wy[3]) * outer(rows[3]);
     let acc = acc.to_array();
     let lo = f32x4::from(*block::<f32, TEXEL>(&acc, 0));
     let hi = f32x4::from(*block::<f32, TEXEL>(&acc, TEXEL));
-    let mut out = (lo + hi).to_array();
-    // The count: bilinear over the four centre taps, which are bilinear's own taps inside
-    // the image (at the border, bilinear's clamped taps).
-    let k = TEXEL - 1;
-    out[k] = if interior {
-        let (c11, c12) = (rows[1][TEXEL + k], rows[1][2 * TEXEL + k]);
-        let (c21, c22) = (rows[2][TEXEL + k], rows[2][2 * TEXEL + k]);
-        let top = c11 + (c12 - c11) * f.tx;
-        let bottom = c21 + (c22 - c21) * f.tx;
-        top + (bottom - top) * f.ty
-    } else {
-        bilinear_channel_from(tex, width, height, [f.x1, f.y1], [f.tx, f.ty], k)
-    };
-    out
+    (lo + hi).to_array()
 }
 
 /// [`catmull_rom_texel`] at one position `(x, y)`.
@@ -362,22 +434,53 @@ pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize,
     let fy = y - 0.5;
     let x0 = fx.floor();
     let y0 = fy.floor();
-    let tx = fx - x0;
-    let ty = fy - y0;
+    let t = [fx - x0, fy - y0];
     if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
-        // The 2x2 footprint is inside: no clamping, each row's two texels in one bounds
-        // check.
-        let a = (y0 as usize * width + x0 as usize) * N;
-        let b = a + width * N;
-        let (r0, r1) = (&tex[a..a + 2 * N], &tex[b..b + 2 * N]);
-        let mut out = [0.0; N];
-        for (c, o) in out.iter_mut().enumerate() {
-            let top = r0[c] + (r0[N + c] - r0[c]) * tx;
-            let bottom = r1[c] + (r1[N + c] - r1[c]) * tx;
-            *o = top + (bottom - top) * ty;
-        }
-        return out;
+        // Inside, `x0` and `y0` are whole, at least 0 and exact.
+        return bilinear_inside(tex, width, [x0 as usize, y0 as usize], t);
     }
+    bilinear_clamped(tex, width, height, [x0, y0], t)
+}
+
+/// [`bilinear_texels`] of a 2x2 footprint inside the image, whose top-left tap is texel
+/// `i0 = [column, row]`: no clamping, each row's two texels in one bounds check.
+#[inline(always)]
+fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t: [f32; 2]) -> [f32; N] {
+    let a = (i0[1] * width + i0[0]) * N;
+    let b = a + width * N;
+    let (r0, r1) = (&tex[a..a + 2 * N], &tex[b..b + 2 * N]);
+    let mut out = [0.0; N];
+    // Four channels at a time in vectors (the same operations per channel), the rest
+    // one by one.
+    let whole = N / 4 * 4;
+    let (tx, ty) = (f32x4::splat(t[0]), f32x4::splat(t[1]));
+    let at = |r: &[f32], i: usize| f32x4::from(*block::<f32, 4>(r, i));
+    for c in (0..whole).step_by(4) {
+        let (p00, p10, p01, p11) = (at(r0, c), at(r0, N + c), at(r1, c), at(r1, N + c));
+        let top = p00 + (p10 - p00) * tx;
+        let bottom = p01 + (p11 - p01) * tx;
+        out[c..c + 4].copy_from_slice(&(top + (bottom - top) * ty).to_array());
+    }
+    for c in whole..N {
+        let top = r0[c] + (r0[N + c] - r0[c]) * t[0];
+        let bottom = r1[c] + (r1[N + c] - r1[c]) * t[0];
+        out[c] = top + (bottom - top) * t[1];
+    }
+    out
+}
+
+/// [`bilinear_texels`] from the top-left tap `x0y0` (whole numbers as f32, possibly
+/// outside, huge or NaN), the taps clamped into the image.
+#[inline(always)]
+fn bilinear_clamped<const N: usize>(
+    tex: &[f32],
+    width: usize,
+    height: usize,
+    x0y0: [f32; 2],
+    t: [f32; 2],
+) -> [f32; N] {
+    let [x0, y0] = x0y0;
+    let [tx, ty] = t;
     let xa = clamp_index(x0, width);
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
@@ -389,6 +492,58 @@ pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize,
         let bottom = p01[c] + (p11[c] - p01[c]) * tx;
         top + (bottom - top) * ty
     })
+}
+
+/// The bilinear footprints of eight positions, one per lane: [`bilinear_texels`]'s
+/// top-left taps, fractions and inside test, lane by lane (the same operations, so the
+/// same bits), in vector instructions.
+#[derive(Clone, Copy, Debug)]
+pub struct BilinearLanes {
+    x0: Lanes,
+    y0: Lanes,
+    ix: [i32; LANES],
+    iy: [i32; LANES],
+    tx: Lanes,
+    ty: Lanes,
+    /// Lanes whose 2x2 footprint lies inside the image (lane `l` is bit `l`).
+    inside: u32,
+}
+
+impl BilinearLanes {
+    /// The footprints of positions `(x[l], y[l])` in a `width` x `height` image.
+    #[inline(always)]
+    pub fn at(x: &Lanes, y: &Lanes, width: usize, height: usize) -> Self {
+        let half = f32x8::splat(0.5);
+        let fx = f32x8::from(*x) - half;
+        let fy = f32x8::from(*y) - half;
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let (zero, one) = (f32x8::splat(0.0), f32x8::splat(1.0));
+        let inside = x0.simd_ge(zero)
+            & y0.simd_ge(zero)
+            & (x0 + one).simd_lt(f32x8::splat(width as f32))
+            & (y0 + one).simd_lt(f32x8::splat(height as f32));
+        BilinearLanes {
+            x0: x0.to_array(),
+            y0: y0.to_array(),
+            ix: x0.trunc_int().to_array(),
+            iy: y0.trunc_int().to_array(),
+            tx: (fx - x0).to_array(),
+            ty: (fy - y0).to_array(),
+            inside: inside.to_bitmask(),
+        }
+    }
+
+    /// [`bilinear_texels`] of lane `l`'s position.
+    #[inline(always)]
+    pub fn texel<const N: usize>(&self, tex: &[f32], width: usize, height: usize, l: usize) -> [f32; N] {
+        let t = [self.tx[l], self.ty[l]];
+        if self.inside >> l & 1 != 0 {
+            // Inside, the taps are at least 0 and exact.
+            bilinear_inside(tex, width, [self.ix[l] as usize, self.iy[l] as usize], t)
+        } else {
+            bilinear_clamped(tex, width, height, [self.x0[l], self.y0[l]], t)
+        }
+    }
 }
 
 /// The texel of an interleaved `N`-channel plane nearest to `(x, y)` (the pixel holding

@@ -1,6 +1,7 @@
 //! The Sobel operator (Oliveros 2018, sec. 3.8, eq. 3.5 and 3.6).
 
 use super::neighborhood::gather3x3;
+use wide::f32x8;
 
 /// Gradient magnitude `sqrt(gx^2 + gy^2)` of nine taps (row-major, centre 4) with the
 /// Sobel kernels of Oliveros 2018 eq. 3.5 (x: [-1 0 1; -2 0 2; -1 0 1]) and eq. 3.6
@@ -9,6 +10,16 @@ use super::neighborhood::gather3x3;
 pub fn sobel_magnitude(t: &[f32; 9]) -> f32 {
     let gx = (t[2] + 2.0 * t[5] + t[8]) - (t[0] + 2.0 * t[3] + t[6]);
     let gy = (t[0] + 2.0 * t[1] + t[2]) - (t[6] + 2.0 * t[7] + t[8]);
+    (gx * gx + gy * gy).sqrt()
+}
+
+/// [`sobel_magnitude`] of eight pixels' taps, lane by lane (the same operations, so the
+/// same bits).
+#[inline(always)]
+pub fn sobel_magnitude_v(t: &[f32x8; 9]) -> f32x8 {
+    let two = f32x8::splat(2.0);
+    let gx = (t[2] + two * t[5] + t[8]) - (t[0] + two * t[3] + t[6]);
+    let gy = (t[0] + two * t[1] + t[2]) - (t[6] + two * t[7] + t[8]);
     (gx * gx + gy * gy).sqrt()
 }
 

@@ -7,7 +7,7 @@
 //! The history fetch is a gather at each pixel's own position: its Catmull-Rom footprints
 //! (tap positions and weights) are computed for eight pixels at once, and each pixel's
 //! twelve taps are read and weighted two texels to an 8-float vector
-//! ([`crate::kernels::catmull_rom_texel`]).
+//! ([`crate::kernels::catmull_rom_texel`], [`FootprintLanes::texels`]).
 //!
 //! Every stage computes what the reference ([`super::reference`]) computes, with the same
 //! float operations in the same order, so the outputs are the same bits; the tests compare
@@ -15,14 +15,14 @@
 
 use super::{HistoryFilter, Params, MAX_COUNT};
 use crate::filters::passes::{
-    dilate_row, from_working, on_screen, reproject_skip, sharpen, tonemap_row, untonemap_row, FrameContext,
-    FrameResult,
+    dilate_row, from_working, on_screen_bits, previous_positions, reproject_skip, sharpen, tonemap_row,
+    untonemap_row, FrameContext, FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear, bilinear_texels, box_from_columns, catmull_rom_texel, clip_toward_center, fmax, fmin,
-    rgb_to_ycocg, variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats,
+    bilinear, bilinear_texels, box_from_columns, clip_toward_center, fmax, fmin, rgb_to_ycocg, variance_box,
+    ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
@@ -355,27 +355,28 @@ fn reproject_row(
     let (mx, my) = (&m[0][..w], &m[1][..w]);
     let (hy, hco, hcg, hn) = (&mut hy[..w], &mut hco[..w], &mut hcg[..w], &mut hn[..w]);
     for x0 in (0..w).step_by(LANES) {
-        // A row's last block repeats its last pixel in the lanes past the end.
-        let at = |l: usize| (x0 + l).min(w - 1);
-        let px: Lanes = lanes::each(|l| at(l) as f32 + 0.5 + mx[at(l)]);
-        let py: Lanes = lanes::each(|l| y as f32 + 0.5 + my[at(l)]);
-        let on: Mask = lanes::each(|l| on_screen(px[l], py[l], w, h));
-        let footprints = match filter {
-            HistoryFilter::CatmullRom => Some(FootprintLanes::at(&px, &py)),
-            HistoryFilter::Bilinear => None,
-        };
-        for l in 0..LANES.min(w - x0) {
-            let x = x0 + l;
-            if !on[l] {
-                hn[x] = 0.0;
-                continue;
+        let n = LANES.min(w - x0);
+        let [px, py] = previous_positions(mx, my, x0, y);
+        let on = on_screen_bits(&px, &py, w, h);
+        // Off-screen lanes keep zero texels: count 0, a restart.
+        let t = match filter {
+            HistoryFilter::CatmullRom => FootprintLanes::at(&px, &py).texels(texels, w, h, on),
+            HistoryFilter::Bilinear => {
+                let mut t = [[0.0; TEXEL]; LANES];
+                for (l, t) in t.iter_mut().enumerate() {
+                    if on >> l & 1 != 0 {
+                        *t = bilinear_texels::<TEXEL>(texels, w, h, px[l], py[l]);
+                    }
+                }
+                t
             }
-            let t = match &footprints {
-                Some(f) => catmull_rom_texel(texels, w, h, &f.lane(l)),
-                None => bilinear_texels::<4>(texels, w, h, px[l], py[l]),
-            };
-            (hy[x], hco[x], hcg[x], hn[x]) = (t[0], t[1], t[2], t[3]);
-        }
+        };
+        let [a, b, c, d] = lanes::load_texels(&t);
+        let at = x0..x0 + n;
+        hy[at.clone()].copy_from_slice(&a[..n]);
+        hco[at.clone()].copy_from_slice(&b[..n]);
+        hcg[at.clone()].copy_from_slice(&c[..n]);
+        hn[at].copy_from_slice(&d[..n]);
     }
 }
 

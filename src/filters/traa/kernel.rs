@@ -18,15 +18,16 @@
 //! reference's `f32::min` / `max` on the repaired, finite input (the values they see are
 //! never NaN, and a sign of zero cannot change what follows them).
 
-use super::{feedback, mix, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT};
+use super::{
+    feedback_v, mix, mix_v, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
+};
 use crate::filters::passes::{
-    dilate_row, on_screen, reproject_skip, tonemap_row, untonemap_row, FrameContext, FrameResult,
+    dilate_row, on_screen_bits, previous_positions, reproject_skip, tonemap_row, untonemap_row, FrameContext,
+    FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
-use crate::kernels::{
-    bilinear, bilinear_texels, clamp_to_box, fmax, fmin, luma, sharpen_cross, sobel_magnitude,
-};
+use crate::kernels::{fmax, fmin, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
@@ -198,6 +199,23 @@ fn taps(t: &[&[f32; SPAN]; 3], l: usize) -> [f32; 9] {
         t[2][l],
         t[2][l + 1],
         t[2][l + 2],
+    ]
+}
+
+/// [`taps`] of all eight lanes: tap `k` of every lane as one vector.
+#[inline(always)]
+fn taps_v(t: &[&[f32; SPAN]; 3]) -> [f32x8; 9] {
+    let at = |r: usize, c: usize| f32x8::from(*block::<f32, LANES>(t[r], c));
+    [
+        at(0, 0),
+        at(0, 1),
+        at(0, 2),
+        at(1, 0),
+        at(1, 1),
+        at(1, 2),
+        at(2, 0),
+        at(2, 1),
+        at(2, 2),
     ]
 }
 
@@ -639,7 +657,8 @@ fn run_band<const N: usize>(
 
 /// Stage `reproject` of row `y`: each pixel's previous position `p + motion`, whether it is
 /// on screen (`ok`), and there the history's texels (bilinear, taken apart into `hist`) and
-/// the previous depth / far (`prev` into `pd`, when given).
+/// the previous depth / far (`prev` into `pd`, when given); eight pixels at a time, their
+/// positions and bilinear footprints in vectors.
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
 fn reproject_row<const N: usize>(
@@ -655,27 +674,32 @@ fn reproject_row<const N: usize>(
 ) {
     let (mx, my, ok, pd) = (&m[0][..w], &m[1][..w], &mut ok[..w], &mut pd[..w]);
     let hist = hist.map(|r| &mut r[..w]);
-    for x in 0..w {
-        let px = x as f32 + 0.5 + mx[x];
-        let py = y as f32 + 0.5 + my[x];
-        ok[x] = on_screen(px, py, w, h);
-        if !ok[x] {
-            continue;
-        }
-        let t = bilinear_texels::<N>(texels, w, h, px, py);
-        for c in 0..N {
-            hist[c][x] = t[c];
-        }
-        if let Some(prev) = prev {
-            pd[x] = bilinear([prev], w, h, px, py)[0];
+    for x0 in (0..w).step_by(LANES) {
+        let [px, py] = previous_positions(mx, my, x0, y);
+        let on = on_screen_bits(&px, &py, w, h);
+        let taps = BilinearLanes::at(&px, &py, w, h);
+        for l in 0..LANES.min(w - x0) {
+            let x = x0 + l;
+            ok[x] = on >> l & 1 != 0;
+            if !ok[x] {
+                continue;
+            }
+            let t = taps.texel::<N>(texels, w, h, l);
+            for c in 0..N {
+                hist[c][x] = t[c];
+            }
+            if let Some(prev) = prev {
+                // One plane is a plane of one-channel texels: `bilinear`'s bits.
+                pd[x] = taps.texel::<1>(prev, w, h, l)[0];
+            }
         }
     }
 }
 
-/// [`sobel_magnitude`] of each lane's 3x3 in three padded spans.
+/// [`crate::kernels::sobel_magnitude`] of each lane's 3x3 in three padded spans.
 #[inline(always)]
-fn sobel_lanes(t: &[&[f32; SPAN]; 3]) -> Lanes {
-    lanes::each(|l| sobel_magnitude(&taps(t, l)))
+fn sobel_lanes(t: &[&[f32; SPAN]; 3]) -> f32x8 {
+    sobel_magnitude_v(&taps_v(t))
 }
 
 /// Stage `sobel` of one row (eq. 4.9-4.10): the Sobel magnitudes of the lit luma, the
@@ -691,22 +715,20 @@ fn sobel_row(
 ) {
     for (x0, _) in blocks(w) {
         let l = sobel_lanes(&spans(&lit, x0));
-        let surface: Lanes = match unlit {
+        let surface = match unlit {
             Some(u) => {
                 let u = sobel_lanes(&spans(&u, x0));
-                lanes::each(|i| SOBEL_UNLIT_WEIGHT * u[i] + SOBEL_LIT_WEIGHT * l[i])
+                f32x8::splat(SOBEL_UNLIT_WEIGHT) * u + f32x8::splat(SOBEL_LIT_WEIGHT) * l
             }
             None => l,
         };
         let d = match depth01 {
             Some(d) => sobel_lanes(&spans(&d, x0)),
-            None => lanes::splat(0.0),
+            None => f32x8::splat(0.0),
         };
-        let v: Lanes = lanes::each(|i| {
-            let g = (surface[i] + d[i]).clamp(0.0, 1.0);
-            (g * g * (3.0 - 2.0 * g)).sqrt()
-        });
-        *<&mut [f32; LANES]>::try_from(&mut out[x0 + 1..x0 + 1 + LANES]).expect("a block") = v;
+        let g = lanes::clamp01(surface + d);
+        let v = (g * g * (f32x8::splat(3.0) - f32x8::splat(2.0) * g)).sqrt();
+        *<&mut [f32; LANES]>::try_from(&mut out[x0 + 1..x0 + 1 + LANES]).expect("a block") = v.to_array();
     }
     pad(out, w);
 }
@@ -728,31 +750,26 @@ fn sobel_history_row(
     let (fmin_k, fmax_k) = (plan.feedback_min, plan.feedback_max);
     for (x0, _) in blocks(w) {
         let sp = spans(&raw, x0);
-        let hs: &Lanes = block(hist, x0);
-        let ok: &Mask = block(valid, x0);
-        let iv: &Mask = block(invalid, x0);
-        let v: Lanes = lanes::each(|l| {
-            let t = taps(&sp, l);
-            // The reference's order: all nine taps, and the cross among them.
-            let (mut lo3, mut hi3) = (t[0], t[0]);
-            for &v in &t[1..] {
-                lo3 = fmin(lo3, v);
-                hi3 = fmax(hi3, v);
-            }
-            let lo_x = fmin(fmin(fmin(fmin(t[1], t[3]), t[4]), t[5]), t[7]);
-            let hi_x = fmax(fmax(fmax(fmax(t[1], t[3]), t[4]), t[5]), t[7]);
-            let r = t[4];
-            let (hv, _) = clamp_to_box(hs[l], 0.5 * (lo3 + lo_x), 0.5 * (hi3 + hi_x));
-            let k = feedback(r, hv, fmin_k, fmax_k);
-            let blend = mix(r, hv, k);
-            if !ok[l] {
-                r
-            } else if iv[l] {
-                hs[l]
-            } else {
-                blend
-            }
-        });
+        let hs = f32x8::from(*block::<f32, LANES>(hist, x0));
+        let ok = lanes::mask_from(block(valid, x0));
+        let iv = lanes::mask_from(block(invalid, x0));
+        let t = taps_v(&sp);
+        // The reference's order: all nine taps, and the cross among them.
+        let (mut lo3, mut hi3) = (t[0], t[0]);
+        for &v in &t[1..] {
+            lo3 = lanes::fmin_v(lo3, v);
+            hi3 = lanes::fmax_v(hi3, v);
+        }
+        let (fmin_v, fmax_v) = (lanes::fmin_v, lanes::fmax_v);
+        let lo_x = fmin_v(fmin_v(fmin_v(fmin_v(t[1], t[3]), t[4]), t[5]), t[7]);
+        let hi_x = fmax_v(fmax_v(fmax_v(fmax_v(t[1], t[3]), t[4]), t[5]), t[7]);
+        let r = t[4];
+        let half = f32x8::splat(0.5);
+        // `clamp_to_box`: `q.max(min).min(max)`.
+        let hv = lanes::min_of(lanes::max_of(hs, half * (lo3 + lo_x)), half * (hi3 + hi_x));
+        let k = feedback_v(r, hv, fmin_k, fmax_k);
+        let blend = mix_v(r, hv, k);
+        let v = ok.select(iv.select(hs, blend), r).to_array();
         *<&mut [f32; LANES]>::try_from(&mut out[x0 + 1..x0 + 1 + LANES]).expect("a block") = v;
     }
     pad(out, w);
@@ -892,10 +909,12 @@ fn resolve_row<const N: usize>(
         match aliased {
             // Eq. 4.15 then eq. 4.16 (where the history is not used the box is not either).
             Some(al) => {
-                let a: &Lanes = block(al, x0);
+                let a = f32x8::from(*block::<f32, LANES>(al, x0));
+                let v = lanes::v;
                 for k in 0..3 {
-                    lo[k] = lanes::each(|l| mix(current[k][l], mix(min_cross[k][l], min[k][l], a[l]), a[l]));
-                    hi[k] = lanes::each(|l| mix(current[k][l], mix(max_cross[k][l], max[k][l], a[l]), a[l]));
+                    let cur = v(&current[k]);
+                    lo[k] = mix_v(cur, mix_v(v(&min_cross[k]), v(&min[k]), a), a).to_array();
+                    hi[k] = mix_v(cur, mix_v(v(&max_cross[k]), v(&max[k]), a), a).to_array();
                 }
             }
             None => {
@@ -909,13 +928,8 @@ fn resolve_row<const N: usize>(
         // the clip and the selects compiled to a branch per lane).
         let (hc, moved) = lanes::clip_toward_center_v(&lanes::v3(&hs), &lanes::v3(&lo), &lanes::v3(&hi));
         let hcv = hc;
-        let hc: [Lanes; 3] = lanes::arrays3(&hc);
-        let k: Lanes = lanes::each(|l| {
-            let lc = luma([current[0][l], current[1][l], current[2][l]]);
-            let lh = luma([hc[0][l], hc[1][l], hc[2][l]]);
-            feedback(lc, lh, fb_min, fb_max)
-        });
-        let (zero, one, kv) = (f32x8::splat(0.0), f32x8::splat(1.0), lanes::v(&k));
+        let kv = feedback_v(luma_v(&lanes::v3(&current)), luma_v(&hcv), fb_min, fb_max);
+        let (zero, one) = (f32x8::splat(0.0), f32x8::splat(1.0));
         let (okv, ivv) = (lanes::mask_from(ok), lanes::mask_from(iv));
         let keep = okv & ivv;
         let blend = ivv.select(zero, okv);

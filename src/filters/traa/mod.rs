@@ -51,11 +51,12 @@ pub mod reference;
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
-use crate::kernels::{tonemap, tonemap_inverse};
+use crate::kernels::{lanes, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
+use wide::f32x8;
 
 /// Which TRAA of the thesis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -218,6 +219,21 @@ fn feedback(l0: f32, l1: f32, min: f32, max: f32) -> f32 {
 #[inline(always)]
 fn mix(x: f32, y: f32, t: f32) -> f32 {
     x * (1.0 - t) + y * t
+}
+
+/// [`feedback`] of eight pixels, lane by lane (the same operations, so the same bits).
+#[inline(always)]
+fn feedback_v(l0: f32x8, l1: f32x8, min: f32, max: f32) -> f32x8 {
+    let floor = f32x8::splat(FEEDBACK_LUMA_FLOOR);
+    let diff = (l0 - l1).abs() / lanes::max_of(lanes::max_of(l0, l1), floor);
+    let w = lanes::max_of(f32x8::splat(1.0) - diff, f32x8::splat(0.0));
+    f32x8::splat(min) + f32x8::splat(max - min) * w * w
+}
+
+/// [`mix`] of eight pixels, lane by lane.
+#[inline(always)]
+fn mix_v(x: f32x8, y: f32x8, t: f32x8) -> f32x8 {
+    x * (f32x8::splat(1.0) - t) + y * t
 }
 
 impl Filter for Traa {
