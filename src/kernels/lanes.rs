@@ -125,14 +125,18 @@ pub fn box_stats(cols: &[&[f32; LANES + 2]; 12]) -> [[Lanes; 3]; 4] {
 /// [`super::for_each_row_stats`] does (per column first, then across).
 #[inline(always)]
 pub fn box_and_cross_bounds(rows: &[[&[f32; LANES + 2]; 3]; 3]) -> [[Lanes; 3]; 4] {
+    // In vectors: each column's three-row min and max is computed once per offset (the
+    // same operations on the same values, so the same bits).
     let mut out = [[[0.0; LANES]; 3]; 4];
     for (c, [a, b, d]) in rows.iter().enumerate() {
-        let vmin: [f32; LANES + 2] = each(|j| fmin(fmin(a[j], b[j]), d[j]));
-        let vmax: [f32; LANES + 2] = each(|j| fmax(fmax(a[j], b[j]), d[j]));
-        out[0][c] = each(|l| fmin(fmin(vmin[l], vmin[l + 1]), vmin[l + 2]));
-        out[1][c] = each(|l| fmax(fmax(vmax[l], vmax[l + 1]), vmax[l + 2]));
-        out[2][c] = each(|l| fmin(fmin(fmin(b[l], b[l + 1]), b[l + 2]), fmin(a[l + 1], d[l + 1])));
-        out[3][c] = each(|l| fmax(fmax(fmax(b[l], b[l + 1]), b[l + 2]), fmax(a[l + 1], d[l + 1])));
+        let at = |r: &[f32; LANES + 2], o: usize| f32x8::from(*block::<f32, LANES>(r, o));
+        let vmin = |o: usize| fmin_v(fmin_v(at(a, o), at(b, o)), at(d, o));
+        let vmax = |o: usize| fmax_v(fmax_v(at(a, o), at(b, o)), at(d, o));
+        out[0][c] = fmin_v(fmin_v(vmin(0), vmin(1)), vmin(2)).to_array();
+        out[1][c] = fmax_v(fmax_v(vmax(0), vmax(1)), vmax(2)).to_array();
+        let (b0, b1, b2, a1, d1) = (at(b, 0), at(b, 1), at(b, 2), at(a, 1), at(d, 1));
+        out[2][c] = fmin_v(fmin_v(fmin_v(b0, b1), b2), fmin_v(a1, d1)).to_array();
+        out[3][c] = fmax_v(fmax_v(fmax_v(b0, b1), b2), fmax_v(a1, d1)).to_array();
     }
     out
 }
