@@ -350,11 +350,13 @@ fn catmull_rom_inside(
 ) -> [f32; TEXEL] {
     let base = ((i1[1] - 1) * width + i1[0] - 1) * TEXEL;
     let stride = width * TEXEL;
+    // One bounds check for the whole footprint; the rows inside it are then known to fit.
+    let win = &tex[base..base + 3 * stride + 4 * TEXEL];
     let rows: [&[f32; 4 * TEXEL]; 4] = [
-        block(tex, base),
-        block(tex, base + stride),
-        block(tex, base + 2 * stride),
-        block(tex, base + 3 * stride),
+        block(win, 0),
+        block(win, stride),
+        block(win, 2 * stride),
+        block(win, 3 * stride),
     ];
     let mut out = catmull_rom_rows(rows, wx, wy);
     // The count: bilinear over the four centre taps, which are bilinear's own taps inside
@@ -447,8 +449,9 @@ pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize,
 #[inline(always)]
 fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t: [f32; 2]) -> [f32; N] {
     let a = (i0[1] * width + i0[0]) * N;
-    let b = a + width * N;
-    let (r0, r1) = (&tex[a..a + 2 * N], &tex[b..b + 2 * N]);
+    // One bounds check for both rows.
+    let win = &tex[a..a + width * N + 2 * N];
+    let (r0, r1) = (&win[..2 * N], &win[width * N..]);
     let mut out = [0.0; N];
     // Four channels at a time in vectors (the same operations per channel), the rest
     // one by one.
