@@ -302,7 +302,7 @@ fn bad_samples_do_not_poison_the_history() {
 /// `cargo test --release --test upsample -- --ignored --nocapture comparison_table`.
 /// `UPSAMPLE_VARIANTS="label=a=1,b=2;label2=c=3"` adds `upsample` variants (label, then its
 /// `key=value`s) to the four methods; `UPSAMPLE_SCENES=a,b` picks scenes;
-/// `UPSAMPLE_SIZE=WxHxF` the size and frames.
+/// `UPSAMPLE_SIZE=WxHxF` the size and frames; `UPSAMPLE_SHADING=4` 4x4 shading.
 #[test]
 #[ignore]
 fn comparison_table() {
@@ -320,6 +320,7 @@ fn comparison_table() {
         }
         Err(_) => (128, 72, 32),
     };
+    let factor: u32 = std::env::var("UPSAMPLE_SHADING").map_or(2, |s| s.parse().unwrap());
     let mut variants: Vec<(String, Vec<String>)> = ["spatiotemporal", "spatial", "temporal", "taa"]
         .iter()
         .map(|m| (m.to_string(), vec![format!("method={m}")]))
@@ -348,7 +349,7 @@ fn comparison_table() {
     for (cond, jitter, noise) in conds {
         let mut sums = vec![(0.0f64, 0.0f64); variants.len()];
         let mut rej = vec![0.0f64; variants.len()];
-        println!("\n{cond}, 2x2 shading, {w}x{h}, {n} frames: PSNR dB / tRMSE");
+        println!("\n{cond}, {factor}x{factor} shading, {w}x{h}, {n} frames: PSNR dB / tRMSE");
         println!(
             "{:14} {}",
             "scene",
@@ -361,7 +362,7 @@ fn comparison_table() {
             let s = Settings {
                 jitter,
                 noise,
-                ..settings(w, h, n, 16, 2)
+                ..settings(w, h, n, 16, factor)
             };
             let frames = render(scene, s);
             let mut line = format!("{scene:14}");
