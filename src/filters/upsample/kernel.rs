@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{confidence, relative_gradient, GRADIENT_WEIGHTS};
+use super::temporal::{cancelled, confidence, signed_gradient, GRADIENT_WEIGHTS};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -526,6 +526,8 @@ struct Band {
     cells: Vec<f32>,
     now: Vec<f32>,
     filtered: Vec<f32>,
+    /// The temporally filtered gradients with their sign (laid out as `filtered`).
+    signed: Vec<f32>,
     conf: Vec<f32>,
 }
 
@@ -973,6 +975,7 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
     let cw = sp.color_width;
     let now = sized(&mut band.now, (yhi - ylo) * w);
     let filtered = sized(&mut band.filtered, (yhi - ylo) * fstride);
+    let signed = sized(&mut band.signed, (yhi - ylo) * fstride);
     let cells = sized(&mut band.cells, cw);
     let total: f32 = GRADIENT_WEIGHTS.iter().sum();
     let mut cells_of = None;
@@ -1001,7 +1004,7 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
                                     } else {
                                         crate::kernels::luma([t[R], t[R + 1], t[R + 2]])
                                     };
-                                    relative_gradient(l, before)
+                                    signed_gradient(l, before)
                                 } else {
                                     1.0
                                 }
@@ -1024,28 +1027,36 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
                 }
             }
         }
+        let srow = &mut signed[k * fstride..(k + 1) * fstride];
         frow[..r].fill(0.0);
         frow[r + w..].fill(0.0);
+        srow[..r].fill(0.0);
+        srow[r + w..].fill(0.0);
         let fw = &mut frow[r..r + w];
+        let sw = &mut srow[r..r + w];
+        // The magnitudes' filter (the paper's) and the signed values' filter.
+        let filter = |g: [f32; 4]| {
+            (GRADIENT_WEIGHTS[0] * g[0]
+                + GRADIENT_WEIGHTS[1] * g[1]
+                + GRADIENT_WEIGHTS[2] * g[2]
+                + GRADIENT_WEIGHTS[3] * g[3])
+                / total
+        };
         match rp {
             Some(rp) => {
                 let row = &rp[ST * i0..ST * (i0 + w)];
-                for (x, (o, &n)) in fw.iter_mut().zip(nrow.iter()).enumerate() {
+                for (x, ((o, so), &n)) in fw.iter_mut().zip(sw.iter_mut()).zip(nrow.iter()).enumerate() {
                     let t: &[f32; ST] = row[ST * x..ST * x + ST].try_into().expect("a texel");
-                    *o = (GRADIENT_WEIGHTS[0] * n
-                        + GRADIENT_WEIGHTS[1] * t[G1]
-                        + GRADIENT_WEIGHTS[2] * t[G1 + 1]
-                        + GRADIENT_WEIGHTS[3] * t[G1 + 2])
-                        / total;
+                    let g = [n, t[G1], t[G1 + 1], t[G1 + 2]];
+                    *o = filter(g.map(f32::abs));
+                    *so = filter(g);
                 }
             }
             None => {
-                for (o, &n) in fw.iter_mut().zip(nrow.iter()) {
-                    *o = (GRADIENT_WEIGHTS[0] * n
-                        + GRADIENT_WEIGHTS[1] * 1.0
-                        + GRADIENT_WEIGHTS[2] * 1.0
-                        + GRADIENT_WEIGHTS[3] * 1.0)
-                        / total;
+                for ((o, so), &n) in fw.iter_mut().zip(sw.iter_mut()).zip(nrow.iter()) {
+                    let g = [n, 1.0, 1.0, 1.0];
+                    *o = filter(g.map(f32::abs));
+                    *so = filter(g);
                 }
             }
         }
@@ -1074,15 +1085,20 @@ fn st_row<const D: bool, const N: bool>(
     // each side add +0 where the reference skips the tap); then the confidence.
     let (ya, yb) = (y.saturating_sub(r), (y + r + 1).min(h));
     let conf = sized(&mut band.conf, w);
-    let filtered = &band.filtered;
+    let (filtered, signed) = (&band.filtered, &band.signed);
     let rows_in = (yb - ya) as isize;
     for x0 in (0..w).step_by(LANES) {
-        let mut sum = [0.0f32; LANES];
+        let (mut sum, mut ssum) = ([0.0f32; LANES], [0.0f32; LANES]);
         for yy in ya..yb {
-            let row = &filtered[(yy - ylo) * fstride..(yy - ylo + 1) * fstride];
+            let at = (yy - ylo) * fstride..(yy - ylo + 1) * fstride;
+            let (row, srow) = (&filtered[at.clone()], &signed[at]);
             for d in 0..=2 * r {
                 let v = ld(&row[d..], x0);
                 for (s, v) in sum.iter_mut().zip(v) {
+                    *s += v;
+                }
+                let v = ld(&srow[d..], x0);
+                for (s, v) in ssum.iter_mut().zip(v) {
                     *s += v;
                 }
             }
@@ -1090,7 +1106,11 @@ fn st_row<const D: bool, const N: bool>(
         let c: Lanes = each(|l| {
             let x = x0 + l;
             let cols = ((x + r).min(w - 1) as isize - x.saturating_sub(r) as isize + 1).max(1);
-            confidence(sum[l] / (rows_in * cols) as f32, p.gradient_scale)
+            let n = (rows_in * cols) as f32;
+            confidence(
+                cancelled(sum[l] / n, ssum[l] / n, p.gradient_cancel),
+                p.gradient_scale,
+            )
         });
         let n = LANES.min(w - x0);
         conf[x0..x0 + n].copy_from_slice(&c[..n]);

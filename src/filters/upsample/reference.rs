@@ -4,7 +4,7 @@
 //! what the filter computes.
 
 use super::spatial::{self, depth_range, Geometry, Sparse};
-use super::temporal::{confidence, relative_gradient, reproject, Validity, GRADIENT_WEIGHTS};
+use super::temporal::{cancelled, confidence, reproject, signed_gradient, Validity, GRADIENT_WEIGHTS};
 use super::{
     decay_for, Method, Params, Upsample, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W,
 };
@@ -178,6 +178,7 @@ impl ReferenceUpsample {
                     w,
                     h,
                     p.gradient_scale,
+                    p.gradient_cancel,
                     grad_now.data_mut(),
                     conf.data_mut(),
                     scratch,
@@ -360,7 +361,10 @@ impl ReferenceUpsample {
 /// of its block (and 1 at any pixel whose own history is invalid), filtered over time with
 /// the three previous gradients (weights 4, 3, 2, 1; 1 where unknown) and over a box of
 /// `2r + 1` pixels, `r = max(1, factor / 2)`, slightly larger than the block; `conf` gets
-/// the confidence, `now` the unfiltered gradient to store.
+/// the confidence, `now` the unfiltered gradient to store (with its sign,
+/// [`signed_gradient`]). Both filters run on the magnitudes (the paper's) and on the signed
+/// values, where changes of random sign cancel; the confidence reads
+/// [`cancelled`]`(magnitudes, signed, cancel)`.
 #[allow(clippy::too_many_arguments)]
 fn gradients(
     sparse: &Sparse,
@@ -369,6 +373,7 @@ fn gradients(
     w: usize,
     h: usize,
     scale: f32,
+    cancel: f32,
     now: &mut [f32],
     conf: &mut [f32],
     scratch: &mut Scratch,
@@ -392,7 +397,7 @@ fn gradients(
                     } else {
                         luma([hp[0].data()[j], hp[1].data()[j], hp[2].data()[j]])
                     };
-                    relative_gradient(l, before)
+                    signed_gradient(l, before)
                 }
                 // A repaired (invalid) sample says nothing: keep trusting history.
                 (Some(_), None) if sparse.invalid.is_some() && frac[i] >= 0.5 => 0.0,
@@ -400,28 +405,35 @@ fn gradients(
             };
         }
     });
-    // Temporal filter, weights 4, 3, 2, 1 over now and the three previous gradients.
+    // Temporal filter, weights 4, 3, 2, 1 over now and the three previous gradients: of
+    // their magnitudes (the paper's) and of the signed values.
     let mut filtered = scratch.plane(w, h);
+    let mut signed = scratch.plane(w, h);
     let total: f32 = GRADIENT_WEIGHTS.iter().sum();
     let now_ro: &[f32] = now;
-    for_rows([filtered.data_mut()], w, |y, [row]| {
+    for_rows([filtered.data_mut(), signed.data_mut()], w, |y, [row, srow]| {
         for x in 0..w {
             let i = y * w + x;
             // Unknown past gradients (no history) count as maximal.
             let past = hist.map_or([1.0; 3], |hp| [hp[4].data()[i], hp[5].data()[i], hp[6].data()[i]]);
-            row[x] = (GRADIENT_WEIGHTS[0] * now_ro[i]
-                + GRADIENT_WEIGHTS[1] * past[0]
-                + GRADIENT_WEIGHTS[2] * past[1]
-                + GRADIENT_WEIGHTS[3] * past[2])
-                / total;
+            let g = [now_ro[i], past[0], past[1], past[2]];
+            let filter = |g: [f32; 4]| {
+                (GRADIENT_WEIGHTS[0] * g[0]
+                    + GRADIENT_WEIGHTS[1] * g[1]
+                    + GRADIENT_WEIGHTS[2] * g[2]
+                    + GRADIENT_WEIGHTS[3] * g[3])
+                    / total
+            };
+            row[x] = filter(g.map(f32::abs));
+            srow[x] = filter(g);
         }
     });
-    // Spatial box, then the confidence.
+    // Spatial box of both, then the confidence.
     let r = (f / 2).max(1) as isize;
-    let src = filtered.data();
+    let (src, ssrc) = (filtered.data(), signed.data());
     for_rows([conf], w, |y, [row]| {
         for x in 0..w {
-            let (mut sum, mut n) = (0.0f32, 0u32);
+            let (mut sum, mut ssum, mut n) = (0.0f32, 0.0f32, 0u32);
             for dy in -r..=r {
                 let yy = y as isize + dy;
                 if yy < 0 || yy >= h as isize {
@@ -433,11 +445,13 @@ fn gradients(
                         continue;
                     }
                     sum += src[yy as usize * w + xx as usize];
+                    ssum += ssrc[yy as usize * w + xx as usize];
                     n += 1;
                 }
             }
-            row[x] = confidence(sum / n as f32, scale);
+            let n = n as f32;
+            row[x] = confidence(cancelled(sum / n, ssum / n, cancel), scale);
         }
     });
-    scratch.recycle([filtered]);
+    scratch.recycle([filtered, signed]);
 }

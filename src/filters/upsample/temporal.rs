@@ -113,6 +113,26 @@ pub fn relative_gradient(now: f32, before: f32) -> f32 {
     ((now - before).abs() / now.max(before).max(LUMA_FLOOR)).min(1.0)
 }
 
+/// The relative gradient with its sign, `(L_t - L_t-1) / max(L_t, L_t-1)` clamped to
+/// [-1, 1]: [`relative_gradient`] (Herzog et al. 2010, sec. 3.4) is its magnitude. Its
+/// temporal and spatial filters average it before the magnitude is taken, so differences
+/// of random sign between neighbouring samples and frames (Monte Carlo noise, jittered
+/// samples of sub-pixel detail) cancel, while a change of the shading moves them all one
+/// way (the paper's fig. 7 plots the gradient with its sign).
+#[inline(always)]
+pub fn signed_gradient(now: f32, before: f32) -> f32 {
+    ((now - before) / now.max(before).max(LUMA_FLOOR)).clamp(-1.0, 1.0)
+}
+
+/// The gradient the confidence reads: the filtered magnitudes `magnitude` (Herzog et al.
+/// 2010, sec. 3.4) less `cancel` times what the signed filter `signed` cancelled,
+/// `magnitude - cancel (magnitude - |signed|)`. 0 gives the paper's value, 1 the magnitude
+/// of the filtered signed gradient.
+#[inline(always)]
+pub fn cancelled(magnitude: f32, signed: f32, cancel: f32) -> f32 {
+    magnitude - cancel * (magnitude - signed.abs())
+}
+
 /// The temporal filter of gradients, Herzog et al. 2010, sec. 3.4: the current and the three
 /// previous gradients weighted 4, 3, 2, 1.
 pub const GRADIENT_WEIGHTS: [f32; 4] = [4.0, 3.0, 2.0, 1.0];
@@ -178,6 +198,11 @@ mod tests {
             .unwrap();
         assert_eq!(relative_gradient(0.0, 1e-4), 0.01, "dark pixels use the floor");
         assert_eq!(relative_gradient(1e30, 0.0), 1.0);
+        for (a, b) in [(0.5, 1.0), (1.0, 0.5), (0.0, 1e-4), (1e30, 0.0), (0.3, 0.3)] {
+            assert_eq!(signed_gradient(a, b).abs(), relative_gradient(a, b), "{a} {b}");
+        }
+        assert!(signed_gradient(0.5, 1.0) < 0.0 && signed_gradient(1.0, 0.5) > 0.0);
+        assert_eq!(signed_gradient(-1e30, 1.0), -1.0);
         assert_eq!(confidence(0.0, 1.0), 1.0);
         assert_eq!(confidence(0.5, 1.0), 0.25);
         assert_eq!(confidence(2.0, 1.0), 0.0);
