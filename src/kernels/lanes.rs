@@ -41,6 +41,19 @@ pub fn block<T, const N: usize>(s: &[T], at: usize) -> &[T; N] {
     s[at..at + N].try_into().expect("N elements")
 }
 
+/// Stores the lanes of a block from column `x0` that lie in the row `s` (all eight by one
+/// fixed-size store when the block is whole: a slice copy of variable length is a call).
+#[inline(always)]
+pub fn store(s: &mut [f32], x0: usize, v: &Lanes) {
+    match s.get_mut(x0..x0 + LANES) {
+        Some(dst) => *<&mut [f32; LANES]>::try_from(dst).expect("eight lanes") = *v,
+        None => {
+            let n = s.len() - x0;
+            s[x0..].copy_from_slice(&v[..n]);
+        }
+    }
+}
+
 /// The same value in every lane.
 #[inline(always)]
 pub fn splat(v: f32) -> Lanes {

@@ -355,7 +355,6 @@ fn reproject_row(
     let (mx, my) = (&m[0][..w], &m[1][..w]);
     let (hy, hco, hcg, hn) = (&mut hy[..w], &mut hco[..w], &mut hcg[..w], &mut hn[..w]);
     for x0 in (0..w).step_by(LANES) {
-        let n = LANES.min(w - x0);
         let [px, py] = previous_positions(mx, my, x0, y);
         let on = on_screen_bits(&px, &py, w, h);
         // Off-screen lanes keep zero texels: count 0, a restart.
@@ -372,11 +371,10 @@ fn reproject_row(
             }
         };
         let [a, b, c, d] = lanes::load_texels(&t);
-        let at = x0..x0 + n;
-        hy[at.clone()].copy_from_slice(&a[..n]);
-        hco[at.clone()].copy_from_slice(&b[..n]);
-        hcg[at.clone()].copy_from_slice(&c[..n]);
-        hn[at].copy_from_slice(&d[..n]);
+        lanes::store(hy, x0, &a);
+        lanes::store(hco, x0, &b);
+        lanes::store(hcg, x0, &c);
+        lanes::store(hn, x0, &d);
     }
 }
 

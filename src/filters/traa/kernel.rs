@@ -940,7 +940,7 @@ fn resolve_row<const N: usize>(
             keep.select(lanes::v(&hs[c]), blend.select(b, cur)).to_array()
         });
         for c in 0..3 {
-            out[c][x0..x0 + n].copy_from_slice(&value[c][..n]);
+            lanes::store(&mut out[c][..w], x0, &value[c]);
         }
         let texels = next[N * x0..N * (x0 + n)].chunks_exact_mut(N);
         match sobel {

@@ -194,13 +194,6 @@ fn ld_texel(s: &[f32], n: usize, c: usize, x0: usize) -> Lanes {
     }
 }
 
-/// Stores the lanes of a block that lie in the row.
-#[inline(always)]
-fn st(s: &mut [f32], x0: usize, v: &Lanes) {
-    let n = LANES.min(s.len() - x0);
-    s[x0..x0 + n].copy_from_slice(&v[..n]);
-}
-
 /// Stores texels of `N` channels for the lanes of a block that lie in the row.
 #[inline(always)]
 fn st_texels<const N: usize>(s: &mut [f32], x0: usize, v: &[Lanes; N]) {
@@ -787,9 +780,9 @@ fn spatial_row<const D: bool, const N: bool>(
         let g = PixelGeo::load::<D, N>(fr, y, x0);
         let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
         let v = mean(&sum, &wsum);
-        st(or, x0, &v[0]);
-        st(og, x0, &v[1]);
-        st(ob, x0, &v[2]);
+        lanes::store(or, x0, &v[0]);
+        lanes::store(og, x0, &v[1]);
+        lanes::store(ob, x0, &v[2]);
     }
     PixelCounts::default()
 }
@@ -844,9 +837,9 @@ fn temporal_row<const D: bool, const N: bool>(
             set_lanes(&each(|l| hole[l] & (x0 + l < fr.w)))
         };
         let v: [Lanes; 3] = three(|c| lanes::select(&own, &own_c[c], &lanes::select(&ok, &hc[c], &fill[c])));
-        st(or, x0, &v[0]);
-        st(og, x0, &v[1]);
-        st(ob, x0, &v[2]);
+        lanes::store(or, x0, &v[0]);
+        lanes::store(og, x0, &v[1]);
+        lanes::store(ob, x0, &v[2]);
         let (d, i) = depth_ids(fr, y, x0);
         st_texels::<TM>(next, x0, &[v[0], v[1], v[2], d, i]);
     }
@@ -947,9 +940,9 @@ fn taa_row(
         } else {
             set_lanes(&each(|l| clip[l] & (x0 + l < fr.w)))
         };
-        st(or, x0, &v[0]);
-        st(og, x0, &v[1]);
-        st(ob, x0, &v[2]);
+        lanes::store(or, x0, &v[0]);
+        lanes::store(og, x0, &v[1]);
+        lanes::store(ob, x0, &v[2]);
         st_texels::<TA>(next, x0, &[v[0], v[1], v[2], count]);
     }
     PixelCounts {
@@ -1163,9 +1156,9 @@ fn st_row<const D: bool, const N: bool>(
         let (own_c, own) = own_lanes(fr, &slots, my, x0);
         let lk = lanes::select(&own, &luma_lanes(&own_c), &hk[0]);
         let kn = lanes::select(&own, &[1.0; LANES], &hk[1]);
-        st(or, x0, &v[0]);
-        st(og, x0, &v[1]);
-        st(ob, x0, &v[2]);
+        lanes::store(or, x0, &v[0]);
+        lanes::store(og, x0, &v[1]);
+        lanes::store(ob, x0, &v[2]);
         let (d, i) = depth_ids(fr, y, x0);
         let n = ld(now, x0);
         let wn = lanes::map(&total, |t| decay * t);
