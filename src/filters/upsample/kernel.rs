@@ -494,9 +494,7 @@ fn reproject_row<const N: usize>(
                 }
                 let wt = if ok { wt } else { 0.0 };
                 total += wt;
-                for (a, t) in acc.iter_mut().zip(tex) {
-                    *a += wt * t;
-                }
+                lanes::add_scaled(&mut acc, wt, tex);
             }
         }
         let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
