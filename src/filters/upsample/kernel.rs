@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{cancelled, confidence, signed_gradient, GRADIENT_WEIGHTS};
+use super::temporal::{signed_gradient, GRADIENT_WEIGHTS};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -32,6 +32,7 @@ use crate::kernels::{fmax, fmin, LUMA_REC709};
 use crate::pipeline::exec::{par_bands_strided, pool, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
+use wide::f32x8;
 
 /// Stages of the fused passes timed by their clock, in record order.
 const STAGES: [&str; 3] = ["reproject", "gradient", "blend"];
@@ -1094,17 +1095,23 @@ fn st_row<const D: bool, const N: bool>(
                 }
             }
         }
-        let c: Lanes = each(|l| {
-            let x = x0 + l;
-            let cols = ((x + r).min(w - 1) as isize - x.saturating_sub(r) as isize + 1).max(1);
-            let n = (rows_in * cols) as f32;
-            confidence(
-                cancelled(sum[l] / n, ssum[l] / n, p.gradient_cancel),
-                p.gradient_scale,
-            )
-        });
-        let n = LANES.min(w - x0);
-        conf[x0..x0 + n].copy_from_slice(&c[..n]);
+        // In vectors: the box's columns inside the image, `min(x + r, w - 1) - max(x - r, 0)
+        // + 1` (at least 1), and the tap count are whole numbers far below 2^24, so exact
+        // in f32 and the same as the integer arithmetic of the reference; then the
+        // confidence, lane by lane as `super::temporal::confidence(cancelled(..))` computes it.
+        let f = f32x8::splat;
+        let x = f(x0 as f32) + f32x8::from(lanes::IOTA);
+        let (lo, hi) = (
+            lanes::max_of(x - f(r as f32), f(0.0)),
+            lanes::min_of(x + f(r as f32), f((w - 1) as f32)),
+        );
+        let cols = lanes::max_of(hi - lo + f(1.0), f(1.0));
+        let n = f(rows_in as f32) * cols;
+        let (g, sg) = (f32x8::from(sum) / n, f32x8::from(ssum) / n);
+        let g = g - f(p.gradient_cancel) * (g - sg.abs());
+        let t = f(1.0) - lanes::min_of(g / f(p.gradient_scale), f(1.0));
+        let c = t.simd_gt(f(0.0)).select(t * t, f(0.0));
+        lanes::store(conf, x0, &c.to_array());
     }
     let conf = &band.conf[..w];
     let now = &band.now[(y - ylo) * w..(y - ylo + 1) * w];
