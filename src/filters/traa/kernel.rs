@@ -19,7 +19,7 @@
 //! never NaN, and a sign of zero cannot change what follows them).
 
 use super::{
-    feedback_v, mix, mix_v, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
+    feedback_v, mix_v, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
 };
 use crate::filters::passes::{
     dilate_row, on_screen_bits, previous_positions, reproject_skip, tonemap_row, untonemap_row, FrameContext,
@@ -27,7 +27,7 @@ use crate::filters::passes::{
 };
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
-use crate::kernels::{fmax, fmin, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
+use crate::kernels::{fmax, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
@@ -186,23 +186,8 @@ fn pad(row: &mut [f32], w: usize) {
     row[w + 1] = row[w];
 }
 
-/// The nine taps of the 3x3 of lane `l` from three padded spans, row-major.
-#[inline(always)]
-fn taps(t: &[&[f32; SPAN]; 3], l: usize) -> [f32; 9] {
-    [
-        t[0][l],
-        t[0][l + 1],
-        t[0][l + 2],
-        t[1][l],
-        t[1][l + 1],
-        t[1][l + 2],
-        t[2][l],
-        t[2][l + 1],
-        t[2][l + 2],
-    ]
-}
-
-/// [`taps`] of all eight lanes: tap `k` of every lane as one vector.
+/// The nine taps of the 3x3s of a block's eight lanes from three padded spans, row-major:
+/// tap `k` of every lane as one vector.
 #[inline(always)]
 fn taps_v(t: &[&[f32; SPAN]; 3]) -> [f32x8; 9] {
     let at = |r: usize, c: usize| f32x8::from(*block::<f32, LANES>(t[r], c));
@@ -827,30 +812,27 @@ fn model_average_row(id: &[u32], w: usize, h: usize, y: usize, out: &mut [f32]) 
 fn depth_variance_row(d: [&[f32]; 3], prev: &[f32], valid: &[bool], w: usize, out: &mut [f32]) {
     for (x0, _) in blocks(w) {
         let sp = spans(&d, x0);
-        let pv: &Lanes = block(prev, x0);
-        let ok: &Mask = block(valid, x0);
-        let v: Lanes = lanes::each(|l| {
-            let t = taps(&sp, l);
-            let (mut lo, mut hi, mut sum) = (t[0], t[0], 0.0f32);
-            for &v in &t {
-                lo = fmin(lo, v);
-                hi = fmax(hi, v);
-                sum += v;
-            }
-            let avg = sum / 9.0;
-            let max_dist = (lo - avg).abs().min((hi - avg).abs());
-            let pv_ = ((t[4] - avg).abs() / max_dist).powi(2);
-            let tpv = if ok[l] {
-                ((pv[l] - avg).abs() / max_dist).powi(4)
-            } else {
-                0.0
-            };
-            if max_dist < DEPTH_DISTANCE_MIN {
-                0.0
-            } else {
-                (pv_ + tpv).min(1.0)
-            }
-        });
+        let pv = f32x8::from(*block::<f32, LANES>(prev, x0));
+        let ok = lanes::mask_from(block(valid, x0));
+        let t = taps_v(&sp);
+        let f = f32x8::splat;
+        let (mut lo, mut hi, mut sum) = (t[0], t[0], f(0.0));
+        for &v in &t {
+            lo = lanes::fmin_v(lo, v);
+            hi = lanes::fmax_v(hi, v);
+            sum += v;
+        }
+        let avg = sum / f(9.0);
+        let max_dist = lanes::min_of((lo - avg).abs(), (hi - avg).abs());
+        // `powi(2)` and `powi(4)` as the compiler expands them: x x, and (x x)(x x).
+        let q = (t[4] - avg).abs() / max_dist;
+        let pv_ = q * q;
+        let u = (pv - avg).abs() / max_dist;
+        let tpv = ok.select((u * u) * (u * u), f(0.0));
+        let v = max_dist
+            .simd_lt(f(DEPTH_DISTANCE_MIN))
+            .select(f(0.0), lanes::min_of(pv_ + tpv, f(1.0)))
+            .to_array();
         out[x0..x0 + LANES].copy_from_slice(&v);
     }
 }
@@ -863,15 +845,14 @@ fn aliased_row(sobel: [&[f32]; 3], ma: Option<&[f32]>, dv: Option<&[f32]>, w: us
     let zero = [0.0f32; LANES];
     for (x0, _) in blocks(w) {
         let sp = spans(&sobel, x0);
-        let m: &Lanes = ma.map_or(&zero, |m| block(m, x0));
-        let d: &Lanes = dv.map_or(&zero, |d| block(d, x0));
-        let v: Lanes = lanes::each(|l| {
-            let t = taps(&sp, l);
-            let avg3 = (t[0] + t[1] + t[2] + t[3] + t[4] + t[5] + t[6] + t[7] + t[8]) / 9.0;
-            let avg_cross = (t[1] + t[3] + t[4] + t[5] + t[7]) / 5.0;
-            let sobel_avg = mix(avg_cross, avg3, (m[l] + t[4]).clamp(0.0, 1.0));
-            (sobel_avg + d[l] + m[l]).clamp(0.0, 1.0)
-        });
+        let m = f32x8::from(*ma.map_or(&zero, |m| block(m, x0)));
+        let d = f32x8::from(*dv.map_or(&zero, |d| block(d, x0)));
+        let t = taps_v(&sp);
+        let f = f32x8::splat;
+        let avg3 = (t[0] + t[1] + t[2] + t[3] + t[4] + t[5] + t[6] + t[7] + t[8]) / f(9.0);
+        let avg_cross = (t[1] + t[3] + t[4] + t[5] + t[7]) / f(5.0);
+        let sobel_avg = mix_v(avg_cross, avg3, lanes::clamp01(m + t[4]));
+        let v = lanes::clamp01(sobel_avg + d + m).to_array();
         out[x0..x0 + LANES].copy_from_slice(&v);
     }
 }
