@@ -494,13 +494,15 @@ fn clip_where(
         }
     }
     let init = rls::init_information(p.clip_p);
-    for k in 0..P_LEN {
-        let relaxed = if p.clip_keep == 0.0 {
-            [init[k]; LANES]
-        } else {
-            lanes::map(&r[k], |v| p.clip_keep * v + (1.0 - p.clip_keep) * init[k])
-        };
-        r[k] = lanes::select(m, &relaxed, &r[k]);
+    if p.clip_keep == 0.0 {
+        for k in 0..P_LEN {
+            r[k] = lanes::select(m, &[init[k]; LANES], &r[k]);
+        }
+    } else {
+        for k in 0..P_LEN {
+            let relaxed = lanes::map(&r[k], |v| p.clip_keep * v + (1.0 - p.clip_keep) * init[k]);
+            r[k] = lanes::select(m, &relaxed, &r[k]);
+        }
     }
 }
 
@@ -527,10 +529,14 @@ fn model_row(
         let x0 = b * LANES;
         let n = LANES.min(w - x0);
         let real: Mask = lanes::each(|l| l < n);
-        let [min, max, mean] = stats.block(x0);
+        let [min, max, _] = stats.block(x0);
         let (lo, hi) = match p.test_box {
             TestBox::Minmax => (min, max),
-            TestBox::Variance => lanes::variance_box(&min, &max, &mean, &stats.mean_sq(x0), p.test_gamma),
+            // The mean only here: the default box leaves it uncomputed.
+            TestBox::Variance => {
+                let mean = stats.block(x0)[2];
+                lanes::variance_box(&min, &max, &mean, &stats.mean_sq(x0), p.test_gamma)
+            }
         };
         let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
         let cur: [Lanes; 3] = lanes::each(|c| lanes_of(ycocg[c], x0, w, 0.0));
