@@ -57,11 +57,15 @@ fn render(spec: &str, jitter: Jitter) -> Vec<Frame> {
     (0..s.frames).map(|i| scene.frame(i)).collect()
 }
 
-fn run(config: &[&str], frames: &[Frame]) -> Summary {
+/// The metrics and the mean fraction of pixels whose history was clipped per frame.
+fn run(config: &[&str], frames: &[Frame]) -> (Summary, f64) {
     let mut f = create(config[0], &parse_assignments(&config[1..]).expect("key=value")).expect("a filter");
     let mut eval = Evaluator::new(SpaceChoice::Auto);
+    let mut clipped = 0.0;
     for fr in frames {
         let out = f.process(fr).expect("a frame");
+        let n = (out.color[0].width() * out.color[0].height()) as f64;
+        clipped += out.record.pixels.history_clipped as f64 / n;
         eval.push(
             fr.meta.index,
             &out.color,
@@ -70,7 +74,7 @@ fn run(config: &[&str], frames: &[Frame]) -> Summary {
         )
         .expect("metrics");
     }
-    eval.summary().expect("frames")
+    (eval.summary().expect("frames"), clipped / frames.len() as f64)
 }
 
 fn main() {
@@ -90,20 +94,24 @@ fn main() {
     let mut totals = vec![(0.0, 0.0); configs.len()];
     let mut worst = vec![f64::INFINITY; configs.len()];
     println!("jitter {jitter:?}; delta = PSNR minus `{}`\n", names[0]);
-    println!("| scene | config | PSNR dB | tRMSE | delta dB |\n|---|---|---|---|---|");
+    println!("| scene | config | PSNR dB | tRMSE | delta dB | clipped % |\n|---|---|---|---|---|---|");
     for scene in &scenes {
         let frames = render(scene, jitter);
         let mut base = f64::NAN;
         for (k, c) in configs.iter().enumerate() {
-            let s = run(c, &frames);
+            let (s, clipped) = run(c, &frames);
             let t = s.trmse.unwrap_or(f64::NAN);
             if k == 0 {
                 base = s.mean_psnr;
             }
             let d = s.mean_psnr - base;
             println!(
-                "| {scene} | {} | {:.2} | {:.4} | {:+.2} |",
-                names[k], s.mean_psnr, t, d
+                "| {scene} | {} | {:.2} | {:.4} | {:+.2} | {:.1} |",
+                names[k],
+                s.mean_psnr,
+                t,
+                d,
+                100.0 * clipped
             );
             totals[k].0 += s.mean_psnr;
             totals[k].1 += t;
