@@ -563,8 +563,13 @@ fn model_row(
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
         let e: [Lanes; 3] = lanes::each(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
+        let lambda: Lanes = if p.lambda_moving == 0.0 {
+            lanes::splat(p.lambda)
+        } else {
+            lanes::map(&f.speed, |v| super::forgetting(v, p))
+        };
         let (trace, failed) =
-            rls::update_information_lanes(&mut beta, &mut r, &x, &e, p.lambda, plan.prior, &active);
+            rls::update_information_lanes(&mut beta, &mut r, &x, &e, &lambda, plan.prior, &active);
         reset_where(&failed, &mut beta, &mut r, &input, p.p0);
         // Every coefficient finite: `b * 0` is zero for a finite `b` and NaN for an
         // infinite or NaN one, so the sum is zero exactly when all are finite (float

@@ -113,6 +113,12 @@ filter_params! {
         model_fetch: ModelFetch = ModelFetch::Bilinear,
             ParamKind::Choice { options: &["bilinear", "nearest"], },
             "reprojected model read: bilinear (paper's texture fetch, smooth) or nearest (4x fewer reads)";
+        lambda_moving: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 0.99999 },
+            "forgetting factor of moving pixels (0 = off: lambda everywhere): lambda falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed px/frame and faster). Still content keeps the long memory that supersamples it, moving content follows its changes; 0.8 measured best in a global sweep";
+        lambda_speed: f32 = 1.0,
+            ParamKind::Float { min: 0.01, max: 100.0 },
+            "speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only): lower treats slow motion as moving";
         test_box: TestBox = TestBox::Minmax,
             ParamKind::Choice { options: &["minmax", "variance"], },
             "box the prediction is tested against: minmax (paper's 3x3 AABB) or variance (mean +- test_gamma sigma within it, as taa): tighter catches more ghosting and jitter-driven drift, but clips (and resets) more models, which shows more raw input";
@@ -145,6 +151,19 @@ pub const DEFAULT_CLIP_P: f32 = 1.0;
 /// Half-width of the variance test box in sigmas: 1.0, `taa`'s (Salvi 2016; Yang, Liu and
 /// Salvi 2020 give 0.75-1.25).
 pub const DEFAULT_TEST_GAMMA: f32 = 1.0;
+
+/// The forgetting factor of a pixel moving `v` pixels per frame: [`Params::lambda`], or
+/// with motion-dependent forgetting (`lambda_moving > 0`) the blend
+/// `lambda + (lambda_moving - lambda) min(v / lambda_speed, 1)` (our ablation: a global
+/// `lambda` trades the still scenes against the moving ones, docs/phlm-ablations.md).
+#[inline(always)]
+pub(crate) fn forgetting(v: f32, p: &Params) -> f32 {
+    if p.lambda_moving == 0.0 {
+        p.lambda
+    } else {
+        p.lambda + (p.lambda_moving - p.lambda) * (v / p.lambda_speed).min(1.0)
+    }
+}
 
 /// Number of state planes: beta (12), R = P^-1 (10), z (3).
 pub const STATE_PLANES: usize = 3 * D + P_LEN + 3;
@@ -435,6 +454,7 @@ mod tests {
                 "clip_keep=0.5",
             ],
             &["on_clip=shift", "clip_keep=1", "clip_p=1000"],
+            &["lambda_moving=0.8", "lambda_speed=0.5"],
         ];
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
@@ -532,6 +552,8 @@ mod tests {
             &["test_box=variance", "test_gamma=2"],
             &["on_clip=shift"],
             &["clip_keep=0.5"],
+            &["lambda_moving=0.8"],
+            &["lambda_moving=0.8", "lambda_speed=3"],
         ] {
             let other = run(set, &frames);
             let differs = base

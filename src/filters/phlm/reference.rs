@@ -181,7 +181,9 @@ impl ReferencePhlm {
                         // Lines 19-21: error of the (possibly reset) model, RLS update.
                         let pred = rls::predict(&m.beta, &x_feat);
                         let e = [0, 1, 2].map(|k| input[k] - pred[k]);
-                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, p.lambda, prior) {
+                        let v = motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
+                        let lambda = super::forgetting(v, &p);
+                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, lambda, prior) {
                             Some(trace) => c.max_trace = c.max_trace.max(trace),
                             None => {
                                 c.repaired += 1;
