@@ -34,6 +34,9 @@
 //! - the hull test runs in YCoCg ("the convex hull in a given colorspace (e.g. RGB or
 //!   YCgCo)", sec. 5.2): the same 3x3 pass then gives the luma range the feature needs; the
 //!   clip follows the paper's ray from the prediction toward the input (lines 14-17).
+//! - the forgetting factor falls with the pixel's speed (`lambda_moving`, our choice,
+//!   measured: [`DEFAULT_LAMBDA_MOVING`]): the paper's `lambda = 0.998` for still pixels,
+//!   0.8 from 1 px/frame; `lambda_moving = 0` gives the paper's single `lambda`.
 //! - the model after a clip is reset to the clipped colour ("resetting a linear model with a
 //!   specific color value", sec. 5.2) with `P = clip_p I`; the paper's reset uses the init
 //!   value 1000, we default to 1 ([`DEFAULT_CLIP_P`] has the measurements).
