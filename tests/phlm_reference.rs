@@ -140,14 +140,23 @@ fn blend(state: &[Px], px: f64, py: f64) -> Px {
     out
 }
 
-/// One frame of Algorithm 1 in f64 for the default parameters.
+/// One frame of Algorithm 1 in f64 for the default parameters (with the forgetting factor
+/// of the scene's speed, `Params::lambda_moving`).
 fn reference_frame(
     state: &mut Option<Vec<Px>>,
     y: &[[f64; 3]],
     motion: [f64; 2],
     p: &Params,
 ) -> Vec<[f64; 3]> {
-    let (lambda, p0, clip_p) = (p.lambda as f64, p.p0 as f64, p.clip_p as f64);
+    let (p0, clip_p) = (p.p0 as f64, p.clip_p as f64);
+    // Motion-dependent forgetting: every frame's motion channel is -V (also frame 0's).
+    let speed = (V[0] * V[0] + V[1] * V[1]).sqrt();
+    let lambda = if p.lambda_moving == 0.0 {
+        p.lambda as f64
+    } else {
+        let (still, moving) = (p.lambda as f64, p.lambda_moving as f64);
+        still + (moving - still) * (speed / p.lambda_speed as f64).min(1.0)
+    };
     let at = |x: isize, yy: isize| {
         y[(yy.clamp(0, H as isize - 1) as usize) * W + x.clamp(0, W as isize - 1) as usize]
     };

@@ -12,7 +12,7 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{ModelFetch, Params, BETA, R, STATE_PLANES, Z};
+use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, STATE_PLANES, Z};
 use crate::filters::passes::{on_screen, reproject_skip, FrameContext, FrameResult};
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
@@ -82,9 +82,10 @@ struct Band {
     cur: [Vec<f32>; 3],
     /// The working colour (tonemapped input) of the band's rows.
     work: [Vec<f32>; 3],
-    /// Per-column 3-row min, max and sum of each channel, with one clamped column on each
+    /// Per-column 3-row min, max and sum of each channel, then the sum of squares of each
+    /// channel (filled for the variance test box only), with one clamped column on each
     /// side and padding to whole blocks.
-    cols: [Vec<f32>; 9],
+    cols: [Vec<f32>; 12],
     /// This row's fetched state, block by block.
     fetched: Vec<Fetched>,
     /// This row's new feature, block by block.
@@ -237,7 +238,8 @@ fn run_band(
         let cols = cols.each_mut().map(|v| sized(v, wp + 2));
         let rows3 = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(band_row);
         let centre = band_row(y);
-        let stats = clock.time(FEATURE, || column_stats(&cur, &rows3, w, cols));
+        let squares = plan.p.test_box == TestBox::Variance;
+        let stats = clock.time(FEATURE, || column_stats(&cur, &rows3, w, squares, cols));
         let z = sized(z, wp / LANES);
         let working = work.each_ref().map(|c| &c[centre.clone()]);
         let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
@@ -321,19 +323,35 @@ fn fetch_row(src: &Sources, plan: &Plan, y: usize, blocks: &mut [Fetched]) {
 
 /// The 3x3 statistics the feature and the model need, per pixel of a row.
 struct RowStats<'a> {
-    cols: [&'a [f32]; 9],
+    cols: [&'a [f32]; 12],
 }
 
-/// Per column of the row: min, max and sum of the three rows `rows3` of each channel, at
-/// index `x + 1`, with the edge columns repeated at indices `0` and `w + 1` (so pixel `x`
-/// reads indices `x .. x + 2` whatever its place) and the padding filled.
+/// Per column of the row: min, max and sum (and with `squares` the sum of squares) of the
+/// three rows `rows3` of each channel, at index `x + 1`, with the edge columns repeated at
+/// indices `0` and `w + 1` (so pixel `x` reads indices `x .. x + 2` whatever its place)
+/// and the padding filled.
 fn column_stats<'a>(
     cur: &[&mut [f32]; 3],
     rows3: &[Range<usize>; 3],
     w: usize,
-    cols: [&'a mut [f32]; 9],
+    squares: bool,
+    cols: [&'a mut [f32]; 12],
 ) -> RowStats<'a> {
     let mut cols = cols;
+    if squares {
+        for c in 0..3 {
+            let [a, b, t] = rows3.clone().map(|r| &cur[c][r]);
+            let sq = &mut *cols[9 + c];
+            for x in 0..w {
+                let (u, v, s) = (a[x], b[x], t[x]);
+                // As [`crate::kernels::for_each_row_stats`] sums them.
+                sq[x + 1] = u * u + v * v + s * s;
+            }
+            sq[0] = sq[1];
+            let last = sq[w];
+            sq[w + 1..].fill(last);
+        }
+    }
     for c in 0..3 {
         let [a, b, t] = rows3.clone().map(|r| &cur[c][r]);
         let (mn, rest) = cols[3 * c..3 * c + 3].split_at_mut(1);
@@ -374,6 +392,16 @@ impl RowStats<'_> {
             out[2][c] = lanes::each(|l| (sm[l] + sm[l + 1] + sm[l + 2]) * (1.0 / 9.0));
         }
         out
+    }
+
+    /// Mean of the squares of each channel for the block at `x0` (filled by
+    /// [`column_stats`] with `squares` only).
+    #[inline(always)]
+    fn mean_sq(&self, x0: usize) -> [Lanes; 3] {
+        lanes::each(|c| {
+            let sq: &[f32; LANES + 2] = self.cols[9 + c][x0..x0 + LANES + 2].try_into().expect("a block");
+            lanes::each(|l| (sq[l] + sq[l + 1] + sq[l + 2]) * (1.0 / 9.0))
+        })
     }
 }
 
@@ -435,6 +463,49 @@ fn reset_where(m: &Mask, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: 
     }
 }
 
+/// [`super::Model::clip`] where `m` is set: the model whose prediction `pred` left the box,
+/// after its prediction was clipped to `c` (RGB).
+#[inline(always)]
+fn clip_where(
+    m: &Mask,
+    beta: &mut [[Lanes; D]; 3],
+    r: &mut [Lanes; P_LEN],
+    pred: &[Lanes; 3],
+    c: &[Lanes; 3],
+    p: &Params,
+) {
+    if !m.contains(&true) {
+        return;
+    }
+    match p.on_clip {
+        OnClip::Reset => {
+            for ch in 0..3 {
+                beta[ch][0] = lanes::select(m, &c[ch], &beta[ch][0]);
+                for j in 1..D {
+                    beta[ch][j] = lanes::select(m, &[0.0; LANES], &beta[ch][j]);
+                }
+            }
+        }
+        OnClip::Shift => {
+            for ch in 0..3 {
+                let shifted = lanes::each(|l| beta[ch][0][l] + (c[ch][l] - pred[ch][l]));
+                beta[ch][0] = lanes::select(m, &shifted, &beta[ch][0]);
+            }
+        }
+    }
+    let init = rls::init_information(p.clip_p);
+    if p.clip_keep == 0.0 {
+        for k in 0..P_LEN {
+            r[k] = lanes::select(m, &[init[k]; LANES], &r[k]);
+        }
+    } else {
+        for k in 0..P_LEN {
+            let relaxed = lanes::map(&r[k], |v| p.clip_keep * v + (1.0 - p.clip_keep) * init[k]);
+            r[k] = lanes::select(m, &relaxed, &r[k]);
+        }
+    }
+}
+
 /// Stage `model` of one row: Algorithm 1 lines 11-22 (Iglesias-Guitian et al. 2016) on blocks of eight pixels: the
 /// fetched model (or a new one), its prediction tested against the 3x3 box and clipped
 /// toward the input with a reset, the RLS update, the output; writes the state texels.
@@ -459,6 +530,14 @@ fn model_row(
         let n = LANES.min(w - x0);
         let real: Mask = lanes::each(|l| l < n);
         let [min, max, _] = stats.block(x0);
+        let (lo, hi) = match p.test_box {
+            TestBox::Minmax => (min, max),
+            // The mean only here: the default box leaves it uncomputed.
+            TestBox::Variance => {
+                let mean = stats.block(x0)[2];
+                lanes::variance_box(&min, &max, &mean, &stats.mean_sq(x0), p.test_gamma)
+            }
+        };
         let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
         let cur: [Lanes; 3] = lanes::each(|c| lanes_of(ycocg[c], x0, w, 0.0));
         let none = f.none;
@@ -471,20 +550,26 @@ fn model_row(
         // Lines 12-19: predict; outside the 3x3 box -> clip toward the input and reset.
         let active: Mask = lanes::each(|l| !inv[l]);
         let pred = rls::predict_lanes(&beta, &x);
-        let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &min, &max);
+        let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &lo, &hi);
         let moved: Mask = lanes::each(|l| moved[l] && active[l]);
-        reset_where(
+        clip_where(
             &moved,
             &mut beta,
             &mut r,
+            &pred,
             &lanes::ycocg_to_rgb(&clipped),
-            p.clip_p,
+            p,
         );
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
         let e: [Lanes; 3] = lanes::each(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
+        let lambda: Lanes = if p.lambda_moving == 0.0 {
+            lanes::splat(p.lambda)
+        } else {
+            lanes::map(&f.speed, |v| super::forgetting(v, p))
+        };
         let (trace, failed) =
-            rls::update_information_lanes(&mut beta, &mut r, &x, &e, p.lambda, plan.prior, &active);
+            rls::update_information_lanes(&mut beta, &mut r, &x, &e, &lambda, plan.prior, &active);
         reset_where(&failed, &mut beta, &mut r, &input, p.p0);
         // Every coefficient finite: `b * 0` is zero for a finite `b` and NaN for an
         // infinite or NaN one, so the sum is zero exactly when all are finite (float

@@ -34,6 +34,9 @@
 //! - the hull test runs in YCoCg ("the convex hull in a given colorspace (e.g. RGB or
 //!   YCgCo)", sec. 5.2): the same 3x3 pass then gives the luma range the feature needs; the
 //!   clip follows the paper's ray from the prediction toward the input (lines 14-17).
+//! - the forgetting factor falls with the pixel's speed (`lambda_moving`, our choice,
+//!   measured: [`DEFAULT_LAMBDA_MOVING`]): the paper's `lambda = 0.998` for still pixels,
+//!   0.8 from 1 px/frame; `lambda_moving = 0` gives the paper's single `lambda`.
 //! - the model after a clip is reset to the clipped colour ("resetting a linear model with a
 //!   specific color value", sec. 5.2) with `P = clip_p I`; the paper's reset uses the init
 //!   value 1000, we default to 1 ([`DEFAULT_CLIP_P`] has the measurements).
@@ -66,6 +69,29 @@ pub enum ModelFetch {
     Nearest,
 }
 
+/// The box a prediction is tested against (Algorithm 1 lines 13-16).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TestBox {
+    /// The 3x3 min/max box (the paper's AABB of the neighbourhood, sec. 5.2).
+    Minmax,
+    /// The variance box `mean +- test_gamma sigma` within the min/max box (Salvi 2016, as
+    /// `taa` builds it): tighter, so more predictions are clipped.
+    Variance,
+}
+
+/// What a prediction outside the box does to its model (Algorithm 1 line 18).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OnClip {
+    /// Reset the model to the clipped colour: intercept = colour, slopes 0 (the paper,
+    /// sec. 5.2 and 6).
+    Reset,
+    /// Shift the intercept so the model predicts the clipped colour, keeping its slopes
+    /// (our ablation: the model's fit to the feature survives the clip).
+    Shift,
+}
+
 filter_params! {
     /// Parameters of `phlm`.
     pub struct Params {
@@ -90,6 +116,24 @@ filter_params! {
         model_fetch: ModelFetch = ModelFetch::Bilinear,
             ParamKind::Choice { options: &["bilinear", "nearest"], },
             "reprojected model read: bilinear (paper's texture fetch, smooth) or nearest (4x fewer reads)";
+        lambda_moving: f32 = DEFAULT_LAMBDA_MOVING,
+            ParamKind::Float { min: 0.0, max: 0.99999 },
+            "forgetting factor of moving pixels (default 0.8; 0 = off: the paper's lambda everywhere): lambda falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed px/frame and faster). Still content keeps the long memory that supersamples it, moving content follows its changes (0.8 from the lambda sweep of docs/phlm-ablations.md, table 4)";
+        lambda_speed: f32 = 1.0,
+            ParamKind::Float { min: 0.01, max: 100.0 },
+            "speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only): lower treats slow motion as moving";
+        test_box: TestBox = TestBox::Minmax,
+            ParamKind::Choice { options: &["minmax", "variance"], },
+            "box the prediction is tested against: minmax (paper's 3x3 AABB) or variance (mean +- test_gamma sigma within it, as taa): tighter catches more ghosting and jitter-driven drift, but clips (and resets) more models, which shows more raw input";
+        test_gamma: f32 = DEFAULT_TEST_GAMMA,
+            ParamKind::Float { min: 0.25, max: 4.0 },
+            "half-width in sigmas of the variance test box (test_box = variance only; taa's 1.0): lower clips more, higher approaches the min/max box";
+        on_clip: OnClip = OnClip::Reset,
+            ParamKind::Choice { options: &["reset", "shift"], },
+            "what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0) or shift (the intercept moves so the model predicts the clipped colour, slopes kept)";
+        clip_keep: f32 = 0.0,
+            ParamKind::Float { min: 0.0, max: 1.0 },
+            "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (0 = the hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less, the model follows the new input more slowly (more lag)";
     }
 }
 
@@ -106,6 +150,33 @@ pub const DEFAULT_P0: f32 = 1000.0;
 /// raises mean PSNR from 27.72 to 29.34 dB and lowers tRMSE from 0.0596 to 0.0450 (with
 /// `feature_alpha_min = 0.03`); `clip_p = 1000` gives the paper's behaviour.
 pub const DEFAULT_CLIP_P: f32 = 1.0;
+
+/// Half-width of the variance test box in sigmas: 1.0, `taa`'s (Salvi 2016; Yang, Liu and
+/// Salvi 2020 give 0.75-1.25).
+pub const DEFAULT_TEST_GAMMA: f32 = 1.0;
+
+/// Forgetting factor of pixels moving [`Params::lambda_speed`] (1 px/frame) or faster: 0.8
+/// (our choice, measured; 0 turns motion-dependent forgetting off, the paper's single
+/// `lambda`). The paper's 500-frame memory supersamples still content but makes moving
+/// models lag; a global `lambda = 0.8` helps the moving scenes and costs the still one
+/// 1.4 dB (docs/phlm-ablations.md, table 4). From the speed, on the 10-scene catalogue
+/// (128x72, 32 frames): mean PSNR 29.41 -> 29.71 dB, tRMSE 0.0415 -> 0.0405 (flyover
+/// +1.66, fence +0.55, foliage +0.26, spokes +0.12 dB; static and dynamic-light unchanged;
+/// no scene below today's by more than 0.02 dB); noisy variants 32.05 -> 32.16 dB.
+pub const DEFAULT_LAMBDA_MOVING: f32 = 0.8;
+
+/// The forgetting factor of a pixel moving `v` pixels per frame: [`Params::lambda`], or
+/// with motion-dependent forgetting (`lambda_moving > 0`) the blend
+/// `lambda + (lambda_moving - lambda) min(v / lambda_speed, 1)` (our ablation: a global
+/// `lambda` trades the still scenes against the moving ones, docs/phlm-ablations.md).
+#[inline(always)]
+pub(crate) fn forgetting(v: f32, p: &Params) -> f32 {
+    if p.lambda_moving == 0.0 {
+        p.lambda
+    } else {
+        p.lambda + (p.lambda_moving - p.lambda) * (v / p.lambda_speed).min(1.0)
+    }
+}
 
 /// Number of state planes: beta (12), R = P^-1 (10), z (3).
 pub const STATE_PLANES: usize = 3 * D + P_LEN + 3;
@@ -145,6 +216,25 @@ impl Model {
             r: std::array::from_fn(|k| s[R + k]),
             z,
         }
+    }
+
+    /// Algorithm 1 line 18 as `p` chooses: the model whose prediction `pred` left the box,
+    /// after its prediction was clipped to `c` (RGB): reset to `c` or shifted to predict
+    /// it ([`OnClip`]), its information `R` relaxed to `I / clip_p` ([`Params::clip_keep`]).
+    #[inline(always)]
+    pub(crate) fn clip(&mut self, pred: [f32; 3], c: [f32; 3], p: &Params) {
+        for ch in 0..3 {
+            match p.on_clip {
+                OnClip::Reset => self.beta[ch] = [c[ch], 0.0, 0.0, 0.0],
+                OnClip::Shift => self.beta[ch][0] += c[ch] - pred[ch],
+            }
+        }
+        let init = rls::init_information(p.clip_p);
+        self.r = if p.clip_keep == 0.0 {
+            init
+        } else {
+            std::array::from_fn(|k| p.clip_keep * self.r[k] + (1.0 - p.clip_keep) * init[k])
+        };
     }
 
     #[inline(always)]
@@ -358,6 +448,7 @@ mod tests {
     use super::*;
     use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
+    use crate::tolerance::Tolerance;
 
     /// The fused kernel gives the reference's output and model health, bit for bit, with
     /// every option, on every kind of sequence, at odd sizes.
@@ -368,6 +459,16 @@ mod tests {
             &["model_fetch=nearest"],
             &["lambda=0.9", "clip_p=1000", "feature_alpha_min=0.5"],
             &["p0=0.01"],
+            &["test_box=variance"],
+            &[
+                "test_box=variance",
+                "test_gamma=0.5",
+                "on_clip=shift",
+                "clip_keep=0.5",
+            ],
+            &["on_clip=shift", "clip_keep=1", "clip_p=1000"],
+            &["lambda_moving=0.6", "lambda_speed=0.5"],
+            &["lambda_moving=0"],
         ];
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
@@ -383,6 +484,97 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    fn run(set: &[&str], frames: &[Frame]) -> Vec<Output> {
+        let params: Params = build("phlm", &parse_assignments(set).unwrap()).unwrap();
+        let mut f = Phlm::new(params);
+        frames.iter().map(|fr| f.process(fr).unwrap()).collect()
+    }
+
+    /// The variance box lies inside the min/max box: from the same models (frame 1 follows
+    /// the same first frame) it clips more predictions.
+    #[test]
+    fn the_variance_test_box_clips_more() {
+        for (name, frames) in sequences(33, 19, 3, 21) {
+            if !matches!(name, "still" | "random motion") {
+                continue;
+            }
+            let clipped = |set: &[&str]| run(set, &frames)[1].record.model.as_ref().unwrap().reset_by_clip;
+            let (minmax, variance) = (clipped(&[]), clipped(&["test_box=variance"]));
+            let tighter = clipped(&["test_box=variance", "test_gamma=0.5"]);
+            assert!(
+                minmax < variance && variance < tighter,
+                "{name}: {minmax} {variance} {tighter}"
+            );
+        }
+    }
+
+    /// `on_clip = shift` keeps the slopes and moves the prediction to the clipped colour;
+    /// `reset` clears the slopes; `clip_keep` blends R toward `I / clip_p`.
+    #[test]
+    fn a_clip_resets_or_shifts_the_model() {
+        let beta = [[0.2, 0.5, -0.1, 0.0], [0.1, 0.0, 0.3, 0.2], [-0.3, 0.1, 0.1, 0.7]];
+        let r = [4.0, 0.5, 0.1, 0.2, 3.0, 0.3, 0.1, 2.0, 0.4, 5.0];
+        let m0 = Model {
+            beta,
+            r,
+            z: [0.4, 0.6, 0.2],
+        };
+        let pred = rls::predict(&m0.beta, &m0.x());
+        let c = [0.3, 0.45, 0.25];
+        let tol = Tolerance::abs(1e-5);
+        for (on_clip, keep) in [("reset", "0"), ("shift", "0"), ("shift", "0.25"), ("reset", "1")] {
+            let p: Params = build(
+                "phlm",
+                &parse_assignments(&[
+                    &format!("on_clip={on_clip}"),
+                    &format!("clip_keep={keep}"),
+                    "clip_p=2",
+                ])
+                .unwrap(),
+            )
+            .unwrap();
+            let mut m = m0;
+            m.clip(pred, c, &p);
+            let got = rls::predict(&m.beta, &m.x());
+            for ch in 0..3 {
+                tol.check("prediction after the clip", got[ch] as f64, c[ch] as f64)
+                    .unwrap();
+                let slopes = if on_clip == "shift" { beta[ch] } else { [0.0; D] };
+                assert_eq!(m.beta[ch][1..], slopes[1..], "{on_clip}");
+            }
+            let init = rls::init_information(2.0);
+            for k in 0..P_LEN {
+                let want = p.clip_keep as f64 * r[k] as f64 + (1.0 - p.clip_keep as f64) * init[k] as f64;
+                tol.check("R after the clip", m.r[k] as f64, want).unwrap();
+            }
+        }
+    }
+
+    /// Every ablation knob reaches the output.
+    #[test]
+    fn each_ablation_knob_changes_the_output() {
+        let (_, frames) = sequences(33, 19, 6, 8)
+            .into_iter()
+            .find(|(n, _)| *n == "random motion")
+            .unwrap();
+        let base = run(&[], &frames);
+        for set in [
+            &["test_box=variance"][..],
+            &["test_box=variance", "test_gamma=2"],
+            &["on_clip=shift"],
+            &["clip_keep=0.5"],
+            &["lambda_moving=0"],
+            &["lambda_speed=3"],
+        ] {
+            let other = run(set, &frames);
+            let differs = base
+                .iter()
+                .zip(&other)
+                .any(|(a, b)| (0..3).any(|c| a.color[c].data() != b.color[c].data()));
+            assert!(differs, "{set:?} changed nothing");
         }
     }
 }

@@ -7,9 +7,11 @@ use super::super::passes::{
     from_working, on_screen, reproject_skip, slices_mut, to_working, to_ycocg, Conversion, TemporalState,
 };
 use super::rls::{self, D, P_LEN};
-use super::{convert_state, feature, fetch, Counts, From, Model, Params, Phlm, BETA, R, STATE_PLANES, Z};
+use super::{
+    convert_state, feature, fetch, Counts, From, Model, Params, Phlm, TestBox, BETA, R, STATE_PLANES, Z,
+};
 use crate::frame::{Frame, Plane, Rgb};
-use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, ycocg_to_rgb};
+use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, ModelHealth, Output, Recorder};
 
@@ -166,20 +168,22 @@ impl ReferencePhlm {
                     if !inp.is_invalid(i) {
                         // Lines 12-19: predict; outside the 3x3 box -> clip toward y and reset.
                         let pred = rls::predict(&m.beta, &x_feat);
-                        let (clipped, moved) = clip_toward_point(
-                            rgb_to_ycocg(pred),
-                            [cur[0][i], cur[1][i], cur[2][i]],
-                            stats.min,
-                            stats.max,
-                        );
+                        let (lo, hi) = match p.test_box {
+                            TestBox::Minmax => (stats.min, stats.max),
+                            TestBox::Variance => variance_box(stats, p.test_gamma),
+                        };
+                        let (clipped, moved) =
+                            clip_toward_point(rgb_to_ycocg(pred), [cur[0][i], cur[1][i], cur[2][i]], lo, hi);
                         if moved {
                             c.pixels.history_clipped += 1;
-                            m = Model::reset(ycocg_to_rgb(clipped), z, p.clip_p);
+                            m.clip(pred, ycocg_to_rgb(clipped), &p);
                         }
                         // Lines 19-21: error of the (possibly reset) model, RLS update.
                         let pred = rls::predict(&m.beta, &x_feat);
                         let e = [0, 1, 2].map(|k| input[k] - pred[k]);
-                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, p.lambda, prior) {
+                        let v = motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
+                        let lambda = super::forgetting(v, &p);
+                        match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, lambda, prior) {
                             Some(trace) => c.max_trace = c.max_trace.max(trace),
                             None => {
                                 c.repaired += 1;

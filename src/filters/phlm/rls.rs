@@ -282,8 +282,9 @@ fn trace_of_inverse(l: &[[f64; D]; D], inv_diag: &[f64; D]) -> f32 {
 /// One value in f64 for each pixel of a block.
 pub type Lanes64 = [f64; LANES];
 
-/// [`update_information`] for a block of pixels: lane `l` is updated (beta and R in place)
-/// when `active[l]`, exactly as the scalar function updates one pixel. Returns each lane's
+/// [`update_information`] for a block of pixels: lane `l` is updated (beta and R in place,
+/// with forgetting factor `lambda[l]`) when `active[l]`, exactly as the scalar function
+/// updates one pixel. Returns each lane's
 /// `trace(P)` (0 where nothing was updated) and which lanes failed (inactive lanes never
 /// fail; a failed lane is left unchanged, as the scalar function leaves it).
 #[inline(always)]
@@ -292,7 +293,7 @@ pub fn update_information_lanes(
     r: &mut [Lanes; P_LEN],
     x: &[Lanes; D],
     e: &[Lanes; 3],
-    lambda: f32,
+    lambda: &Lanes,
     prior: f32,
     active: &Mask,
 ) -> (Lanes, Mask) {
@@ -300,15 +301,17 @@ pub fn update_information_lanes(
     // registers, with no array the compiler would zero first and index after. The
     // operations and their order are those of [`forgotten`], [`cholesky`], [`solve`] and
     // [`trace_of_inverse`], so every lane gets the scalar function's bits.
-    let l = lambda as f64;
-    let q = (1.0 - l) * prior as f64;
+    let l: Lanes64 = each(|m| lambda[m] as f64);
+    let q: Lanes64 = each(|m| (1.0 - l[m]) * prior as f64);
     let [x0, x1, x2, x3]: [Lanes64; D] = each(|i| each(|m| x[i][m] as f64));
     let xs = [&x0, &x1, &x2, &x3];
     // lambda R + (1 - lambda) prior I + x x^T ([`forgotten`]).
     let a: [Lanes64; P_LEN] = each(|k| {
         let (i, j) = PAIRS[k];
-        let extra = if i == j { q } else { 0.0 };
-        each(|m| l * r[k][m] as f64 + xs[i][m] * xs[j][m] + extra)
+        each(|m| {
+            let extra = if i == j { q[m] } else { 0.0 };
+            l[m] * r[k][m] as f64 + xs[i][m] * xs[j][m] + extra
+        })
     });
     let at = |i: usize, j: usize| &a[SYM[i][j]];
     // Cholesky with reciprocal pivots ([`cholesky`]).
@@ -882,15 +885,24 @@ mod tests {
                     x[j][m] = (rng.next_f64() * [1.0, 1e3, 1e-3][case % 3]) as f32;
                 }
             }
-            let (lambda, prior) = (rng.range(0.9, 0.9999) as f32, rng.range(1e-4, 1.0) as f32);
+            // A forgetting factor per lane (motion-dependent forgetting gives each its own).
+            let lambda: Lanes = std::array::from_fn(|_| rng.range(0.7, 0.9999) as f32);
+            let prior = rng.range(1e-4, 1.0) as f32;
             let (mut lb, mut lr) = (beta, r);
-            let (trace, failed) = update_information_lanes(&mut lb, &mut lr, &x, &e, lambda, prior, &active);
+            let (trace, failed) = update_information_lanes(&mut lb, &mut lr, &x, &e, &lambda, prior, &active);
             for m in 0..LANES {
                 let mut sb: [[f32; D]; 3] = std::array::from_fn(|c| std::array::from_fn(|j| beta[c][j][m]));
                 let mut sr: [f32; P_LEN] = std::array::from_fn(|k| r[k][m]);
                 let sx: [f32; D] = std::array::from_fn(|j| x[j][m]);
                 let got = if active[m] {
-                    update_information(&mut sb, &mut sr, &sx, [0, 1, 2].map(|c| e[c][m]), lambda, prior)
+                    update_information(
+                        &mut sb,
+                        &mut sr,
+                        &sx,
+                        [0, 1, 2].map(|c| e[c][m]),
+                        lambda[m],
+                        prior,
+                    )
                 } else {
                     Some(0.0)
                 };
