@@ -25,14 +25,14 @@
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
 use super::temporal::{signed_gradient, GRADIENT_WEIGHTS};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
-use crate::filters::passes::{on_screen, FrameContext, FrameResult};
+use crate::filters::passes::{on_screen_bits, previous_positions, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
 use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
 use crate::kernels::{fmax, fmin, LUMA_REC709};
 use crate::pipeline::exec::{par_bands_strided, pool, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
 use std::ops::Range;
-use wide::f32x8;
+use wide::{f32x8, i32x8};
 
 /// Stages of the fused passes timed by their clock, in record order.
 const STAGES: [&str; 3] = ["reproject", "gradient", "blend"];
@@ -458,49 +458,76 @@ fn reproject_row<const N: usize>(
     let ids = valid.and(fr.ids).map(|d| &d[row.clone()]);
     let (dc, ic, tol) = valid.unwrap_or((0, 0, 0.0));
     let mut lost = 0u64;
-    for x in 0..w {
-        let (mx, my) = motion.map_or((0.0, 0.0), |m| (m[0][x], m[1][x]));
-        let (px, py) = (x as f32 + 0.5 + mx, y as f32 + 0.5 + my);
-        let mut acc = [0.0f32; N];
-        let mut total = 0.0f32;
-        if on_screen(px, py, w, h) {
-            let (fx, fy) = (px - 0.5, py - 0.5);
-            let (x0, y0) = (fx.floor(), fy.floor());
-            let (tx, ty) = (fx - x0, fy - y0);
-            // On screen, `x0` lies in -1 ..= w - 1 (and y0 likewise): the clamps of the
-            // reference's `(v.max(0) as usize).min(n - 1)` on whole numbers.
-            let (xi, yi) = (x0 as isize, y0 as isize);
-            let (xa, xb) = (xi.max(0) as usize, (xi + 1).min(w as isize - 1) as usize);
-            let (ya, yb) = (yi.max(0) as usize * w, (yi + 1).min(h as isize - 1) as usize * w);
-            let taps = [
-                (xa + ya, (1.0 - tx) * (1.0 - ty)),
-                (xb + ya, tx * (1.0 - ty)),
-                (xa + yb, (1.0 - tx) * ty),
-                (xb + yb, tx * ty),
-            ];
-            let id = ids.map(|ids| ids[x] as f32);
-            let z = depth.map(|d| d[x]);
-            // Branch-free: a tap that fails adds weight +0 (and +0 or -0 to each sum,
-            // which leaves sums that start at +0 and only grow as they were), so the sums
-            // are the reference's, which skips it.
-            for (t, wt) in taps {
-                let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
-                let mut ok = wt > 0.0;
-                if let Some(id) = id {
-                    ok &= id == tex[ic];
-                }
-                if let Some(z) = z {
-                    let far = (tex[dc] - z).abs() > tol * z.abs();
-                    ok &= !far;
-                }
-                let wt = if ok { wt } else { 0.0 };
-                total += wt;
-                lanes::add_scaled(&mut acc, wt, tex);
+    let f = f32x8::splat;
+    for x0 in (0..w).step_by(LANES) {
+        // Eight pixels' positions, on-screen test, taps and weights in vectors (the same
+        // operations as one pixel's, so the same bits), then each pixel's taps.
+        let [px, py] = match motion {
+            Some([mx, my]) => previous_positions(mx, my, x0, y),
+            None => {
+                // `x + 0.5 + 0.0`: the same numbers without a motion row.
+                let x = f(x0 as f32) + f32x8::from(lanes::IOTA) + f(0.5);
+                [x.to_array(), [y as f32 + 0.5; LANES]]
             }
+        };
+        let on = on_screen_bits(&px, &py, w, h);
+        let (fx, fy) = (f32x8::from(px) - f(0.5), f32x8::from(py) - f(0.5));
+        let (x0f, y0f) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - x0f, fy - y0f);
+        let one = f(1.0);
+        let wts = [
+            ((one - tx) * (one - ty)).to_array(),
+            (tx * (one - ty)).to_array(),
+            ((one - tx) * ty).to_array(),
+            (tx * ty).to_array(),
+        ];
+        // On screen, `x0f` lies in -1 ..= w - 1 (and `y0f` likewise): the clamps of the
+        // reference's `(v.max(0) as usize).min(n - 1)` on whole numbers.
+        let (xi, yi) = (x0f.trunc_int(), y0f.trunc_int());
+        let (zero, wm, hm) = (
+            i32x8::splat(0),
+            i32x8::splat(w as i32 - 1),
+            i32x8::splat(h as i32 - 1),
+        );
+        let (xa, xb) = (xi.max(zero).to_array(), (xi + i32x8::splat(1)).min(wm).to_array());
+        let (ya, yb) = (yi.max(zero).to_array(), (yi + i32x8::splat(1)).min(hm).to_array());
+        for l in 0..LANES.min(w - x0) {
+            let x = x0 + l;
+            let mut acc = [0.0f32; N];
+            let mut total = 0.0f32;
+            if on >> l & 1 != 0 {
+                let (ya, yb) = (ya[l] as usize * w, yb[l] as usize * w);
+                let (xa, xb) = (xa[l] as usize, xb[l] as usize);
+                let taps = [
+                    (xa + ya, wts[0][l]),
+                    (xb + ya, wts[1][l]),
+                    (xa + yb, wts[2][l]),
+                    (xb + yb, wts[3][l]),
+                ];
+                let id = ids.map(|ids| ids[x] as f32);
+                let z = depth.map(|d| d[x]);
+                // Branch-free: a tap that fails adds weight +0 (and +0 or -0 to each sum,
+                // which leaves sums that start at +0 and only grow as they were), so the
+                // sums are the reference's, which skips it.
+                for (t, wt) in taps {
+                    let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
+                    let mut ok = wt > 0.0;
+                    if let Some(id) = id {
+                        ok &= id == tex[ic];
+                    }
+                    if let Some(z) = z {
+                        let far = (tex[dc] - z).abs() > tol * z.abs();
+                        ok &= !far;
+                    }
+                    let wt = if ok { wt } else { 0.0 };
+                    total += wt;
+                    lanes::add_scaled(&mut acc, wt, tex);
+                }
+            }
+            let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
+            emit(x, acc.map(|a| a * inv), total);
+            lost += (total < 0.5) as u64;
         }
-        let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
-        emit(x, acc.map(|a| a * inv), total);
-        lost += (total < 0.5) as u64;
     }
     lost
 }
