@@ -146,13 +146,14 @@ struct Setup<'a> {
     stride: usize,
 }
 
-/// [`falloff`] with `fmax` for `f32::max`: the same value for every input (NaN
-/// included: both give the other operand; a -0 or +0 `t` gives the clamp either way), in
-/// one vector instruction instead of three.
+/// [`falloff`] of eight values, lane by lane, with `inv_sigma = 1 / sigma` and `fmax`
+/// for `f32::max`: the same value for every input (NaN included: both give the other
+/// operand; a -0 or +0 `t` gives the clamp either way).
 #[inline(always)]
-fn falloff_lane(x: f32, sigma: f32) -> f32 {
-    let t = fmax(1.0 - x * (1.0 / sigma), 0.0);
-    fmax(t * t * t, WEIGHT_EPSILON)
+fn falloff_v(x: f32x8, inv_sigma: f32x8) -> f32x8 {
+    let f = f32x8::splat;
+    let t = lanes::fmax_v(f(1.0) - x * inv_sigma, f(0.0));
+    lanes::fmax_v(t * t * t, f(WEIGHT_EPSILON))
 }
 
 /// `[f(0), f(1), f(2)]`.
@@ -382,38 +383,38 @@ fn gather_lanes<const D: bool, const N: bool>(
     g: &PixelGeo,
     image: &[[Lanes; 3]; 3],
 ) -> ([Lanes; 3], Lanes) {
-    let mut sum = [[0.0f32; LANES]; 3];
-    let mut wsum = [0.0f32; LANES];
+    // In f32x8 vectors, lane by lane the operations of the scalar gather.
+    let f = f32x8::splat;
+    let v = |a: &Lanes| f32x8::from(*a);
+    let falloff = |x: f32x8, sigma: f32| falloff_v(x, f(1.0 / sigma));
+    let mut sum = [f(0.0); 3];
+    let mut wsum = f(0.0);
     for (slot, image) in slots.iter().zip(image) {
         let Some(slot) = slot else { continue };
         for s in 0..3 {
             let at = x0 + s * fr.f as usize;
             let e = |c: usize| -> &[f32; LANES] { slot.e[c][at..at + LANES].try_into().expect("a block") };
             let valid = e(E_VALID);
-            let img = &image[s];
-            let mut geo = [1.0f32; LANES];
+            let mut geo = f(1.0);
             if D {
-                let sd = e(E_DEPTH);
-                geo = each(|l| geo[l] * falloff_lane((g.depth[l] - sd[l]).abs() * fr.inv_depth_scale, 1.0));
+                let sd = v(e(E_DEPTH));
+                geo *= falloff((v(&g.depth) - sd).abs() * f(fr.inv_depth_scale), 1.0);
             }
             if N {
-                let (nx, ny, nz) = (e(E_N), e(E_N + 1), e(E_N + 2));
-                geo = each(|l| {
-                    let dot = g.normal[0][l] * nx[l] + g.normal[1][l] * ny[l] + g.normal[2][l] * nz[l];
-                    geo[l] * falloff_lane(fmax(1.0 - dot, 0.0), fr.normal_sigma)
-                });
+                let (nx, ny, nz) = (v(e(E_N)), v(e(E_N + 1)), v(e(E_N + 2)));
+                let dot = v(&g.normal[0]) * nx + v(&g.normal[1]) * ny + v(&g.normal[2]) * nz;
+                geo *= falloff(lanes::fmax_v(f(1.0) - dot, f(0.0)), fr.normal_sigma);
             }
             // 1 where the slot has a sample, else 0: the weight is exact or +0.
             let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
-            let wt: Lanes = each(|l| img[l] * geo[l] * mask[l]);
+            let wt = v(&image[s]) * geo * v(&mask);
             for (c, sum) in sum.iter_mut().enumerate() {
-                let v = e(E_R + c);
-                *sum = each(|l| sum[l] + wt[l] * v[l]);
+                *sum += wt * v(e(E_R + c));
             }
-            wsum = each(|l| wsum[l] + wt[l]);
+            wsum += wt;
         }
     }
-    (sum, wsum)
+    (lanes::arrays3(&sum), wsum.to_array())
 }
 
 /// [`super::spatial::Gathered::mean`] in lanes, 0 where no sample had weight.
@@ -1148,14 +1149,12 @@ fn st_row<const D: bool, const N: bool>(
     let row = rp.map(|rp| &rp[ST * y * w..ST * (y + 1) * w]);
     for x0 in (0..w).step_by(LANES) {
         let c = ld(conf, x0);
-        let sigma: Lanes = each(|l| p.kernel_sharp + (1.0 - c[l]) * (p.kernel_wide - p.kernel_sharp));
+        // The kernel width and the image-space falloffs in vectors.
+        let f = f32x8::splat;
+        let sigma = f(p.kernel_sharp) + (f(1.0) - f32x8::from(c)) * f(p.kernel_wide - p.kernel_sharp);
+        let inv = f(1.0) / sigma;
         let g = PixelGeo::load::<D, N>(fr, y, x0);
-        let image: [[Lanes; 3]; 3] = three(|k| {
-            three(|s| {
-                let d = &dist[k][s];
-                each(|l| falloff_lane(d[l], sigma[l]))
-            })
-        });
+        let image: [[Lanes; 3]; 3] = three(|k| three(|s| falloff_v(f32x8::from(dist[k][s]), inv).to_array()));
         let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
         let (prev, wh, pg, hk): ([Lanes; 3], Lanes, [Lanes; 2], [Lanes; 2]) = match row {
             Some(t) => {
@@ -1176,14 +1175,11 @@ fn st_row<const D: bool, const N: bool>(
             ),
         };
         let total: Lanes = each(|l| wsum[l] + wh[l]);
+        let (tv, whv) = (f32x8::from(total), f32x8::from(wh));
+        let some = tv.simd_gt(f(0.0));
         let v: [Lanes; 3] = three(|k| {
-            each(|l| {
-                if total[l] > 0.0 {
-                    (sum[k][l] + wh[l] * prev[k][l]) / total[l]
-                } else {
-                    0.0
-                }
-            })
+            let blend = (f32x8::from(sum[k]) + whv * f32x8::from(prev[k])) / tv;
+            some.select(blend, f(0.0)).to_array()
         });
         let (own_c, own) = own_lanes(fr, &slots, my, x0);
         let lk = lanes::select(&own, &luma_lanes(&own_c), &hk[0]);
