@@ -10,27 +10,15 @@
 //!
 //! Settings as `tests/filters_scenes.rs`: 128x72, 32 frames, 8x8 reference samples, 8-phase
 //! Halton jitter (`AFTERIMAGE_JITTER=none` for pixel centres). `AFTERIMAGE_SCENES`:
-//! `catalogue` (default: the ten scenes of `print_phlm_comparison`), `noisy` (the four
+//! `catalogue` (default: the ten scenes of the catalogue, in its order), `noisy` (the four
 //! scenes of issue 21 with `--noise`), or a comma-separated list (`name` or `name+noise`).
 
 use afterimage::filters::create;
 use afterimage::frame::Frame;
 use afterimage::metrics::{Evaluator, SpaceChoice, Summary};
 use afterimage::pipeline::params::parse_assignments;
-use afterimage::scene::{Jitter, Scene, Settings};
+use afterimage::scene::{Jitter, Scene, Settings, CATALOGUE};
 
-const CATALOGUE: [&str; 10] = [
-    "static",
-    "thin-line",
-    "spokes",
-    "flyover",
-    "moving-sphere",
-    "fence",
-    "foliage",
-    "dynamic-light",
-    "camera-cut",
-    "hdr",
-];
 const NOISY: [&str; 4] = [
     "static+noise",
     "dynamic-light+noise",
@@ -86,7 +74,7 @@ fn main() {
     };
     let which = std::env::var("AFTERIMAGE_SCENES").unwrap_or_else(|_| "catalogue".into());
     let scenes: Vec<String> = match which.as_str() {
-        "catalogue" => CATALOGUE.iter().map(|s| s.to_string()).collect(),
+        "catalogue" => CATALOGUE.iter().map(|e| e.name.to_string()).collect(),
         "noisy" => NOISY.iter().map(|s| s.to_string()).collect(),
         list => list.split(',').map(str::to_string).collect(),
     };

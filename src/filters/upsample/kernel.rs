@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{signed_gradient, GRADIENT_WEIGHTS};
+use super::temporal::{filter_gradients, signed_gradient};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen_bits, previous_positions, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -997,7 +997,6 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
     let filtered = sized(&mut band.filtered, (yhi - ylo) * fstride);
     let signed = sized(&mut band.signed, (yhi - ylo) * fstride);
     let cells = sized(&mut band.cells, cw);
-    let total: f32 = GRADIENT_WEIGHTS.iter().sum();
     let mut cells_of = None;
     for y in ylo..yhi {
         let k = y - ylo;
@@ -1055,28 +1054,21 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
         let fw = &mut frow[r..r + w];
         let sw = &mut srow[r..r + w];
         // The magnitudes' filter (the paper's) and the signed values' filter.
-        let filter = |g: [f32; 4]| {
-            (GRADIENT_WEIGHTS[0] * g[0]
-                + GRADIENT_WEIGHTS[1] * g[1]
-                + GRADIENT_WEIGHTS[2] * g[2]
-                + GRADIENT_WEIGHTS[3] * g[3])
-                / total
-        };
         match rp {
             Some(rp) => {
                 let row = &rp[ST * i0..ST * (i0 + w)];
                 for (x, ((o, so), &n)) in fw.iter_mut().zip(sw.iter_mut()).zip(nrow.iter()).enumerate() {
                     let t: &[f32; ST] = row[ST * x..ST * x + ST].try_into().expect("a texel");
                     let g = [n, t[G1], t[G1 + 1], t[G1 + 2]];
-                    *o = filter(g.map(f32::abs));
-                    *so = filter(g);
+                    *o = filter_gradients(g.map(f32::abs));
+                    *so = filter_gradients(g);
                 }
             }
             None => {
                 for ((o, so), &n) in fw.iter_mut().zip(sw.iter_mut()).zip(nrow.iter()) {
                     let g = [n, 1.0, 1.0, 1.0];
-                    *o = filter(g.map(f32::abs));
-                    *so = filter(g);
+                    *o = filter_gradients(g.map(f32::abs));
+                    *so = filter_gradients(g);
                 }
             }
         }

@@ -65,7 +65,8 @@ mod temporal;
 use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{
-    confidence, relative_gradient, reproject, signed_gradient, Validity, GRADIENT_WEIGHTS, LUMA_FLOOR,
+    confidence, filter_gradients, relative_gradient, reproject, signed_gradient, Validity, GRADIENT_WEIGHTS,
+    LUMA_FLOOR,
 };
 
 use super::passes::{Conversion, TemporalState};

@@ -4,7 +4,7 @@
 //! what the filter computes.
 
 use super::spatial::{self, depth_range, Geometry, Sparse};
-use super::temporal::{cancelled, confidence, reproject, signed_gradient, Validity, GRADIENT_WEIGHTS};
+use super::temporal::{cancelled, confidence, filter_gradients, reproject, signed_gradient, Validity};
 use super::{
     decay_for, Method, Params, Upsample, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W,
 };
@@ -409,7 +409,6 @@ fn gradients(
     // their magnitudes (the paper's) and of the signed values.
     let mut filtered = scratch.plane(w, h);
     let mut signed = scratch.plane(w, h);
-    let total: f32 = GRADIENT_WEIGHTS.iter().sum();
     let now_ro: &[f32] = now;
     for_rows([filtered.data_mut(), signed.data_mut()], w, |y, [row, srow]| {
         for x in 0..w {
@@ -417,15 +416,9 @@ fn gradients(
             // Unknown past gradients (no history) count as maximal.
             let past = hist.map_or([1.0; 3], |hp| [hp[4].data()[i], hp[5].data()[i], hp[6].data()[i]]);
             let g = [now_ro[i], past[0], past[1], past[2]];
-            let filter = |g: [f32; 4]| {
-                (GRADIENT_WEIGHTS[0] * g[0]
-                    + GRADIENT_WEIGHTS[1] * g[1]
-                    + GRADIENT_WEIGHTS[2] * g[2]
-                    + GRADIENT_WEIGHTS[3] * g[3])
-                    / total
-            };
-            row[x] = filter(g.map(f32::abs));
-            srow[x] = filter(g);
+            // The magnitudes' filter (the paper's) and the signed values' filter.
+            row[x] = filter_gradients(g.map(f32::abs));
+            srow[x] = filter_gradients(g);
         }
     });
     // Spatial box of both, then the confidence.

@@ -137,6 +137,14 @@ pub fn cancelled(magnitude: f32, signed: f32, cancel: f32) -> f32 {
 /// previous gradients weighted 4, 3, 2, 1.
 pub const GRADIENT_WEIGHTS: [f32; 4] = [4.0, 3.0, 2.0, 1.0];
 
+/// The temporal filter of gradients (Herzog et al. 2010, sec. 3.4) of the current and the
+/// three previous gradients `g`: their mean weighted by [`GRADIENT_WEIGHTS`].
+#[inline(always)]
+pub fn filter_gradients(g: [f32; 4]) -> f32 {
+    let w = GRADIENT_WEIGHTS;
+    (w[0] * g[0] + w[1] * g[1] + w[2] * g[2] + w[3] * g[3]) / (w[0] + w[1] + w[2] + w[3])
+}
+
 /// Confidence in history from a filtered gradient: `(1 - min(1, g / scale))^2`. Herzog et al. 2010,
 /// eq. 8 squares the term so that large gradients cut history fast while small ones
 /// barely do; `scale` is its sensitivity ("usually kept at 1").
