@@ -8,11 +8,13 @@
 //! the channels it reads, its state read and written, the RGB output; in the benchmark id as
 //! bytes per pixel) at the probe's bandwidth. After criterion's own output the bench prints
 //! one table per size: median ms/frame, frames/s, the floor and the ratio to it, from the
-//! estimates of this run. Filters of sparse shading (`upsample` and its baseline methods)
+//! estimates of this run. With `--features gpu` the filters the GPU backend has run there
+//! too (`taa_gpu`, `passthrough_gpu`: upload, passes and readback per frame). Filters of sparse shading (`upsample` and its baseline methods)
 //! run on the same G-buffer with its colour shaded at one pixel per 2x2 block
 //! (`afterimage::report::synthetic_sparse_frame`); their colour read is a quarter.
 
-use afterimage::filters::{create, list};
+use afterimage::backend::BackendChoice;
+use afterimage::filters::list;
 use afterimage::frame::ChannelSet;
 use afterimage::report::{
     bytes_per_frame, parallel_copy, synthetic_frame, synthetic_sparse_frame, COPY_BYTES,
@@ -63,6 +65,24 @@ fn variants(name: &str) -> Vec<(String, serde_json::Map<String, serde_json::Valu
     }
 }
 
+/// [`variants`] on the CPU, and with the `gpu` feature each variant of a filter the GPU
+/// backend has again on the GPU (labelled `..._gpu`; on lavapipe a correctness build, not a
+/// speed one).
+fn backends(name: &str) -> Vec<(String, serde_json::Map<String, serde_json::Value>, BackendChoice)> {
+    let mut out: Vec<_> = variants(name)
+        .into_iter()
+        .map(|(l, p)| (l, p, BackendChoice::Cpu))
+        .collect();
+    if afterimage::backend::gpu_filters().contains(&name) {
+        out.extend(
+            variants(name)
+                .into_iter()
+                .map(|(l, p)| (format!("{l}_gpu"), p, BackendChoice::Gpu)),
+        );
+    }
+    out
+}
+
 fn bench(c: &mut Criterion) {
     // The bandwidth probe of the floor, as `afterimage report` measures it.
     let n = COPY_BYTES / 4;
@@ -99,8 +119,10 @@ fn bench(c: &mut Criterion) {
         });
         for info in list() {
             let frames = if info.sparse_input { &sparse } else { &frames };
-            for (label, params) in variants(info.name) {
-                let mut f = create(info.name, &params).unwrap();
+            for (label, params, choice) in backends(info.name) {
+                let mut f = afterimage::backend::create(info.name, &params, choice)
+                    .unwrap()
+                    .filter;
                 // Fill a windowed filter's window: then every push gives one output.
                 for i in 0..=f.lookahead() {
                     f.push(&frames[i % 2]).unwrap();

@@ -2,7 +2,8 @@
 //!
 //! The library holds the frame model ([`frame`]), image I/O ([`io`]), procedural test
 //! scenes ([`scene`]), per-pixel kernels ([`kernels`]), the filters ([`filters`]) behind one
-//! interface ([`pipeline`]), and quality metrics ([`metrics`]); the binary (`src/main.rs` and its `cli` module) is a thin layer
+//! interface ([`pipeline`]), quality metrics ([`metrics`]), and where filters run ([`backend`]: the CPU, or wgpu with
+//! the `gpu` feature); the binary (`src/main.rs` and its `cli` module) is a thin layer
 //! over them.
 //! `docs/ARCHITECTURE.md` in the repository maps the layers and the path of a frame.
 
@@ -12,6 +13,7 @@
 // more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+pub mod backend;
 pub mod echo;
 pub mod filters;
 pub mod frame;

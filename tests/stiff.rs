@@ -141,11 +141,36 @@ fn phlm_still_scene_1m_frames_keeps_p_bounded() {
 #[test]
 fn taa_and_traa_survive_a_long_still_scene() {
     for name in ["taa", "traa"] {
-        let mut f = filter(name, &[]);
+        still_scene(filter(name, &[]).as_mut(), 20_000);
+    }
+}
+
+/// `taa` on the GPU backend (feature `gpu`, an adapter needed) through the still scene of
+/// [`taa_and_traa_survive_a_long_still_scene`], 100,000 frames, with the same bounds.
+#[cfg(feature = "gpu")]
+#[test]
+#[ignore = "100,000 frames on the GPU backend: CI runs it on lavapipe"]
+fn taa_on_the_gpu_survives_a_long_still_scene() {
+    let made = afterimage::backend::create(
+        "taa",
+        &Default::default(),
+        afterimage::backend::BackendChoice::Gpu,
+    )
+    .expect("a GPU adapter (lavapipe will do)");
+    let mut f = made.filter;
+    still_scene(f.as_mut(), 100_000);
+}
+
+/// Runs `f` over `frames` frames of the still scene: every output finite, the last within
+/// 0.02 of frame 2,000's at every pixel; prints the largest distance from the noise-free
+/// scene.
+fn still_scene(f: &mut dyn Filter, frames: u64) {
+    let name = format!("{} on the {}", f.name(), f.backend());
+    {
         let mut rng = SplitMix64::new(5);
         let mut early = None;
         let mut out = None;
-        for t in 0..20_000 {
+        for t in 0..frames {
             let o = f.process(&still_frame(&mut rng, t)).unwrap();
             assert!(max_abs(&o.color).is_finite(), "{name} frame {t}");
             if t == 2_000 {
@@ -160,14 +185,14 @@ fn taa_and_traa_survive_a_long_still_scene() {
             for y in 0..8 {
                 for x in 0..8 {
                     Tolerance::abs(0.02)
-                        .check(name, p.get(x, y) as f64, q.get(x, y) as f64)
+                        .check(&name, p.get(x, y) as f64, q.get(x, y) as f64)
                         .unwrap();
                     let scene = 0.2 + 0.6 * (((x * 3 + y * 5 + c) % 7) as f32 / 7.0) + 0.01;
                     bias = bias.max((p.get(x, y) - scene).abs());
                 }
             }
         }
-        println!("{name}: still 20k frames, largest |output - scene| {bias:.4}");
+        println!("{name}: still {frames} frames, largest |output - scene| {bias:.4}");
     }
 }
 

@@ -23,6 +23,10 @@ pub struct FilterArgs {
     /// Set a parameter: --set alpha=0.05 --set variant=baseline. Repeatable.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub(super) set: Vec<String>,
+    /// Where the filter runs: cpu, gpu (an error where the build, the machine or the filter
+    /// has none; see `afterimage backends`), or auto (the GPU where it can, else the CPU).
+    #[arg(long, default_value = "cpu", value_name = "cpu|gpu|auto")]
+    pub(super) backend: afterimage::backend::BackendChoice,
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]
     pub(super) input: String,

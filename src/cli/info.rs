@@ -12,11 +12,15 @@ use std::path::{Path, PathBuf};
 pub struct InfoArgs {
     /// Image files (.exr, .png, .jpg), or sequences: a directory, a printf pattern
     /// (frame_%04d.exr) or a glob. Files are described in order, sequences frame by frame.
-    #[arg(required = true, num_args = 1..)]
+    #[arg(required_unless_present = "backends", num_args = 1..)]
     files: Vec<String>,
     /// Print JSON instead of text: an object for a single file, else an array of them.
     #[arg(long)]
     json: bool,
+    /// List the backends filters can run on instead: the CPU, and the GPU adapters this
+    /// build can use (with the filters the GPU backend implements).
+    #[arg(long)]
+    backends: bool,
     #[command(flatten)]
     read: ReadArgs,
 }
@@ -53,7 +57,48 @@ fn fmt_opt(v: Option<f64>) -> String {
     v.map_or("-".into(), |v| format!("{v:.6}"))
 }
 
+/// `info --backends`: the CPU, and each GPU adapter with what the GPU backend can run.
+fn backends(json: bool) -> anyhow::Result<()> {
+    use afterimage::backend::{adapters, gpu_filters, GPU_BUILT};
+    let found = adapters();
+    if json {
+        let doc = serde_json::json!({
+            "cpu": { "threads": afterimage::pipeline::exec::pool().current_num_threads() },
+            "gpu_built": GPU_BUILT,
+            "gpu_filters": gpu_filters(),
+            "adapters": found,
+        });
+        outln!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(());
+    }
+    outln!(
+        "cpu: every filter, {} threads",
+        afterimage::pipeline::exec::pool().current_num_threads()
+    );
+    if !GPU_BUILT {
+        outln!("gpu: not in this build (rebuild with --features gpu)");
+        return Ok(());
+    }
+    if found.is_empty() {
+        outln!("gpu: no adapter found (Mesa's software Vulkan, Debian's mesa-vulkan-drivers, provides one)");
+    }
+    for a in &found {
+        outln!(
+            "gpu: {} ({}, {}; driver {})",
+            a.name,
+            a.device_type,
+            a.api,
+            a.driver
+        );
+    }
+    outln!("gpu filters: {}", gpu_filters().join(", "));
+    Ok(())
+}
+
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
+    if args.backends {
+        return backends(args.json);
+    }
     let opts = args.read.options()?;
     let mut files: Vec<PathBuf> = Vec::new();
     for spec in &args.files {

@@ -15,7 +15,6 @@
 
 use super::filter::{jitter_table, FilterArgs};
 use super::store::storage_for;
-use afterimage::filters;
 use afterimage::frame::{Frame, FrameMeta, Rgb};
 use afterimage::io::{
     encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, OutputNaming, PresetChoice,
@@ -303,7 +302,11 @@ pub fn run_shot(
     checkpoints: Option<&Checkpoints>,
 ) -> anyhow::Result<ShotReport> {
     let values = parse_assignments(&args.set)?;
-    let mut filter = filters::create(&args.filter, &values)?;
+    let made = afterimage::backend::create(&args.filter, &values, args.backend)?;
+    if made.backend != afterimage::backend::Backend::Cpu || args.backend != Default::default() {
+        tracing::info!(filter = %args.filter, backend = %made.backend, "filter backend");
+    }
+    let mut filter = made.filter;
     let in_opts = args.read.options()?;
     let in_store = storage_for(&args.input)?;
     let out_store = storage_for(&args.output)?;

@@ -44,6 +44,10 @@ pub struct StreamArgs {
     /// Parameter override, key=value (repeatable).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
+    /// Where the server runs the filter: cpu, gpu or auto (default: the server's own
+    /// default). The session's answer says which it took.
+    #[arg(long, value_name = "cpu|gpu|auto")]
+    backend: Option<afterimage::backend::BackendChoice>,
     /// Frames to send: a directory, pattern, glob or file.
     #[arg(
         short = 'i',
@@ -242,6 +246,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
                     height: h,
                     motion: "internal".into(),
                     channels: vec![],
+                    backend: args.backend.map(|b| b.to_string()).unwrap_or_default(),
                 })
                 .await
                 .map_err(status)?

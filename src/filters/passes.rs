@@ -334,6 +334,17 @@ impl TemporalState {
         Ok(())
     }
 
+    /// Whether the colour in the history is tonemapped.
+    pub fn tonemapped(&self) -> bool {
+        self.tonemapped
+    }
+
+    /// Says whether the colour in the history is tonemapped (for a state assembled
+    /// elsewhere, e.g. downloaded from a GPU, before [`Self::save`]).
+    pub fn set_tonemapped(&mut self, tonemapped: bool) {
+        self.tonemapped = tonemapped;
+    }
+
     /// After a frame: the written planes become the history; returns the bytes held.
     pub fn finish(&mut self, hdr: bool) -> usize {
         self.buffer.swap();

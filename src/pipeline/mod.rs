@@ -20,8 +20,8 @@ pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
 pub use record::{
-    summarize_stages, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip, StageRecord,
-    StageSummary, WindowRecord,
+    summarize_stages, Backend, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip,
+    StageRecord, StageSummary, WindowRecord,
 };
 pub use state::{FilterState, StateError};
 
@@ -30,8 +30,8 @@ use serde::Serialize;
 use serde_json::{Map, Value};
 use thiserror::Error;
 
-/// Errors of filter creation and processing. All are the caller's: a bad name, parameter or
-/// frame. The filter's state is untouched by a frame that fails.
+/// Errors of filter creation and processing. All but [`FilterError::Device`] are the
+/// caller's: a bad name, parameter or frame. The filter's state is untouched by a frame that fails.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum FilterError {
     /// No filter of that name.
@@ -124,6 +124,15 @@ pub enum FilterError {
     /// An invalid frame.
     #[error(transparent)]
     Frame(#[from] FrameError),
+    /// Not the caller's: the device a GPU filter runs on failed (lost, out of memory). The
+    /// filter's state is as it was before the frame.
+    #[error("the {backend} backend failed: {message}")]
+    Device {
+        /// The backend.
+        backend: Backend,
+        /// What the device said.
+        message: String,
+    },
 }
 
 /// A filtered frame.
@@ -184,6 +193,10 @@ pub trait Filter: Send {
             filter: self.name(),
             why: "it holds a window of input frames; replay them instead",
         })
+    }
+    /// Where this instance runs (its records say the same).
+    fn backend(&self) -> Backend {
+        Backend::Cpu
     }
 }
 
@@ -320,18 +333,25 @@ pub fn check_channels(filter: &'static str, needs: ChannelSet, frame: &Frame) ->
 /// Sizes `state` for `frame`: a new size is accepted on the first frame, after a reset of
 /// the filter, or on a reset frame; otherwise it is an error (and the state is untouched).
 pub fn bind_size(state: &mut DoubleBuffer, frame: &Frame) -> Result<(), FilterError> {
-    let (w, h) = (frame.width(), frame.height());
-    if let Some((sw, sh)) = state.size() {
-        if (sw, sh) != (w, h) && state.valid() && !frame.meta.reset {
-            return Err(FilterError::SizeChanged {
-                index: frame.meta.index,
-                width: sw,
-                height: sh,
-                got_w: w,
-                got_h: h,
-            });
-        }
-    }
-    state.ensure(w, h);
+    check_size(state.size(), state.valid(), frame)?;
+    state.ensure(frame.width(), frame.height());
     Ok(())
+}
+
+/// Whether `frame` may go into a state of size `held` (`None`: nothing allocated) that
+/// holds a previous frame when `valid`: a new size is accepted on the first frame, after a
+/// reset of the filter, or on a reset frame (the rule of [`bind_size`], for state kept
+/// elsewhere, e.g. on a GPU).
+pub fn check_size(held: Option<(usize, usize)>, valid: bool, frame: &Frame) -> Result<(), FilterError> {
+    let (w, h) = (frame.width(), frame.height());
+    match held {
+        Some((sw, sh)) if (sw, sh) != (w, h) && valid && !frame.meta.reset => Err(FilterError::SizeChanged {
+            index: frame.meta.index,
+            width: sw,
+            height: sh,
+            got_w: w,
+            got_h: h,
+        }),
+        _ => Ok(()),
+    }
 }

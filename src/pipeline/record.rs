@@ -130,6 +130,37 @@ pub struct FrameRecord {
     /// The window of frames a windowed filter read for this output.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub window: Option<WindowRecord>,
+    /// Where the filter ran.
+    pub backend: Backend,
+}
+
+/// Where a filter runs: the CPU (on the crate's rayon pool; the reference) or a GPU (the
+/// `gpu` cargo feature's wgpu backend, `crate::backend`). Which one a caller gets is chosen
+/// there; the filter interface and its records only say which one ran.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Backend {
+    /// The CPU filters of [`crate::filters`].
+    #[default]
+    Cpu,
+    /// A wgpu device.
+    Gpu,
+}
+
+impl Backend {
+    /// The name used in records, options and the report: `cpu` or `gpu`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Cpu => "cpu",
+            Backend::Gpu => "gpu",
+        }
+    }
+}
+
+impl std::fmt::Display for Backend {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// The window of frames behind one output of a windowed filter, and its flows.
@@ -267,6 +298,7 @@ impl Recorder {
             state_bytes,
             model: None,
             window: None,
+            backend: Backend::Cpu,
         }
     }
 }

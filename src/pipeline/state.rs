@@ -92,6 +92,9 @@ pub enum StateError {
         /// What differs.
         message: String,
     },
+    /// Not the caller's: the device holding a GPU filter's state failed to hand it over.
+    #[error("the device holding the state failed: {0}")]
+    Device(String),
     /// The filter keeps no state that can be saved this way.
     #[error("filter {filter} cannot save or load its state: {why}")]
     Unsupported {

@@ -24,6 +24,7 @@ pub use plot::write_plots;
 pub use synthetic::{synthetic_frame, synthetic_sparse_frame};
 pub use table::{csv, markdown};
 
+use crate::backend::BackendChoice;
 use crate::filters;
 use crate::frame::{ChannelSet, Frame, Rgb};
 use crate::io::IoError;
@@ -47,6 +48,15 @@ pub enum ReportError {
         /// What is wrong with it.
         #[source]
         source: Box<FilterError>,
+    },
+    /// A filter spec's backend cannot be had (no GPU backend, adapter or implementation).
+    #[error("filter spec {spec:?}: {source}")]
+    Backend {
+        /// The spec as given.
+        spec: String,
+        /// Why not.
+        #[source]
+        source: Box<crate::backend::BackendError>,
     },
     /// A scene name or a scene setting is wrong.
     #[error("scene {scene:?}: {source}")]
@@ -99,15 +109,31 @@ pub struct FilterSpec {
     pub name: &'static str,
     /// Overrides of the defaults.
     pub params: Map<String, Value>,
+    /// Where it runs (`NAME@gpu`; default the CPU).
+    pub backend: BackendChoice,
 }
 
 impl FilterSpec {
-    /// Parses `NAME` or `NAME:key=value[:key=value...]` and checks it against the registry
-    /// (unknown filter, unknown parameter and out-of-bound values are refused here).
+    /// Parses `NAME[@BACKEND][:key=value...]` (`taa`, `traa:variant=baseline`,
+    /// `taa@gpu:alpha=0.2`; BACKEND cpu, gpu or auto, default cpu) and checks it against
+    /// the registry (unknown filter, unknown parameter and out-of-bound values are refused
+    /// here; a backend that cannot be had, when the filter is made).
     pub fn parse(spec: &str) -> Result<FilterSpec, ReportError> {
         let spec = spec.trim();
         let mut parts = spec.split(':');
-        let name = parts.next().unwrap_or_default().trim();
+        let head = parts.next().unwrap_or_default().trim();
+        let (name, backend) = match head.split_once('@') {
+            Some((name, b)) => (
+                name.trim(),
+                b.trim()
+                    .parse::<BackendChoice>()
+                    .map_err(|e| ReportError::Backend {
+                        spec: spec.to_string(),
+                        source: Box::new(e),
+                    })?,
+            ),
+            None => (head, BackendChoice::Cpu),
+        };
         let assignments: Vec<&str> = parts.map(str::trim).filter(|p| !p.is_empty()).collect();
         let err = |source| ReportError::Spec {
             spec: spec.to_string(),
@@ -119,6 +145,7 @@ impl FilterSpec {
             label: spec.to_string(),
             name: filter.name(),
             params,
+            backend,
         })
     }
 
@@ -132,6 +159,7 @@ impl FilterSpec {
                 label: info.name.to_string(),
                 name: info.name,
                 params: Map::new(),
+                backend: BackendChoice::Cpu,
             })
             .collect()
     }
@@ -154,16 +182,32 @@ impl FilterSpec {
                             label: format!("{}:method={m}", info.name),
                             name: info.name,
                             params: [("method".to_string(), Value::from(*m))].into_iter().collect(),
+                            backend: BackendChoice::Cpu,
                         })
                         .collect(),
                     None => vec![FilterSpec {
                         label: info.name.to_string(),
                         name: info.name,
                         params: Map::new(),
+                        backend: BackendChoice::Cpu,
                     }],
                 }
             })
             .collect()
+    }
+
+    /// A new instance on the spec's backend.
+    fn create(&self) -> Result<crate::backend::Created, ReportError> {
+        crate::backend::create(self.name, &self.params, self.backend).map_err(|e| match e {
+            crate::backend::BackendError::Filter(source) => ReportError::Spec {
+                spec: self.label.clone(),
+                source: Box::new(source),
+            },
+            other => ReportError::Backend {
+                spec: self.label.clone(),
+                source: Box::new(other),
+            },
+        })
     }
 
     fn uses(&self) -> ChannelSet {
@@ -451,6 +495,8 @@ pub struct FilterSummary {
 pub struct TimingRow {
     /// The filter's label.
     pub filter: String,
+    /// Where it ran.
+    pub backend: crate::backend::Backend,
     /// Run time and memory.
     pub cost: Cost,
 }
@@ -625,11 +671,7 @@ fn run_scenes(
         };
         let mut cells = Vec::new();
         for (k, spec) in filters.iter().enumerate() {
-            let mut filter =
-                filters::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
-                    spec: spec.label.clone(),
-                    source: Box::new(source),
-                })?;
+            let mut filter = spec.create()?.filter;
             let mut eval = Evaluator::new(SpaceChoice::Auto);
             let mut records = Vec::with_capacity(n);
             let mut wall = Vec::with_capacity(n);
@@ -719,10 +761,9 @@ fn time_filters(
     let mut timing = Vec::new();
     for spec in filters {
         let label = format!("{}x{}: {}", size.width, size.height, spec.label);
-        let mut filter = filters::create(spec.name, &spec.params).map_err(|source| ReportError::Spec {
-            spec: spec.label.clone(),
-            source: Box::new(source),
-        })?;
+        let made = spec.create()?;
+        let backend = made.backend;
+        let mut filter = made.filter;
         let run_err = |index: u64, source| ReportError::Run {
             filter: spec.label.clone(),
             scene: format!("synthetic {}x{}", size.width, size.height),
@@ -752,6 +793,7 @@ fn time_filters(
         }
         timing.push(TimingRow {
             filter: spec.label.clone(),
+            backend,
             cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
         });
     }
@@ -764,6 +806,12 @@ mod tests {
 
     #[test]
     fn filter_specs_parse_and_refuse_precisely() {
+        let s = FilterSpec::parse("taa@auto:alpha=0.2").unwrap();
+        assert_eq!((s.name, s.backend), ("taa", BackendChoice::Auto));
+        assert_eq!(s.label, "taa@auto:alpha=0.2");
+        assert_eq!(FilterSpec::parse("taa").unwrap().backend, BackendChoice::Cpu);
+        let e = FilterSpec::parse("taa@cuda").unwrap_err().to_string();
+        assert!(e.contains("\"cuda\"") && e.contains("cpu, gpu or auto"), "{e}");
         let s = FilterSpec::parse("traa:variant=baseline").unwrap();
         assert_eq!((s.name, s.label.as_str()), ("traa", "traa:variant=baseline"));
         assert_eq!(s.params["variant"], "baseline");

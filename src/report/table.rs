@@ -146,14 +146,15 @@ fn timing_table(o: &mut String, rows: &[TimingRow], t: TimingSize, what: &str) {
     );
     let _ = writeln!(
         o,
-        "| filter | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | frames/s | stages (median ms) |"
+        "| filter | backend | ms/frame median | p95 | MB moved/frame | floor ms | x floor | state MB/MP | frames/s | stages (median ms) |"
     );
-    let _ = writeln!(o, "|---|---:|---:|---:|---:|---:|---:|---:|---|");
+    let _ = writeln!(o, "|---|---|---:|---:|---:|---:|---:|---:|---:|---|");
     for row in rows {
         let _ = writeln!(
             o,
-            "| {} | {} | {:.1} | {} |",
+            "| {} | {} | {} | {:.1} | {} |",
             row.filter,
+            row.backend,
             cost_cells(&row.cost),
             1e3 / row.cost.time.median_ms,
             stages_text(&row.cost.stages)

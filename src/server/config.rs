@@ -77,6 +77,9 @@ pub struct Config {
     /// This replica's name, said in "no such session" answers (empty: the `HOSTNAME`
     /// variable, which Kubernetes sets to the pod's name, else `local`).
     pub replica: String,
+    /// Where the filters of sessions that do not say run: cpu, gpu or auto (see
+    /// `afterimage info --backends`). gpu needs a build with `--features gpu`.
+    pub default_backend: crate::backend::BackendChoice,
     /// Plain API keys from the environment (`AFTERIMAGE_API_KEYS`); never printed.
     #[serde(skip)]
     pub api_keys_plain: Option<String>,
@@ -112,6 +115,7 @@ impl Default for Config {
             max_exr_channels: 64,
             max_exr_parts: 16,
             replica: String::new(),
+            default_backend: crate::backend::BackendChoice::Cpu,
             api_keys_plain: None,
         }
     }
@@ -319,6 +323,13 @@ impl Config {
                 got: "only one of them".into(),
             });
         }
+        if self.default_backend == crate::backend::BackendChoice::Gpu && !crate::backend::GPU_BUILT {
+            return Err(ConfigError::Invalid {
+                field: "default_backend",
+                expected: "cpu or auto (this build has no GPU backend: rebuild with --features gpu)".into(),
+                got: "gpu".into(),
+            });
+        }
         if !(0.0..=1.0).contains(&self.max_non_finite_fraction) {
             return Err(ConfigError::Invalid {
                 field: "max_non_finite_fraction",
@@ -340,6 +351,7 @@ impl Config {
             max_frame_bytes: self.max_frame_mib << 20,
             max_non_finite_fraction: self.max_non_finite_fraction,
             replica: self.replica_name(),
+            default_backend: self.default_backend,
         }
     }
 
@@ -403,5 +415,32 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("queue_depth") && e.contains("at least 1"), "{e}");
+    }
+
+    /// The sessions' default backend comes from the file or the environment; a name that
+    /// is none, or gpu in a build without it, is refused at start.
+    #[test]
+    fn the_default_backend_is_configured_and_checked() {
+        use crate::backend::BackendChoice;
+        let c = Config::load(None, env(&[("AFTERIMAGE_DEFAULT_BACKEND", "auto")])).unwrap();
+        assert_eq!(c.limits().default_backend, BackendChoice::Auto);
+        let e = Config::load(None, env(&[("AFTERIMAGE_DEFAULT_BACKEND", "tpu")]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("AFTERIMAGE_DEFAULT_BACKEND") || e.contains("tpu"),
+            "{e}"
+        );
+        let gpu = Config::load(None, env(&[("AFTERIMAGE_DEFAULT_BACKEND", "gpu")]));
+        match crate::backend::GPU_BUILT {
+            true => assert_eq!(gpu.unwrap().default_backend, BackendChoice::Gpu),
+            false => {
+                let e = gpu.unwrap_err().to_string();
+                assert!(
+                    e.contains("default_backend") && e.contains("--features gpu"),
+                    "{e}"
+                );
+            }
+        }
     }
 }

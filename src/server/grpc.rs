@@ -53,6 +53,7 @@ fn session_pb(s: SessionInfo, max_chunk: usize) -> pb::Session {
         idle_seconds: s.idle_seconds,
         max_chunk_bytes: max_chunk as u64,
         lookahead: s.lookahead,
+        backend: s.backend.name().to_string(),
     }
 }
 
@@ -481,6 +482,7 @@ impl Afterimage for Grpc {
             height: r.height,
             motion: r.motion,
             channels: r.channels,
+            backend: r.backend,
         };
         let info = self
             .0

@@ -127,6 +127,9 @@ pub struct CreateBody {
     /// Channels that will be sent.
     #[serde(default)]
     pub channels: Vec<String>,
+    /// Where the filter runs: cpu, gpu or auto (default: the server's).
+    #[serde(default)]
+    pub backend: String,
 }
 
 async fn create(
@@ -152,6 +155,7 @@ async fn create(
         height: b.height,
         motion: b.motion,
         channels: b.channels,
+        backend: b.backend,
     };
     let info = counted(&svc, svc.sessions.create(&caller, &req))?;
     Ok((StatusCode::CREATED, Json(info)).into_response())

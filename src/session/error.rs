@@ -154,6 +154,9 @@ impl SessionError {
 
 /// A filter's refusal as a session error naming the request field at fault.
 pub(crate) fn filter_error(e: FilterError) -> SessionError {
+    if let FilterError::Device { .. } = e {
+        return SessionError::Internal(e.to_string());
+    }
     let field = match &e {
         FilterError::UnknownFilter { .. } => "filter",
         FilterError::UnknownParam { .. } | FilterError::BadParam { .. } | FilterError::Assignment { .. } => {

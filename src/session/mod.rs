@@ -59,6 +59,8 @@ pub struct Limits {
     /// This server's name among replicas behind one address, said in "no such session"
     /// answers so a client can tell a lost session from a wrong id.
     pub replica: String,
+    /// The backend of sessions that do not name one.
+    pub default_backend: crate::backend::BackendChoice,
 }
 
 impl Default for Limits {
@@ -72,6 +74,7 @@ impl Default for Limits {
             max_frame_bytes: 1 << 30,
             max_non_finite_fraction: 0.5,
             replica: "local".into(),
+            default_backend: crate::backend::BackendChoice::Cpu,
         }
     }
 }
@@ -100,6 +103,9 @@ pub struct SessionRequest {
     pub motion: String,
     /// Channel names the client will send (empty: the filter's `uses`).
     pub channels: Vec<String>,
+    /// Where the filter runs: `cpu`, `gpu` or `auto` (empty: the server's default,
+    /// [`Limits::default_backend`]).
+    pub backend: String,
 }
 
 /// What a client is told about a session.
@@ -132,6 +138,8 @@ pub struct SessionInfo {
     /// Frames of latency: frame t comes out after frame t + lookahead went in (windowed
     /// filters; 0 for causal ones).
     pub lookahead: u32,
+    /// Where the filter runs.
+    pub backend: crate::backend::Backend,
 }
 
 /// The size and channels of a session's frames: what a transport checks a frame against
@@ -421,7 +429,18 @@ impl Sessions {
         }
         let pairs: Vec<String> = req.params.iter().map(|(k, v)| format!("{k}={v}")).collect();
         let values = pipeline::params::parse_assignments(&pairs).map_err(filter_error)?;
-        let (filter, state_bpp) = filters::create_sized(&req.filter, &values).map_err(filter_error)?;
+        let choice = if req.backend.is_empty() {
+            self.limits.default_backend
+        } else {
+            req.backend
+                .parse::<crate::backend::BackendChoice>()
+                .map_err(|e| SessionError::invalid("backend", e.to_string()))?
+        };
+        let made = crate::backend::create(&req.filter, &values, choice).map_err(|e| match e {
+            crate::backend::BackendError::Filter(e) => filter_error(e),
+            other => SessionError::invalid("backend", other.to_string()),
+        })?;
+        let (filter, state_bpp, backend) = (made.filter, made.state_bytes_per_pixel, made.backend);
         let l = &self.limits;
         for (field, got, max) in [
             ("width", req.width, l.max_width),
@@ -512,6 +531,7 @@ impl Sessions {
                 frames: 0,
                 idle_seconds: 0.0,
                 lookahead: lookahead as u32,
+                backend,
             },
             owner: caller.name().map(str::to_string),
             channels,
@@ -1250,6 +1270,52 @@ mod tests {
         open_as(&sessions, &b, "phlm");
         sessions.close(&a, &id).unwrap();
         open_as(&sessions, &a, "taa");
+    }
+
+    /// A session runs on the backend it names, else the server's default; a backend it
+    /// cannot have is refused at creation, naming the field and why.
+    #[test]
+    fn sessions_choose_their_backend() {
+        let sessions = Sessions::new(Limits::default());
+        let mut req = SessionRequest {
+            filter: "taa".into(),
+            width: 24,
+            height: 16,
+            ..Default::default()
+        };
+        let info = sessions.create(&A, &req).unwrap();
+        assert_eq!(info.backend, crate::backend::Backend::Cpu);
+        req.backend = "cuda".into();
+        let e = sessions.create(&A, &req).unwrap_err();
+        assert!(
+            matches!(&e, SessionError::Invalid { field, message } if field == "backend" && message.contains("cpu, gpu or auto")),
+            "{e}"
+        );
+        req.backend = "auto".into();
+        let info = sessions.create(&A, &req).unwrap();
+        assert_eq!(
+            info.backend == crate::backend::Backend::Gpu,
+            crate::backend::GPU_BUILT
+        );
+        req.backend = "gpu".into();
+        req.filter = "pixel_trace".into();
+        let e = sessions.create(&A, &req).unwrap_err();
+        assert!(
+            matches!(&e, SessionError::Invalid { field, .. } if field == "backend"),
+            "{e}"
+        );
+        // The server's default applies to sessions that do not say.
+        let sessions = Sessions::new(Limits {
+            default_backend: crate::backend::BackendChoice::Auto,
+            ..Limits::default()
+        });
+        req.backend = String::new();
+        let info = sessions.create(&A, &req).unwrap();
+        assert_eq!(
+            info.backend,
+            crate::backend::Backend::Cpu,
+            "pixel_trace has no GPU version"
+        );
     }
 
     #[test]

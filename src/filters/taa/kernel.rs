@@ -13,19 +13,19 @@
 //! float operations in the same order, so the outputs are the same bits; the tests compare
 //! them frame by frame.
 
-use super::{HistoryFilter, Params, MAX_COUNT};
+use super::{HistoryFilter, Params, StagePlan, MAX_COUNT};
 use crate::filters::passes::{
-    dilate_row, from_working, on_screen_bits, previous_positions, reproject_skip, sharpen, tonemap_row,
-    untonemap_row, FrameContext, FrameResult,
+    dilate_row, from_working, on_screen_bits, previous_positions, sharpen, tonemap_row, untonemap_row,
+    FrameContext, FrameResult,
 };
-use crate::frame::{ChannelKind, Rgb};
+use crate::frame::Rgb;
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
     bilinear, bilinear_texels, box_from_columns, clip_toward_center, fmax, fmin, rgb_to_ycocg, variance_box,
     ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, PixelCounts, Skip};
+use crate::pipeline::{FilterError, PixelCounts};
 use std::ops::Range;
 use wide::f32x8;
 
@@ -116,20 +116,13 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     } = ctx;
     let (w, h) = (inp.width, inp.height);
     let facts = inp.facts;
-    // Why each stage is left out (None: it runs), as the reference plans them.
-    let reproject_skip = reproject_skip(&inp, has_history);
-    let dilate_skip = reproject_skip
-        .clone()
-        .or_else(|| inp.require(ChannelKind::Depth))
-        .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" }));
-    let reject_skip = (p.depth_rejection <= 0.0)
-        .then_some(Skip::Disabled {
-            param: "depth_rejection",
-        })
-        .or_else(|| (!has_history).then_some(Skip::NoHistory))
-        .or_else(|| inp.require(ChannelKind::Depth));
-    let sharpen_skip = (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" });
-    let tonemap_skip = facts.tonemap();
+    let StagePlan {
+        tonemap: tonemap_skip,
+        dilate: dilate_skip,
+        reproject: reproject_skip,
+        depth_reject: reject_skip,
+        sharpen: sharpen_skip,
+    } = StagePlan::new(p, &inp, has_history);
     let plan = Plan {
         tonemap: tonemap_skip.is_none(),
         dilate: dilate_skip.is_none(),

@@ -22,10 +22,12 @@
 mod kernel;
 pub mod reference;
 
-use super::passes::{convert_texel_history, Conversion, TemporalState};
+use super::passes::{convert_texel_history, reproject_skip, Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
-use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
+use crate::pipeline::{
+    Filter, FilterError, FilterKind, FilterState, Inputs, Output, ParamKind, Skip, StateError,
+};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
@@ -82,6 +84,49 @@ const CG: usize = 2;
 const COUNT: usize = 3;
 const DEPTH: usize = 4;
 
+/// Which of `taa`'s optional stages run on a frame, and why each of the others is left out
+/// (`None`: it runs). Pure planning from the frame's facts and the parameters: the CPU
+/// kernel and the GPU backend (`crate::backend`) follow the same plan, so their records
+/// agree.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StagePlan {
+    /// `tonemap` (and `untonemap`): HDR input only.
+    pub tonemap: Option<Skip>,
+    /// `dilate`: needs reprojection, depth, and `dilation` on.
+    pub dilate: Option<Skip>,
+    /// `reproject`: needs history, motion and some motion in the frame.
+    pub reproject: Option<Skip>,
+    /// `depth_reject`: needs `depth_rejection > 0`, history and depth.
+    pub depth_reject: Option<Skip>,
+    /// `sharpen`: needs `sharpen > 0`.
+    pub sharpen: Option<Skip>,
+}
+
+impl StagePlan {
+    /// The plan for a frame with inputs `inp`, `has_history` saying whether the history
+    /// holds a previous frame.
+    pub fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
+        let reproject = reproject_skip(inp, has_history);
+        let dilate = reproject
+            .clone()
+            .or_else(|| inp.require(ChannelKind::Depth))
+            .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" }));
+        let depth_reject = (p.depth_rejection <= 0.0)
+            .then_some(Skip::Disabled {
+                param: "depth_rejection",
+            })
+            .or_else(|| (!has_history).then_some(Skip::NoHistory))
+            .or_else(|| inp.require(ChannelKind::Depth));
+        StagePlan {
+            tonemap: inp.facts.tonemap(),
+            dilate,
+            reproject,
+            depth_reject,
+            sharpen: (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" }),
+        }
+    }
+}
+
 /// The TAA filter with its history.
 #[derive(Debug)]
 pub struct Taa {
@@ -115,21 +160,22 @@ impl FilterKind for Taa {
         2 * 4 * Self::history_planes(p)
     }
     fn new(params: Params) -> Self {
-        // Texels [Y, Co, Cg, count] (one vector load per tap of the history fetch), and a
-        // depth plane for depth rejection.
-        let layout: &[usize] = if params.depth_rejection > 0.0 {
-            &[4, 1]
-        } else {
-            &[4]
-        };
         Taa {
-            hist: TemporalState::with_components(layout, Conversion::Custom(convert_texel_history)),
+            hist: Self::history(&params),
             params,
         }
     }
 }
 
 impl Taa {
+    /// The filter's empty state: texels [Y, Co, Cg, count] (one vector load per tap of the
+    /// history fetch), and a depth plane for depth rejection. The GPU backend saves and
+    /// loads its device state through the same layout, so states move between backends.
+    pub fn history(p: &Params) -> TemporalState {
+        let layout: &[usize] = if p.depth_rejection > 0.0 { &[4, 1] } else { &[4] };
+        TemporalState::with_components(layout, Conversion::Custom(convert_texel_history))
+    }
+
     /// History planes: Y, Co, Cg, count, and depth with depth rejection.
     pub(crate) fn history_planes(p: &Params) -> usize {
         if p.depth_rejection > 0.0 {

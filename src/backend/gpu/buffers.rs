@@ -1,0 +1,130 @@
+//! Device buffers of f32 samples: storage the shaders read and write, and the mappable
+//! buffers results come back through.
+
+use super::{wait, Gpu};
+use crate::backend::BackendError;
+
+/// Bytes of `n` f32 samples (at least 4: wgpu refuses empty bindings).
+fn bytes_of(n: usize) -> u64 {
+    (n.max(1) * 4) as u64
+}
+
+/// A storage buffer of `len` f32 samples.
+#[derive(Debug)]
+pub(crate) struct StorageBuffer {
+    pub(crate) buffer: wgpu::Buffer,
+    pub(crate) len: usize,
+}
+
+impl StorageBuffer {
+    /// A zeroed buffer of `len` samples.
+    pub(crate) fn new(gpu: &Gpu, label: &str, len: usize) -> Self {
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes_of(len),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        StorageBuffer { buffer, len }
+    }
+
+    /// Queues `data` to be written at sample `at` (it reaches the device with the next
+    /// submission).
+    pub(crate) fn write(&self, gpu: &Gpu, at: usize, data: &[f32]) {
+        debug_assert!(at + data.len() <= self.len);
+        if !data.is_empty() {
+            gpu.queue
+                .write_buffer(&self.buffer, (at * 4) as u64, bytemuck::cast_slice(data));
+        }
+    }
+
+    /// Bytes held on the device.
+    pub(crate) fn bytes(&self) -> usize {
+        self.len * 4
+    }
+}
+
+/// A uniform buffer holding one value of `len` 32-bit words.
+pub(crate) fn uniform(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Buffer {
+    let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: (words.len() * 4).next_multiple_of(16) as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    write_words(gpu, &buffer, words);
+    buffer
+}
+
+/// Queues `words` to be written at the start of `buffer`.
+pub(crate) fn write_words(gpu: &Gpu, buffer: &wgpu::Buffer, words: &[u32]) {
+    gpu.queue.write_buffer(buffer, 0, bytemuck::cast_slice(words));
+}
+
+/// A mappable buffer that results are copied into and read back from.
+#[derive(Debug)]
+pub(crate) struct Readback {
+    buffer: wgpu::Buffer,
+    len: usize,
+}
+
+impl Readback {
+    /// Room for `len` 32-bit words.
+    pub(crate) fn new(gpu: &Gpu, label: &str, len: usize) -> Self {
+        let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes_of(len),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Readback { buffer, len }
+    }
+
+    /// Encodes a copy of `len` words of `src` from word `at` into this buffer.
+    pub(crate) fn copy_from(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        src: &wgpu::Buffer,
+        at: usize,
+        len: usize,
+    ) {
+        debug_assert!(len <= self.len);
+        enc.copy_buffer_to_buffer(src, (at * 4) as u64, &self.buffer, 0, (len * 4) as u64);
+    }
+
+    /// Waits for the device and reads the first `len` words into `out`.
+    pub(crate) fn read<T: bytemuck::Pod>(
+        &self,
+        gpu: &Gpu,
+        len: usize,
+        out: &mut Vec<T>,
+    ) -> Result<(), BackendError> {
+        let slice = self.buffer.slice(..(len.max(1) * 4) as u64);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        wait(gpu)?;
+        rx.recv()
+            .map_err(|e| BackendError::Device(e.to_string()))?
+            .map_err(|e| BackendError::Device(e.to_string()))?;
+        {
+            let data = slice
+                .get_mapped_range()
+                .map_err(|e| BackendError::Device(e.to_string()))?;
+            out.clear();
+            // Mapped ranges are aligned for any word type (wgpu maps at 8-byte alignment
+            // or more); the fallback copies word by word.
+            match bytemuck::try_cast_slice::<u8, T>(&data) {
+                Ok(words) => out.extend_from_slice(&words[..len]),
+                Err(_) => out.extend(
+                    data.chunks_exact(4)
+                        .take(len)
+                        .map(bytemuck::pod_read_unaligned::<T>),
+                ),
+            }
+        }
+        self.buffer.unmap();
+        Ok(())
+    }
+}

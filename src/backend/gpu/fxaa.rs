@@ -1,0 +1,162 @@
+//! `fxaa` on the GPU (`fxaa.wgsl`): the luma pass and the FXAA pass of
+//! [`crate::filters::fxaa::reference`], on the colour repaired on the CPU. No history.
+
+use super::buffers::uniform;
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use crate::backend::BackendError;
+use crate::filters::fxaa::{Fxaa, Params};
+use crate::frame::{Frame, Plane, Rgb};
+use crate::pipeline::params::build;
+use crate::pipeline::{
+    check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
+    Recorder, StateError,
+};
+use serde_json::{Map, Value};
+use std::sync::Arc;
+use std::time::Instant;
+
+const SOURCE: &str = include_str!("fxaa.wgsl");
+const WORKGROUP: usize = 8;
+
+/// Device buffers for one frame size.
+#[derive(Debug)]
+struct Buffers {
+    n: usize,
+    color: StorageBuffer,
+    luma: StorageBuffer,
+    out: StorageBuffer,
+    back: Readback,
+}
+
+/// `fxaa` on the device.
+#[derive(Debug)]
+pub struct GpuFxaa {
+    gpu: Arc<Gpu>,
+    params: Params,
+    luma: wgpu::ComputePipeline,
+    fxaa: wgpu::ComputePipeline,
+    buffers: Option<Buffers>,
+    words: Vec<f32>,
+}
+
+impl GpuFxaa {
+    /// The filter with `values` overriding the defaults.
+    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+        let params: Params = build(Fxaa::NAME, values)?;
+        Ok(GpuFxaa {
+            luma: pipeline(&gpu, "fxaa luma", SOURCE, "luma_pass"),
+            fxaa: pipeline(&gpu, "fxaa", SOURCE, "fxaa_pass"),
+            gpu,
+            params,
+            buffers: None,
+            words: Vec::new(),
+        })
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Fxaa::NAME, Fxaa::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Fxaa::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let t = Instant::now();
+        if self.buffers.as_ref().map(|b| b.n) != Some(n) {
+            let gpu = &self.gpu;
+            self.buffers = Some(Buffers {
+                n,
+                color: StorageBuffer::new(gpu, "fxaa colour", 3 * n),
+                luma: StorageBuffer::new(gpu, "fxaa luma", n),
+                out: StorageBuffer::new(gpu, "fxaa output", 3 * n),
+                back: Readback::new(gpu, "fxaa readback", 3 * n),
+            });
+        }
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("just made");
+        for (k, p) in inp.color.iter().enumerate() {
+            b.color.write(gpu, k * n, p.data());
+        }
+        let p = &self.params;
+        let params = uniform(
+            gpu,
+            "fxaa params",
+            &[
+                w as u32,
+                h as u32,
+                inp.facts.hdr as u32,
+                0,
+                p.subpix.to_bits(),
+                p.edge_threshold.to_bits(),
+                p.edge_threshold_min.to_bits(),
+                0,
+            ],
+        );
+        let (gx, gy) = groups(w, h, WORKGROUP);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        for (pipe, buffers) in [
+            (&self.luma, vec![&params, &b.color.buffer, &b.luma.buffer]),
+            (
+                &self.fxaa,
+                vec![&params, &b.color.buffer, &b.luma.buffer, &b.out.buffer],
+            ),
+        ] {
+            let bg = bind(gpu, pipe, &buffers);
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipe);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
+        gpu.queue.submit([enc.finish()]);
+        b.back.read(gpu, 3 * n, &mut self.words)?;
+        let plane = |k: usize| {
+            Plane::from_vec(w, h, self.words[k * n..(k + 1) * n].to_vec())
+                .map_err(|e| BackendError::Device(e.to_string()))
+        };
+        let color: Rgb = [plane(0)?, plane(1)?, plane(2)?];
+        // The frame's device time (upload, both passes, readback), shared evenly.
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        rec.ran_for("luma", ms / 2.0);
+        rec.ran_for("fxaa", ms / 2.0);
+        let mut record = rec.finish(
+            Fxaa::NAME,
+            frame.meta.index,
+            PixelCounts::default(),
+            inp.counts,
+            0,
+        );
+        record.backend = Backend::Gpu;
+        Ok(Output { color, record })
+    }
+}
+
+impl Filter for GpuFxaa {
+    fn name(&self) -> &'static str {
+        Fxaa::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame).map_err(|e| e.into_filter_error(Fxaa::NAME))
+    }
+
+    fn reset(&mut self) {}
+
+    fn state_bytes(&self) -> usize {
+        0
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(FilterState::empty(Fxaa::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        state.check_stateless(Fxaa::NAME, &self.params())
+    }
+}

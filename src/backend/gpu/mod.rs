@@ -1,0 +1,172 @@
+//! The wgpu backend (cargo feature `gpu`): filters as WGSL compute shaders, their state
+//! kept in device buffers between frames.
+//!
+//! One device per process ([`shared`]), opened on first use and shared by every GPU filter
+//! (a server's sessions included); wgpu's device and queue are thread-safe. Per frame a
+//! filter uploads only the channels its plan needs, runs its passes in one submission, and
+//! reads back the colour and its pixel counts. Input checks and repair stay on the CPU
+//! ([`crate::pipeline::prepare`]), so both backends see the same repaired input and write
+//! the same records.
+//!
+//! Filters here: `passthrough`, `fxaa` and `taa`. Left for later: `phlm` (its per-pixel
+//! 4x4 solve needs an f32 formulation that stays definite on still, ill-conditioned
+//! pixels), `traa`, `upsample`, `pixel_trace`.
+
+mod buffers;
+mod fxaa;
+mod passthrough;
+mod taa;
+
+use super::{AdapterInfo, BackendError};
+use crate::pipeline::Filter;
+use serde_json::{Map, Value};
+use std::sync::{Arc, OnceLock};
+
+pub(crate) use buffers::{Readback, StorageBuffer};
+
+/// The filters this backend implements.
+pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa"];
+
+/// An open device: what every GPU filter runs on.
+#[derive(Debug)]
+pub struct Gpu {
+    /// The device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter it was opened on.
+    pub adapter: AdapterInfo,
+}
+
+fn instance() -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+}
+
+fn describe(info: wgpu::AdapterInfo) -> AdapterInfo {
+    AdapterInfo {
+        name: info.name,
+        device_type: format!("{:?}", info.device_type).to_lowercase(),
+        api: info.backend.to_str().to_string(),
+        driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+    }
+}
+
+/// Every adapter wgpu finds (the environment's `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`
+/// narrow the search, as wgpu documents).
+pub fn adapters() -> Vec<AdapterInfo> {
+    pollster::block_on(instance().enumerate_adapters(wgpu::Backends::all()))
+        .into_iter()
+        .map(|a| describe(a.get_info()))
+        .collect()
+}
+
+fn open() -> Result<Gpu, String> {
+    let instance = instance();
+    let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        ..Default::default()
+    }))
+    .map_err(|e| e.to_string())?;
+    // The adapter's own limits: a 4K frame's history (16 B/px) is past the default
+    // 128 MiB storage binding.
+    let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+        label: Some("afterimage"),
+        required_features: wgpu::Features::empty(),
+        required_limits: adapter.limits(),
+        experimental_features: wgpu::ExperimentalFeatures::disabled(),
+        memory_hints: wgpu::MemoryHints::Performance,
+        trace: wgpu::Trace::Off,
+    }))
+    .map_err(|e| e.to_string())?;
+    let adapter = describe(adapter.get_info());
+    tracing::info!(adapter = %adapter.name, api = %adapter.api, "GPU backend: opened a device");
+    Ok(Gpu {
+        device,
+        queue,
+        adapter,
+    })
+}
+
+/// The process's device, opened on first use; every later call gets the same one (or the
+/// same error).
+pub fn shared() -> Result<Arc<Gpu>, BackendError> {
+    static GPU: OnceLock<Result<Arc<Gpu>, String>> = OnceLock::new();
+    GPU.get_or_init(|| open().map(Arc::new))
+        .clone()
+        .map_err(|why| BackendError::NoAdapter { why })
+}
+
+/// Filter `name` on the GPU, `values` overriding its defaults (already checked by the
+/// registry).
+pub fn create(name: &'static str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, BackendError> {
+    let known = || BackendError::FilterNotOnGpu {
+        filter: name.to_string(),
+        have: FILTERS.join(", "),
+    };
+    if !FILTERS.contains(&name) {
+        return Err(known());
+    }
+    let gpu = shared()?;
+    match name {
+        "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu))),
+        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values)?)),
+        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values)?)),
+        _ => Err(known()),
+    }
+}
+
+/// Waits for the device to finish what was submitted; a device error becomes a
+/// [`BackendError::Device`].
+pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| BackendError::Device(e.to_string()))
+}
+
+/// A compute pipeline from WGSL `source`, entry point `entry`, its bind group layout
+/// taken from the shader.
+pub(crate) fn pipeline(gpu: &Gpu, label: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
+    let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(source.into()),
+    });
+    gpu.device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(label),
+            layout: None,
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+}
+
+/// A bind group of `pipeline`'s group 0 with `buffers` at bindings 0, 1, ...
+pub(crate) fn bind(
+    gpu: &Gpu,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[&wgpu::Buffer],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    })
+}
+
+/// Workgroups of `size` x `size` covering a `width` x `height` image.
+pub(crate) fn groups(width: usize, height: usize, size: usize) -> (u32, u32) {
+    (width.div_ceil(size) as u32, height.div_ceil(size) as u32)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,106 @@
+//! `passthrough` on the GPU: the repaired colour through the device and back. The
+//! round trip's floor: what any GPU filter pays for its upload and readback.
+
+use super::{Gpu, Readback, StorageBuffer};
+use crate::backend::BackendError;
+use crate::filters::passthrough::{Params, Passthrough};
+use crate::frame::{Frame, Plane, Rgb};
+use crate::pipeline::{
+    check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
+    Recorder, StateError,
+};
+use serde_json::Value;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// `passthrough` through the device.
+#[derive(Debug)]
+pub struct GpuPassthrough {
+    gpu: Arc<Gpu>,
+    /// The colour on the device and its readback, for the last frame size.
+    buffers: Option<(usize, StorageBuffer, Readback)>,
+    words: Vec<f32>,
+}
+
+impl GpuPassthrough {
+    /// The filter on `gpu`.
+    pub fn new(gpu: Arc<Gpu>) -> Self {
+        GpuPassthrough {
+            gpu,
+            buffers: None,
+            words: Vec::new(),
+        }
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Passthrough::NAME, Passthrough::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Passthrough::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let t = Instant::now();
+        if self.buffers.as_ref().map(|b| b.0) != Some(n) {
+            self.buffers = Some((
+                n,
+                StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n),
+                Readback::new(&self.gpu, "passthrough readback", 3 * n),
+            ));
+        }
+        let (_, dev, back) = self.buffers.as_ref().expect("just made");
+        for (k, p) in inp.color.iter().enumerate() {
+            dev.write(&self.gpu, k * n, p.data());
+        }
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        back.copy_from(&mut enc, &dev.buffer, 0, 3 * n);
+        self.gpu.queue.submit([enc.finish()]);
+        back.read(&self.gpu, 3 * n, &mut self.words)?;
+        let plane = |k: usize| {
+            Plane::from_vec(w, h, self.words[k * n..(k + 1) * n].to_vec())
+                .map_err(|e| BackendError::Device(e.to_string()))
+        };
+        let color: Rgb = [plane(0)?, plane(1)?, plane(2)?];
+        rec.ran_for("copy", t.elapsed().as_secs_f64() * 1e3);
+        let mut record = rec.finish(
+            Passthrough::NAME,
+            frame.meta.index,
+            PixelCounts::default(),
+            inp.counts,
+            0,
+        );
+        record.backend = Backend::Gpu;
+        Ok(Output { color, record })
+    }
+}
+
+impl Filter for GpuPassthrough {
+    fn name(&self) -> &'static str {
+        Passthrough::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&Params {}))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame)
+            .map_err(|e| e.into_filter_error(Passthrough::NAME))
+    }
+
+    fn reset(&mut self) {}
+
+    fn state_bytes(&self) -> usize {
+        0
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(FilterState::empty(Passthrough::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        state.check_stateless(Passthrough::NAME, &self.params())
+    }
+}

@@ -1,0 +1,420 @@
+//! `taa` on the GPU: the CPU filter's plan ([`StagePlan`]), parameters and state format,
+//! with its per-pixel stages in WGSL (`taa*.wgsl`). The history (texels [Y, Co, Cg, count],
+//! and depth with depth rejection) stays on the device, double-buffered; a frame uploads
+//! its colour (and the motion and depth its plan needs), and reads back the colour and the
+//! pixel counts.
+
+use super::buffers::{uniform, write_words};
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use crate::backend::BackendError;
+use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
+use crate::frame::{Frame, Plane, Rgb};
+use crate::pipeline::params::build;
+use crate::pipeline::{
+    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
+    PixelCounts, Recorder, StateError,
+};
+use serde_json::{Map, Value};
+use std::sync::Arc;
+use std::time::Instant;
+
+const COMMON: &str = include_str!("taa.wgsl");
+const WORKGROUP: usize = 8;
+
+// Bits of `Params.flags` (the FLAG_ constants of taa.wgsl).
+const FLAG_TONEMAP: u32 = 1;
+const FLAG_DILATE: u32 = 2;
+const FLAG_REPROJECT: u32 = 4;
+const FLAG_DEPTH_REJECT: u32 = 8;
+const FLAG_HISTORY: u32 = 16;
+const FLAG_CATMULL_ROM: u32 = 32;
+const FLAG_LUMA_WEIGHT: u32 = 64;
+const FLAG_INVALID: u32 = 128;
+const FLAG_SHARPEN: u32 = 256;
+const FLAG_KEEP_DEPTH: u32 = 512;
+const FLAG_TO_TONEMAPPED: u32 = 1024;
+
+// Planes of the input buffer (IN_ constants of taa.wgsl): r, g, b, motion x, y, depth,
+// invalid.
+const INPUT_PLANES: usize = 7;
+const IN_MX: usize = 3;
+const IN_DEPTH: usize = 5;
+const IN_INVALID: usize = 6;
+
+/// The compiled passes.
+#[derive(Debug)]
+struct Passes {
+    resolve: wgpu::ComputePipeline,
+    sharpen: wgpu::ComputePipeline,
+    convert: wgpu::ComputePipeline,
+}
+
+impl Passes {
+    fn new(gpu: &Gpu) -> Self {
+        let with = |body: &str| format!("{COMMON}\n{body}");
+        Passes {
+            resolve: pipeline(
+                gpu,
+                "taa resolve",
+                &with(include_str!("taa_resolve.wgsl")),
+                "resolve",
+            ),
+            sharpen: pipeline(
+                gpu,
+                "taa sharpen",
+                &with(include_str!("taa_sharpen.wgsl")),
+                "sharpen",
+            ),
+            convert: pipeline(
+                gpu,
+                "taa convert",
+                &with(include_str!("taa_convert.wgsl")),
+                "convert",
+            ),
+        }
+    }
+}
+
+/// Device buffers for one frame size.
+#[derive(Debug)]
+struct Buffers {
+    width: usize,
+    height: usize,
+    input: StorageBuffer,
+    /// The history: `hist[read]` is the previous frame's, the other is written.
+    hist: [StorageBuffer; 2],
+    /// The resolved colour (working space when a sharpen follows), then the sharpened one.
+    out: [StorageBuffer; 2],
+    counters: StorageBuffer,
+    color_back: Readback,
+    counts_back: Readback,
+}
+
+impl Buffers {
+    fn new(gpu: &Gpu, width: usize, height: usize, depth: bool) -> Self {
+        let n = width * height;
+        let hist_len = n * (4 + depth as usize);
+        Buffers {
+            width,
+            height,
+            input: StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n),
+            hist: [0, 1].map(|_| StorageBuffer::new(gpu, "taa history", hist_len)),
+            out: [0, 1].map(|_| StorageBuffer::new(gpu, "taa colour", 3 * n)),
+            counters: StorageBuffer::new(gpu, "taa counters", 4),
+            color_back: Readback::new(gpu, "taa colour readback", 3 * n),
+            counts_back: Readback::new(gpu, "taa counts readback", 4),
+        }
+    }
+}
+
+/// `taa` with its history on the device.
+#[derive(Debug)]
+pub struct GpuTaa {
+    gpu: Arc<Gpu>,
+    params: Params,
+    passes: Passes,
+    buffers: Option<Buffers>,
+    /// Which of `buffers.hist` holds the previous frame.
+    read: usize,
+    /// Whether it does (not on the first frame or after a reset).
+    valid: bool,
+    /// Whether its colour is tonemapped.
+    tonemapped: bool,
+    /// Readback staging, reused.
+    words: Vec<f32>,
+}
+
+impl GpuTaa {
+    /// The filter with `values` overriding the defaults.
+    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+        let params: Params = build(Taa::NAME, values)?;
+        Ok(GpuTaa {
+            passes: Passes::new(&gpu),
+            gpu,
+            params,
+            buffers: None,
+            read: 0,
+            valid: false,
+            tonemapped: false,
+            words: Vec::new(),
+        })
+    }
+
+    fn keeps_depth(&self) -> bool {
+        self.params.depth_rejection > 0.0
+    }
+
+    /// The buffers for a `width` x `height` frame (new ones drop the history).
+    fn sized(&mut self, width: usize, height: usize) -> &Buffers {
+        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
+            self.buffers = Some(Buffers::new(&self.gpu, width, height, self.keeps_depth()));
+            self.valid = false;
+            self.read = 0;
+        }
+        self.buffers.as_ref().expect("just made")
+    }
+
+    fn uniform_words(&self, width: usize, height: usize, flags: u32) -> [u32; 8] {
+        let p = &self.params;
+        [
+            width as u32,
+            height as u32,
+            flags,
+            (4 * width * height) as u32,
+            p.alpha.to_bits(),
+            p.gamma.to_bits(),
+            p.depth_rejection.to_bits(),
+            p.sharpen.to_bits(),
+        ]
+    }
+}
+
+impl Filter for GpuTaa {
+    fn name(&self) -> &'static str {
+        Taa::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame).map_err(|e| e.into_filter_error(Taa::NAME))
+    }
+
+    fn reset(&mut self) {
+        self.valid = false;
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.buffers
+            .as_ref()
+            .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        let mut st = Taa::history(&self.params);
+        if let (Some(b), true) = (&self.buffers, self.valid) {
+            let planes = self
+                .download_history(b)
+                .map_err(|e| StateError::Device(e.to_string()))?;
+            st.buffer
+                .restore((b.width, b.height), planes)
+                .map_err(StateError::Device)?;
+        }
+        st.set_tonemapped(self.tonemapped);
+        Ok(st.save(Taa::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        let mut st = Taa::history(&self.params);
+        st.load(state, Taa::NAME, &self.params())?;
+        match st.buffer.history_size() {
+            Some((w, h)) => {
+                self.sized(w, h);
+                let b = self.buffers.as_ref().expect("sized");
+                let mut at = 0;
+                for p in st.buffer.read() {
+                    b.hist[0].write(&self.gpu, at, p.data());
+                    at += p.data().len();
+                }
+                self.gpu.queue.submit([]);
+                self.read = 0;
+                self.valid = true;
+            }
+            None => self.valid = false,
+        }
+        self.tonemapped = st.tonemapped();
+        Ok(())
+    }
+}
+
+impl GpuTaa {
+    /// The history planes as the CPU filter lays them out.
+    fn download_history(&self, b: &Buffers) -> Result<Vec<Plane<f32>>, BackendError> {
+        let n = b.width * b.height;
+        let len = b.hist[self.read].len;
+        let back = Readback::new(&self.gpu, "taa history readback", len);
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        back.copy_from(&mut enc, &b.hist[self.read].buffer, 0, len);
+        self.gpu.queue.submit([enc.finish()]);
+        let mut words: Vec<f32> = Vec::new();
+        back.read(&self.gpu, len, &mut words)?;
+        let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
+        if self.keeps_depth() {
+            planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
+        }
+        Ok(planes)
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Taa::NAME, Taa::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Taa::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let hdr = inp.facts.hdr;
+        check_size(
+            self.buffers.as_ref().map(|b| (b.width, b.height)),
+            self.valid,
+            frame,
+        )?;
+        self.sized(w, h);
+        let has_history = self.valid && !frame.meta.reset;
+        let plan = StagePlan::new(&self.params, &inp, has_history);
+        let p = &self.params;
+
+        let mut flags = 0;
+        let mut set = |on: bool, bit: u32| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(plan.tonemap.is_none(), FLAG_TONEMAP);
+        set(plan.dilate.is_none(), FLAG_DILATE);
+        set(plan.reproject.is_none(), FLAG_REPROJECT);
+        set(plan.depth_reject.is_none(), FLAG_DEPTH_REJECT);
+        set(has_history, FLAG_HISTORY);
+        set(p.history_filter == HistoryFilter::CatmullRom, FLAG_CATMULL_ROM);
+        set(p.luminance_weighting, FLAG_LUMA_WEIGHT);
+        set(inp.invalid.is_some(), FLAG_INVALID);
+        set(plan.sharpen.is_none(), FLAG_SHARPEN);
+        set(self.keeps_depth() && inp.depth.is_some(), FLAG_KEEP_DEPTH);
+
+        let t = Instant::now();
+        let gpu = Arc::clone(&self.gpu);
+        let (read, write) = (self.read, 1 - self.read);
+        let words = self.uniform_words(w, h, flags);
+        let convert_words = self.uniform_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 });
+        let convert = has_history && self.tonemapped != hdr;
+        let b = self.buffers.as_ref().expect("sized");
+
+        // Upload what the plan reads.
+        for (k, plane) in inp.color.iter().enumerate() {
+            b.input.write(&gpu, k * n, plane.data());
+        }
+        if plan.reproject.is_none() {
+            let m = inp.motion.as_deref().expect("reprojection needs motion");
+            for (k, plane) in m.iter().enumerate() {
+                b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+            }
+        }
+        if let Some(d) = inp.depth.as_deref() {
+            if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
+                b.input.write(&gpu, IN_DEPTH * n, d.data());
+            }
+        }
+        if let Some(invalid) = &inp.invalid {
+            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+            b.input.write(&gpu, IN_INVALID * n, &mask);
+        }
+        write_words(&gpu, &b.counters.buffer, &[0; 4]);
+        let params = uniform(&gpu, "taa params", &words);
+
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        if convert {
+            let cp = uniform(&gpu, "taa convert params", &convert_words);
+            let bg = bind(&gpu, &self.passes.convert, &[&cp, &b.hist[read].buffer]);
+            let groups = n.div_ceil(64);
+            let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.passes.convert);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let (gx, gy) = groups(w, h, WORKGROUP);
+        {
+            let bg = bind(
+                &gpu,
+                &self.passes.resolve,
+                &[
+                    &params,
+                    &b.input.buffer,
+                    &b.hist[read].buffer,
+                    &b.hist[write].buffer,
+                    &b.out[0].buffer,
+                    &b.counters.buffer,
+                ],
+            );
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.passes.resolve);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let result = if plan.sharpen.is_none() {
+            let bg = bind(
+                &gpu,
+                &self.passes.sharpen,
+                &[&params, &b.out[0].buffer, &b.out[1].buffer],
+            );
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.passes.sharpen);
+            pass.set_bind_group(0, &bg, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+            1
+        } else {
+            0
+        };
+        b.color_back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
+        b.counts_back.copy_from(&mut enc, &b.counters.buffer, 0, 4);
+        gpu.queue.submit([enc.finish()]);
+
+        let mut counts: Vec<u32> = Vec::new();
+        b.counts_back.read(&gpu, 4, &mut counts)?;
+        b.color_back.read(&gpu, 3 * n, &mut self.words)?;
+        let color: Rgb = [
+            plane(w, h, self.words[..n].to_vec())?,
+            plane(w, h, self.words[n..2 * n].to_vec())?,
+            plane(w, h, self.words[2 * n..3 * n].to_vec())?,
+        ];
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+
+        // The same stages as the CPU filter's record, run or left out for the same reasons;
+        // the frame's device time (upload, passes, readback) is shared evenly by the stages
+        // that ran.
+        let stages = [
+            ("tonemap", plan.tonemap.clone()),
+            ("ycocg", None),
+            ("dilate", plan.dilate.clone()),
+            ("reproject", plan.reproject.clone()),
+            ("depth_reject", plan.depth_reject.clone()),
+            ("resolve", None),
+            ("sharpen", plan.sharpen.clone()),
+            ("untonemap", plan.tonemap.clone()),
+        ];
+        let ran = stages.iter().filter(|(_, s)| s.is_none()).count().max(1);
+        for (name, skip) in stages {
+            match skip {
+                Some(why) => rec.skip(name, why),
+                None => rec.ran_for(name, ms / ran as f64),
+            }
+        }
+
+        self.read = write;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let pixels = PixelCounts {
+            history_reset: counts[0] as u64,
+            history_clipped: counts[1] as u64,
+            history_rejected: counts[2] as u64,
+        };
+        let mut record = rec.finish(
+            Taa::NAME,
+            frame.meta.index,
+            pixels,
+            inp.counts,
+            self.state_bytes(),
+        );
+        record.backend = Backend::Gpu;
+        Ok(Output { color, record })
+    }
+}
+
+/// A plane of samples read back (their count is the plane's by construction).
+fn plane(width: usize, height: usize, data: Vec<f32>) -> Result<Plane<f32>, BackendError> {
+    Plane::from_vec(width, height, data).map_err(|e| BackendError::Device(e.to_string()))
+}

@@ -1,0 +1,110 @@
+// `taa` on the GPU: the stages of `crate::filters::taa` (its scalar reference,
+// `filters/taa/reference.rs`, is the statement of what is computed; every function here
+// names the CPU function it mirrors).
+//
+// This file holds what the entry points share; each entry point's own bindings and code
+// follow it in its own module (`taa_resolve.wgsl`, `taa_sharpen.wgsl`, `taa_convert.wgsl`).
+//
+// Entry points:
+// - `resolve`: per pixel, tonemap + YCoCg of the 3x3 neighbourhood, velocity dilation,
+//   reprojection (Catmull-Rom or bilinear), depth rejection, the variance-box clip and the
+//   blend; writes the next history texel [Y, Co, Cg, count] (and depth) and the colour
+//   (linear, or working space when a sharpen follows).
+// - `sharpen`: the cross sharpen of the working colour, then back to linear.
+// - `convert`: the history moved between linear and tonemapped working space when a stream
+//   switches between LDR and HDR frames (`passes::convert_texel_history`).
+
+struct Params {
+    width: u32,
+    height: u32,
+    // Bits: see the FLAG_ constants.
+    flags: u32,
+    // Offset of the depth plane within `hist` (4 * width * height).
+    depth_at: u32,
+    alpha: f32,
+    gamma: f32,
+    depth_rejection: f32,
+    sharpen: f32,
+}
+
+const FLAG_TONEMAP: u32 = 1u;
+const FLAG_DILATE: u32 = 2u;
+const FLAG_REPROJECT: u32 = 4u;
+const FLAG_DEPTH_REJECT: u32 = 8u;
+const FLAG_HISTORY: u32 = 16u;
+const FLAG_CATMULL_ROM: u32 = 32u;
+const FLAG_LUMA_WEIGHT: u32 = 64u;
+const FLAG_INVALID: u32 = 128u;
+const FLAG_SHARPEN: u32 = 256u;
+const FLAG_KEEP_DEPTH: u32 = 512u;
+const FLAG_TO_TONEMAPPED: u32 = 1024u;
+
+// Planes of `inp`, in units of width * height.
+const IN_R: u32 = 0u;
+const IN_MX: u32 = 3u;
+const IN_MY: u32 = 4u;
+const IN_DEPTH: u32 = 5u;
+const IN_INVALID: u32 = 6u;
+
+// Counters: history reset, clipped, rejected by depth.
+const C_RESET: u32 = 0u;
+const C_CLIPPED: u32 = 1u;
+const C_REJECTED: u32 = 2u;
+
+// `MAX_COUNT` of `filters/taa/mod.rs`; `CLIP_EPS` of `kernels/clip.rs`; `TONEMAP_MAX` of
+// `kernels/color.rs`.
+const MAX_COUNT: f32 = 255.0;
+const CLIP_EPS: f32 = 1.0e-8;
+const TONEMAP_MAX: f32 = 0.9999999;
+const F32_MAX: f32 = 3.40282347e38;
+
+// kernels::tonemap: c / (1 + max c).
+fn tonemap(c: vec3<f32>) -> vec3<f32> {
+    return c * (1.0 / (1.0 + max(max(c.x, c.y), c.z)));
+}
+
+// kernels::tonemap_inverse: t / (1 - max t), max held below 1.
+fn tonemap_inverse(t: vec3<f32>) -> vec3<f32> {
+    let m = min(max(max(t.x, t.y), t.z), TONEMAP_MAX);
+    return t * (1.0 / (1.0 - m));
+}
+
+// kernels::rgb_to_ycocg (Malvar and Sullivan 2003).
+fn rgb_to_ycocg(c: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(
+        0.25 * c.x + 0.5 * c.y + 0.25 * c.z,
+        0.5 * c.x - 0.5 * c.z,
+        -0.25 * c.x + 0.5 * c.y - 0.25 * c.z,
+    );
+}
+
+// kernels::ycocg_to_rgb.
+fn ycocg_to_rgb(c: vec3<f32>) -> vec3<f32> {
+    let t = c.x - c.z;
+    return vec3<f32>(t + c.y, c.x + c.z, t - c.y);
+}
+
+// kernels::sample's catmull_rom_weights.
+fn catmull_rom_weights(t: f32) -> vec4<f32> {
+    let t2 = t * t;
+    let t3 = t2 * t;
+    return vec4<f32>(
+        -0.5 * t + t2 - 0.5 * t3,
+        1.0 - 2.5 * t2 + 1.5 * t3,
+        0.5 * t + 2.0 * t2 - 1.5 * t3,
+        -0.5 * t2 + 0.5 * t3,
+    );
+}
+
+// kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
+fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
+    let center = 0.5 * (hi + lo);
+    let extent = 0.5 * (hi - lo) + vec3<f32>(CLIP_EPS);
+    let v = q - center;
+    let r = abs(v / extent);
+    let worst = max(max(r.x, r.y), r.z);
+    if worst > 1.0 {
+        return vec4<f32>(center + v * (1.0 / worst), 1.0);
+    }
+    return vec4<f32>(q, 0.0);
+}

@@ -1,0 +1,280 @@
+// `taa`: the resolve pass (see taa.wgsl, which precedes this file).
+
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> inp: array<f32>;
+@group(0) @binding(2) var<storage, read> hist: array<f32>;
+@group(0) @binding(3) var<storage, read_write> next: array<f32>;
+@group(0) @binding(4) var<storage, read_write> out: array<f32>;
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, 4>;
+
+var<workgroup> wg_counts: array<atomic<u32>, 4>;
+
+fn has(f: u32) -> bool {
+    return (P.flags & f) != 0u;
+}
+
+fn plane_len() -> u32 {
+    return P.width * P.height;
+}
+
+
+
+
+
+fn input_color(i: u32) -> vec3<f32> {
+    let n = plane_len();
+    return vec3<f32>(inp[IN_R * n + i], inp[(IN_R + 1u) * n + i], inp[(IN_R + 2u) * n + i]);
+}
+
+// The working colour (tonemapped for HDR input) in YCoCg, at pixel (x, y) clamped to the
+// image (passes::to_working, passes::to_ycocg).
+fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
+    let cx = u32(clamp(x, 0, i32(P.width) - 1));
+    let cy = u32(clamp(y, 0, i32(P.height) - 1));
+    var c = input_color(cy * P.width + cx);
+    if has(FLAG_TONEMAP) {
+        c = tonemap(c);
+    }
+    return rgb_to_ycocg(c);
+}
+
+// passes::nearest_motion: the motion of the nearest (smallest depth) pixel of the 3x3,
+// in-image neighbours only, rows then columns, the first of equal depths winning, the
+// centre starting as the best.
+fn dilated_motion(x: u32, y: u32) -> vec2<f32> {
+    let n = plane_len();
+    let w = P.width;
+    var best = y * w + x;
+    var best_d = inp[IN_DEPTH * n + best];
+    let y0 = select(y - 1u, 0u, y == 0u);
+    let y1 = min(y + 2u, P.height);
+    let x0 = select(x - 1u, 0u, x == 0u);
+    let x1 = min(x + 2u, w);
+    for (var yy = y0; yy < y1; yy++) {
+        for (var xx = x0; xx < x1; xx++) {
+            let i = yy * w + xx;
+            let d = inp[IN_DEPTH * n + i];
+            if d < best_d {
+                best_d = d;
+                best = i;
+            }
+        }
+    }
+    return vec2<f32>(inp[IN_MX * n + best], inp[IN_MY * n + best]);
+}
+
+fn clamp_index(i: f32, n: u32) -> u32 {
+    return u32(clamp(i, 0.0, f32(n - 1u)));
+}
+
+fn hist_texel(x: u32, y: u32) -> vec4<f32> {
+    let i = 4u * (y * P.width + x);
+    return vec4<f32>(hist[i], hist[i + 1u], hist[i + 2u], hist[i + 3u]);
+}
+
+// kernels::bilinear of the four texel channels at (px, py) (pixel units, centres at +0.5),
+// taps clamped to the image.
+fn bilinear_texel(px: f32, py: f32) -> vec4<f32> {
+    let fx = px - 0.5;
+    let fy = py - 0.5;
+    let x0 = floor(fx);
+    let y0 = floor(fy);
+    let t = vec2<f32>(fx - x0, fy - y0);
+    let xa = clamp_index(x0, P.width);
+    let xb = clamp_index(x0 + 1.0, P.width);
+    let ya = clamp_index(y0, P.height);
+    let yb = clamp_index(y0 + 1.0, P.height);
+    let top = mix(hist_texel(xa, ya), hist_texel(xb, ya), t.x);
+    let bottom = mix(hist_texel(xa, yb), hist_texel(xb, yb), t.x);
+    return mix(top, bottom, t.y);
+}
+
+// kernels::bilinear of the history depth plane.
+fn bilinear_depth(px: f32, py: f32) -> f32 {
+    let fx = px - 0.5;
+    let fy = py - 0.5;
+    let x0 = floor(fx);
+    let y0 = floor(fy);
+    let t = vec2<f32>(fx - x0, fy - y0);
+    let xa = clamp_index(x0, P.width);
+    let xb = clamp_index(x0 + 1.0, P.width);
+    let ya = clamp_index(y0, P.height) * P.width;
+    let yb = clamp_index(y0 + 1.0, P.height) * P.width;
+    let d = P.depth_at;
+    let top = mix(hist[d + ya + xa], hist[d + ya + xb], t.x);
+    let bottom = mix(hist[d + yb + xa], hist[d + yb + xb], t.x);
+    return mix(top, bottom, t.y);
+}
+
+
+// kernels::catmull_rom_texel: Catmull-Rom of Y, Co, Cg over the 4x4 footprint without its
+// corners, renormalised (Karis 2014; Jimenez 2016), and bilinear of the count.
+fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
+    let fx = px - 0.5;
+    let fy = py - 0.5;
+    let x1 = floor(fx);
+    let y1 = floor(fy);
+    let wx = catmull_rom_weights(fx - x1);
+    var wy = catmull_rom_weights(fy - y1);
+    let middle = wx.y + wx.z;
+    let all = (wx.x + wx.y) + (wx.z + wx.w);
+    let wsum = middle * (wy.x + wy.w) + all * (wy.y + wy.z);
+    wy = wy / wsum;
+    var xs: array<u32, 4>;
+    var ys: array<u32, 4>;
+    for (var k = 0; k < 4; k++) {
+        xs[k] = clamp_index(x1 + f32(k - 1), P.width);
+        ys[k] = clamp_index(y1 + f32(k - 1), P.height);
+    }
+    var acc = vec3<f32>(0.0);
+    for (var j = 0; j < 4; j++) {
+        let inner = j == 1 || j == 2;
+        var row = vec3<f32>(0.0);
+        for (var k = 0; k < 4; k++) {
+            if inner || k == 1 || k == 2 {
+                row += wx[k] * hist_texel(xs[k], ys[j]).xyz;
+            }
+        }
+        acc += wy[j] * row;
+    }
+    return vec4<f32>(acc, bilinear_texel(px, py).w);
+}
+
+
+@compute @workgroup_size(8, 8)
+fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    if li < 4u {
+        atomicStore(&wg_counts[li], 0u);
+    }
+    workgroupBarrier();
+    let x = gid.x;
+    let y = gid.y;
+    if x < P.width && y < P.height {
+        resolve_pixel(x, y);
+    }
+    workgroupBarrier();
+    if li < 3u {
+        let c = atomicLoad(&wg_counts[li]);
+        if c != 0u {
+            atomicAdd(&counters[li], c);
+        }
+    }
+}
+
+fn resolve_pixel(x: u32, y: u32) {
+    let n = plane_len();
+    let i = y * P.width + x;
+
+    // The 3x3 statistics of the working colour in YCoCg (kernels::for_each_row_stats,
+    // edges clamped): min, max, mean and mean of squares. Summed as the CPU sums them,
+    // each column's three rows first, then the three columns: the variance box's sigma,
+    // sqrt(mean_sq - mean^2), turns a last-bit difference of a flat neighbourhood's sums
+    // into one of about 1e-4.
+    var lo = vec3<f32>(F32_MAX);
+    var hi = vec3<f32>(-F32_MAX);
+    var col_sum: array<vec3<f32>, 3>;
+    var col_sq: array<vec3<f32>, 3>;
+    var current = vec3<f32>(0.0);
+    for (var dx = -1; dx <= 1; dx++) {
+        let u = working_ycocg(i32(x) + dx, i32(y) - 1);
+        let v = working_ycocg(i32(x) + dx, i32(y));
+        let t = working_ycocg(i32(x) + dx, i32(y) + 1);
+        lo = min(lo, min(min(u, v), t));
+        hi = max(hi, max(max(u, v), t));
+        col_sum[dx + 1] = u + v + t;
+        col_sq[dx + 1] = u * u + v * v + t * t;
+        if dx == 0 {
+            current = v;
+        }
+    }
+    let mean = (col_sum[0] + col_sum[1] + col_sum[2]) * (1.0 / 9.0);
+    let mean_sq = (col_sq[0] + col_sq[1] + col_sq[2]) * (1.0 / 9.0);
+
+    // The history at this pixel's previous position.
+    var h = vec4<f32>(0.0);
+    var hist_depth = 0.0;
+    if has(FLAG_HISTORY) {
+        if has(FLAG_REPROJECT) {
+            var m = vec2<f32>(inp[IN_MX * n + i], inp[IN_MY * n + i]);
+            if has(FLAG_DILATE) {
+                m = dilated_motion(x, y);
+            }
+            let px = f32(x) + 0.5 + m.x;
+            let py = f32(y) + 0.5 + m.y;
+            // passes::on_screen (false for NaN).
+            let on = px >= 0.0 && px <= f32(P.width) && py >= 0.0 && py <= f32(P.height);
+            if on {
+                if has(FLAG_CATMULL_ROM) {
+                    h = catmull_rom_texel(px, py);
+                } else {
+                    h = bilinear_texel(px, py);
+                }
+            }
+            if has(FLAG_DEPTH_REJECT) {
+                hist_depth = bilinear_depth(px, py);
+            }
+        } else {
+            h = hist_texel(x, y);
+            if has(FLAG_DEPTH_REJECT) {
+                hist_depth = hist[P.depth_at + i];
+            }
+        }
+    }
+    var count = 0.0;
+    if has(FLAG_HISTORY) {
+        count = h.w;
+    }
+    if has(FLAG_DEPTH_REJECT) {
+        let d = inp[IN_DEPTH * n + i];
+        if abs(hist_depth - d) > P.depth_rejection * max(abs(d), 1e-6) {
+            atomicAdd(&wg_counts[C_REJECTED], 1u);
+            count = 0.0;
+        }
+    }
+
+    var value: vec3<f32>;
+    var next_count: f32;
+    if count < 0.5 {
+        atomicAdd(&wg_counts[C_RESET], 1u);
+        value = current;
+        next_count = 1.0;
+    } else if has(FLAG_INVALID) && inp[IN_INVALID * n + i] != 0.0 {
+        // No usable sample here this frame: keep the history as it is.
+        value = h.xyz;
+        next_count = count;
+    } else {
+        // The variance box (kernels::variance_box, Salvi 2016) within the min/max box.
+        let sigma = sqrt(max(mean_sq - mean * mean, vec3<f32>(0.0)));
+        let blo = max(mean - P.gamma * sigma, lo);
+        let bhi = min(mean + P.gamma * sigma, hi);
+        let clipped = clip_toward_center(h.xyz, blo, bhi);
+        if clipped.w != 0.0 {
+            atomicAdd(&wg_counts[C_CLIPPED], 1u);
+        }
+        let a = max(P.alpha, 1.0 / (count + 1.0));
+        var wc = a;
+        var wh = 1.0 - a;
+        if has(FLAG_LUMA_WEIGHT) {
+            // Karis 2014's luminance weights.
+            wc = a / (1.0 + max(current.x, 0.0));
+            wh = (1.0 - a) / (1.0 + max(clipped.x, 0.0));
+        }
+        let k = 1.0 / (wc + wh);
+        value = (wc * current + wh * clipped.xyz) * k;
+        next_count = min(count + 1.0, MAX_COUNT);
+    }
+    next[4u * i] = value.x;
+    next[4u * i + 1u] = value.y;
+    next[4u * i + 2u] = value.z;
+    next[4u * i + 3u] = next_count;
+    if has(FLAG_KEEP_DEPTH) {
+        next[P.depth_at + i] = inp[IN_DEPTH * n + i];
+    }
+    var rgb = max(ycocg_to_rgb(value), vec3<f32>(0.0));
+    if has(FLAG_TONEMAP) && !has(FLAG_SHARPEN) {
+        rgb = tonemap_inverse(rgb);
+    }
+    out[i] = rgb.x;
+    out[n + i] = rgb.y;
+    out[2u * n + i] = rgb.z;
+}

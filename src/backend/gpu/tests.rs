@@ -1,0 +1,272 @@
+//! The GPU filters against the CPU ones (the reference), frame by frame: colour within
+//! [`GPU_TOLERANCE`], the same stages run and left out for the same reasons, pixel counts
+//! within [`COUNT_SLACK`]. These tests need an adapter: `cargo test --features gpu` fails
+//! without one (CI installs Mesa's software Vulkan, lavapipe).
+
+use super::*;
+use crate::backend::{self, BackendChoice};
+use crate::filters::check::sequences;
+use crate::frame::Frame;
+use crate::pipeline::params::parse_assignments;
+use crate::pipeline::{Backend, FilterState, Output, PixelCounts};
+use crate::scene::{Jitter, Scene, Settings};
+use crate::tolerance::Tolerance;
+
+/// How close the GPU's colour must be to the CPU's, in the filter's working space (the
+/// tonemapped colour `c / (1 + max c)` for HDR frames, else linear: where the filter
+/// computes, before the tonemap is undone). The shaders compute the same operations, but a
+/// GPU may fuse multiply-adds and order sums differently; the history's feedback (a
+/// Catmull-Rom resampling of moving history has gain above 1 at high frequencies, bounded
+/// by the clip) carries single-precision differences from frame to frame.
+const GPU_TOLERANCE: Tolerance = Tolerance::abs(1e-4);
+
+/// Samples allowed past [`GPU_TOLERANCE`] per frame (a fraction of the samples, plus one),
+/// each still within [`GPU_OUTLIER_TOLERANCE`].
+const GPU_OUTLIERS: f64 = 0.001;
+const GPU_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-3);
+
+/// Pixel counts (reset, clipped, rejected) may differ in this fraction of the pixels plus
+/// one: a history value exactly on its box's boundary is clipped on one backend and not on
+/// the other.
+const COUNT_SLACK: f64 = 0.002;
+
+fn make(name: &str, set: &[&str], choice: BackendChoice) -> Box<dyn Filter> {
+    let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+    backend::create(name, &parse_assignments(&set).unwrap(), choice)
+        .unwrap()
+        .filter
+}
+
+fn counts_agree(a: &PixelCounts, b: &PixelCounts, pixels: usize) -> bool {
+    let slack = (COUNT_SLACK * pixels as f64).ceil() as u64 + 1;
+    let near = |x: u64, y: u64| x.abs_diff(y) <= slack;
+    near(a.history_reset, b.history_reset)
+        && near(a.history_clipped, b.history_clipped)
+        && near(a.history_rejected, b.history_rejected)
+}
+
+/// Panics unless the GPU output `g` agrees with the CPU output `c`; returns the largest
+/// absolute colour difference.
+fn assert_agree(g: &Output, c: &Output, what: &str) -> f32 {
+    let working = |o: &Output| -> Vec<[f32; 3]> {
+        let hdr = o.record.ran("tonemap");
+        let [r, gg, b] = o.color.each_ref().map(|p| p.data());
+        (0..r.len())
+            .map(|i| {
+                let v = [r[i], gg[i], b[i]];
+                if hdr {
+                    crate::kernels::tonemap(v)
+                } else {
+                    v
+                }
+            })
+            .collect()
+    };
+    let (wg, wc) = (working(g), working(c));
+    let mut worst = 0.0f32;
+    let mut outliers = 0usize;
+    for (i, (a, b)) in wg.iter().zip(&wc).enumerate() {
+        for k in 0..3 {
+            let (x, y) = (a[k] as f64, b[k] as f64);
+            worst = worst.max((a[k] - b[k]).abs());
+            if GPU_TOLERANCE.check("", x, y).is_err() {
+                outliers += 1;
+                GPU_OUTLIER_TOLERANCE
+                    .check(&format!("{what}: pixel {i} channel {k} (working space)"), x, y)
+                    .unwrap();
+            }
+        }
+    }
+    let allowed = (GPU_OUTLIERS * 3.0 * wg.len() as f64) as usize + 1;
+    assert!(
+        outliers <= allowed,
+        "{what}: {outliers} samples past {GPU_TOLERANCE:?}, at most {allowed} allowed"
+    );
+    let stages = |o: &Output| -> Vec<(&str, bool, Option<String>)> {
+        o.record
+            .stages
+            .iter()
+            .map(|s| (s.name, s.ms.is_some(), s.skipped.as_ref().map(|k| k.to_string())))
+            .collect()
+    };
+    assert_eq!(stages(g), stages(c), "{what}: stages");
+    let pixels = g.color[0].data().len();
+    assert!(
+        counts_agree(&g.record.pixels, &c.record.pixels, pixels),
+        "{what}: pixel counts gpu {:?} cpu {:?}",
+        g.record.pixels,
+        c.record.pixels
+    );
+    assert_eq!(g.record.input, c.record.input, "{what}: input counts");
+    assert_eq!(g.record.state_bytes, c.record.state_bytes, "{what}: state bytes");
+    assert_eq!(g.record.backend, Backend::Gpu, "{what}");
+    worst
+}
+
+/// Runs `frames` through `name` on both backends; returns the largest colour difference.
+fn compare(name: &str, set: &[&str], frames: &[Frame], what: &str) -> f32 {
+    let mut gpu = make(name, set, BackendChoice::Gpu);
+    let mut cpu = make(name, set, BackendChoice::Cpu);
+    assert_eq!(gpu.backend(), Backend::Gpu);
+    let mut worst = 0.0f32;
+    for (i, f) in frames.iter().enumerate() {
+        let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
+        worst = worst.max(assert_agree(&g, &c, &format!("{name} {set:?} {what} frame {i}")));
+    }
+    worst
+}
+
+/// Catalogue scenes, 64 frames: moving (spokes, flyover), HDR, a camera cut.
+fn scene(name: &str) -> Vec<Frame> {
+    let s = Settings {
+        width: 48,
+        height: 27,
+        frames: 64,
+        spp: 1,
+        jitter: Jitter::Halton(8),
+        noise: false,
+        seed: 3,
+        shading: 1,
+    };
+    let scene = Scene::new(name, s).unwrap();
+    (0..s.frames).map(|i| scene.frame(i)).collect()
+}
+
+const TAA_VARIANTS: &[&[&str]] = &[
+    &[],
+    &["history_filter=bilinear"],
+    &["dilation=false", "luminance_weighting=false"],
+    &["depth_rejection=0.05"],
+    &["sharpen=0.5"],
+];
+
+#[test]
+fn taa_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
+    for name in ["spokes", "flyover", "hdr", "camera-cut"] {
+        let frames = scene(name);
+        for set in TAA_VARIANTS {
+            let worst = compare("taa", set, &frames, name);
+            eprintln!("taa {set:?} {name}: max |gpu - cpu| = {worst:.2e}");
+        }
+    }
+}
+
+/// The adversarial sequences of the CPU kernels' tests: NaN, Inf and negative input,
+/// fireflies, LDR and HDR frames in turn (the history converted every frame), off-screen
+/// motion, a cut, missing depth or motion, at odd sizes down to one pixel.
+#[test]
+fn taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
+    for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
+        for (what, frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
+            for set in TAA_VARIANTS {
+                compare("taa", set, &frames, &format!("{w}x{h} {what}"));
+            }
+        }
+    }
+}
+
+#[test]
+fn fxaa_on_the_gpu_follows_the_cpu() {
+    let variants: &[&[&str]] = &[&[], &["subpix=0", "edge_threshold=0.063", "edge_threshold_min=0"]];
+    for name in ["spokes", "fence", "hdr"] {
+        let frames = scene(name);
+        for set in variants {
+            let worst = compare("fxaa", set, &frames[..16], name);
+            eprintln!("fxaa {set:?} {name}: max |gpu - cpu| = {worst:.2e}");
+        }
+    }
+    for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
+        for (what, frames) in sequences(w, h, 4, (w * 5 + h) as u64) {
+            for set in variants {
+                compare("fxaa", set, &frames, &format!("{w}x{h} {what}"));
+            }
+        }
+    }
+}
+
+#[test]
+fn passthrough_on_the_gpu_is_the_cpu_passthrough() {
+    for (what, frames) in sequences(13, 7, 4, 9) {
+        let mut gpu = make("passthrough", &[], BackendChoice::Gpu);
+        let mut cpu = make("passthrough", &[], BackendChoice::Cpu);
+        for f in &frames {
+            let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
+            assert_eq!(g.color, c.color, "{what}");
+            assert_eq!(g.record.input, c.record.input, "{what}");
+            assert_eq!(g.record.backend, Backend::Gpu);
+        }
+    }
+}
+
+/// A state saved on one backend continues on the other: CPU to GPU and back, with and
+/// without depth history; and a GPU filter refuses another filter's state, keeping its own.
+#[test]
+fn states_move_between_backends() {
+    let frames = scene("flyover");
+    for set in [&[][..], &["depth_rejection=0.05"][..]] {
+        let mut cpu = make("taa", set, BackendChoice::Cpu);
+        for f in &frames[..10] {
+            cpu.process(f).unwrap();
+        }
+        let bytes = cpu.save_state().unwrap().encode();
+        let st = FilterState::decode(&bytes, (48 * 27) as u64).unwrap();
+        let mut gpu = make("taa", set, BackendChoice::Gpu);
+        gpu.load_state(&st).unwrap();
+        for (i, f) in frames[10..20].iter().enumerate() {
+            let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
+            assert_agree(&g, &c, &format!("{set:?} after CPU state, frame {i}"));
+        }
+        // And back: the GPU's state into a fresh CPU filter.
+        let st = gpu.save_state().unwrap();
+        let mut back = make("taa", set, BackendChoice::Cpu);
+        back.load_state(&st).unwrap();
+        for (i, f) in frames[20..24].iter().enumerate() {
+            let (g, c) = (back.process(f).unwrap(), cpu.process(f).unwrap());
+            GPU_TOLERANCE
+                .check_slices(
+                    &format!("{set:?} back on the CPU, frame {i}"),
+                    g.color[0].data(),
+                    c.color[0].data(),
+                )
+                .unwrap();
+        }
+    }
+    let other = make("taa", &["alpha=0.2"], BackendChoice::Cpu)
+        .save_state()
+        .unwrap();
+    let mut gpu = make("taa", &[], BackendChoice::Gpu);
+    gpu.process(&frames[0]).unwrap();
+    let before = gpu.save_state().unwrap();
+    assert!(gpu.load_state(&other).is_err());
+    assert_eq!(gpu.save_state().unwrap(), before);
+}
+
+/// Size changes follow the CPU rule: refused mid-stream, accepted on a reset frame or
+/// after `reset`.
+#[test]
+fn a_gpu_filter_refuses_a_new_size_without_a_reset() {
+    let a = &sequences(9, 5, 2, 1)[2].1;
+    let b = &sequences(6, 4, 2, 1)[2].1;
+    let mut gpu = make("taa", &[], BackendChoice::Gpu);
+    gpu.process(&a[0]).unwrap();
+    let e = gpu.process(&b[0]).unwrap_err();
+    assert!(
+        matches!(e, crate::pipeline::FilterError::SizeChanged { .. }),
+        "{e}"
+    );
+    gpu.reset();
+    let out = gpu.process(&b[0]).unwrap();
+    assert_eq!(out.color[0].size(), (6, 4));
+}
+
+#[test]
+fn filters_without_a_gpu_implementation_are_refused_and_auto_takes_the_cpu() {
+    assert_eq!(FILTERS, ["passthrough", "fxaa", "taa"]);
+    let e = backend::create("phlm", &Default::default(), BackendChoice::Gpu).unwrap_err();
+    assert!(e.to_string().contains("no GPU implementation"), "{e}");
+    let made = backend::create("phlm", &Default::default(), BackendChoice::Auto).unwrap();
+    assert_eq!(made.backend, Backend::Cpu);
+    let made = backend::create("taa", &Default::default(), BackendChoice::Auto).unwrap();
+    assert_eq!(made.backend, Backend::Gpu);
+    assert!(!adapters().is_empty());
+}
