@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{filter_gradients, signed_gradient};
+use super::temporal::{filter_gradients, signed_gradient, surface_nearby, Nearby};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen_bits, previous_positions, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -449,15 +449,25 @@ fn reproject_row<const N: usize>(
     fr: &Setup,
     hist: &[f32],
     y: usize,
-    valid: Option<(usize, usize, f32)>,
+    valid: Option<(usize, usize, f32, f32)>,
     mut emit: impl FnMut(usize, [f32; N], f32),
 ) -> u64 {
     let (w, h) = (fr.w, fr.h);
+    let near_motion = valid.map_or(0.0, |v| v.3);
+    let nearby = Nearby {
+        depth: fr.depth,
+        ids: fr.ids,
+        motion: fr.motion,
+        width: w,
+        height: h,
+        depth_tolerance: valid.map_or(0.0, |v| v.2),
+        max_motion: near_motion,
+    };
     let row = y * w..(y + 1) * w;
     let motion = fr.motion.map(|m| m.map(|m| &m[row.clone()]));
     let depth = valid.and(fr.depth).map(|d| &d[row.clone()]);
     let ids = valid.and(fr.ids).map(|d| &d[row.clone()]);
-    let (dc, ic, tol) = valid.unwrap_or((0, 0, 0.0));
+    let (dc, ic, tol, _) = valid.unwrap_or((0, 0, 0.0, 0.0));
     let mut lost = 0u64;
     let f = f32x8::splat;
     for x0 in (0..w).step_by(LANES) {
@@ -512,13 +522,17 @@ fn reproject_row<const N: usize>(
                 // sums are the reference's, which skips it.
                 for (t, wt) in taps {
                     let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
-                    let mut ok = wt > 0.0;
+                    let mut same = true;
                     if let Some(id) = id {
-                        ok &= id == tex[ic];
+                        same &= id == tex[ic];
                     }
                     if let Some(z) = z {
                         let far = (tex[dc] - z).abs() > tol * z.abs();
-                        ok &= !far;
+                        same &= !far;
+                    }
+                    let mut ok = wt > 0.0 && same;
+                    if !same && wt > 0.0 && near_motion > 0.0 {
+                        ok = surface_nearby(&nearby, y * w + x, tex[ic], tex[dc]);
                     }
                     let wt = if ok { wt } else { 0.0 };
                     total += wt;
@@ -671,7 +685,7 @@ pub(super) fn frame(
             let mut lost = 0;
             for y in rows.clone() {
                 let o = &mut band[ST * w * (y - rows.start)..ST * w * (y - rows.start + 1)];
-                let valid = Some((DEPTH, ID, p.depth_tolerance));
+                let valid = Some((DEPTH, ID, p.depth_tolerance, p.neighbour_motion));
                 lost += clock.time(REPROJECT, || {
                     reproject_row::<ST>(&fr, hist, y, valid, |x, t, total| {
                         let dst: &mut [f32; ST] = (&mut o[ST * x..ST * x + ST]).try_into().expect("a texel");
@@ -722,7 +736,7 @@ pub(super) fn frame(
                                 &fr,
                                 hist,
                                 y,
-                                Some((T_DEPTH, T_ID, p.depth_tolerance)),
+                                Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0)),
                                 |x, t, total| {
                                     hrow[TM * x..TM * x + TM].copy_from_slice(&t);
                                     frow[x] = total;

@@ -102,6 +102,14 @@ impl ReferenceUpsample {
                     ids,
                     prev_ids,
                     depth_tolerance: p.depth_tolerance,
+                    neighbour_motion: if method == Method::Spatiotemporal {
+                        p.neighbour_motion
+                    } else {
+                        0.0
+                    },
+                    motion,
+                    width: w,
+                    height: h,
                 };
                 match method {
                     Method::Spatiotemporal => {

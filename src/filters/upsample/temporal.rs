@@ -24,6 +24,15 @@ pub struct Validity<'a> {
     pub prev_ids: &'a [f32],
     /// Relative depth difference a tap may have.
     pub depth_tolerance: f32,
+    /// A tap that fails is still accepted when a pixel of this frame's 3x3 shows its
+    /// surface and moves within this many pixels of this pixel ([`surface_nearby`]); 0: off.
+    pub neighbour_motion: f32,
+    /// This frame's motion (for `neighbour_motion`; `None`: nothing moves).
+    pub motion: Option<[&'a [f32]; 2]>,
+    /// Frame size (the rows of the planes above).
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
 }
 
 impl Validity<'_> {
@@ -31,17 +40,96 @@ impl Validity<'_> {
     fn ok(&self, i: usize, tap: usize) -> bool {
         if let Some(ids) = self.ids {
             if ids[i] as f32 != self.prev_ids[tap] {
-                return false;
+                return self.nearby(i, tap);
             }
         }
         if let Some(d) = self.depth {
             let z = d[i];
             if (self.prev_depth[tap] - z).abs() > self.depth_tolerance * z.abs() {
-                return false;
+                return self.nearby(i, tap);
             }
         }
         true
     }
+
+    /// The fallback of a failed tap: [`surface_nearby`] when `neighbour_motion` is on.
+    #[inline(always)]
+    fn nearby(&self, i: usize, tap: usize) -> bool {
+        self.neighbour_motion > 0.0
+            && surface_nearby(
+                &Nearby {
+                    depth: self.depth,
+                    ids: self.ids,
+                    motion: self.motion,
+                    width: self.width,
+                    height: self.height,
+                    depth_tolerance: self.depth_tolerance,
+                    max_motion: self.neighbour_motion,
+                },
+                i,
+                self.prev_ids[tap],
+                self.prev_depth[tap],
+            )
+    }
+}
+
+/// This frame's G-buffer as [`surface_nearby`] reads it.
+pub struct Nearby<'a> {
+    /// Linear depth.
+    pub depth: Option<&'a [f32]>,
+    /// Object ids.
+    pub ids: Option<&'a [u32]>,
+    /// Motion.
+    pub motion: Option<[&'a [f32]; 2]>,
+    /// Frame size.
+    pub width: usize,
+    /// Frame height.
+    pub height: usize,
+    /// Relative depth difference that still counts as the same surface.
+    pub depth_tolerance: f32,
+    /// Largest difference of motion (either axis, pixels) from pixel `i`'s.
+    pub max_motion: f32,
+}
+
+/// Whether a history tap of object `id` at depth `z` that failed pixel `i`'s validity test
+/// shows a surface that is within a pixel of `i` this frame and moves with it: one of the
+/// eight neighbours of `i` has that id, a depth within the tolerance of `z`, and a motion
+/// within `max_motion` of `i`'s on both axes.
+///
+/// A jittered G-buffer samples a random point of each pixel (docs/upsample-realistic.md):
+/// at an edge or a sub-pixel object a pixel's id and depth flip between the surfaces its
+/// footprint covers from frame to frame, and the test of Herzog et al. 2010, sec. 3.2
+/// (same id, same depth) rejects history that is still the pixel's. A surface that has
+/// moved away (a disocclusion) is either not next to the pixel any more or moves
+/// differently from the surface that uncovered it, and stays rejected.
+#[inline(never)]
+pub fn surface_nearby(g: &Nearby, i: usize, id: f32, z: f32) -> bool {
+    let (w, h) = (g.width, g.height);
+    let (x, y) = (i % w, i / w);
+    let (mx, my) = g.motion.map_or((0.0, 0.0), |m| (m[0][i], m[1][i]));
+    for yy in y.saturating_sub(1)..(y + 2).min(h) {
+        for xx in x.saturating_sub(1)..(x + 2).min(w) {
+            let q = yy * w + xx;
+            if q == i {
+                continue;
+            }
+            if g.ids.is_some_and(|ids| ids[q] as f32 != id) {
+                continue;
+            }
+            if g.depth
+                .is_some_and(|d| (z - d[q]).abs() > g.depth_tolerance * d[q].abs())
+            {
+                continue;
+            }
+            if let Some(m) = g.motion {
+                if !((m[0][q] - mx).abs() <= g.max_motion && (m[1][q] - my).abs() <= g.max_motion) {
+                    continue;
+                }
+            }
+            return true;
+        }
+    }
+    false
 }
 
 /// Fetches `N` history planes at each pixel's previous position `p + motion` (no motion:
@@ -187,6 +275,10 @@ mod tests {
             ids: Some(&ids),
             prev_ids: &prev_ids,
             depth_tolerance: 0.1,
+            neighbour_motion: 0.0,
+            motion: None,
+            width: w,
+            height: h,
         };
         reproject([&src], Some([&mx, &my]), Some(&v), w, h, [&mut out], &mut frac);
         assert_eq!(out[w + 2], 6.0, "only the pixel's own tap is left");
