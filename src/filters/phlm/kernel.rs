@@ -13,13 +13,14 @@
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
 use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, STATE_PLANES, Z};
-use crate::filters::passes::{on_screen, reproject_skip, FrameContext, FrameResult};
+use crate::filters::passes::{on_screen_bits, previous_positions, reproject_skip, FrameContext, FrameResult};
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse};
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
 use std::ops::{AddAssign, Range};
+use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
 const STAGES: [&str; 6] = ["tonemap", "ycocg", "reproject", "feature", "model", "untonemap"];
@@ -88,6 +89,9 @@ struct Band {
     cols: [Vec<f32>; 12],
     /// This row's fetched state, block by block.
     fetched: Vec<Fetched>,
+    /// One block's fetched texels, before they are taken into lanes (kept across blocks:
+    /// zeroing 800 bytes per block was a `memset` call).
+    texels: [[f32; TEXEL]; LANES],
     /// This row's new feature, block by block.
     z: Vec<[Lanes; 3]>,
 }
@@ -196,6 +200,7 @@ fn run_band(
         work,
         cols,
         fetched,
+        texels,
         z,
     } = band;
     let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
@@ -234,7 +239,7 @@ fn run_band(
         let band_row = |r: usize| (r - r0) * w..(r - r0 + 1) * w;
         let fetch_stage = if plan.reproject { REPROJECT } else { MODEL };
         let fetched = sized(fetched, wp / LANES);
-        clock.time(fetch_stage, || fetch_row(src, plan, y, fetched));
+        clock.time(fetch_stage, || fetch_row(src, plan, y, fetched, texels));
         let cols = cols.each_mut().map(|v| sized(v, wp + 2));
         let rows3 = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(band_row);
         let centre = band_row(y);
@@ -244,7 +249,6 @@ fn run_band(
         let working = work.each_ref().map(|c| &c[centre.clone()]);
         let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
         let invalid = src.invalid.map(|v| &v[at.clone()]);
-        let fetched = &*fetched;
         clock.time(FEATURE, || {
             feature_row(&stats, working, fetched, invalid, plan.p, w, z)
         });
@@ -274,7 +278,13 @@ fn run_band(
 /// previous state (bilinear or nearest at `p + motion`, or its own) into its block's
 /// lanes, with the motion length for the feature; `none` (and a zero state) where there
 /// is no state (no history, off screen, padding).
-fn fetch_row(src: &Sources, plan: &Plan, y: usize, blocks: &mut [Fetched]) {
+fn fetch_row(
+    src: &Sources,
+    plan: &Plan,
+    y: usize,
+    blocks: &mut [Fetched],
+    texels: &mut [[f32; TEXEL]; LANES],
+) {
     let (w, h) = (src.w, src.h);
     let row = y * w..(y + 1) * w;
     let moving = match (plan.reproject, src.motion) {
@@ -296,28 +306,35 @@ fn fetch_row(src: &Sources, plan: &Plan, y: usize, blocks: &mut [Fetched]) {
             blk.state = [[0.0; LANES]; TEXEL];
             continue;
         };
-        let mut texels = [[0.0; TEXEL]; LANES];
-        for (l, texel) in texels.iter_mut().enumerate() {
-            let x = x0 + l;
-            let t: Option<[f32; TEXEL]> = if x >= w {
-                None
-            } else if let Some([mx, my]) = moving {
-                let i = y * w + x;
-                let (px, py) = (x as f32 + 0.5 + mx[i], y as f32 + 0.5 + my[i]);
-                on_screen(px, py, w, h).then(|| match plan.p.model_fetch {
-                    ModelFetch::Bilinear => bilinear_texels(state, w, h, px, py),
-                    ModelFetch::Nearest => nearest_texel(state, w, h, px, py),
-                })
-            } else {
-                let i = (y * w + x) * TEXEL;
-                Some(*lanes::block(state, i))
-            };
-            blk.none[l] = t.is_none();
-            if let Some(t) = t {
-                *texel = t;
+        let n = LANES.min(w - x0);
+        // Lanes with a texel (bit `l`): the real pixels, on screen where they move.
+        let mut have = (1u32 << n) - 1;
+        if let Some([mx, my]) = moving {
+            // Positions and the on-screen test for the block in vectors (what
+            // [`crate::filters::passes::on_screen`] computes per pixel), then each lane's fetch in place.
+            let [px, py] = previous_positions(&mx[row.clone()], &my[row.clone()], x0, y);
+            have &= on_screen_bits(&px, &py, w, h);
+            for (l, texel) in texels.iter_mut().enumerate().take(n) {
+                *texel = if have >> l & 1 == 0 {
+                    [0.0; TEXEL]
+                } else {
+                    match plan.p.model_fetch {
+                        ModelFetch::Bilinear => bilinear_texels(state, w, h, px[l], py[l]),
+                        ModelFetch::Nearest => nearest_texel(state, w, h, px[l], py[l]),
+                    }
+                };
+            }
+        } else {
+            for (l, texel) in texels.iter_mut().enumerate().take(n) {
+                *texel = *lanes::block(state, (y * w + x0 + l) * TEXEL);
             }
         }
-        blk.state = lanes::load_texels(&texels);
+        // Padding lanes have zero texels.
+        for texel in texels.iter_mut().skip(n) {
+            *texel = [0.0; TEXEL];
+        }
+        blk.none = lanes::each(|l| have >> l & 1 == 0);
+        blk.state = lanes::load_texels(texels);
     }
 }
 
@@ -582,25 +599,28 @@ fn model_row(
         reset_where(&broken, &mut beta, &mut r, &input, p.p0);
         // Line 22: the output.
         let o = rls::predict_lanes(&beta, &x);
-        for l in 0..n {
-            counts.pixels.history_reset += fresh[l] as u64;
-            counts.offscreen += (fresh[l] && plan.has_history) as u64;
-            counts.pixels.history_clipped += moved[l] as u64;
-            counts.repaired += failed[l] as u64 + broken[l] as u64;
-            counts.max_trace = counts.max_trace.max(trace[l]);
-        }
+        // The counts from bit masks (a lane loop over the flags was a branch per lane);
+        // `fresh` holds real lanes only, the others are masked to them.
+        let bits = |m: &Mask| lanes::mask_from(m).to_bitmask();
+        let real_bits = bits(&real);
+        let fresh_n = bits(&fresh).count_ones() as u64;
+        counts.pixels.history_reset += fresh_n;
+        counts.offscreen += if plan.has_history { fresh_n } else { 0 };
+        counts.pixels.history_clipped += (bits(&moved) & real_bits).count_ones() as u64;
+        counts.repaired +=
+            ((bits(&failed) & real_bits).count_ones() + (bits(&broken) & real_bits).count_ones()) as u64;
+        // Traces are at least 0 (0 where nothing was updated), as `max_trace` starts.
+        let real_trace = lanes::mask_from(&real).select(lanes::v(&trace), f32x8::splat(0.0));
+        counts.max_trace = real_trace.to_array().into_iter().fold(counts.max_trace, f32::max);
         for (c, row) in [&mut *or, &mut *og, &mut *ob].into_iter().enumerate() {
-            // `f32::clamp` written as comparisons (NaN passes, as there), which vectorise.
-            let v: Lanes = lanes::map(&o[c], |v| {
-                if v < 0.0 {
-                    0.0
-                } else if v > plan.hi {
-                    plan.hi
-                } else {
-                    v
-                }
-            });
-            row[x0..x0 + n].copy_from_slice(&v[..n]);
+            // `f32::clamp` written as comparisons (NaN passes, as there), in `f32x8` (as a
+            // lane loop it stayed scalar).
+            let (v, zero, hi) = (lanes::v(&o[c]), f32x8::splat(0.0), f32x8::splat(plan.hi));
+            let v: Lanes = v
+                .simd_lt(zero)
+                .select(zero, v.simd_gt(hi).select(hi, v))
+                .to_array();
+            lanes::store(row, x0, &v);
         }
         let mut state = [[0.0; LANES]; TEXEL];
         for c in 0..3 {

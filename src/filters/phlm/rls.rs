@@ -34,6 +34,7 @@
 //! 200,000 frames).
 
 use crate::kernels::lanes::{each, Lanes, Mask, LANES};
+use wide::f32x8;
 
 /// Number of features: the intercept and three feature channels (Iglesias-Guitian et al. 2016, sec. 6, "the final
 /// dimension d ... is 4").
@@ -439,10 +440,12 @@ const PAIRS: [(usize, usize); P_LEN] = {
 /// [`predict`] for a block of pixels.
 #[inline(always)]
 pub fn predict_lanes(beta: &[[Lanes; D]; 3], x: &[Lanes; D]) -> [Lanes; 3] {
-    each(|c| {
-        let b = &beta[c];
-        each(|k| b[0][k] * x[0][k] + b[1][k] * x[1][k] + b[2][k] * x[2][k] + b[3][k] * x[3][k])
-    })
+    // In `f32x8` (the same operations in the same order, so the same bits): as a lane loop
+    // it was left partly scalar.
+    let v = |a: &Lanes| f32x8::from(*a);
+    let [x0, x1, x2, x3] = [v(&x[0]), v(&x[1]), v(&x[2]), v(&x[3])];
+    let one = |b: &[Lanes; D]| (v(&b[0]) * x0 + v(&b[1]) * x1 + v(&b[2]) * x2 + v(&b[3]) * x3).to_array();
+    [one(&beta[0]), one(&beta[1]), one(&beta[2])]
 }
 
 /// `trace(R^-1)` of a packed symmetric R, `None` unless R is positive definite.
