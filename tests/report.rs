@@ -145,7 +145,8 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
         .collect();
     assert_eq!(rows.len(), n, "timing rows");
     for r in &rows {
-        let (ms, fps): (f64, f64) = (r[2].parse().unwrap(), r[8].parse().unwrap());
+        assert_eq!(r[2], "cpu", "the backend column: {r:?}");
+        let (ms, fps): (f64, f64) = (r[3].parse().unwrap(), r[9].parse().unwrap());
         // ms is printed to 3 decimals and frames/s to 1.
         Tolerance::new(0.05, 0.0006 / ms)
             .check(&format!("{} frames/s", r[1]), fps, 1e3 / ms)
