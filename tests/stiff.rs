@@ -146,7 +146,9 @@ fn taa_and_traa_survive_a_long_still_scene() {
 }
 
 /// `taa` on the GPU backend (feature `gpu`, an adapter needed) through the still scene of
-/// [`taa_and_traa_survive_a_long_still_scene`], 100,000 frames, with the same bounds.
+/// [`taa_and_traa_survive_a_long_still_scene`], 100,000 frames (or
+/// `AFTERIMAGE_GPU_STILL_FRAMES`: CI runs 20,000, the CPU case's length, since each frame
+/// on lavapipe pays a whole submission and readback), with the same bounds.
 #[cfg(feature = "gpu")]
 #[test]
 #[ignore = "100,000 frames on the GPU backend: CI runs it on lavapipe"]
@@ -158,7 +160,11 @@ fn taa_on_the_gpu_survives_a_long_still_scene() {
     )
     .expect("a GPU adapter (lavapipe will do)");
     let mut f = made.filter;
-    still_scene(f.as_mut(), 100_000);
+    let frames = std::env::var("AFTERIMAGE_GPU_STILL_FRAMES")
+        .ok()
+        .map(|v| v.parse().expect("AFTERIMAGE_GPU_STILL_FRAMES: a whole number"))
+        .unwrap_or(100_000);
+    still_scene(f.as_mut(), frames);
 }
 
 /// Runs `f` over `frames` frames of the still scene: every output finite, the last within
