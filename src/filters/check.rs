@@ -84,6 +84,15 @@ pub fn sequences(w: usize, h: usize, n: u64, seed: u64) -> Vec<(&'static str, Ve
     ]
 }
 
+/// An output's stages as compared: name, whether it ran, why it was left out.
+pub fn stages(o: &Output) -> Vec<(&'static str, bool, Option<String>)> {
+    o.record
+        .stages
+        .iter()
+        .map(|s| (s.name, s.ms.is_some(), s.skipped.as_ref().map(|k| k.to_string())))
+        .collect()
+}
+
 /// Panics unless `fast` and `reference` agree: colour within `tol`, the same stages run
 /// and left out (with the same reasons), the same pixel and input counts.
 pub fn assert_same_output(fast: &Output, reference: &Output, tol: Tolerance, what: &str) {
@@ -95,13 +104,6 @@ pub fn assert_same_output(fast: &Output, reference: &Output, tol: Tolerance, wha
         )
         .unwrap();
     }
-    let stages = |o: &Output| -> Vec<(&str, bool, Option<String>)> {
-        o.record
-            .stages
-            .iter()
-            .map(|s| (s.name, s.ms.is_some(), s.skipped.as_ref().map(|k| k.to_string())))
-            .collect()
-    };
     assert_eq!(stages(fast), stages(reference), "{what}: stages");
     assert_eq!(
         fast.record.pixels, reference.record.pixels,

@@ -61,6 +61,20 @@ pub(crate) fn write_words(gpu: &Gpu, buffer: &wgpu::Buffer, words: &[u32]) {
     gpu.queue.write_buffer(buffer, 0, bytemuck::cast_slice(words));
 }
 
+/// Planes of a `width` x `height` image from `words` read back, plane after plane.
+pub(crate) fn planes_from(
+    words: &[f32],
+    width: usize,
+    height: usize,
+) -> Result<crate::frame::Rgb, BackendError> {
+    let n = width * height;
+    let plane = |k: usize| {
+        crate::frame::Plane::from_vec(width, height, words[k * n..(k + 1) * n].to_vec())
+            .map_err(|e| BackendError::Device(e.to_string()))
+    };
+    Ok([plane(0)?, plane(1)?, plane(2)?])
+}
+
 /// A mappable buffer that results are copied into and read back from.
 #[derive(Debug)]
 pub(crate) struct Readback {

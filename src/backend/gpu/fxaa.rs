@@ -5,7 +5,7 @@ use super::buffers::uniform;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::fxaa::{Fxaa, Params};
-use crate::frame::{Frame, Plane, Rgb};
+use crate::frame::Frame;
 use crate::pipeline::params::build;
 use crate::pipeline::{
     check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
@@ -108,11 +108,7 @@ impl GpuFxaa {
         b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
         gpu.queue.submit([enc.finish()]);
         b.back.read(gpu, 3 * n, &mut self.words)?;
-        let plane = |k: usize| {
-            Plane::from_vec(w, h, self.words[k * n..(k + 1) * n].to_vec())
-                .map_err(|e| BackendError::Device(e.to_string()))
-        };
-        let color: Rgb = [plane(0)?, plane(1)?, plane(2)?];
+        let color = super::buffers::planes_from(&self.words, w, h)?;
         // The frame's device time (upload, both passes, readback), shared evenly.
         let ms = t.elapsed().as_secs_f64() * 1e3;
         rec.ran_for("luma", ms / 2.0);

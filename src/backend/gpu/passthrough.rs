@@ -4,7 +4,7 @@
 use super::{Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::passthrough::{Params, Passthrough};
-use crate::frame::{Frame, Plane, Rgb};
+use crate::frame::Frame;
 use crate::pipeline::{
     check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
     Recorder, StateError,
@@ -54,11 +54,7 @@ impl GpuPassthrough {
         back.copy_from(&mut enc, &dev.buffer, 0, 3 * n);
         self.gpu.queue.submit([enc.finish()]);
         back.read(&self.gpu, 3 * n, &mut self.words)?;
-        let plane = |k: usize| {
-            Plane::from_vec(w, h, self.words[k * n..(k + 1) * n].to_vec())
-                .map_err(|e| BackendError::Device(e.to_string()))
-        };
-        let color: Rgb = [plane(0)?, plane(1)?, plane(2)?];
+        let color = super::buffers::planes_from(&self.words, w, h)?;
         rec.ran_for("copy", t.elapsed().as_secs_f64() * 1e3);
         let mut record = rec.finish(
             Passthrough::NAME,

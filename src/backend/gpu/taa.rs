@@ -8,7 +8,7 @@ use super::buffers::{uniform, write_words};
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
-use crate::frame::{Frame, Plane, Rgb};
+use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
 use crate::pipeline::{
     check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
@@ -366,11 +366,7 @@ impl GpuTaa {
         let mut counts: Vec<u32> = Vec::new();
         b.counts_back.read(&gpu, 4, &mut counts)?;
         b.color_back.read(&gpu, 3 * n, &mut self.words)?;
-        let color: Rgb = [
-            plane(w, h, self.words[..n].to_vec())?,
-            plane(w, h, self.words[n..2 * n].to_vec())?,
-            plane(w, h, self.words[2 * n..3 * n].to_vec())?,
-        ];
+        let color = super::buffers::planes_from(&self.words, w, h)?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
 
         // The same stages as the CPU filter's record, run or left out for the same reasons;

@@ -5,7 +5,7 @@
 
 use super::*;
 use crate::backend::{self, BackendChoice};
-use crate::filters::check::sequences;
+use crate::filters::check::{sequences, stages};
 use crate::frame::Frame;
 use crate::pipeline::params::parse_assignments;
 use crate::pipeline::{Backend, FilterState, Output, PixelCounts};
@@ -82,13 +82,6 @@ fn assert_agree(g: &Output, c: &Output, what: &str) -> f32 {
         outliers <= allowed,
         "{what}: {outliers} samples past {GPU_TOLERANCE:?}, at most {allowed} allowed"
     );
-    let stages = |o: &Output| -> Vec<(&str, bool, Option<String>)> {
-        o.record
-            .stages
-            .iter()
-            .map(|s| (s.name, s.ms.is_some(), s.skipped.as_ref().map(|k| k.to_string())))
-            .collect()
-    };
     assert_eq!(stages(g), stages(c), "{what}: stages");
     let pixels = g.color[0].data().len();
     assert!(
