@@ -85,9 +85,16 @@ fn still_frame(rng: &mut SplitMix64, index: u64) -> Frame {
 /// PHLM on a still scene for `frames` frames: P stays SPD under trace(P0) = 4 p0 (1% margin),
 /// no matrix needs repair, the output stays finite and close to the noise-free mean.
 fn phlm_still(frames: u64) -> f64 {
+    let mut f = Phlm::new(PhlmParams::default());
+    phlm_still_on(&mut f, frames, check_p)
+}
+
+/// [`phlm_still`] on filter `f` (either backend): every frame's record says no matrix was
+/// repaired and trace(P) stayed under the bound; every 10,000 frames `check` looks at the
+/// models themselves.
+fn phlm_still_on<F: Filter + ?Sized>(f: &mut F, frames: u64, check: impl Fn(&F, f64) -> f64) -> f64 {
     let params = PhlmParams::default();
     let bound = 4.0 * params.p0.max(params.clip_p) as f64 * 1.01;
-    let mut f = Phlm::new(params);
     let mut rng = SplitMix64::new(5);
     let mut max_trace = 0.0f64;
     let mut last = None;
@@ -99,7 +106,7 @@ fn phlm_still(frames: u64) -> f64 {
         max_trace = max_trace.max(m.max_trace_p);
         assert!(max_trace <= bound, "frame {t}: trace {max_trace}");
         if t % 10_000 == 0 || t + 1 == frames {
-            check_p(&f, bound);
+            check(f, bound);
             assert!(max_abs(&out.color).is_finite());
         }
         if t + 1 == frames {
@@ -147,24 +154,42 @@ fn taa_and_traa_survive_a_long_still_scene() {
 
 /// `taa` on the GPU backend (feature `gpu`, an adapter needed) through the still scene of
 /// [`taa_and_traa_survive_a_long_still_scene`], 100,000 frames (or
-/// `AFTERIMAGE_GPU_STILL_FRAMES`: CI runs 20,000, the CPU case's length, since each frame
-/// on lavapipe pays a whole submission and readback), with the same bounds.
+/// `AFTERIMAGE_GPU_STILL_FRAMES`), with the same bounds.
 #[cfg(feature = "gpu")]
 #[test]
 #[ignore = "100,000 frames on the GPU backend: CI runs it on lavapipe"]
 fn taa_on_the_gpu_survives_a_long_still_scene() {
-    let made = afterimage::backend::create(
-        "taa",
-        &Default::default(),
-        afterimage::backend::BackendChoice::Gpu,
-    )
-    .expect("a GPU adapter (lavapipe will do)");
-    let mut f = made.filter;
-    let frames = std::env::var("AFTERIMAGE_GPU_STILL_FRAMES")
+    still_scene(gpu_filter("taa").as_mut(), gpu_still_frames());
+}
+
+/// `phlm` on the GPU backend (its RLS solved in f32) through [`phlm_still`]'s scene and
+/// bounds, 100,000 frames (or `AFTERIMAGE_GPU_STILL_FRAMES`): no model repaired, trace(P)
+/// under its bound every frame (from the record: the GPU's models stay on the device), the
+/// output the scene.
+#[cfg(feature = "gpu")]
+#[test]
+#[ignore = "100,000 frames on the GPU backend: CI runs it on lavapipe"]
+fn phlm_on_the_gpu_keeps_p_bounded_on_a_long_still_scene() {
+    let mut f = gpu_filter("phlm");
+    let t = phlm_still_on(f.as_mut(), gpu_still_frames(), |_, _| 0.0);
+    println!("phlm on the GPU, still scene: max trace(P) {t:.3}");
+}
+
+/// A filter on the GPU backend (an adapter needed; lavapipe will do).
+#[cfg(feature = "gpu")]
+fn gpu_filter(name: &str) -> Box<dyn Filter> {
+    afterimage::backend::create(name, &Default::default(), afterimage::backend::BackendChoice::Gpu)
+        .expect("a GPU adapter (lavapipe will do)")
+        .filter
+}
+
+/// Frames of the GPU still scenes: 100,000, or `AFTERIMAGE_GPU_STILL_FRAMES`.
+#[cfg(feature = "gpu")]
+fn gpu_still_frames() -> u64 {
+    std::env::var("AFTERIMAGE_GPU_STILL_FRAMES")
         .ok()
         .map(|v| v.parse().expect("AFTERIMAGE_GPU_STILL_FRAMES: a whole number"))
-        .unwrap_or(100_000);
-    still_scene(f.as_mut(), frames);
+        .unwrap_or(100_000)
 }
 
 /// Runs `f` over `frames` frames of the still scene: every output finite, the last within

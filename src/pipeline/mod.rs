@@ -20,8 +20,8 @@ pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
 pub use record::{
-    summarize_stages, Backend, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder, Skip,
-    StageRecord, StageSummary, WindowRecord,
+    summarize_stages, Backend, DeviceTimes, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder,
+    Skip, StageRecord, StageSummary, WindowRecord,
 };
 pub use state::{FilterState, StateError};
 

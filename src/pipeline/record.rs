@@ -132,6 +132,26 @@ pub struct FrameRecord {
     pub window: Option<WindowRecord>,
     /// Where the filter ran.
     pub backend: Backend,
+    /// Where a GPU frame's time went (GPU backend only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device: Option<DeviceTimes>,
+}
+
+/// Where a GPU frame's time went: the host queuing its inputs, the device running its
+/// shaders, and the colour coming back. The stages' own times share the shader time (or,
+/// without timestamp queries, the frame's device round trip).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct DeviceTimes {
+    /// Host time writing the frame's channels and parameters to the device queue and
+    /// submitting, milliseconds.
+    pub upload_ms: f64,
+    /// Device time of the frame's shader passes, first start to last end, from timestamp
+    /// queries, milliseconds; absent where the adapter has no timestamp queries.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shaders_ms: Option<f64>,
+    /// Host time from the submission to the colour in host memory, less `shaders_ms` where
+    /// known (the queue, the copy back and the map), milliseconds.
+    pub readback_ms: f64,
 }
 
 /// Where a filter runs: the CPU (on the crate's rayon pool; the reference) or a GPU (the
@@ -299,6 +319,7 @@ impl Recorder {
             model: None,
             window: None,
             backend: Backend::Cpu,
+            device: None,
         }
     }
 }

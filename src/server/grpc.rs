@@ -484,9 +484,12 @@ impl Afterimage for Grpc {
             channels: r.channels,
             backend: r.backend,
         };
+        // On the pool: a GPU session opens the device and compiles its shaders (up to
+        // seconds the first time), which must not hold a tokio worker.
         let info = self
             .0
-            .count(self.0.sessions.create(&caller, &req))
+            .on_pool(move |s| s.create(&caller, &req))
+            .await
             .map_err(|e| status(&e))?;
         Ok(Response::new(session_pb(info, self.0.config.max_chunk_bytes)))
     }

@@ -157,7 +157,9 @@ async fn create(
         channels: b.channels,
         backend: b.backend,
     };
-    let info = counted(&svc, svc.sessions.create(&caller, &req))?;
+    // On the pool: a GPU session opens the device and compiles its shaders (up to seconds
+    // the first time), which must not hold a tokio worker.
+    let info = svc.on_pool(move |s| s.create(&caller, &req)).await?;
     Ok((StatusCode::CREATED, Json(info)).into_response())
 }
 

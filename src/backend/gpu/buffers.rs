@@ -44,12 +44,19 @@ impl StorageBuffer {
     }
 }
 
-/// A uniform buffer holding one value of `len` 32-bit words.
-pub(crate) fn uniform(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Buffer {
+/// A shader's parameters (`words`, 32 bits each): a small read-only storage buffer, which
+/// the shaders declare `var<storage, read> P: Params`.
+///
+/// Not a uniform buffer: Mesa's software Vulkan (lavapipe, what CI runs the shaders on)
+/// specialises a shader on the values in its uniform buffer, and with `phlm`'s and `taa`'s
+/// parameters it recompiled the shader at every dispatch (6 ms a frame at 8x8, against
+/// 0.34 ms) and kept each compiled copy (0.9 MB a frame: a 100,000-frame run went out of
+/// memory). Desktop GPUs read a small storage buffer as fast.
+pub(crate) fn params_buffer(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Buffer {
     let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
         size: (words.len() * 4).next_multiple_of(16) as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
         mapped_at_creation: false,
     });
     write_words(gpu, &buffer, words);
@@ -92,6 +99,11 @@ impl Readback {
             mapped_at_creation: false,
         });
         Readback { buffer, len }
+    }
+
+    /// The mappable buffer (for copies to an offset other than 0).
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
     }
 
     /// Encodes a copy of `len` words of `src` from word `at` into this buffer.

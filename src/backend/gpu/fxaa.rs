@@ -1,7 +1,7 @@
 //! `fxaa` on the GPU (`fxaa.wgsl`): the luma pass and the FXAA pass of
 //! [`crate::filters::fxaa::reference`], on the colour repaired on the CPU. No history.
 
-use super::buffers::uniform;
+use super::buffers::params_buffer;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::fxaa::{Fxaa, Params};
@@ -76,7 +76,7 @@ impl GpuFxaa {
             b.color.write(gpu, k * n, p.data());
         }
         let p = &self.params;
-        let params = uniform(
+        let params = params_buffer(
             gpu,
             "fxaa params",
             &[

@@ -18,7 +18,7 @@ struct Params {
 // kernels::LUMA_REC709.
 const LUMA_REC709: vec3<f32> = vec3<f32>(0.2126, 0.7152, 0.0722);
 
-@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> color: array<f32>;
 @group(0) @binding(2) var<storage, read_write> luma: array<f32>;
 @group(0) @binding(3) var<storage, read_write> out: array<f32>;
@@ -50,10 +50,6 @@ fn luma_at(x: i32, y: i32) -> f32 {
     let cx = u32(clamp(x, 0, i32(P.width) - 1));
     let cy = u32(clamp(y, 0, i32(P.height) - 1));
     return luma[cy * P.width + cx];
-}
-
-fn clamp_index(i: f32, n: u32) -> u32 {
-    return u32(clamp(i, 0.0, f32(n - 1u)));
 }
 
 // kernels::bilinear of plane `k` (0..2 colour from `color`, 3 the luma) at (x, y).

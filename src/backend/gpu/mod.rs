@@ -8,14 +8,16 @@
 //! ([`crate::pipeline::prepare`]), so both backends see the same repaired input and write
 //! the same records.
 //!
-//! Filters here: `passthrough`, `fxaa` and `taa`. Left for later: `phlm` (its per-pixel
-//! 4x4 solve needs an f32 formulation that stays definite on still, ill-conditioned
-//! pixels), `traa`, `upsample`, `pixel_trace`.
+//! Filters here: `passthrough`, `fxaa`, `taa` and `phlm` (its per-pixel 4x4 solve in f32:
+//! [`crate::filters::phlm::rls::update_information_f32`]). Left for later: `traa`,
+//! `upsample`, `pixel_trace`.
 
 mod buffers;
 mod fxaa;
 mod passthrough;
+mod phlm;
 mod taa;
+mod timing;
 
 use super::{AdapterInfo, BackendError};
 use crate::pipeline::Filter;
@@ -25,7 +27,7 @@ use std::sync::{Arc, OnceLock};
 pub(crate) use buffers::{Readback, StorageBuffer};
 
 /// The filters this backend implements.
-pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa"];
+pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa", "phlm"];
 
 /// An open device: what every GPU filter runs on.
 #[derive(Debug)]
@@ -69,9 +71,11 @@ fn open() -> Result<Gpu, String> {
     .map_err(|e| e.to_string())?;
     // The adapter's own limits: a 4K frame's history (16 B/px) is past the default
     // 128 MiB storage binding.
+    // Timestamp queries where the adapter has them: the records' per-pass device times.
+    let timestamps = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
     let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
         label: Some("afterimage"),
-        required_features: wgpu::Features::empty(),
+        required_features: timestamps,
         required_limits: adapter.limits(),
         experimental_features: wgpu::ExperimentalFeatures::disabled(),
         memory_hints: wgpu::MemoryHints::Performance,
@@ -111,6 +115,7 @@ pub fn create(name: &'static str, values: &Map<String, Value>) -> Result<Box<dyn
         "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu))),
         "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values)?)),
         "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values)?)),
+        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, values)?)),
         _ => Err(known()),
     }
 }
@@ -124,12 +129,15 @@ pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
         .map_err(|e| BackendError::Device(e.to_string()))
 }
 
-/// A compute pipeline from WGSL `source`, entry point `entry`, its bind group layout
-/// taken from the shader.
+/// The WGSL every filter's shaders share (colour transforms, numeric helpers).
+const COMMON: &str = include_str!("common.wgsl");
+
+/// A compute pipeline from WGSL `source` (after [`COMMON`]), entry point `entry`, its bind
+/// group layout taken from the shader.
 pub(crate) fn pipeline(gpu: &Gpu, label: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
     let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(source.into()),
+        source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{source}").into()),
     });
     gpu.device
         .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {

@@ -4,7 +4,8 @@
 //! its colour (and the motion and depth its plan needs), and reads back the colour and the
 //! pixel counts.
 
-use super::buffers::{uniform, write_words};
+use super::buffers::{params_buffer, write_words};
+use super::timing::{self, FrameClock, PassTimer};
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
@@ -16,9 +17,8 @@ use crate::pipeline::{
 };
 use serde_json::{Map, Value};
 use std::sync::Arc;
-use std::time::Instant;
 
-const COMMON: &str = include_str!("taa.wgsl");
+const SHARED: &str = include_str!("taa.wgsl");
 const WORKGROUP: usize = 8;
 
 // Bits of `Params.flags` (the FLAG_ constants of taa.wgsl).
@@ -41,6 +41,9 @@ const IN_MX: usize = 3;
 const IN_DEPTH: usize = 5;
 const IN_INVALID: usize = 6;
 
+/// Words of the counters (C_ constants of taa.wgsl): reset, clipped, rejected; padded.
+const COUNTERS: usize = 4;
+
 /// The compiled passes.
 #[derive(Debug)]
 struct Passes {
@@ -51,7 +54,7 @@ struct Passes {
 
 impl Passes {
     fn new(gpu: &Gpu) -> Self {
-        let with = |body: &str| format!("{COMMON}\n{body}");
+        let with = |body: &str| format!("{SHARED}\n{body}");
         Passes {
             resolve: pipeline(
                 gpu,
@@ -75,34 +78,75 @@ impl Passes {
     }
 }
 
-/// Device buffers for one frame size.
+/// Device buffers for one frame size, and the bind groups that use them (made once: the
+/// history alternates between two).
 #[derive(Debug)]
 struct Buffers {
     width: usize,
     height: usize,
+    params: wgpu::Buffer,
+    convert_params: wgpu::Buffer,
     input: StorageBuffer,
     /// The history: `hist[read]` is the previous frame's, the other is written.
     hist: [StorageBuffer; 2],
+    counters: wgpu::Buffer,
+    /// `resolve[k]` reads `hist[k]` and writes `hist[1 - k]` and the colour `out[0]`.
+    resolve: [wgpu::BindGroup; 2],
+    /// Sharpens `out[0]` into `out[1]`.
+    sharpen: wgpu::BindGroup,
+    /// `convert[k]` converts `hist[k]` in place.
+    convert: [wgpu::BindGroup; 2],
     /// The resolved colour (working space when a sharpen follows), then the sharpened one.
     out: [StorageBuffer; 2],
-    counters: StorageBuffer,
-    color_back: Readback,
-    counts_back: Readback,
+    /// Timestamps of the frame's passes (convert, resolve, sharpen), where the device has
+    /// them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
 }
 
 impl Buffers {
-    fn new(gpu: &Gpu, width: usize, height: usize, depth: bool) -> Self {
+    fn new(gpu: &Gpu, passes: &Passes, width: usize, height: usize, depth: bool) -> Self {
         let n = width * height;
         let hist_len = n * (4 + depth as usize);
+        let params = params_buffer(gpu, "taa params", &[0; 8]);
+        let convert_params = params_buffer(gpu, "taa convert params", &[0; 8]);
+        let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n);
+        let hist = [0, 1].map(|_| StorageBuffer::new(gpu, "taa history", hist_len));
+        let out = [0, 1].map(|_| StorageBuffer::new(gpu, "taa colour", 3 * n));
+        let counters = StorageBuffer::new(gpu, "taa counters", COUNTERS).buffer;
+        let resolve = [0, 1].map(|k| {
+            bind(
+                gpu,
+                &passes.resolve,
+                &[
+                    &params,
+                    &input.buffer,
+                    &hist[k].buffer,
+                    &hist[1 - k].buffer,
+                    &out[0].buffer,
+                    &counters,
+                ],
+            )
+        });
+        let sharpen = bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]);
+        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
+        let timer = PassTimer::new(gpu, 3);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
         Buffers {
             width,
             height,
-            input: StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n),
-            hist: [0, 1].map(|_| StorageBuffer::new(gpu, "taa history", hist_len)),
-            out: [0, 1].map(|_| StorageBuffer::new(gpu, "taa colour", 3 * n)),
-            counters: StorageBuffer::new(gpu, "taa counters", 4),
-            color_back: Readback::new(gpu, "taa colour readback", 3 * n),
-            counts_back: Readback::new(gpu, "taa counts readback", 4),
+            params,
+            convert_params,
+            input,
+            hist,
+            counters,
+            resolve,
+            sharpen,
+            convert,
+            out,
+            back: Readback::new(gpu, "taa readback", 3 * n + COUNTERS + timer_words),
+            timer,
         }
     }
 }
@@ -147,14 +191,15 @@ impl GpuTaa {
     /// The buffers for a `width` x `height` frame (new ones drop the history).
     fn sized(&mut self, width: usize, height: usize) -> &Buffers {
         if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            self.buffers = Some(Buffers::new(&self.gpu, width, height, self.keeps_depth()));
+            let depth = self.keeps_depth();
+            self.buffers = Some(Buffers::new(&self.gpu, &self.passes, width, height, depth));
             self.valid = false;
             self.read = 0;
         }
         self.buffers.as_ref().expect("just made")
     }
 
-    fn uniform_words(&self, width: usize, height: usize, flags: u32) -> [u32; 8] {
+    fn param_words(&self, width: usize, height: usize, flags: u32) -> [u32; 8] {
         let p = &self.params;
         [
             width as u32,
@@ -285,11 +330,11 @@ impl GpuTaa {
         set(plan.sharpen.is_none(), FLAG_SHARPEN);
         set(self.keeps_depth() && inp.depth.is_some(), FLAG_KEEP_DEPTH);
 
-        let t = Instant::now();
+        let mut clock = FrameClock::start();
         let gpu = Arc::clone(&self.gpu);
         let (read, write) = (self.read, 1 - self.read);
-        let words = self.uniform_words(w, h, flags);
-        let convert_words = self.uniform_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 });
+        let words = self.param_words(w, h, flags);
+        let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 });
         let convert = has_history && self.tonemapped != hdr;
         let b = self.buffers.as_ref().expect("sized");
 
@@ -312,67 +357,69 @@ impl GpuTaa {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
             b.input.write(&gpu, IN_INVALID * n, &mask);
         }
-        write_words(&gpu, &b.counters.buffer, &[0; 4]);
-        let params = uniform(&gpu, "taa params", &words);
-
+        write_words(&gpu, &b.params, &words);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&b.counters, 0, None);
+        let timer = b.timer.as_ref();
+        let mut passes = 0;
         if convert {
-            let cp = uniform(&gpu, "taa convert params", &convert_words);
-            let bg = bind(&gpu, &self.passes.convert, &[&cp, &b.hist[read].buffer]);
+            write_words(&gpu, &b.convert_params, &convert_words);
             let groups = n.div_ceil(64);
             let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
-            let mut pass = enc.begin_compute_pass(&Default::default());
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
             pass.set_pipeline(&self.passes.convert);
-            pass.set_bind_group(0, &bg, &[]);
+            pass.set_bind_group(0, &b.convert[read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         let (gx, gy) = groups(w, h, WORKGROUP);
         {
-            let bg = bind(
-                &gpu,
-                &self.passes.resolve,
-                &[
-                    &params,
-                    &b.input.buffer,
-                    &b.hist[read].buffer,
-                    &b.hist[write].buffer,
-                    &b.out[0].buffer,
-                    &b.counters.buffer,
-                ],
-            );
-            let mut pass = enc.begin_compute_pass(&Default::default());
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
             pass.set_pipeline(&self.passes.resolve);
-            pass.set_bind_group(0, &bg, &[]);
+            pass.set_bind_group(0, &b.resolve[read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         let result = if plan.sharpen.is_none() {
-            let bg = bind(
-                &gpu,
-                &self.passes.sharpen,
-                &[&params, &b.out[0].buffer, &b.out[1].buffer],
-            );
-            let mut pass = enc.begin_compute_pass(&Default::default());
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
             pass.set_pipeline(&self.passes.sharpen);
-            pass.set_bind_group(0, &bg, &[]);
+            pass.set_bind_group(0, &b.sharpen, &[]);
             pass.dispatch_workgroups(gx, gy, 1);
             1
         } else {
             0
         };
-        b.color_back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
-        b.counts_back.copy_from(&mut enc, &b.counters.buffer, 0, 4);
+        b.back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
+        enc.copy_buffer_to_buffer(
+            &b.counters,
+            0,
+            b.back.buffer(),
+            (3 * n * 4) as u64,
+            (COUNTERS * 4) as u64,
+        );
+        let timer_at = 3 * n + COUNTERS;
+        if let Some(t) = timer {
+            t.resolve(&mut enc, passes, &b.back, timer_at);
+        }
         gpu.queue.submit([enc.finish()]);
-
-        let mut counts: Vec<u32> = Vec::new();
-        b.counts_back.read(&gpu, 4, &mut counts)?;
-        b.color_back.read(&gpu, 3 * n, &mut self.words)?;
+        clock.submitted();
+        let words = timer_at + timer.map_or(0, PassTimer::words);
+        b.back.read(&gpu, words, &mut self.words)?;
+        clock.back();
         let color = super::buffers::planes_from(&self.words, w, h)?;
-        let ms = t.elapsed().as_secs_f64() * 1e3;
+        let counts: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
+        let pass_ms = timer.map(|t| t.pass_ms(&self.words[timer_at..], passes));
+        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()));
 
-        // The same stages as the CPU filter's record, run or left out for the same reasons;
-        // the frame's device time (upload, passes, readback) is shared evenly by the stages
-        // that ran.
-        let stages = [
+        // The same stages as the CPU filter's record, run or left out for the same reasons.
+        // With timestamps `sharpen` gets its pass's time and the others share the rest (one
+        // pass fuses them); without, all share the frame's round trip.
+        let sharpen_ms = match (&pass_ms, plan.sharpen.is_none()) {
+            (Some(v), true) => v.last().copied(),
+            _ => None,
+        };
+        let stages = vec![
             ("tonemap", plan.tonemap.clone()),
             ("ycocg", None),
             ("dilate", plan.dilate.clone()),
@@ -382,12 +429,25 @@ impl GpuTaa {
             ("sharpen", plan.sharpen.clone()),
             ("untonemap", plan.tonemap.clone()),
         ];
-        let ran = stages.iter().filter(|(_, s)| s.is_none()).count().max(1);
-        for (name, skip) in stages {
-            match skip {
-                Some(why) => rec.skip(name, why),
-                None => rec.ran_for(name, ms / ran as f64),
+        match (device.shaders_ms, sharpen_ms) {
+            (Some(all), Some(sharpen)) => {
+                let rest = stages
+                    .iter()
+                    .filter(|(n, s)| s.is_none() && *n != "sharpen")
+                    .count();
+                for (name, skip) in stages {
+                    match (skip, name) {
+                        (Some(why), _) => rec.skip(name, why),
+                        (None, "sharpen") => rec.ran_for(name, sharpen),
+                        (None, _) => rec.ran_for(name, (all - sharpen) / rest as f64),
+                    }
+                }
             }
+            (shaders, _) => timing::share(
+                &mut rec,
+                stages,
+                shaders.unwrap_or(device.upload_ms + device.readback_ms),
+            ),
         }
 
         self.read = write;
@@ -406,6 +466,7 @@ impl GpuTaa {
             self.state_bytes(),
         );
         record.backend = Backend::Gpu;
+        record.device = Some(device);
         Ok(Output { color, record })
     }
 }

@@ -51,38 +51,9 @@ const C_RESET: u32 = 0u;
 const C_CLIPPED: u32 = 1u;
 const C_REJECTED: u32 = 2u;
 
-// `MAX_COUNT` of `filters/taa/mod.rs`; `CLIP_EPS` of `kernels/clip.rs`; `TONEMAP_MAX` of
-// `kernels/color.rs`.
+// `MAX_COUNT` of `filters/taa/mod.rs`; `CLIP_EPS` of `kernels/clip.rs`.
 const MAX_COUNT: f32 = 255.0;
 const CLIP_EPS: f32 = 1.0e-8;
-const TONEMAP_MAX: f32 = 0.9999999;
-const F32_MAX: f32 = 3.40282347e38;
-
-// kernels::tonemap: c / (1 + max c).
-fn tonemap(c: vec3<f32>) -> vec3<f32> {
-    return c * (1.0 / (1.0 + max(max(c.x, c.y), c.z)));
-}
-
-// kernels::tonemap_inverse: t / (1 - max t), max held below 1.
-fn tonemap_inverse(t: vec3<f32>) -> vec3<f32> {
-    let m = min(max(max(t.x, t.y), t.z), TONEMAP_MAX);
-    return t * (1.0 / (1.0 - m));
-}
-
-// kernels::rgb_to_ycocg (Malvar and Sullivan 2003).
-fn rgb_to_ycocg(c: vec3<f32>) -> vec3<f32> {
-    return vec3<f32>(
-        0.25 * c.x + 0.5 * c.y + 0.25 * c.z,
-        0.5 * c.x - 0.5 * c.z,
-        -0.25 * c.x + 0.5 * c.y - 0.25 * c.z,
-    );
-}
-
-// kernels::ycocg_to_rgb.
-fn ycocg_to_rgb(c: vec3<f32>) -> vec3<f32> {
-    let t = c.x - c.z;
-    return vec3<f32>(t + c.y, c.x + c.z, t - c.y);
-}
 
 // kernels::sample's catmull_rom_weights.
 fn catmull_rom_weights(t: f32) -> vec4<f32> {

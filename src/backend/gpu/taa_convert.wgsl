@@ -1,5 +1,5 @@
 // `convert`: passes::convert_texel_history, in place on the history texels.
-@group(0) @binding(0) var<uniform> C: Params;
+@group(0) @binding(0) var<storage, read> C: Params;
 @group(0) @binding(1) var<storage, read_write> texels: array<f32>;
 
 @compute @workgroup_size(64)

@@ -1,6 +1,6 @@
 // `taa`: the resolve pass (see taa.wgsl, which precedes this file).
 
-@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
 @group(0) @binding(2) var<storage, read> hist: array<f32>;
 @group(0) @binding(3) var<storage, read_write> next: array<f32>;
@@ -16,10 +16,6 @@ fn has(f: u32) -> bool {
 fn plane_len() -> u32 {
     return P.width * P.height;
 }
-
-
-
-
 
 fn input_color(i: u32) -> vec3<f32> {
     let n = plane_len();
@@ -63,10 +59,6 @@ fn dilated_motion(x: u32, y: u32) -> vec2<f32> {
     return vec2<f32>(inp[IN_MX * n + best], inp[IN_MY * n + best]);
 }
 
-fn clamp_index(i: f32, n: u32) -> u32 {
-    return u32(clamp(i, 0.0, f32(n - 1u)));
-}
-
 fn hist_texel(x: u32, y: u32) -> vec4<f32> {
     let i = 4u * (y * P.width + x);
     return vec4<f32>(hist[i], hist[i + 1u], hist[i + 2u], hist[i + 3u]);
@@ -106,7 +98,6 @@ fn bilinear_depth(px: f32, py: f32) -> f32 {
     return mix(top, bottom, t.y);
 }
 
-
 // kernels::catmull_rom_texel: Catmull-Rom of Y, Co, Cg over the 4x4 footprint without its
 // corners, renormalised (Karis 2014; Jimenez 2016), and bilinear of the count.
 fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
@@ -139,7 +130,6 @@ fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
     }
     return vec4<f32>(acc, bilinear_texel(px, py).w);
 }
-
 
 @compute @workgroup_size(8, 8)
 fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {

@@ -1,7 +1,7 @@
 // `sharpen` reads the resolved working colour (`src`, the resolve's output) and writes
 // `dst`: passes::sharpen (kernels::sharpen_cross, thesis eq. 4.17) clamped to
 // [0, 1 - 1e-7] in the tonemapped space (else [0, f32::MAX]), then back to linear.
-@group(0) @binding(0) var<uniform> S: Params;
+@group(0) @binding(0) var<storage, read> S: Params;
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
 

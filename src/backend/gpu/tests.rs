@@ -25,10 +25,26 @@ const GPU_TOLERANCE: Tolerance = Tolerance::abs(1e-4);
 const GPU_OUTLIERS: f64 = 0.001;
 const GPU_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-3);
 
+/// [`GPU_OUTLIERS`] and [`GPU_OUTLIER_TOLERANCE`] for `phlm`, whose f32 solve differs from
+/// the CPU's f64 one by up to about the condition number times f32's epsilon in the least
+/// excited directions, and whose box test turns such a difference into a different clip
+/// now and then. With the paper's hard reset (`clip_p = 1000`) and `lambda = 0.9` the
+/// filter is that sensitive on the CPU alone: scaling the camera cut's input by
+/// `1 + 1.2e-7` (about one ulp) moves its output by up to 3.9e-4 within 64 frames; the GPU
+/// differs there by up to 2.1e-3 at one pixel (a clip taken on one backend only, at frame
+/// 54, decaying after), in 0.15% of a frame's samples past 1e-4.
+const PHLM_OUTLIERS: f64 = 0.005;
+const PHLM_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(5e-3);
+
 /// Pixel counts (reset, clipped, rejected) may differ in this fraction of the pixels plus
 /// one: a history value exactly on its box's boundary is clipped on one backend and not on
 /// the other.
 const COUNT_SLACK: f64 = 0.002;
+
+/// The largest trace(P) of a frame (phlm's model health): the GPU solves in f32, the CPU in
+/// f64, and trace(P) is dominated by the least excited directions, the ones f32 resolves
+/// worst (to about the condition number times f32's epsilon; 0.14% measured).
+const TRACE_TOLERANCE: Tolerance = Tolerance::rel(1e-2);
 
 fn make(name: &str, set: &[&str], choice: BackendChoice) -> Box<dyn Filter> {
     let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
@@ -63,6 +79,11 @@ fn assert_agree(g: &Output, c: &Output, what: &str) -> f32 {
             .collect()
     };
     let (wg, wc) = (working(g), working(c));
+    let (share, outlier) = if g.record.filter == "phlm" {
+        (PHLM_OUTLIERS, PHLM_OUTLIER_TOLERANCE)
+    } else {
+        (GPU_OUTLIERS, GPU_OUTLIER_TOLERANCE)
+    };
     let mut worst = 0.0f32;
     let mut outliers = 0usize;
     for (i, (a, b)) in wg.iter().zip(&wc).enumerate() {
@@ -71,13 +92,13 @@ fn assert_agree(g: &Output, c: &Output, what: &str) -> f32 {
             worst = worst.max((a[k] - b[k]).abs());
             if GPU_TOLERANCE.check("", x, y).is_err() {
                 outliers += 1;
-                GPU_OUTLIER_TOLERANCE
+                outlier
                     .check(&format!("{what}: pixel {i} channel {k} (working space)"), x, y)
                     .unwrap();
             }
         }
     }
-    let allowed = (GPU_OUTLIERS * 3.0 * wg.len() as f64) as usize + 1;
+    let allowed = (share * 3.0 * wg.len() as f64) as usize + 1;
     assert!(
         outliers <= allowed,
         "{what}: {outliers} samples past {GPU_TOLERANCE:?}, at most {allowed} allowed"
@@ -93,6 +114,52 @@ fn assert_agree(g: &Output, c: &Output, what: &str) -> f32 {
     assert_eq!(g.record.input, c.record.input, "{what}: input counts");
     assert_eq!(g.record.state_bytes, c.record.state_bytes, "{what}: state bytes");
     assert_eq!(g.record.backend, Backend::Gpu, "{what}");
+    assert_eq!(c.record.device, None, "{what}: a CPU record has no device times");
+    if matches!(g.record.filter, "taa" | "phlm") {
+        let d = g
+            .record
+            .device
+            .as_ref()
+            .expect("a GPU record says where its time went");
+        let timestamps = shared()
+            .unwrap()
+            .device
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY);
+        assert_eq!(d.shaders_ms.is_some(), timestamps, "{what}: {d:?}");
+        assert!(d.upload_ms > 0.0 && d.readback_ms >= 0.0, "{what}: {d:?}");
+        // The filter's stages share the passes' device time (or the round trip without
+        // timestamps); `repair` runs on the host before the upload.
+        let staged: f64 = g
+            .record
+            .stages
+            .iter()
+            .filter(|s| s.name != "repair")
+            .filter_map(|s| s.ms)
+            .sum();
+        let whole = d.shaders_ms.unwrap_or(d.upload_ms + d.readback_ms);
+        Tolerance::new(1e-9, 1e-9)
+            .check(&format!("{what}: stage times"), staged, whole)
+            .unwrap();
+    }
+    if let (Some(gm), Some(cm)) = (&g.record.model, &c.record.model) {
+        let share = |x: f64, y: f64| (x - y).abs() <= COUNT_SLACK + 1.0 / pixels as f64;
+        assert!(
+            share(gm.reset_by_clip, cm.reset_by_clip)
+                && share(gm.reset_by_disocclusion, cm.reset_by_disocclusion),
+            "{what}: model health gpu {gm:?} cpu {cm:?}"
+        );
+        assert_eq!(gm.p_repaired, cm.p_repaired, "{what}: repaired models");
+        TRACE_TOLERANCE
+            .check(
+                &format!("{what}: largest trace(P)"),
+                gm.max_trace_p,
+                cm.max_trace_p,
+            )
+            .unwrap();
+    } else {
+        assert_eq!(g.record.model, c.record.model, "{what}: model health");
+    }
     worst
 }
 
@@ -158,6 +225,36 @@ fn taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
     }
 }
 
+const PHLM_VARIANTS: &[&[&str]] = &[
+    &[],
+    &["model_fetch=nearest"],
+    &["test_box=variance", "on_clip=shift", "clip_keep=0.5"],
+    &["lambda=0.9", "clip_p=1000", "lambda_moving=0"],
+];
+
+#[test]
+fn phlm_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
+    for name in ["spokes", "flyover", "hdr", "camera-cut"] {
+        let frames = scene(name);
+        for set in PHLM_VARIANTS {
+            let worst = compare("phlm", set, &frames, name);
+            eprintln!("phlm {set:?} {name}: max |gpu - cpu| = {worst:.2e}");
+        }
+    }
+}
+
+/// [`taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences`] for `phlm`.
+#[test]
+fn phlm_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
+    for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
+        for (what, frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
+            for set in PHLM_VARIANTS {
+                compare("phlm", set, &frames, &format!("{w}x{h} {what}"));
+            }
+        }
+    }
+}
+
 #[test]
 fn fxaa_on_the_gpu_follows_the_cpu() {
     let variants: &[&[&str]] = &[&[], &["subpix=0", "edge_threshold=0.063", "edge_threshold_min=0"]];
@@ -196,28 +293,32 @@ fn passthrough_on_the_gpu_is_the_cpu_passthrough() {
 #[test]
 fn states_move_between_backends() {
     let frames = scene("flyover");
-    for set in [&[][..], &["depth_rejection=0.05"][..]] {
-        let mut cpu = make("taa", set, BackendChoice::Cpu);
+    for (name, set) in [
+        ("taa", &[][..]),
+        ("taa", &["depth_rejection=0.05"][..]),
+        ("phlm", &[][..]),
+    ] {
+        let mut cpu = make(name, set, BackendChoice::Cpu);
         for f in &frames[..10] {
             cpu.process(f).unwrap();
         }
         let bytes = cpu.save_state().unwrap().encode();
         let st = FilterState::decode(&bytes, (48 * 27) as u64).unwrap();
-        let mut gpu = make("taa", set, BackendChoice::Gpu);
+        let mut gpu = make(name, set, BackendChoice::Gpu);
         gpu.load_state(&st).unwrap();
         for (i, f) in frames[10..20].iter().enumerate() {
             let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
-            assert_agree(&g, &c, &format!("{set:?} after CPU state, frame {i}"));
+            assert_agree(&g, &c, &format!("{name} {set:?} after CPU state, frame {i}"));
         }
         // And back: the GPU's state into a fresh CPU filter.
         let st = gpu.save_state().unwrap();
-        let mut back = make("taa", set, BackendChoice::Cpu);
+        let mut back = make(name, set, BackendChoice::Cpu);
         back.load_state(&st).unwrap();
         for (i, f) in frames[20..24].iter().enumerate() {
             let (g, c) = (back.process(f).unwrap(), cpu.process(f).unwrap());
             GPU_TOLERANCE
                 .check_slices(
-                    &format!("{set:?} back on the CPU, frame {i}"),
+                    &format!("{name} {set:?} back on the CPU, frame {i}"),
                     g.color[0].data(),
                     c.color[0].data(),
                 )
@@ -254,10 +355,10 @@ fn a_gpu_filter_refuses_a_new_size_without_a_reset() {
 
 #[test]
 fn filters_without_a_gpu_implementation_are_refused_and_auto_takes_the_cpu() {
-    assert_eq!(FILTERS, ["passthrough", "fxaa", "taa"]);
-    let e = backend::create("phlm", &Default::default(), BackendChoice::Gpu).unwrap_err();
+    assert_eq!(FILTERS, ["passthrough", "fxaa", "taa", "phlm"]);
+    let e = backend::create("traa", &Default::default(), BackendChoice::Gpu).unwrap_err();
     assert!(e.to_string().contains("no GPU implementation"), "{e}");
-    let made = backend::create("phlm", &Default::default(), BackendChoice::Auto).unwrap();
+    let made = backend::create("traa", &Default::default(), BackendChoice::Auto).unwrap();
     assert_eq!(made.backend, Backend::Cpu);
     let made = backend::create("taa", &Default::default(), BackendChoice::Auto).unwrap();
     assert_eq!(made.backend, Backend::Gpu);

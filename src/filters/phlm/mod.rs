@@ -325,10 +325,9 @@ impl FilterKind for Phlm {
         2 * 4 * STATE_PLANES
     }
     fn new(params: Params) -> Self {
-        // One texel of the 25 state floats per pixel: a fetch reads a pixel's model at once.
         Phlm {
             params,
-            hist: TemporalState::with_components(&[STATE_PLANES], Conversion::Custom(convert_state_texels)),
+            hist: Phlm::history(),
         }
     }
 }
@@ -337,7 +336,7 @@ impl FilterKind for Phlm {
 /// switches between LDR and HDR frames): each model restarts from its own prediction
 /// converted to the new space (slopes 0, P kept), the feature is converted, so the output
 /// does not jump.
-pub(crate) fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+pub fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     let w = planes[0].width();
     let rows: [&mut [f32]; STATE_PLANES] = {
         let mut it = planes.iter_mut();
@@ -388,6 +387,13 @@ fn convert_state_texels(planes: &mut [Plane<f32>], to_tonemapped: bool) {
 }
 
 impl Phlm {
+    /// The filter's state, empty: one texel of the 25 state floats per pixel (a fetch reads
+    /// a pixel's model at once), converted between linear and tonemapped working space by
+    /// [`convert_state`]. The GPU backend saves and loads this same format.
+    pub fn history() -> TemporalState {
+        TemporalState::with_components(&[STATE_PLANES], Conversion::Custom(convert_state_texels))
+    }
+
     /// Every pixel's information matrix `R = P^-1` (packed upper triangle, see
     /// [`rls::SYM`]) after the last frame; empty before the first frame or after a reset.
     /// For health checks ([`rls::positive_definite`], [`rls::trace_of_inverse_packed`]).

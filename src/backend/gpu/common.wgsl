@@ -1,0 +1,44 @@
+// What every filter's shaders share: the colour transforms of `crate::kernels`, each
+// naming the CPU function it mirrors, and small numeric helpers. A filter's module source
+// is this file followed by the filter's own (`gpu::pipeline` joins them).
+
+// `TONEMAP_MAX` of `kernels/color.rs`.
+const TONEMAP_MAX: f32 = 0.9999999;
+const F32_MAX: f32 = 3.40282347e38;
+
+// kernels::tonemap: c / (1 + max c).
+fn tonemap(c: vec3<f32>) -> vec3<f32> {
+    return c * (1.0 / (1.0 + max(max(c.x, c.y), c.z)));
+}
+
+// kernels::tonemap_inverse: t / (1 - max t), max held below 1.
+fn tonemap_inverse(t: vec3<f32>) -> vec3<f32> {
+    let m = min(max(max(t.x, t.y), t.z), TONEMAP_MAX);
+    return t * (1.0 / (1.0 - m));
+}
+
+// kernels::rgb_to_ycocg (Malvar and Sullivan 2003).
+fn rgb_to_ycocg(c: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(
+        0.25 * c.x + 0.5 * c.y + 0.25 * c.z,
+        0.5 * c.x - 0.5 * c.z,
+        -0.25 * c.x + 0.5 * c.y - 0.25 * c.z,
+    );
+}
+
+// kernels::ycocg_to_rgb.
+fn ycocg_to_rgb(c: vec3<f32>) -> vec3<f32> {
+    let t = c.x - c.z;
+    return vec3<f32>(t + c.y, c.x + c.z, t - c.y);
+}
+
+// kernels::sample's clamp_index: a whole number as f32 clamped into 0..n.
+fn clamp_index(i: f32, n: u32) -> u32 {
+    return u32(clamp(i, 0.0, f32(n - 1u)));
+}
+
+// Whether v is finite, from its bits (WGSL lets a compiler assume NaN and infinity away
+// in comparisons, so `v != v` is no test).
+fn finite(v: f32) -> bool {
+    return (bitcast<u32>(v) & 0x7f800000u) != 0x7f800000u;
+}

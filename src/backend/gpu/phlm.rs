@@ -1,0 +1,404 @@
+//! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
+//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z: 25 planes)
+//! stay on the device, double-buffered; a frame uploads its colour (and motion and the
+//! invalid mask when it has them) and reads back the colour and the model counters in one
+//! buffer.
+//!
+//! The RLS update is solved in f32 ([`rls::update_information_f32`], which the shader
+//! mirrors): the information matrix formed with one rounding per entry and Cholesky pivots
+//! held at or above the prior. The CPU solves in f64.
+
+use super::buffers::{params_buffer, planes_from, write_words};
+use super::timing::{self, FrameClock, PassTimer};
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use crate::backend::BackendError;
+use crate::filters::passes::reproject_skip;
+use crate::filters::phlm::{convert_state, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES};
+use crate::frame::{Frame, Plane};
+use crate::pipeline::params::build;
+use crate::pipeline::{
+    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, ModelHealth,
+    Output, PixelCounts, Recorder, StateError,
+};
+use serde_json::{Map, Value};
+use std::sync::Arc;
+
+const SOURCE: &str = include_str!("phlm.wgsl");
+const WORKGROUP: usize = 8;
+
+// Bits of `Params.flags` (the FLAG_ constants of phlm.wgsl).
+const FLAG_TONEMAP: u32 = 1;
+const FLAG_REPROJECT: u32 = 2;
+const FLAG_HISTORY: u32 = 4;
+const FLAG_MOTION: u32 = 8;
+const FLAG_INVALID: u32 = 16;
+const FLAG_NEAREST: u32 = 32;
+const FLAG_VARIANCE_BOX: u32 = 64;
+const FLAG_SHIFT: u32 = 128;
+
+// Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, invalid.
+const INPUT_PLANES: usize = 6;
+const IN_MX: usize = 3;
+const IN_INVALID: usize = 5;
+
+/// Words of the counters (C_ constants of phlm.wgsl): reset, clipped, off screen,
+/// repaired, the largest trace(P) as bits; padded.
+const COUNTERS: usize = 8;
+
+/// Device buffers for one frame size, and the two bind groups that alternate the state.
+#[derive(Debug)]
+struct Buffers {
+    width: usize,
+    height: usize,
+    params: wgpu::Buffer,
+    input: StorageBuffer,
+    /// The models: `state[read]` is the previous frame's, the other is written.
+    state: [StorageBuffer; 2],
+    out: StorageBuffer,
+    counters: wgpu::Buffer,
+    /// `bound[k]` reads `state[k]` and writes `state[1 - k]`.
+    bound: [wgpu::BindGroup; 2],
+    /// The pass's timestamps, where the device has them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
+}
+
+impl Buffers {
+    fn new(gpu: &Gpu, pass: &wgpu::ComputePipeline, width: usize, height: usize) -> Self {
+        let n = width * height;
+        let params = params_buffer(gpu, "phlm params", &[0; 16]);
+        let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n);
+        let state = [0, 1].map(|_| StorageBuffer::new(gpu, "phlm models", STATE_PLANES * n));
+        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n);
+        let counters = StorageBuffer::new(gpu, "phlm counters", COUNTERS).buffer;
+        let bound = [0, 1].map(|k| {
+            bind(
+                gpu,
+                pass,
+                &[
+                    &params,
+                    &input.buffer,
+                    &state[k].buffer,
+                    &state[1 - k].buffer,
+                    &out.buffer,
+                    &counters,
+                ],
+            )
+        });
+        let timer = PassTimer::new(gpu, 1);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
+        Buffers {
+            width,
+            height,
+            params,
+            input,
+            state,
+            out,
+            counters,
+            bound,
+            timer,
+            back: Readback::new(gpu, "phlm readback", 3 * n + COUNTERS + timer_words),
+        }
+    }
+}
+
+/// `phlm` with its models on the device.
+#[derive(Debug)]
+pub struct GpuPhlm {
+    gpu: Arc<Gpu>,
+    params: Params,
+    pass: wgpu::ComputePipeline,
+    buffers: Option<Buffers>,
+    /// Which of `buffers.state` holds the previous frame's models.
+    read: usize,
+    /// Whether it does (not on the first frame or after a reset).
+    valid: bool,
+    /// Whether its models are in tonemapped working space.
+    tonemapped: bool,
+    /// Readback staging, reused.
+    words: Vec<f32>,
+}
+
+impl GpuPhlm {
+    /// The filter with `values` overriding the defaults.
+    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+        let params: Params = build(Phlm::NAME, values)?;
+        Ok(GpuPhlm {
+            pass: pipeline(&gpu, "phlm", SOURCE, "phlm"),
+            gpu,
+            params,
+            buffers: None,
+            read: 0,
+            valid: false,
+            tonemapped: false,
+            words: Vec::new(),
+        })
+    }
+
+    /// The buffers for a `width` x `height` frame (new ones drop the models).
+    fn sized(&mut self, width: usize, height: usize) {
+        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
+            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height));
+            self.valid = false;
+            self.read = 0;
+        }
+    }
+
+    fn param_words(&self, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
+        let p = &self.params;
+        [
+            width as u32,
+            height as u32,
+            flags,
+            0,
+            p.lambda.to_bits(),
+            p.lambda_moving.to_bits(),
+            p.lambda_speed.to_bits(),
+            p.p0.to_bits(),
+            p.clip_p.to_bits(),
+            p.clip_keep.to_bits(),
+            p.feature_a.to_bits(),
+            p.feature_b.to_bits(),
+            p.feature_alpha_min.to_bits(),
+            p.test_gamma.to_bits(),
+            hi.to_bits(),
+            0,
+        ]
+    }
+
+    /// The previous frame's models as 25 planes (the CPU reference's planar layout).
+    fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
+        let b = self.buffers.as_ref().expect("sized");
+        let (w, h) = (b.width, b.height);
+        let n = w * h;
+        let len = b.state[self.read].len;
+        let back = Readback::new(&self.gpu, "phlm model readback", len);
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        back.copy_from(&mut enc, &b.state[self.read].buffer, 0, len);
+        self.gpu.queue.submit([enc.finish()]);
+        let mut words: Vec<f32> = Vec::new();
+        back.read(&self.gpu, len, &mut words)?;
+        (0..STATE_PLANES)
+            .map(|k| {
+                Plane::from_vec(w, h, words[k * n..(k + 1) * n].to_vec())
+                    .map_err(|e| BackendError::Device(e.to_string()))
+            })
+            .collect()
+    }
+
+    /// Writes 25 model planes as the previous frame's.
+    fn upload(&self, planes: &[Plane<f32>]) {
+        let b = self.buffers.as_ref().expect("sized");
+        let n = b.width * b.height;
+        for (k, p) in planes.iter().enumerate() {
+            b.state[self.read].write(&self.gpu, k * n, p.data());
+        }
+    }
+}
+
+impl Filter for GpuPhlm {
+    fn name(&self) -> &'static str {
+        Phlm::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame).map_err(|e| e.into_filter_error(Phlm::NAME))
+    }
+
+    fn reset(&mut self) {
+        self.valid = false;
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.buffers
+            .as_ref()
+            .map_or(0, |b| b.state.iter().map(StorageBuffer::bytes).sum())
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        let mut st = Phlm::history();
+        if let (Some(b), true) = (&self.buffers, self.valid) {
+            let planes = self.download().map_err(|e| StateError::Device(e.to_string()))?;
+            st.buffer
+                .restore((b.width, b.height), vec![to_texels(&planes)])
+                .map_err(StateError::Device)?;
+        }
+        st.set_tonemapped(self.tonemapped);
+        Ok(st.save(Phlm::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        let mut st = Phlm::history();
+        st.load(state, Phlm::NAME, &self.params())?;
+        match st.buffer.history_size() {
+            Some((w, h)) => {
+                self.sized(w, h);
+                self.read = 0;
+                self.upload(&from_texels(&st.buffer.read()[0], w));
+                self.gpu.queue.submit([]);
+                self.valid = true;
+            }
+            None => self.valid = false,
+        }
+        self.tonemapped = st.tonemapped();
+        Ok(())
+    }
+}
+
+/// The CPU filter's state layout (one plane of `STATE_PLANES`-float texels per pixel) from
+/// planar models.
+fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
+    let (w, h) = planes[0].size();
+    Plane::from_fn(w * STATE_PLANES, h, |x, y| {
+        planes[x % STATE_PLANES].get(x / STATE_PLANES, y)
+    })
+}
+
+/// Planar models from the CPU filter's texel plane (`w` pixels wide).
+fn from_texels(texels: &Plane<f32>, w: usize) -> Vec<Plane<f32>> {
+    (0..STATE_PLANES)
+        .map(|k| Plane::from_fn(w, texels.height(), |x, y| texels.get(x * STATE_PLANES + k, y)))
+        .collect()
+}
+
+impl GpuPhlm {
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let hdr = inp.facts.hdr;
+        check_size(
+            self.buffers.as_ref().map(|b| (b.width, b.height)),
+            self.valid,
+            frame,
+        )?;
+        self.sized(w, h);
+        let has_history = self.valid && !frame.meta.reset;
+        let mut clock = FrameClock::start();
+        if has_history && self.tonemapped != hdr {
+            // A stream moving between LDR and HDR frames: the models move to the new working
+            // space on the CPU (rare; `phlm::convert_state`, the CPU filter's conversion).
+            let mut planes = self.download()?;
+            convert_state(&mut planes, hdr);
+            self.upload(&planes);
+        }
+        let tonemap_skip = inp.facts.tonemap();
+        let reproject = reproject_skip(&inp, has_history);
+        let p = &self.params;
+
+        let mut flags = 0;
+        let mut set = |on: bool, bit: u32| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(tonemap_skip.is_none(), FLAG_TONEMAP);
+        set(reproject.is_none(), FLAG_REPROJECT);
+        set(has_history, FLAG_HISTORY);
+        set(inp.motion.is_some(), FLAG_MOTION);
+        set(inp.invalid.is_some(), FLAG_INVALID);
+        set(p.model_fetch == ModelFetch::Nearest, FLAG_NEAREST);
+        set(p.test_box == TestBox::Variance, FLAG_VARIANCE_BOX);
+        set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
+        let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
+        let words = self.param_words(w, h, flags, hi);
+
+        let gpu = Arc::clone(&self.gpu);
+        let b = self.buffers.as_ref().expect("sized");
+        write_words(&gpu, &b.params, &words);
+        for (k, plane) in inp.color.iter().enumerate() {
+            b.input.write(&gpu, k * n, plane.data());
+        }
+        if let Some(m) = inp.motion.as_deref() {
+            for (k, plane) in m.iter().enumerate() {
+                b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+            }
+        }
+        if let Some(invalid) = &inp.invalid {
+            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+            b.input.write(&gpu, IN_INVALID * n, &mask);
+        }
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        write_words(&gpu, &b.counters, &[0; COUNTERS]);
+        {
+            let (gx, gy) = groups(w, h, WORKGROUP);
+            let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
+            pass.set_pipeline(&self.pass);
+            pass.set_bind_group(0, &b.bound[self.read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
+        enc.copy_buffer_to_buffer(
+            &b.counters,
+            0,
+            b.back.buffer(),
+            (3 * n * 4) as u64,
+            (COUNTERS * 4) as u64,
+        );
+        let timer_at = 3 * n + COUNTERS;
+        if let Some(timer) = &b.timer {
+            timer.resolve(&mut enc, 1, &b.back, timer_at);
+        }
+        gpu.queue.submit([enc.finish()]);
+        clock.submitted();
+        let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
+        b.back.read(&gpu, words, &mut self.words)?;
+        clock.back();
+        let color = planes_from(&self.words, w, h)?;
+        let c: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
+        let shaders_ms = b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]);
+        let device = clock.times(shaders_ms);
+
+        // The CPU filter's stages, run or left out for the same reasons; one pass runs them
+        // all, so they share its device time (without timestamps, the frame's round trip).
+        let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+        timing::share(
+            &mut rec,
+            vec![
+                ("tonemap", tonemap_skip.clone()),
+                ("ycocg", None),
+                ("reproject", reproject),
+                ("feature", None),
+                ("model", None),
+                ("untonemap", tonemap_skip),
+            ],
+            ms,
+        );
+
+        self.read = 1 - self.read;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let pixels = PixelCounts {
+            history_reset: c[0] as u64,
+            history_clipped: c[1] as u64,
+            history_rejected: 0,
+        };
+        let mut record = rec.finish(
+            Phlm::NAME,
+            frame.meta.index,
+            pixels,
+            inp.counts,
+            self.state_bytes(),
+        );
+        record.backend = Backend::Gpu;
+        record.device = Some(device);
+        record.model = Some(ModelHealth {
+            reset_by_clip: c[1] as f64 / n as f64,
+            reset_by_disocclusion: c[2] as f64 / n as f64,
+            max_trace_p: f32::from_bits(c[4]) as f64,
+            p_repaired: c[3] as u64,
+        });
+        Ok(Output { color, record })
+    }
+}

@@ -1,0 +1,513 @@
+// `phlm` on the GPU: one pass per frame, one invocation per pixel, computing what
+// `crate::filters::phlm::reference` computes stage by stage (each function names the CPU
+// function it mirrors): the working colour's 3x3 statistics in YCoCg, the previous
+// position, the temporal feature (sec. 5.1 of Iglesias-Guitian et al. 2016), and Algorithm 1
+// (fetch, predict, box test, clip, the RLS update, output).
+//
+// The RLS update is `rls::update_information_f32`: the information form with regularized
+// forgetting, formed with one rounding per entry (fma) and solved by a Cholesky
+// factorisation whose pivots are held at or above the prior (the rls module's docs give
+// the bound and the still-pixel measurements).
+//
+// State: 25 planes (beta 12, R = P^-1 packed 10, z 3; the CPU filter's texel order, one
+// plane each so neighbouring invocations read neighbouring words), double-buffered.
+
+struct Params {
+    width: u32,
+    height: u32,
+    // Bits: see the FLAG_ constants.
+    flags: u32,
+    _pad: u32,
+    lambda: f32,
+    lambda_moving: f32,
+    lambda_speed: f32,
+    p0: f32,
+    clip_p: f32,
+    clip_keep: f32,
+    feature_a: f32,
+    feature_b: f32,
+    feature_alpha_min: f32,
+    test_gamma: f32,
+    // Largest output: just below 1 in the tonemapped space, else f32::MAX.
+    hi: f32,
+    _pad2: f32,
+}
+
+@group(0) @binding(0) var<storage, read> P: Params;
+@group(0) @binding(1) var<storage, read> inp: array<f32>;
+@group(0) @binding(2) var<storage, read> state: array<f32>;
+@group(0) @binding(3) var<storage, read_write> next: array<f32>;
+@group(0) @binding(4) var<storage, read_write> out: array<f32>;
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, 8>;
+
+const FLAG_TONEMAP: u32 = 1u;
+const FLAG_REPROJECT: u32 = 2u;
+const FLAG_HISTORY: u32 = 4u;
+const FLAG_MOTION: u32 = 8u;
+const FLAG_INVALID: u32 = 16u;
+const FLAG_NEAREST: u32 = 32u;
+const FLAG_VARIANCE_BOX: u32 = 64u;
+const FLAG_SHIFT: u32 = 128u;
+
+// Planes of `inp`, in units of width * height.
+const IN_MX: u32 = 3u;
+const IN_MY: u32 = 4u;
+const IN_INVALID: u32 = 5u;
+
+// State planes (phlm::BETA, phlm::R, phlm::Z).
+const BETA: u32 = 0u;
+const R: u32 = 12u;
+const Z: u32 = 22u;
+
+// Counters: history reset, clipped, reset off screen, repaired, largest trace(P) (bits).
+const C_RESET: u32 = 0u;
+const C_CLIPPED: u32 = 1u;
+const C_OFFSCREEN: u32 = 2u;
+const C_REPAIRED: u32 = 3u;
+const C_TRACE: u32 = 4u;
+
+// `EPS` of `phlm/feature.rs`.
+const FEATURE_EPS: f32 = 1.0e-6;
+
+var<workgroup> wg_counts: array<atomic<u32>, 5>;
+
+fn has(f: u32) -> bool {
+    return (P.flags & f) != 0u;
+}
+
+fn plane_len() -> u32 {
+    return P.width * P.height;
+}
+
+fn input_color(i: u32) -> vec3<f32> {
+    let n = plane_len();
+    return vec3<f32>(inp[i], inp[n + i], inp[2u * n + i]);
+}
+
+// The working colour (tonemapped for HDR input; passes::to_working).
+fn working(i: u32) -> vec3<f32> {
+    let c = input_color(i);
+    if has(FLAG_TONEMAP) {
+        return tonemap(c);
+    }
+    return c;
+}
+
+// The working colour in YCoCg at (x, y) clamped to the image (passes::to_ycocg).
+fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
+    let cx = u32(clamp(x, 0, i32(P.width) - 1));
+    let cy = u32(clamp(y, 0, i32(P.height) - 1));
+    return rgb_to_ycocg(working(cy * P.width + cx));
+}
+
+// a + (b - a) t, as kernels::bilinear interpolates.
+fn lerp(a: f32, b: f32, t: f32) -> f32 {
+    return a + (b - a) * t;
+}
+
+// Where a previous position's state is read (phlm::fetch): nearest, or the four bilinear
+// taps clamped to the image and their weights (kernels::bilinear).
+struct Taps {
+    i00: u32,
+    i01: u32,
+    i10: u32,
+    i11: u32,
+    tx: f32,
+    ty: f32,
+}
+
+fn taps(px: f32, py: f32) -> Taps {
+    var t: Taps;
+    if has(FLAG_NEAREST) {
+        let j = min(u32(max(py, 0.0)), P.height - 1u) * P.width + min(u32(max(px, 0.0)), P.width - 1u);
+        t.i00 = j;
+        t.i01 = j;
+        t.i10 = j;
+        t.i11 = j;
+        t.tx = 0.0;
+        t.ty = 0.0;
+        return t;
+    }
+    let fx = px - 0.5;
+    let fy = py - 0.5;
+    let x0 = floor(fx);
+    let y0 = floor(fy);
+    t.tx = fx - x0;
+    t.ty = fy - y0;
+    let xa = clamp_index(x0, P.width);
+    let xb = clamp_index(x0 + 1.0, P.width);
+    let ya = clamp_index(y0, P.height) * P.width;
+    let yb = clamp_index(y0 + 1.0, P.height) * P.width;
+    t.i00 = ya + xa;
+    t.i01 = ya + xb;
+    t.i10 = yb + xa;
+    t.i11 = yb + xb;
+    return t;
+}
+
+// Planes k .. k + 3 (fetch).
+fn fetch4(k: u32, t: Taps) -> vec4<f32> {
+    return vec4<f32>(fetch(k, t), fetch(k + 1u, t), fetch(k + 2u, t), fetch(k + 3u, t));
+}
+
+fn fetch(k: u32, t: Taps) -> f32 {
+    let o = k * plane_len();
+    if has(FLAG_NEAREST) {
+        return state[o + t.i00];
+    }
+    let top = lerp(state[o + t.i00], state[o + t.i01], t.tx);
+    let bottom = lerp(state[o + t.i10], state[o + t.i11], t.tx);
+    return lerp(top, bottom, t.ty);
+}
+
+// phlm::feature::convergence and accumulate (sec. 5.1: phi = a l^2 + b v l^3).
+fn accumulate(prev: vec3<f32>, lowpass: vec3<f32>, lo: f32, hi: f32, v: f32) -> vec3<f32> {
+    let fl = 0.25 * prev.x + 0.5 * prev.y + 0.25 * prev.z;
+    let l = max(max(lo - fl, fl - hi), 0.0);
+    let phi = P.feature_a * l * l + P.feature_b * v * l * l * l;
+    let a = clamp(phi / (l + (hi - lo) + FEATURE_EPS), P.feature_alpha_min, 1.0);
+    return prev + a * (lowpass - prev);
+}
+
+// One axis of kernels::clip_toward_point: the fraction of the way from q to tgt at which
+// the slab [lo, hi] is entered (0 when q is inside it), and 1 in `.y` when q is outside.
+fn slab_entry(q: f32, tgt: f32, lo: f32, hi: f32) -> vec2<f32> {
+    if q < lo {
+        return vec2<f32>(min((lo - q) / (tgt - q), 1.0), 1.0);
+    }
+    if q > hi {
+        return vec2<f32>(min((hi - q) / (tgt - q), 1.0), 1.0);
+    }
+    return vec2<f32>(0.0, 0.0);
+}
+
+// kernels::clip_toward_point (Algorithm 1 lines 14-17): q moved along the ray toward
+// `toward` (clamped into the box) to the box; w = 1 when it moved. Written per axis, with
+// no loop over components: a dynamically indexed vector becomes memory on some drivers.
+fn clip_toward_point(q: vec3<f32>, toward: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
+    let tgt = min(max(toward, lo), hi);
+    let ex = slab_entry(q.x, tgt.x, lo.x, hi.x);
+    let ey = slab_entry(q.y, tgt.y, lo.y, hi.y);
+    let ez = slab_entry(q.z, tgt.z, lo.z, hi.z);
+    if ex.y + ey.y + ez.y == 0.0 {
+        return vec4<f32>(q, 0.0);
+    }
+    let t = max(max(ex.x, ey.x), ez.x);
+    return vec4<f32>(min(max(q + t * (tgt - q), lo), hi), 1.0);
+}
+
+// One pixel's model (phlm::Model): beta's rows, and R = P^-1 packed (rls::SYM order:
+// (0,0) (0,1) (0,2) (0,3) in ra, (1,1) (1,2) (1,3) (2,2) in rb, (2,3) (3,3) in rc). Named
+// vectors rather than arrays: an array indexed in a loop becomes memory on some drivers.
+struct Model {
+    b0: vec4<f32>,
+    b1: vec4<f32>,
+    b2: vec4<f32>,
+    ra: vec4<f32>,
+    rb: vec4<f32>,
+    rc: vec2<f32>,
+}
+
+// rls::init_information: R = I / p.
+fn set_information(m: ptr<function, Model>, p: f32) {
+    let d = 1.0 / p;
+    (*m).ra = vec4<f32>(d, 0.0, 0.0, 0.0);
+    (*m).rb = vec4<f32>(d, 0.0, 0.0, d);
+    (*m).rc = vec2<f32>(0.0, d);
+}
+
+// phlm::Model::reset: intercept = colour, slopes 0, R = I / p.
+fn model_reset(c: vec3<f32>, p: f32) -> Model {
+    var m: Model;
+    m.b0 = vec4<f32>(c.x, 0.0, 0.0, 0.0);
+    m.b1 = vec4<f32>(c.y, 0.0, 0.0, 0.0);
+    m.b2 = vec4<f32>(c.z, 0.0, 0.0, 0.0);
+    set_information(&m, p);
+    return m;
+}
+
+// rls::predict: beta^T x per channel, summed in the CPU's order.
+fn row_dot(b: vec4<f32>, x: vec4<f32>) -> f32 {
+    return b.x * x.x + b.y * x.y + b.z * x.z + b.w * x.w;
+}
+
+fn predict(m: Model, x: vec4<f32>) -> vec3<f32> {
+    return vec3<f32>(row_dot(m.b0, x), row_dot(m.b1, x), row_dot(m.b2, x));
+}
+
+// phlm::Model::clip (Algorithm 1 line 18): reset to `c` or shifted to predict it, R
+// relaxed toward I / clip_p.
+fn model_clip(m: ptr<function, Model>, pred: vec3<f32>, c: vec3<f32>) {
+    if has(FLAG_SHIFT) {
+        let d = c - pred;
+        (*m).b0.x += d.x;
+        (*m).b1.x += d.y;
+        (*m).b2.x += d.z;
+    } else {
+        (*m).b0 = vec4<f32>(c.x, 0.0, 0.0, 0.0);
+        (*m).b1 = vec4<f32>(c.y, 0.0, 0.0, 0.0);
+        (*m).b2 = vec4<f32>(c.z, 0.0, 0.0, 0.0);
+    }
+    var init: Model;
+    set_information(&init, P.clip_p);
+    if P.clip_keep == 0.0 {
+        (*m).ra = init.ra;
+        (*m).rb = init.rb;
+        (*m).rc = init.rc;
+    } else {
+        let k = P.clip_keep;
+        (*m).ra = k * (*m).ra + (1.0 - k) * init.ra;
+        (*m).rb = k * (*m).rb + (1.0 - k) * init.rb;
+        (*m).rc = k * (*m).rc + (1.0 - k) * init.rc;
+    }
+}
+
+// phlm::forgetting: lambda, falling with the speed v toward lambda_moving.
+fn forgetting(v: f32) -> f32 {
+    if P.lambda_moving == 0.0 {
+        return P.lambda;
+    }
+    return P.lambda + (P.lambda_moving - P.lambda) * min(v / P.lambda_speed, 1.0);
+}
+
+// A Cholesky pivot held at or above the prior (rls::cholesky with a floor); its square
+// root, or -1 for a non-finite one.
+fn pivot_root(s: f32, floor: f32) -> f32 {
+    if !finite(s) {
+        return -1.0;
+    }
+    return sqrt(select(floor, s, s > floor));
+}
+
+// rls::update_information_f32: R = lambda R + (1 - lambda) prior I + x x^T (one rounding per
+// entry), beta += R^-1 x e. Returns trace(R^-1), or -1 when R is not finite (m unchanged).
+fn update(m: ptr<function, Model>, x: vec4<f32>, e: vec3<f32>, lambda: f32, prior: f32) -> f32 {
+    let q = (1.0 - lambda) * prior;
+    let ra = (*m).ra;
+    let rb = (*m).rb;
+    let rc = (*m).rc;
+    let a00 = fma(lambda, ra.x, x.x * x.x + q);
+    let a01 = fma(lambda, ra.y, x.x * x.y);
+    let a02 = fma(lambda, ra.z, x.x * x.z);
+    let a03 = fma(lambda, ra.w, x.x * x.w);
+    let a11 = fma(lambda, rb.x, x.y * x.y + q);
+    let a12 = fma(lambda, rb.y, x.y * x.z);
+    let a13 = fma(lambda, rb.z, x.y * x.w);
+    let a22 = fma(lambda, rb.w, x.z * x.z + q);
+    let a23 = fma(lambda, rc.x, x.z * x.w);
+    let a33 = fma(lambda, rc.y, x.w * x.w + q);
+    // Cholesky with reciprocal pivots (rls::cholesky).
+    let l00 = pivot_root(a00, prior);
+    let i0 = 1.0 / l00;
+    let l10 = a01 * i0;
+    let l11 = pivot_root(a11 - l10 * l10, prior);
+    let i1 = 1.0 / l11;
+    let l20 = a02 * i0;
+    let l21 = (a12 - l20 * l10) * i1;
+    let l22 = pivot_root(a22 - l20 * l20 - l21 * l21, prior);
+    let i2 = 1.0 / l22;
+    let l30 = a03 * i0;
+    let l31 = (a13 - l30 * l10) * i1;
+    let l32 = (a23 - l30 * l20 - l31 * l21) * i2;
+    let l33 = pivot_root(a33 - l30 * l30 - l31 * l31 - l32 * l32, prior);
+    let i3 = 1.0 / l33;
+    if l00 < 0.0 || l11 < 0.0 || l22 < 0.0 || l33 < 0.0 {
+        return -1.0;
+    }
+    // Forward and back substitution (rls::solve).
+    let w0 = x.x * i0;
+    let w1 = (x.y - l10 * w0) * i1;
+    let w2 = (x.z - l20 * w0 - l21 * w1) * i2;
+    let w3 = (x.w - l30 * w0 - l31 * w1 - l32 * w2) * i3;
+    let g3 = w3 * i3;
+    let g2 = (w2 - l32 * g3) * i2;
+    let g1 = (w1 - l21 * g2 - l31 * g3) * i1;
+    let g0 = (w0 - l10 * g1 - l20 * g2 - l30 * g3) * i0;
+    let g = vec4<f32>(g0, g1, g2, g3);
+    (*m).b0 += g * e.x;
+    (*m).b1 += g * e.y;
+    (*m).b2 += g * e.z;
+    (*m).ra = vec4<f32>(a00, a01, a02, a03);
+    (*m).rb = vec4<f32>(a11, a12, a13, a22);
+    (*m).rc = vec2<f32>(a23, a33);
+    // trace(R^-1) = ||L^-1||_F^2, column by column (rls::trace_of_inverse).
+    let m10 = (-l10 * i0) * i1;
+    let m20 = (-l20 * i0 - l21 * m10) * i2;
+    let m30 = (-l30 * i0 - l31 * m10 - l32 * m20) * i3;
+    let m21 = (-l21 * i1) * i2;
+    let m31 = (-l31 * i1 - l32 * m21) * i3;
+    let m32 = (-l32 * i2) * i3;
+    return i0 * i0 + m10 * m10 + m20 * m20 + m30 * m30 + i1 * i1 + m21 * m21 + m31 * m31 + i2 * i2
+        + m32 * m32 + i3 * i3;
+}
+
+fn finite4(b: vec4<f32>) -> bool {
+    return finite(b.x) && finite(b.y) && finite(b.z) && finite(b.w);
+}
+
+fn beta_finite(m: Model) -> bool {
+    return finite4(m.b0) && finite4(m.b1) && finite4(m.b2);
+}
+
+// One column of a 3x3 neighbourhood: min, max, sum and sum of squares of its three rows
+// (kernels::for_each_row_stats's vertical pass), and its middle tap.
+struct Column {
+    lo: vec3<f32>,
+    hi: vec3<f32>,
+    sum: vec3<f32>,
+    sq: vec3<f32>,
+    centre: vec3<f32>,
+}
+
+fn column(x: i32, y: i32) -> Column {
+    let u = working_ycocg(x, y - 1);
+    let v = working_ycocg(x, y);
+    let t = working_ycocg(x, y + 1);
+    return Column(min(min(u, v), t), max(max(u, v), t), u + v + t, u * u + v * v + t * t, v);
+}
+
+@compute @workgroup_size(8, 8)
+fn phlm(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    if li < 5u {
+        atomicStore(&wg_counts[li], 0u);
+    }
+    workgroupBarrier();
+    if gid.x < P.width && gid.y < P.height {
+        phlm_pixel(gid.x, gid.y);
+    }
+    workgroupBarrier();
+    if li < 4u {
+        let c = atomicLoad(&wg_counts[li]);
+        if c != 0u {
+            atomicAdd(&counters[li], c);
+        }
+    } else if li == 4u {
+        atomicMax(&counters[C_TRACE], atomicLoad(&wg_counts[C_TRACE]));
+    }
+}
+
+// Planes k .. k + 3 of the next state at pixel i.
+fn store4(k: u32, i: u32, v: vec4<f32>) {
+    let n = plane_len();
+    next[k * n + i] = v.x;
+    next[(k + 1u) * n + i] = v.y;
+    next[(k + 2u) * n + i] = v.z;
+    next[(k + 3u) * n + i] = v.w;
+}
+
+fn phlm_pixel(x: u32, y: u32) {
+    let n = plane_len();
+    let i = y * P.width + x;
+    let input = working(i);
+
+    // The 3x3 statistics in YCoCg (kernels::for_each_row_stats, edges clamped), summed as
+    // the CPU sums them: each column's three rows, then the three columns.
+    let left = column(i32(x) - 1, i32(y));
+    let middle = column(i32(x), i32(y));
+    let right = column(i32(x) + 1, i32(y));
+    let lo = min(min(left.lo, middle.lo), right.lo);
+    let hi = max(max(left.hi, middle.hi), right.hi);
+    let cur = middle.centre;
+    let mean = (left.sum + middle.sum + right.sum) * (1.0 / 9.0);
+
+    var speed = 0.0;
+    if has(FLAG_MOTION) {
+        let mx = inp[IN_MX * n + i];
+        let my = inp[IN_MY * n + i];
+        speed = sqrt(mx * mx + my * my);
+    }
+    // Where the history is (phlm::From): nowhere, here, or at the previous position.
+    var found = has(FLAG_HISTORY);
+    var t: Taps;
+    t.i00 = i;
+    t.i01 = i;
+    t.i10 = i;
+    t.i11 = i;
+    t.tx = 0.0;
+    t.ty = 0.0;
+    if found && has(FLAG_REPROJECT) {
+        let px = f32(x) + 0.5 + inp[IN_MX * n + i];
+        let py = f32(y) + 0.5 + inp[IN_MY * n + i];
+        // passes::on_screen.
+        found = px >= 0.0 && px <= f32(P.width) && py >= 0.0 && py <= f32(P.height);
+        if found {
+            t = taps(px, py);
+        }
+    }
+    let invalid = has(FLAG_INVALID) && inp[IN_INVALID * n + i] != 0.0;
+
+    // The feature (sec. 5.1; sec. 6: initialised with the input).
+    var z = input;
+    if found {
+        let prev = vec3<f32>(fetch(Z, t), fetch(Z + 1u, t), fetch(Z + 2u, t));
+        if invalid {
+            z = prev;
+        } else {
+            z = accumulate(prev, ycocg_to_rgb(mean), lo.x, hi.x, speed);
+        }
+    }
+
+    // Algorithm 1.
+    var m: Model;
+    if found {
+        m.b0 = fetch4(BETA, t);
+        m.b1 = fetch4(BETA + 4u, t);
+        m.b2 = fetch4(BETA + 8u, t);
+        m.ra = fetch4(R, t);
+        m.rb = fetch4(R + 4u, t);
+        m.rc = vec2<f32>(fetch(R + 8u, t), fetch(R + 9u, t));
+    } else {
+        atomicAdd(&wg_counts[C_RESET], 1u);
+        if has(FLAG_HISTORY) {
+            atomicAdd(&wg_counts[C_OFFSCREEN], 1u);
+        }
+        m = model_reset(input, P.p0);
+    }
+    let xf = vec4<f32>(1.0, z);
+    if !invalid {
+        // Lines 12-19: predict; outside the box, clip toward the input and reset.
+        var pred = predict(m, xf);
+        var blo = lo;
+        var bhi = hi;
+        if has(FLAG_VARIANCE_BOX) {
+            // kernels::variance_box (Salvi 2016) within the min/max box.
+            let mean_sq = (left.sq + middle.sq + right.sq) * (1.0 / 9.0);
+            let sigma = sqrt(max(mean_sq - mean * mean, vec3<f32>(0.0)));
+            blo = max(mean - P.test_gamma * sigma, lo);
+            bhi = min(mean + P.test_gamma * sigma, hi);
+        }
+        let clipped = clip_toward_point(rgb_to_ycocg(pred), cur, blo, bhi);
+        if clipped.w != 0.0 {
+            atomicAdd(&wg_counts[C_CLIPPED], 1u);
+            model_clip(&m, pred, ycocg_to_rgb(clipped.xyz));
+        }
+        // Lines 19-21: the (possibly reset) model's error, the RLS update.
+        pred = predict(m, xf);
+        let tr = update(&m, xf, input - pred, forgetting(speed), 1.0 / P.p0);
+        if tr < 0.0 || !beta_finite(m) {
+            atomicAdd(&wg_counts[C_REPAIRED], 1u);
+            m = model_reset(input, P.p0);
+        } else {
+            atomicMax(&wg_counts[C_TRACE], bitcast<u32>(tr));
+        }
+    }
+
+    // Line 22: the output, and the next state.
+    var o = min(max(predict(m, xf), vec3<f32>(0.0)), vec3<f32>(P.hi));
+    if has(FLAG_TONEMAP) {
+        o = tonemap_inverse(o);
+    }
+    out[i] = o.x;
+    out[n + i] = o.y;
+    out[2u * n + i] = o.z;
+    store4(BETA, i, m.b0);
+    store4(BETA + 4u, i, m.b1);
+    store4(BETA + 8u, i, m.b2);
+    store4(R, i, m.ra);
+    store4(R + 4u, i, m.rb);
+    next[(R + 8u) * n + i] = m.rc.x;
+    next[(R + 9u) * n + i] = m.rc.y;
+    next[Z * n + i] = z.x;
+    next[(Z + 1u) * n + i] = z.y;
+    next[(Z + 2u) * n + i] = z.z;
+}
