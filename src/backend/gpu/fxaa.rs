@@ -2,6 +2,7 @@
 //! [`crate::filters::fxaa::reference`], on the colour repaired on the CPU. No history.
 
 use super::buffers::params_buffer;
+use super::timing::{begin, FrameClock, PassTimer};
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::fxaa::{Fxaa, Params};
@@ -13,7 +14,6 @@ use crate::pipeline::{
 };
 use serde_json::{Map, Value};
 use std::sync::Arc;
-use std::time::Instant;
 
 const SOURCE: &str = include_str!("fxaa.wgsl");
 const WORKGROUP: usize = 8;
@@ -25,6 +25,9 @@ struct Buffers {
     color: StorageBuffer,
     luma: StorageBuffer,
     out: StorageBuffer,
+    /// The two passes' timestamps, where the device has them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), then the timestamps.
     back: Readback,
 }
 
@@ -59,15 +62,18 @@ impl GpuFxaa {
         let inp = prepare(frame, Fxaa::uses(), &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
-        let t = Instant::now();
+        let mut clock = FrameClock::start();
         if self.buffers.as_ref().map(|b| b.n) != Some(n) {
             let gpu = &self.gpu;
+            let timer = PassTimer::new(gpu, 2);
+            let timer_words = timer.as_ref().map_or(0, PassTimer::words);
             self.buffers = Some(Buffers {
                 n,
                 color: StorageBuffer::new(gpu, "fxaa colour", 3 * n),
                 luma: StorageBuffer::new(gpu, "fxaa luma", n),
                 out: StorageBuffer::new(gpu, "fxaa output", 3 * n),
-                back: Readback::new(gpu, "fxaa readback", 3 * n),
+                back: Readback::new(gpu, "fxaa readback", 3 * n + timer_words),
+                timer,
             });
         }
         let gpu = &self.gpu;
@@ -92,27 +98,43 @@ impl GpuFxaa {
         );
         let (gx, gy) = groups(w, h, WORKGROUP);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        for (pipe, buffers) in [
+        let timer = b.timer.as_ref();
+        for (k, (pipe, buffers)) in [
             (&self.luma, vec![&params, &b.color.buffer, &b.luma.buffer]),
             (
                 &self.fxaa,
                 vec![&params, &b.color.buffer, &b.luma.buffer, &b.out.buffer],
             ),
-        ] {
+        ]
+        .into_iter()
+        .enumerate()
+        {
             let bg = bind(gpu, pipe, &buffers);
-            let mut pass = enc.begin_compute_pass(&Default::default());
+            let mut pass = begin(&mut enc, timer, k as u32);
             pass.set_pipeline(pipe);
             pass.set_bind_group(0, &bg, &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
+        if let Some(t) = timer {
+            t.resolve(&mut enc, 2, &b.back, 3 * n);
+        }
         gpu.queue.submit([enc.finish()]);
-        b.back.read(gpu, 3 * n, &mut self.words)?;
+        clock.submitted();
+        let words = 3 * n + timer.map_or(0, PassTimer::words);
+        b.back.read(gpu, words, &mut self.words)?;
+        clock.back();
         let color = super::buffers::planes_from(&self.words, w, h)?;
-        // The frame's device time (upload, both passes, readback), shared evenly.
-        let ms = t.elapsed().as_secs_f64() * 1e3;
-        rec.ran_for("luma", ms / 2.0);
-        rec.ran_for("fxaa", ms / 2.0);
+        // One pass per stage: each its own device time where there are timestamps, else
+        // the frame's round trip shared evenly.
+        let pass_ms = timer.map(|t| t.pass_ms(&self.words[3 * n..], 2));
+        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()));
+        let each = match &pass_ms {
+            Some(v) => [v[0], v[1]],
+            None => [(device.upload_ms + device.readback_ms) / 2.0; 2],
+        };
+        rec.ran_for("luma", each[0]);
+        rec.ran_for("fxaa", each[1]);
         let mut record = rec.finish(
             Fxaa::NAME,
             frame.meta.index,
@@ -121,6 +143,7 @@ impl GpuFxaa {
             0,
         );
         record.backend = Backend::Gpu;
+        record.device = Some(device);
         Ok(Output { color, record })
     }
 }

@@ -11,7 +11,6 @@ use crate::pipeline::{
 };
 use serde_json::Value;
 use std::sync::Arc;
-use std::time::Instant;
 
 /// `passthrough` through the device.
 #[derive(Debug)]
@@ -38,7 +37,7 @@ impl GpuPassthrough {
         let inp = prepare(frame, Passthrough::uses(), &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
-        let t = Instant::now();
+        let mut clock = super::timing::FrameClock::start();
         if self.buffers.as_ref().map(|b| b.0) != Some(n) {
             self.buffers = Some((
                 n,
@@ -53,9 +52,13 @@ impl GpuPassthrough {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         back.copy_from(&mut enc, &dev.buffer, 0, 3 * n);
         self.gpu.queue.submit([enc.finish()]);
+        clock.submitted();
         back.read(&self.gpu, 3 * n, &mut self.words)?;
+        clock.back();
         let color = super::buffers::planes_from(&self.words, w, h)?;
-        rec.ran_for("copy", t.elapsed().as_secs_f64() * 1e3);
+        // No shader: the copy is the upload and the readback.
+        let device = clock.times(None);
+        rec.ran_for("copy", device.upload_ms + device.readback_ms);
         let mut record = rec.finish(
             Passthrough::NAME,
             frame.meta.index,
@@ -64,6 +67,7 @@ impl GpuPassthrough {
             0,
         );
         record.backend = Backend::Gpu;
+        record.device = Some(device);
         Ok(Output { color, record })
     }
 }

@@ -822,7 +822,7 @@ mod tests {
 
     /// The f32 solve (the GPU's) on the still pixel: R stays positive definite with
     /// trace(P) <= 4 p0 for 200,000 frames, with a constant and with a noisy feature, and
-    /// the prediction stays within 1e-3 of the f64 solve's the whole way.
+    /// the prediction stays within 5e-5 of the f64 solve's the whole way (3.5e-6 measured).
     #[test]
     fn the_f32_solve_stays_bounded_and_close_on_a_still_pixel() {
         for noisy in [false, true] {
@@ -842,7 +842,7 @@ mod tests {
                 };
                 let (fa, fb) = (a.step([1.0, z, z, z], y), b.step([1.0, z, z, z], y));
                 worst = worst.max((fa - fb).abs() as f64);
-                Tolerance::abs(1e-3)
+                Tolerance::abs(5e-5)
                     .check(
                         &format!("noisy {noisy} frame {t}: f32 vs f64 prediction"),
                         fb as f64,
