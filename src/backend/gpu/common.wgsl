@@ -37,6 +37,44 @@ fn clamp_index(i: f32, n: u32) -> u32 {
     return u32(clamp(i, 0.0, f32(n - 1u)));
 }
 
+// kernels::bilinear's footprint at (px, py) (pixel units, centres at +0.5) on a
+// width x height image: the four taps' pixel indices, clamped to the image, and the
+// weights toward the second column and row.
+struct Bilinear {
+    i00: u32,
+    i01: u32,
+    i10: u32,
+    i11: u32,
+    tx: f32,
+    ty: f32,
+}
+
+fn bilinear_taps(px: f32, py: f32, width: u32, height: u32) -> Bilinear {
+    let fx = px - 0.5;
+    let fy = py - 0.5;
+    let x0 = floor(fx);
+    let y0 = floor(fy);
+    let xa = clamp_index(x0, width);
+    let xb = clamp_index(x0 + 1.0, width);
+    let ya = clamp_index(y0, height) * width;
+    let yb = clamp_index(y0 + 1.0, height) * width;
+    return Bilinear(ya + xa, ya + xb, yb + xa, yb + xb, fx - x0, fy - y0);
+}
+
+// a + (b - a) t, as kernels::bilinear interpolates (WGSL's mix may round otherwise).
+fn lerp(a: f32, b: f32, t: f32) -> f32 {
+    return a + (b - a) * t;
+}
+
+fn lerp4(a: vec4<f32>, b: vec4<f32>, t: f32) -> vec4<f32> {
+    return a + (b - a) * t;
+}
+
+// The bilinear blend of four taps s = (s00, s01, s10, s11).
+fn blend(s: vec4<f32>, b: Bilinear) -> f32 {
+    return lerp(lerp(s.x, s.y, b.tx), lerp(s.z, s.w, b.tx), b.ty);
+}
+
 // Whether v is finite, from its bits (WGSL lets a compiler assume NaN and infinity away
 // in comparisons, so `v != v` is no test).
 fn finite(v: f32) -> bool {

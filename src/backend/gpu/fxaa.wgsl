@@ -54,26 +54,12 @@ fn luma_at(x: i32, y: i32) -> f32 {
 
 // kernels::bilinear of plane `k` (0..2 colour from `color`, 3 the luma) at (x, y).
 fn bilinear(k: u32, x: f32, y: f32) -> f32 {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x0 = floor(fx);
-    let y0 = floor(fy);
-    let tx = fx - x0;
-    let ty = fy - y0;
-    let xa = clamp_index(x0, P.width);
-    let xb = clamp_index(x0 + 1.0, P.width);
-    let ya = clamp_index(y0, P.height) * P.width;
-    let yb = clamp_index(y0 + 1.0, P.height) * P.width;
-    var s: vec4<f32>;
+    let b = bilinear_taps(x, y, P.width, P.height);
     if k == 3u {
-        s = vec4<f32>(luma[ya + xa], luma[ya + xb], luma[yb + xa], luma[yb + xb]);
-    } else {
-        let o = k * plane_len();
-        s = vec4<f32>(color[o + ya + xa], color[o + ya + xb], color[o + yb + xa], color[o + yb + xb]);
+        return blend(vec4<f32>(luma[b.i00], luma[b.i01], luma[b.i10], luma[b.i11]), b);
     }
-    let top = s.x + (s.y - s.x) * tx;
-    let bottom = s.z + (s.w - s.z) * tx;
-    return top + (bottom - top) * ty;
+    let o = k * plane_len();
+    return blend(vec4<f32>(color[o + b.i00], color[o + b.i01], color[o + b.i10], color[o + b.i11]), b);
 }
 
 // fxaa::fxaa_position: the position (pixel units) pixel (x, y) fetches its colour at.

@@ -100,64 +100,28 @@ fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
     return rgb_to_ycocg(working(cy * P.width + cx));
 }
 
-// a + (b - a) t, as kernels::bilinear interpolates.
-fn lerp(a: f32, b: f32, t: f32) -> f32 {
-    return a + (b - a) * t;
-}
-
-// Where a previous position's state is read (phlm::fetch): nearest, or the four bilinear
-// taps clamped to the image and their weights (kernels::bilinear).
-struct Taps {
-    i00: u32,
-    i01: u32,
-    i10: u32,
-    i11: u32,
-    tx: f32,
-    ty: f32,
-}
-
-fn taps(px: f32, py: f32) -> Taps {
-    var t: Taps;
+// Where a previous position's state is read (phlm::fetch): the nearest pixel (all four
+// taps on it, weights 0), or kernels::bilinear's footprint.
+fn taps(px: f32, py: f32) -> Bilinear {
     if has(FLAG_NEAREST) {
         let j = min(u32(max(py, 0.0)), P.height - 1u) * P.width + min(u32(max(px, 0.0)), P.width - 1u);
-        t.i00 = j;
-        t.i01 = j;
-        t.i10 = j;
-        t.i11 = j;
-        t.tx = 0.0;
-        t.ty = 0.0;
-        return t;
+        return Bilinear(j, j, j, j, 0.0, 0.0);
     }
-    let fx = px - 0.5;
-    let fy = py - 0.5;
-    let x0 = floor(fx);
-    let y0 = floor(fy);
-    t.tx = fx - x0;
-    t.ty = fy - y0;
-    let xa = clamp_index(x0, P.width);
-    let xb = clamp_index(x0 + 1.0, P.width);
-    let ya = clamp_index(y0, P.height) * P.width;
-    let yb = clamp_index(y0 + 1.0, P.height) * P.width;
-    t.i00 = ya + xa;
-    t.i01 = ya + xb;
-    t.i10 = yb + xa;
-    t.i11 = yb + xb;
-    return t;
+    return bilinear_taps(px, py, P.width, P.height);
 }
 
 // Planes k .. k + 3 (fetch).
-fn fetch4(k: u32, t: Taps) -> vec4<f32> {
+fn fetch4(k: u32, t: Bilinear) -> vec4<f32> {
     return vec4<f32>(fetch(k, t), fetch(k + 1u, t), fetch(k + 2u, t), fetch(k + 3u, t));
 }
 
-fn fetch(k: u32, t: Taps) -> f32 {
+// Model plane k of the previous state at taps t.
+fn fetch(k: u32, t: Bilinear) -> f32 {
     let o = k * plane_len();
     if has(FLAG_NEAREST) {
         return state[o + t.i00];
     }
-    let top = lerp(state[o + t.i00], state[o + t.i01], t.tx);
-    let bottom = lerp(state[o + t.i10], state[o + t.i11], t.tx);
-    return lerp(top, bottom, t.ty);
+    return blend(vec4<f32>(state[o + t.i00], state[o + t.i01], state[o + t.i10], state[o + t.i11]), t);
 }
 
 // phlm::feature::convergence and accumulate (sec. 5.1: phi = a l^2 + b v l^3).
@@ -418,13 +382,7 @@ fn phlm_pixel(x: u32, y: u32) {
     }
     // Where the history is (phlm::From): nowhere, here, or at the previous position.
     var found = has(FLAG_HISTORY);
-    var t: Taps;
-    t.i00 = i;
-    t.i01 = i;
-    t.i10 = i;
-    t.i11 = i;
-    t.tx = 0.0;
-    t.ty = 0.0;
+    var t = Bilinear(i, i, i, i, 0.0, 0.0);
     if found && has(FLAG_REPROJECT) {
         let px = f32(x) + 0.5 + inp[IN_MX * n + i];
         let py = f32(y) + 0.5 + inp[IN_MY * n + i];

@@ -59,43 +59,28 @@ fn dilated_motion(x: u32, y: u32) -> vec2<f32> {
     return vec2<f32>(inp[IN_MX * n + best], inp[IN_MY * n + best]);
 }
 
-fn hist_texel(x: u32, y: u32) -> vec4<f32> {
-    let i = 4u * (y * P.width + x);
-    return vec4<f32>(hist[i], hist[i + 1u], hist[i + 2u], hist[i + 3u]);
+fn texel_at(i: u32) -> vec4<f32> {
+    let k = 4u * i;
+    return vec4<f32>(hist[k], hist[k + 1u], hist[k + 2u], hist[k + 3u]);
 }
 
-// kernels::bilinear of the four texel channels at (px, py) (pixel units, centres at +0.5),
-// taps clamped to the image.
+fn hist_texel(x: u32, y: u32) -> vec4<f32> {
+    return texel_at(y * P.width + x);
+}
+
+// kernels::bilinear of the four texel channels at (px, py), taps clamped to the image.
 fn bilinear_texel(px: f32, py: f32) -> vec4<f32> {
-    let fx = px - 0.5;
-    let fy = py - 0.5;
-    let x0 = floor(fx);
-    let y0 = floor(fy);
-    let t = vec2<f32>(fx - x0, fy - y0);
-    let xa = clamp_index(x0, P.width);
-    let xb = clamp_index(x0 + 1.0, P.width);
-    let ya = clamp_index(y0, P.height);
-    let yb = clamp_index(y0 + 1.0, P.height);
-    let top = mix(hist_texel(xa, ya), hist_texel(xb, ya), t.x);
-    let bottom = mix(hist_texel(xa, yb), hist_texel(xb, yb), t.x);
-    return mix(top, bottom, t.y);
+    let b = bilinear_taps(px, py, P.width, P.height);
+    let top = lerp4(texel_at(b.i00), texel_at(b.i01), b.tx);
+    let bottom = lerp4(texel_at(b.i10), texel_at(b.i11), b.tx);
+    return lerp4(top, bottom, b.ty);
 }
 
 // kernels::bilinear of the history depth plane.
 fn bilinear_depth(px: f32, py: f32) -> f32 {
-    let fx = px - 0.5;
-    let fy = py - 0.5;
-    let x0 = floor(fx);
-    let y0 = floor(fy);
-    let t = vec2<f32>(fx - x0, fy - y0);
-    let xa = clamp_index(x0, P.width);
-    let xb = clamp_index(x0 + 1.0, P.width);
-    let ya = clamp_index(y0, P.height) * P.width;
-    let yb = clamp_index(y0 + 1.0, P.height) * P.width;
+    let b = bilinear_taps(px, py, P.width, P.height);
     let d = P.depth_at;
-    let top = mix(hist[d + ya + xa], hist[d + ya + xb], t.x);
-    let bottom = mix(hist[d + yb + xa], hist[d + yb + xb], t.x);
-    return mix(top, bottom, t.y);
+    return blend(vec4<f32>(hist[d + b.i00], hist[d + b.i01], hist[d + b.i10], hist[d + b.i11]), b);
 }
 
 // kernels::catmull_rom_texel: Catmull-Rom of Y, Co, Cg over the 4x4 footprint without its
