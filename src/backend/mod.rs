@@ -105,6 +105,19 @@ pub enum BackendError {
         /// What is missing.
         why: &'static str,
     },
+    /// A buffer the filter needs for this frame size is past what the device can bind.
+    #[error(
+        "{what} needs a {bytes}-byte GPU buffer, past this device's {limit}-byte limit on a shader's buffer: use smaller frames, or --backend cpu"
+    )]
+    TooLarge {
+        /// The buffer (filter and contents).
+        what: String,
+        /// Its size.
+        bytes: u64,
+        /// The device's limit (the smaller of the largest buffer and the largest storage
+        /// binding).
+        limit: u64,
+    },
     /// The device failed (lost, out of memory, a shader the driver refused).
     #[error("GPU device error: {0}")]
     Device(String),

@@ -17,15 +17,26 @@ pub(crate) struct StorageBuffer {
 }
 
 impl StorageBuffer {
-    /// A zeroed buffer of `len` samples.
-    pub(crate) fn new(gpu: &Gpu, label: &str, len: usize) -> Self {
+    /// A zeroed buffer of `len` samples; a [`BackendError::TooLarge`] (naming it by `label`)
+    /// where the device cannot bind that many, instead of wgpu's validation panic.
+    pub(crate) fn new(gpu: &Gpu, label: &str, len: usize) -> Result<Self, BackendError> {
+        let size = (len.max(1) as u64).saturating_mul(4);
+        let limits = gpu.device.limits();
+        let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        if size > limit {
+            return Err(BackendError::TooLarge {
+                what: label.to_string(),
+                bytes: size,
+                limit,
+            });
+        }
         let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: bytes_of(len),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
             mapped_at_creation: false,
         });
-        StorageBuffer { buffer, len }
+        Ok(StorageBuffer { buffer, len })
     }
 
     /// Queues `data` to be written at sample `at` (it reaches the device with the next

@@ -69,9 +69,9 @@ impl GpuFxaa {
             let timer_words = timer.as_ref().map_or(0, PassTimer::words);
             self.buffers = Some(Buffers {
                 n,
-                color: StorageBuffer::new(gpu, "fxaa colour", 3 * n),
-                luma: StorageBuffer::new(gpu, "fxaa luma", n),
-                out: StorageBuffer::new(gpu, "fxaa output", 3 * n),
+                color: StorageBuffer::new(gpu, "fxaa colour", 3 * n)?,
+                luma: StorageBuffer::new(gpu, "fxaa luma", n)?,
+                out: StorageBuffer::new(gpu, "fxaa output", 3 * n)?,
                 back: Readback::new(gpu, "fxaa readback", 3 * n + timer_words),
                 timer,
             });

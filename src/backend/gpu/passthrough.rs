@@ -41,7 +41,7 @@ impl GpuPassthrough {
         if self.buffers.as_ref().map(|b| b.0) != Some(n) {
             self.buffers = Some((
                 n,
-                StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n),
+                StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n)?,
                 Readback::new(&self.gpu, "passthrough readback", 3 * n),
             ));
         }

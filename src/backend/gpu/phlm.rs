@@ -45,6 +45,15 @@ const IN_INVALID: usize = 5;
 /// repaired, the largest trace(P) as bits; padded.
 const COUNTERS: usize = 8;
 
+/// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
+/// matrix R, the feature z; a buffer each, so a 1080p frame's parts fit the 128 MiB a
+/// shader's buffer may have on many devices (all 25 planes at 1080p are 207 MB).
+const PARTS: [(&str, usize); 3] = [
+    ("phlm models (beta)", 12),
+    ("phlm models (R)", 10),
+    ("phlm models (z)", 3),
+];
+
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
 struct Buffers {
@@ -52,8 +61,9 @@ struct Buffers {
     height: usize,
     params: wgpu::Buffer,
     input: StorageBuffer,
-    /// The models: `state[read]` is the previous frame's, the other is written.
-    state: [StorageBuffer; 2],
+    /// The models, in [`PARTS`]: `state[read]` is the previous frame's, the other is
+    /// written.
+    state: [[StorageBuffer; 3]; 2],
     out: StorageBuffer,
     counters: wgpu::Buffer,
     /// `bound[k]` reads `state[k]` and writes `state[1 - k]`.
@@ -65,22 +75,36 @@ struct Buffers {
 }
 
 impl Buffers {
-    fn new(gpu: &Gpu, pass: &wgpu::ComputePipeline, width: usize, height: usize) -> Self {
+    fn new(
+        gpu: &Gpu,
+        pass: &wgpu::ComputePipeline,
+        width: usize,
+        height: usize,
+    ) -> Result<Self, BackendError> {
         let n = width * height;
         let params = params_buffer(gpu, "phlm params", &[0; 16]);
-        let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n);
-        let state = [0, 1].map(|_| StorageBuffer::new(gpu, "phlm models", STATE_PLANES * n));
-        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n);
-        let counters = StorageBuffer::new(gpu, "phlm counters", COUNTERS).buffer;
+        let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n)?;
+        let models = || -> Result<[StorageBuffer; 3], BackendError> {
+            let [a, b, c] = PARTS.map(|(label, planes)| StorageBuffer::new(gpu, label, planes * n));
+            Ok([a?, b?, c?])
+        };
+        let state = [models()?, models()?];
+        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n)?;
+        let counters = StorageBuffer::new(gpu, "phlm counters", COUNTERS)?.buffer;
         let bound = [0, 1].map(|k| {
+            let (from, to) = (&state[k], &state[1 - k]);
             bind(
                 gpu,
                 pass,
                 &[
                     &params,
                     &input.buffer,
-                    &state[k].buffer,
-                    &state[1 - k].buffer,
+                    &from[0].buffer,
+                    &from[1].buffer,
+                    &from[2].buffer,
+                    &to[0].buffer,
+                    &to[1].buffer,
+                    &to[2].buffer,
                     &out.buffer,
                     &counters,
                 ],
@@ -88,7 +112,7 @@ impl Buffers {
         });
         let timer = PassTimer::new(gpu, 1);
         let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        Buffers {
+        Ok(Buffers {
             width,
             height,
             params,
@@ -99,7 +123,7 @@ impl Buffers {
             bound,
             timer,
             back: Readback::new(gpu, "phlm readback", 3 * n + COUNTERS + timer_words),
-        }
+        })
     }
 }
 
@@ -137,12 +161,16 @@ impl GpuPhlm {
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the models).
-    fn sized(&mut self, width: usize, height: usize) {
+    fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
         if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height));
+            // Dropped first: the old buffers and the new never take the device's memory
+            // together.
+            self.buffers = None;
             self.valid = false;
             self.read = 0;
+            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height)?);
         }
+        Ok(())
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
@@ -172,10 +200,15 @@ impl GpuPhlm {
         let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
         let n = w * h;
-        let len = b.state[self.read].len;
+        let parts = &b.state[self.read];
+        let len: usize = parts.iter().map(|p| p.len).sum();
         let back = Readback::new(&self.gpu, "phlm model readback", len);
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        back.copy_from(&mut enc, &b.state[self.read].buffer, 0, len);
+        let mut at = 0;
+        for p in parts {
+            enc.copy_buffer_to_buffer(&p.buffer, 0, back.buffer(), (at * 4) as u64, (p.len * 4) as u64);
+            at += p.len;
+        }
         self.gpu.queue.submit([enc.finish()]);
         let mut words: Vec<f32> = Vec::new();
         back.read(&self.gpu, len, &mut words)?;
@@ -191,8 +224,12 @@ impl GpuPhlm {
     fn upload(&self, planes: &[Plane<f32>]) {
         let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
-        for (k, p) in planes.iter().enumerate() {
-            b.state[self.read].write(&self.gpu, k * n, p.data());
+        let mut k = 0;
+        for (part, (_, count)) in b.state[self.read].iter().zip(PARTS) {
+            for j in 0..count {
+                part.write(&self.gpu, j * n, planes[k].data());
+                k += 1;
+            }
         }
     }
 }
@@ -221,7 +258,7 @@ impl Filter for GpuPhlm {
     fn state_bytes(&self) -> usize {
         self.buffers
             .as_ref()
-            .map_or(0, |b| b.state.iter().map(StorageBuffer::bytes).sum())
+            .map_or(0, |b| b.state.iter().flatten().map(StorageBuffer::bytes).sum())
     }
 
     fn save_state(&self) -> Result<FilterState, StateError> {
@@ -241,7 +278,7 @@ impl Filter for GpuPhlm {
         st.load(state, Phlm::NAME, &self.params())?;
         match st.buffer.history_size() {
             Some((w, h)) => {
-                self.sized(w, h);
+                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
                 self.read = 0;
                 self.upload(&from_texels(&st.buffer.read()[0], w));
                 self.gpu.queue.submit([]);
@@ -283,7 +320,7 @@ impl GpuPhlm {
             self.valid,
             frame,
         )?;
-        self.sized(w, h);
+        self.sized(w, h)?;
         let has_history = self.valid && !frame.meta.reset;
         let mut clock = FrameClock::start();
         if has_history && self.tonemapped != hdr {

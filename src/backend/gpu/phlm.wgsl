@@ -10,7 +10,8 @@
 // the bound and the still-pixel measurements).
 //
 // State: 25 planes (beta 12, R = P^-1 packed 10, z 3; the CPU filter's texel order, one
-// plane each so neighbouring invocations read neighbouring words), double-buffered.
+// plane each so neighbouring invocations read neighbouring words), in three buffers,
+// double-buffered.
 
 struct Params {
     width: u32,
@@ -35,10 +36,16 @@ struct Params {
 
 @group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
-@group(0) @binding(2) var<storage, read> state: array<f32>;
-@group(0) @binding(3) var<storage, read_write> next: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
-@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, 8>;
+// The previous models and the next, each in three parts (beta, R, z), so that no buffer
+// is past the 128 MiB a shader's buffer may have on many devices at 1080p.
+@group(0) @binding(2) var<storage, read> beta: array<f32>;
+@group(0) @binding(3) var<storage, read> info: array<f32>;
+@group(0) @binding(4) var<storage, read> feat: array<f32>;
+@group(0) @binding(5) var<storage, read_write> next_beta: array<f32>;
+@group(0) @binding(6) var<storage, read_write> next_info: array<f32>;
+@group(0) @binding(7) var<storage, read_write> next_feat: array<f32>;
+@group(0) @binding(8) var<storage, read_write> out: array<f32>;
+@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, 8>;
 
 const FLAG_TONEMAP: u32 = 1u;
 const FLAG_REPROJECT: u32 = 2u;
@@ -54,10 +61,10 @@ const IN_MX: u32 = 3u;
 const IN_MY: u32 = 4u;
 const IN_INVALID: u32 = 5u;
 
-// State planes (phlm::BETA, phlm::R, phlm::Z).
+// The parts of the state (phlm::BETA, phlm::R, phlm::Z ranges, a buffer each).
 const BETA: u32 = 0u;
-const R: u32 = 12u;
-const Z: u32 = 22u;
+const R: u32 = 1u;
+const Z: u32 = 2u;
 
 // Counters: history reset, clipped, reset off screen, repaired, largest trace(P) (bits).
 const C_RESET: u32 = 0u;
@@ -110,18 +117,26 @@ fn taps(px: f32, py: f32) -> Bilinear {
     return bilinear_taps(px, py, P.width, P.height);
 }
 
-// Planes k .. k + 3 (fetch).
-fn fetch4(k: u32, t: Bilinear) -> vec4<f32> {
-    return vec4<f32>(fetch(k, t), fetch(k + 1u, t), fetch(k + 2u, t), fetch(k + 3u, t));
+// Planes k .. k + 3 of part `part` (fetch).
+fn fetch4(part: u32, k: u32, t: Bilinear) -> vec4<f32> {
+    return vec4<f32>(fetch(part, k, t), fetch(part, k + 1u, t), fetch(part, k + 2u, t), fetch(part, k + 3u, t));
 }
 
-// Model plane k of the previous state at taps t.
-fn fetch(k: u32, t: Bilinear) -> f32 {
+// Plane k of part `part` of the previous models at taps t.
+fn fetch(part: u32, k: u32, t: Bilinear) -> f32 {
     let o = k * plane_len();
-    if has(FLAG_NEAREST) {
-        return state[o + t.i00];
+    var s: vec4<f32>;
+    if part == BETA {
+        s = vec4<f32>(beta[o + t.i00], beta[o + t.i01], beta[o + t.i10], beta[o + t.i11]);
+    } else if part == R {
+        s = vec4<f32>(info[o + t.i00], info[o + t.i01], info[o + t.i10], info[o + t.i11]);
+    } else {
+        s = vec4<f32>(feat[o + t.i00], feat[o + t.i01], feat[o + t.i10], feat[o + t.i11]);
     }
-    return blend(vec4<f32>(state[o + t.i00], state[o + t.i01], state[o + t.i10], state[o + t.i11]), t);
+    if has(FLAG_NEAREST) {
+        return s.x;
+    }
+    return blend(s, t);
 }
 
 // phlm::feature::convergence and accumulate (sec. 5.1: phi = a l^2 + b v l^3).
@@ -350,13 +365,20 @@ fn phlm(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
     }
 }
 
-// Planes k .. k + 3 of the next state at pixel i.
-fn store4(k: u32, i: u32, v: vec4<f32>) {
+// Planes k .. k + 3 of beta (part BETA) or R of the next models at pixel i.
+fn store4(part: u32, k: u32, i: u32, v: vec4<f32>) {
     let n = plane_len();
-    next[k * n + i] = v.x;
-    next[(k + 1u) * n + i] = v.y;
-    next[(k + 2u) * n + i] = v.z;
-    next[(k + 3u) * n + i] = v.w;
+    if part == BETA {
+        next_beta[k * n + i] = v.x;
+        next_beta[(k + 1u) * n + i] = v.y;
+        next_beta[(k + 2u) * n + i] = v.z;
+        next_beta[(k + 3u) * n + i] = v.w;
+    } else {
+        next_info[k * n + i] = v.x;
+        next_info[(k + 1u) * n + i] = v.y;
+        next_info[(k + 2u) * n + i] = v.z;
+        next_info[(k + 3u) * n + i] = v.w;
+    }
 }
 
 fn phlm_pixel(x: u32, y: u32) {
@@ -397,7 +419,7 @@ fn phlm_pixel(x: u32, y: u32) {
     // The feature (sec. 5.1; sec. 6: initialised with the input).
     var z = input;
     if found {
-        let prev = vec3<f32>(fetch(Z, t), fetch(Z + 1u, t), fetch(Z + 2u, t));
+        let prev = vec3<f32>(fetch(Z, 0u, t), fetch(Z, 1u, t), fetch(Z, 2u, t));
         if invalid {
             z = prev;
         } else {
@@ -408,12 +430,12 @@ fn phlm_pixel(x: u32, y: u32) {
     // Algorithm 1.
     var m: Model;
     if found {
-        m.b0 = fetch4(BETA, t);
-        m.b1 = fetch4(BETA + 4u, t);
-        m.b2 = fetch4(BETA + 8u, t);
-        m.ra = fetch4(R, t);
-        m.rb = fetch4(R + 4u, t);
-        m.rc = vec2<f32>(fetch(R + 8u, t), fetch(R + 9u, t));
+        m.b0 = fetch4(BETA, 0u, t);
+        m.b1 = fetch4(BETA, 4u, t);
+        m.b2 = fetch4(BETA, 8u, t);
+        m.ra = fetch4(R, 0u, t);
+        m.rb = fetch4(R, 4u, t);
+        m.rc = vec2<f32>(fetch(R, 8u, t), fetch(R, 9u, t));
     } else {
         atomicAdd(&wg_counts[C_RESET], 1u);
         if has(FLAG_HISTORY) {
@@ -458,14 +480,14 @@ fn phlm_pixel(x: u32, y: u32) {
     out[i] = o.x;
     out[n + i] = o.y;
     out[2u * n + i] = o.z;
-    store4(BETA, i, m.b0);
-    store4(BETA + 4u, i, m.b1);
-    store4(BETA + 8u, i, m.b2);
-    store4(R, i, m.ra);
-    store4(R + 4u, i, m.rb);
-    next[(R + 8u) * n + i] = m.rc.x;
-    next[(R + 9u) * n + i] = m.rc.y;
-    next[Z * n + i] = z.x;
-    next[(Z + 1u) * n + i] = z.y;
-    next[(Z + 2u) * n + i] = z.z;
+    store4(BETA, 0u, i, m.b0);
+    store4(BETA, 4u, i, m.b1);
+    store4(BETA, 8u, i, m.b2);
+    store4(R, 0u, i, m.ra);
+    store4(R, 4u, i, m.rb);
+    next_info[8u * n + i] = m.rc.x;
+    next_info[9u * n + i] = m.rc.y;
+    next_feat[i] = z.x;
+    next_feat[n + i] = z.y;
+    next_feat[2u * n + i] = z.z;
 }

@@ -106,15 +106,27 @@ struct Buffers {
 }
 
 impl Buffers {
-    fn new(gpu: &Gpu, passes: &Passes, width: usize, height: usize, depth: bool) -> Self {
+    fn new(
+        gpu: &Gpu,
+        passes: &Passes,
+        width: usize,
+        height: usize,
+        depth: bool,
+    ) -> Result<Self, BackendError> {
         let n = width * height;
         let hist_len = n * (4 + depth as usize);
         let params = params_buffer(gpu, "taa params", &[0; 8]);
         let convert_params = params_buffer(gpu, "taa convert params", &[0; 8]);
-        let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n);
-        let hist = [0, 1].map(|_| StorageBuffer::new(gpu, "taa history", hist_len));
-        let out = [0, 1].map(|_| StorageBuffer::new(gpu, "taa colour", 3 * n));
-        let counters = StorageBuffer::new(gpu, "taa counters", COUNTERS).buffer;
+        let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
+        let hist = [
+            StorageBuffer::new(gpu, "taa history", hist_len)?,
+            StorageBuffer::new(gpu, "taa history", hist_len)?,
+        ];
+        let out = [
+            StorageBuffer::new(gpu, "taa colour", 3 * n)?,
+            StorageBuffer::new(gpu, "taa colour", 3 * n)?,
+        ];
+        let counters = StorageBuffer::new(gpu, "taa counters", COUNTERS)?.buffer;
         let resolve = [0, 1].map(|k| {
             bind(
                 gpu,
@@ -133,7 +145,7 @@ impl Buffers {
         let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
         let timer = PassTimer::new(gpu, 3);
         let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        Buffers {
+        Ok(Buffers {
             width,
             height,
             params,
@@ -147,7 +159,7 @@ impl Buffers {
             out,
             back: Readback::new(gpu, "taa readback", 3 * n + COUNTERS + timer_words),
             timer,
-        }
+        })
     }
 }
 
@@ -189,14 +201,17 @@ impl GpuTaa {
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the history).
-    fn sized(&mut self, width: usize, height: usize) -> &Buffers {
+    fn sized(&mut self, width: usize, height: usize) -> Result<&Buffers, BackendError> {
         if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
             let depth = self.keeps_depth();
-            self.buffers = Some(Buffers::new(&self.gpu, &self.passes, width, height, depth));
+            // Dropped first: the old buffers and the new never take the device's memory
+            // together.
+            self.buffers = None;
             self.valid = false;
             self.read = 0;
+            self.buffers = Some(Buffers::new(&self.gpu, &self.passes, width, height, depth)?);
         }
-        self.buffers.as_ref().expect("just made")
+        Ok(self.buffers.as_ref().expect("just made"))
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32) -> [u32; 8] {
@@ -260,7 +275,7 @@ impl Filter for GpuTaa {
         st.load(state, Taa::NAME, &self.params())?;
         match st.buffer.history_size() {
             Some((w, h)) => {
-                self.sized(w, h);
+                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
                 let b = self.buffers.as_ref().expect("sized");
                 let mut at = 0;
                 for p in st.buffer.read() {
@@ -308,7 +323,7 @@ impl GpuTaa {
             self.valid,
             frame,
         )?;
-        self.sized(w, h);
+        self.sized(w, h)?;
         let has_history = self.valid && !frame.meta.reset;
         let plan = StagePlan::new(&self.params, &inp, has_history);
         let p = &self.params;

@@ -380,3 +380,29 @@ fn filters_without_a_gpu_implementation_are_refused_and_auto_takes_the_cpu() {
     assert_eq!(made.backend, Backend::Gpu);
     assert!(!adapters().is_empty());
 }
+
+/// A buffer past the device's limit is a precise error (what, how big, the limit), not
+/// wgpu's validation panic; at the limit it is made.
+#[test]
+fn a_buffer_past_the_device_limit_is_an_error() {
+    let gpu = shared().unwrap();
+    let limits = gpu.device.limits();
+    let limit = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+    let over = (limit / 4 + 1) as usize;
+    for len in [over, usize::MAX] {
+        match StorageBuffer::new(&gpu, "phlm models (beta)", len) {
+            Err(BackendError::TooLarge {
+                what,
+                bytes,
+                limit: l,
+            }) => {
+                assert_eq!((what.as_str(), l), ("phlm models (beta)", limit));
+                assert!(bytes > limit, "{bytes}");
+            }
+            other => panic!("{len} samples: {other:?}"),
+        }
+    }
+    let e = StorageBuffer::new(&gpu, "x", over).unwrap_err();
+    assert!(e.to_string().contains("--backend cpu"), "{e}");
+    assert!(StorageBuffer::new(&gpu, "small", 1024).is_ok());
+}
