@@ -4,9 +4,10 @@
 //! One device per process ([`shared`]), opened on first use and shared by every GPU filter
 //! (a server's sessions included); wgpu's device and queue are thread-safe. Per frame a
 //! filter uploads only the channels its plan needs, runs its passes in one submission, and
-//! reads back the colour and its pixel counts. Input checks and repair stay on the CPU
+//! reads back the colour, its counters and its passes' timestamps in one copy (`timing`:
+//! the record's device times). Input checks and repair stay on the CPU
 //! ([`crate::pipeline::prepare`]), so both backends see the same repaired input and write
-//! the same records.
+//! the same records. Shader sources are `common.wgsl` followed by the filter's own.
 //!
 //! Filters here: `passthrough`, `fxaa`, `taa` and `phlm` (its per-pixel 4x4 solve in f32:
 //! [`crate::filters::phlm::rls::update_information_f32`]). Left for later: `traa`,
