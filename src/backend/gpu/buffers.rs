@@ -93,6 +93,23 @@ pub(crate) fn planes_from(
     Ok([plane(0)?, plane(1)?, plane(2)?])
 }
 
+/// The samples of `parts`, one after another, copied back to the host (a state download:
+/// saving, or moving it between working spaces).
+pub(crate) fn download(gpu: &Gpu, label: &str, parts: &[&StorageBuffer]) -> Result<Vec<f32>, BackendError> {
+    let len: usize = parts.iter().map(|p| p.len).sum();
+    let back = Readback::new(gpu, label, len);
+    let mut enc = gpu.device.create_command_encoder(&Default::default());
+    let mut at = 0;
+    for p in parts {
+        enc.copy_buffer_to_buffer(&p.buffer, 0, &back.buffer, (at * 4) as u64, (p.len * 4) as u64);
+        at += p.len;
+    }
+    gpu.queue.submit([enc.finish()]);
+    let mut words = Vec::new();
+    back.read(gpu, len, &mut words)?;
+    Ok(words)
+}
+
 /// A mappable buffer that results are copied into and read back from.
 #[derive(Debug)]
 pub(crate) struct Readback {

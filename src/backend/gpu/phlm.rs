@@ -8,12 +8,14 @@
 //! mirrors): the information matrix formed with one rounding per entry and Cholesky pivots
 //! held at or above the prior. The CPU solves in f64.
 
-use super::buffers::{params_buffer, planes_from, write_words};
+use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::passes::reproject_skip;
-use crate::filters::phlm::{convert_state, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES};
+use crate::filters::phlm::{
+    convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
+};
 use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
 use crate::pipeline::{
@@ -200,18 +202,8 @@ impl GpuPhlm {
         let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
         let n = w * h;
-        let parts = &b.state[self.read];
-        let len: usize = parts.iter().map(|p| p.len).sum();
-        let back = Readback::new(&self.gpu, "phlm model readback", len);
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        let mut at = 0;
-        for p in parts {
-            enc.copy_buffer_to_buffer(&p.buffer, 0, back.buffer(), (at * 4) as u64, (p.len * 4) as u64);
-            at += p.len;
-        }
-        self.gpu.queue.submit([enc.finish()]);
-        let mut words: Vec<f32> = Vec::new();
-        back.read(&self.gpu, len, &mut words)?;
+        let parts: Vec<&StorageBuffer> = b.state[self.read].iter().collect();
+        let words = download(&self.gpu, "phlm model readback", &parts)?;
         (0..STATE_PLANES)
             .map(|k| {
                 Plane::from_vec(w, h, words[k * n..(k + 1) * n].to_vec())
@@ -280,7 +272,7 @@ impl Filter for GpuPhlm {
             Some((w, h)) => {
                 self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
                 self.read = 0;
-                self.upload(&from_texels(&st.buffer.read()[0], w));
+                self.upload(&from_texels(&st.buffer.read()[0]));
                 self.gpu.queue.submit([]);
                 self.valid = true;
             }
@@ -289,22 +281,6 @@ impl Filter for GpuPhlm {
         self.tonemapped = st.tonemapped();
         Ok(())
     }
-}
-
-/// The CPU filter's state layout (one plane of `STATE_PLANES`-float texels per pixel) from
-/// planar models.
-fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
-    let (w, h) = planes[0].size();
-    Plane::from_fn(w * STATE_PLANES, h, |x, y| {
-        planes[x % STATE_PLANES].get(x / STATE_PLANES, y)
-    })
-}
-
-/// Planar models from the CPU filter's texel plane (`w` pixels wide).
-fn from_texels(texels: &Plane<f32>, w: usize) -> Vec<Plane<f32>> {
-    (0..STATE_PLANES)
-        .map(|k| Plane::from_fn(w, texels.height(), |x, y| texels.get(x * STATE_PLANES + k, y)))
-        .collect()
 }
 
 impl GpuPhlm {

@@ -4,7 +4,7 @@
 //! its colour (and the motion and depth its plan needs), and reads back the colour and the
 //! pixel counts.
 
-use super::buffers::{params_buffer, write_words};
+use super::buffers::{download, params_buffer, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
@@ -297,13 +297,7 @@ impl GpuTaa {
     /// The history planes as the CPU filter lays them out.
     fn download_history(&self, b: &Buffers) -> Result<Vec<Plane<f32>>, BackendError> {
         let n = b.width * b.height;
-        let len = b.hist[self.read].len;
-        let back = Readback::new(&self.gpu, "taa history readback", len);
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        back.copy_from(&mut enc, &b.hist[self.read].buffer, 0, len);
-        self.gpu.queue.submit([enc.finish()]);
-        let mut words: Vec<f32> = Vec::new();
-        back.read(&self.gpu, len, &mut words)?;
+        let words = download(&self.gpu, "taa history readback", &[&b.hist[self.read]])?;
         let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
         if self.keeps_depth() {
             planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);

@@ -203,11 +203,17 @@ const TAA_VARIANTS: &[&[&str]] = &[
 
 #[test]
 fn taa_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
-    for name in ["spokes", "flyover", "hdr", "camera-cut"] {
-        let frames = scene(name);
-        for set in TAA_VARIANTS {
-            let worst = compare("taa", set, &frames, name);
-            eprintln!("taa {set:?} {name}: max |gpu - cpu| = {worst:.2e}");
+    compare_catalogue("taa", TAA_VARIANTS);
+}
+
+/// Runs `name` with each of `variants` through the catalogue scenes of [`scene`] (moving,
+/// HDR, a camera cut) on both backends; prints the largest difference of each.
+fn compare_catalogue(name: &str, variants: &[&[&str]]) {
+    for scene_name in ["spokes", "flyover", "hdr", "camera-cut"] {
+        let frames = scene(scene_name);
+        for set in variants {
+            let worst = compare(name, set, &frames, scene_name);
+            eprintln!("{name} {set:?} {scene_name}: max |gpu - cpu| = {worst:.2e}");
         }
     }
 }
@@ -217,10 +223,16 @@ fn taa_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
 /// motion, a cut, missing depth or motion, at odd sizes down to one pixel.
 #[test]
 fn taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
+    compare_adversarial("taa", TAA_VARIANTS);
+}
+
+/// Runs `name` with each of `variants` through every adversarial sequence at odd sizes
+/// down to one pixel, on both backends.
+fn compare_adversarial(name: &str, variants: &[&[&str]]) {
     for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
         for (what, frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
-            for set in TAA_VARIANTS {
-                compare("taa", set, &frames, &format!("{w}x{h} {what}"));
+            for set in variants {
+                compare(name, set, &frames, &format!("{w}x{h} {what}"));
             }
         }
     }
@@ -235,25 +247,13 @@ const PHLM_VARIANTS: &[&[&str]] = &[
 
 #[test]
 fn phlm_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
-    for name in ["spokes", "flyover", "hdr", "camera-cut"] {
-        let frames = scene(name);
-        for set in PHLM_VARIANTS {
-            let worst = compare("phlm", set, &frames, name);
-            eprintln!("phlm {set:?} {name}: max |gpu - cpu| = {worst:.2e}");
-        }
-    }
+    compare_catalogue("phlm", PHLM_VARIANTS);
 }
 
 /// [`taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences`] for `phlm`.
 #[test]
 fn phlm_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
-    for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
-        for (what, frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
-            for set in PHLM_VARIANTS {
-                compare("phlm", set, &frames, &format!("{w}x{h} {what}"));
-            }
-        }
-    }
+    compare_adversarial("phlm", PHLM_VARIANTS);
 }
 
 #[test]

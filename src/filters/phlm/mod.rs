@@ -368,22 +368,25 @@ pub fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
 
 /// [`convert_state`] for state kept as texels of [`STATE_PLANES`] floats.
 fn convert_state_texels(planes: &mut [Plane<f32>], to_tonemapped: bool) {
-    let w = planes[0].width() / STATE_PLANES;
-    let rows: Vec<Plane<f32>> = (0..STATE_PLANES)
-        .map(|k| {
-            Plane::from_fn(w, planes[0].height(), |x, y| {
-                planes[0].get(x * STATE_PLANES + k, y)
-            })
-        })
-        .collect();
-    let mut rows = rows;
+    let mut rows = from_texels(&planes[0]);
     convert_state(&mut rows, to_tonemapped);
-    let t = planes[0].data_mut();
-    for (k, p) in rows.iter().enumerate() {
-        for (i, v) in p.data().iter().enumerate() {
-            t[i * STATE_PLANES + k] = *v;
-        }
-    }
+    planes[0] = to_texels(&rows);
+}
+
+/// The state's [`STATE_PLANES`] planes from its texel plane (a texel of them per pixel).
+pub fn from_texels(texels: &Plane<f32>) -> Vec<Plane<f32>> {
+    let w = texels.width() / STATE_PLANES;
+    (0..STATE_PLANES)
+        .map(|k| Plane::from_fn(w, texels.height(), |x, y| texels.get(x * STATE_PLANES + k, y)))
+        .collect()
+}
+
+/// The state's texel plane from its [`STATE_PLANES`] planes ([`from_texels`] undone).
+pub fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
+    let (w, h) = planes[0].size();
+    Plane::from_fn(w * STATE_PLANES, h, |x, y| {
+        planes[x % STATE_PLANES].get(x / STATE_PLANES, y)
+    })
 }
 
 impl Phlm {

@@ -179,16 +179,32 @@ pub fn update_information(
     prior: f32,
 ) -> Option<f32> {
     let a = forgotten::<f64>(r, x, lambda, prior);
-    let (chol, inv) = cholesky(&a, None)?;
-    let g = solve(&chol, &inv, &x.map(|v| v as f64));
+    solve_and_step(beta, r, x, e, &a, None)
+}
+
+/// The rest of an update once `A` (the forgotten information plus `x x^T`) is formed:
+/// factor it (pivots floored at `floor` where given), `beta += A^-1 x e`, store `A` as the
+/// new R, and return `trace(A^-1)`; `None`, with nothing changed, where the factorisation
+/// fails.
+#[inline(always)]
+fn solve_and_step<T: Real>(
+    beta: &mut [[f32; D]; 3],
+    r: &mut [f32; P_LEN],
+    x: &[f32; D],
+    e: [f32; 3],
+    a: &[[T; D]; D],
+    floor: Option<T>,
+) -> Option<f32> {
+    let (chol, inv) = cholesky(a, floor)?;
+    let g = solve(&chol, &inv, &x.map(T::of));
     for (b, e) in beta.iter_mut().zip(e) {
         for j in 0..D {
-            b[j] += (g[j] * e as f64) as f32;
+            b[j] += (g[j] * T::of(e)).to_f32();
         }
     }
     for i in 0..D {
         for j in i..D {
-            r[SYM[i][j]] = a[i][j] as f32;
+            r[SYM[i][j]] = a[i][j].to_f32();
         }
     }
     Some(trace_of_inverse(&chol, &inv))
@@ -207,6 +223,7 @@ pub(crate) trait Real:
     const ZERO: Self;
     const ONE: Self;
     fn of(v: f32) -> Self;
+    fn to_f32(self) -> f32;
     fn sqrt(self) -> Self;
     fn is_finite(self) -> bool;
 }
@@ -217,6 +234,10 @@ impl Real for f64 {
     #[inline(always)]
     fn of(v: f32) -> f64 {
         v as f64
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
     }
     #[inline(always)]
     fn sqrt(self) -> f64 {
@@ -234,6 +255,10 @@ impl Real for f32 {
     #[inline(always)]
     fn of(v: f32) -> f32 {
         v
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self
     }
     #[inline(always)]
     fn sqrt(self) -> f32 {
@@ -321,7 +346,7 @@ fn cholesky<T: Real>(a: &[[T; D]; D], floor: Option<T>) -> Option<([[T; D]; D], 
 /// `trace(A^-1)` from the Cholesky factor `L` of `A` (and its reciprocal pivots):
 /// `||L^-1||_F^2`, column by column of the lower-triangular `L^-1`.
 #[inline(always)]
-fn trace_of_inverse<T: Real + Into<f64>>(l: &[[T; D]; D], inv_diag: &[T; D]) -> f32 {
+fn trace_of_inverse<T: Real>(l: &[[T; D]; D], inv_diag: &[T; D]) -> f32 {
     let mut inv = [[T::ZERO; D]; D];
     let mut sum = T::ZERO;
     for j in 0..D {
@@ -334,7 +359,7 @@ fn trace_of_inverse<T: Real + Into<f64>>(l: &[[T; D]; D], inv_diag: &[T; D]) -> 
             sum = sum + inv[i][j] * inv[i][j];
         }
     }
-    sum.into() as f32
+    sum.to_f32()
 }
 
 /// [`forgotten`] in f32 with one rounding per entry, as the f64 form rounds when it is
@@ -380,19 +405,7 @@ pub fn update_information_f32(
     prior: f32,
 ) -> Option<f32> {
     let a = forgotten_fused(r, x, lambda, prior);
-    let (chol, inv) = cholesky(&a, Some(prior))?;
-    let g = solve(&chol, &inv, x);
-    for (b, e) in beta.iter_mut().zip(e) {
-        for j in 0..D {
-            b[j] += g[j] * e;
-        }
-    }
-    for i in 0..D {
-        for j in i..D {
-            r[SYM[i][j]] = a[i][j];
-        }
-    }
-    Some(trace_of_inverse(&chol, &inv))
+    solve_and_step(beta, r, x, e, &a, Some(prior))
 }
 
 /// One value in f64 for each pixel of a block.
