@@ -87,6 +87,22 @@ pub fn dilate_motion(motion: &[Plane<f32>; 2], depth: &Plane<f32>, scratch: &mut
     out
 }
 
+/// [`dilate_motion`] by [`dilate_row`] (vector code), rows in parallel: the same planes.
+pub fn dilate_motion_rows(
+    motion: &[Plane<f32>; 2],
+    depth: &Plane<f32>,
+    scratch: &mut Scratch,
+) -> [Plane<f32>; 2] {
+    let (w, h) = depth.size();
+    let d = depth.data();
+    let m = motion.each_ref().map(|p| p.data());
+    let mut out = scratch.planes(w, h);
+    for_rows(slices_mut(&mut out), w, |y, [mx, my]| {
+        dilate_row(d, m, w, h, y, mx, my)
+    });
+    out
+}
+
 /// [`to_working`] of one row: `c / (1 + max c)` ([`tonemap`]) of `src` into `dst` (as
 /// many pixels as `dst` holds).
 pub fn tonemap_row(src: [&[f32]; 3], dst: [&mut [f32]; 3]) {
@@ -487,6 +503,15 @@ pub fn reproject_skip(inp: &Inputs, has_history: bool) -> Option<Skip> {
         .or_else(|| inp.facts.reprojection())
 }
 
+/// Why velocity dilation is left out of a frame (None: it runs): it needs reprojection
+/// (`reproject`, from [`reproject_skip`]), depth, and the filter's `dilation` on.
+pub fn dilate_skip(inp: &Inputs, reproject: &Option<Skip>, dilation: bool) -> Option<Skip> {
+    reproject
+        .clone()
+        .or_else(|| inp.require(ChannelKind::Depth))
+        .or_else(|| (!dilation).then_some(Skip::Disabled { param: "dilation" }))
+}
+
 impl Reprojection {
     /// Plans reprojection for a frame and runs the `dilate` stage: reprojection needs
     /// history, motion and some motion; dilation also needs depth and `dilation` on.
@@ -498,10 +523,7 @@ impl Reprojection {
         scratch: &mut Scratch,
     ) -> Reprojection {
         let skip = reproject_skip(inp, has_history);
-        let dilate_skip = skip
-            .clone()
-            .or_else(|| inp.require(ChannelKind::Depth))
-            .or_else(|| (!dilation).then_some(Skip::Disabled { param: "dilation" }));
+        let dilate_skip = dilate_skip(inp, &skip, dilation);
         let dilated = rec.stage("dilate", dilate_skip, || {
             dilate_motion(
                 inp.motion.as_deref().expect("required"),

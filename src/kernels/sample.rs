@@ -288,6 +288,84 @@ pub fn catmull_rom<const N: usize>(
     })
 }
 
+/// Channels of a [`catmull_rom_span`]: twelve (one vector of eight and one of four).
+pub const SPAN: usize = 12;
+
+/// [`catmull_rom`] of [`SPAN`] channels that lie side by side in a plane of texels of
+/// `stride` floats (`tex[stride * (y * width + x) + first + c]` is channel `c`; e.g. phlm's
+/// twelve model coefficients): the same taps, weights and order of sums, so the same bits
+/// as [`catmull_rom`] on the channels taken apart as planes. Each tap's channels are one
+/// `f32x8` and one `f32x4` load.
+#[inline(always)]
+pub fn catmull_rom_span(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    height: usize,
+    x: f32,
+    y: f32,
+) -> [f32; SPAN] {
+    catmull_rom_span_of(tex, stride, first, width, height, &Footprint::at(x, y))
+}
+
+/// [`catmull_rom_span`] with footprint `f` (e.g. a lane of [`FootprintLanes`]).
+#[inline(always)]
+pub fn catmull_rom_span_of(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    height: usize,
+    f: &Footprint,
+) -> [f32; SPAN] {
+    if f.inside(width, height) {
+        // Inside, `ix` and `iy` are at least 1 and exact: one bounds check for the window.
+        let rs = width * stride;
+        let base = ((f.iy as usize - 1) * width + f.ix as usize - 1) * stride + first;
+        let win = &tex[base..base + 3 * rs + 3 * stride + SPAN];
+        return span_rows(|r, i| block(win, r * rs + i * stride), f);
+    }
+    let xs = Footprint::clamped(f.x1, width);
+    let ys = Footprint::clamped(f.y1, height).map(|r| r * width);
+    span_rows(|r, i| block(tex, (ys[r] + xs[i]) * stride + first), f)
+}
+
+/// [`catmull_rom_span`]'s sums over footprint `f`, tap `i` of row `r` read by `tap(r, i)`:
+/// [`catmull_rom_row`]'s two partial sums for every channel at once, in its order.
+#[inline(always)]
+fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], f: &Footprint) -> [f32; SPAN] {
+    /// Channels 0-7 and 8-11.
+    #[derive(Clone, Copy)]
+    struct V(f32x8, f32x4);
+    let load = |v: &[f32; SPAN]| {
+        V(
+            f32x8::from(*block::<f32, 8>(v, 0)),
+            f32x4::from(*block::<f32, 4>(v, 8)),
+        )
+    };
+    let mul = |w: f32, a: V| V(f32x8::splat(w) * a.0, f32x4::splat(w) * a.1);
+    let add = |a: V, b: V| V(a.0 + b.0, a.1 + b.1);
+    let wx = f.wx;
+    // Row 0 (outer: columns 1 and 2).
+    let (a, b) = (mul(wx[1], load(tap(0, 1))), mul(wx[2], load(tap(0, 2))));
+    let (mut lo, mut hi) = (mul(f.wy[0], a), mul(f.wy[0], b));
+    for j in 1..4 {
+        let (a, b) = if j == 1 || j == 2 {
+            (
+                add(mul(wx[0], load(tap(j, 0))), mul(wx[2], load(tap(j, 2)))),
+                add(mul(wx[1], load(tap(j, 1))), mul(wx[3], load(tap(j, 3)))),
+            )
+        } else {
+            (mul(wx[1], load(tap(j, 1))), mul(wx[2], load(tap(j, 2))))
+        };
+        lo = add(lo, mul(f.wy[j], a));
+        hi = add(hi, mul(f.wy[j], b));
+    }
+    let (s8, s4) = ((lo.0 + hi.0).to_array(), (lo.1 + hi.1).to_array());
+    std::array::from_fn(|c| if c < 8 { s8[c] } else { s4[c - 8] })
+}
+
 /// Channels of one texel of an interleaved history (e.g. Y, Co, Cg and a sample count).
 pub const TEXEL: usize = 4;
 
@@ -623,6 +701,30 @@ pub(crate) mod tests {
 
     fn random_plane(rng: &mut SplitMix64, w: usize, h: usize) -> Vec<f32> {
         (0..w * h).map(|_| rng.next_f64() as f32).collect()
+    }
+
+    #[test]
+    fn catmull_rom_span_gives_the_planar_bits() {
+        let mut rng = SplitMix64::new(41);
+        for (w, h) in [(1, 1), (2, 1), (1, 3), (7, 5), (13, 9)] {
+            const N: usize = SPAN;
+            let (stride, first) = (N + 3, 2);
+            let tex: Vec<f32> = (0..w * h * stride)
+                .map(|_| (rng.next_f64() * 4.0 - 1.0) as f32)
+                .collect();
+            let planes: Vec<Vec<f32>> = (0..N)
+                .map(|c| (0..w * h).map(|i| tex[i * stride + first + c]).collect())
+                .collect();
+            let planes: [&[f32]; N] = std::array::from_fn(|c| &planes[c][..]);
+            for _ in 0..300 {
+                // Inside, on the border and off the image.
+                let x = (rng.next_f64() * (w + 4) as f64 - 2.0) as f32;
+                let y = (rng.next_f64() * (h + 4) as f64 - 2.0) as f32;
+                let want = catmull_rom(planes, w, h, x, y).map(f32::to_bits);
+                let got = catmull_rom_span(&tex, stride, first, w, h, x, y).map(f32::to_bits);
+                assert_eq!(got, want, "{w}x{h} at ({x}, {y})");
+            }
+        }
     }
 
     #[test]

@@ -150,16 +150,40 @@ impl FilterSpec {
     }
 
     /// Every registered filter of full-resolution colour at its defaults, in registry
-    /// order (the filters of sparse shading have their own section, [`FilterSpec::sparse`]).
+    /// order, each followed by its other values of a `variant` parameter (`traa`'s
+    /// baseline, `phlm`'s paper settings); the filters of sparse shading have their own
+    /// section ([`FilterSpec::sparse`]).
     pub fn every() -> Vec<FilterSpec> {
         filters::list()
             .into_iter()
             .filter(|info| !info.sparse_input)
-            .map(|info| FilterSpec {
-                label: info.name.to_string(),
-                name: info.name,
-                params: Map::new(),
-                backend: BackendChoice::Cpu,
+            .flat_map(|info| {
+                let at_defaults = FilterSpec {
+                    label: info.name.to_string(),
+                    name: info.name,
+                    params: Map::new(),
+                    backend: BackendChoice::Cpu,
+                };
+                let variants = info.params.iter().find_map(|p| match (p.name, p.kind) {
+                    ("variant", crate::pipeline::ParamKind::Choice { options }) => Some(options),
+                    _ => None,
+                });
+                let default = filters::create(info.name, &Map::new()).ok().and_then(|f| {
+                    f.params()
+                        .get("variant")
+                        .and_then(|v| v.as_str().map(str::to_string))
+                });
+                let others = variants
+                    .into_iter()
+                    .flatten()
+                    .filter(move |v| default.as_deref() != Some(**v))
+                    .map(move |v| FilterSpec {
+                        label: format!("{}:variant={v}", info.name),
+                        name: info.name,
+                        params: [("variant".to_string(), Value::from(*v))].into_iter().collect(),
+                        backend: BackendChoice::Cpu,
+                    });
+                std::iter::once(at_defaults).chain(others)
             })
             .collect()
     }
@@ -820,11 +844,19 @@ mod tests {
         let e = FilterSpec::parse("taa:no_such=1").unwrap_err().to_string();
         assert!(e.contains("no_such"), "{e}");
         let sparse = filters::list().iter().filter(|i| i.sparse_input).count();
+        let every: Vec<String> = FilterSpec::every().into_iter().map(|s| s.label).collect();
+        // Each filter once at its defaults, and the variants other than the default.
         assert_eq!(
-            FilterSpec::every().len() + sparse,
+            every.iter().filter(|l| !l.contains(':')).count() + sparse,
             filters::list().len(),
             "every registered filter, no hand-kept list"
         );
+        for v in ["traa:variant=baseline", "phlm:variant=paper"] {
+            assert!(every.iter().any(|l| l == v), "{v} in {every:?}");
+        }
+        assert!(!every
+            .iter()
+            .any(|l| l == "traa:variant=improved" || l == "phlm:variant=tuned"));
         let labels: Vec<String> = FilterSpec::sparse().into_iter().map(|s| s.label).collect();
         assert_eq!(
             labels,

@@ -132,6 +132,9 @@ pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
 
 /// The WGSL every filter's shaders share (colour transforms, numeric helpers).
 const COMMON: &str = include_str!("common.wgsl");
+/// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
+/// filters that reproject a history (`taa`'s resolve, `phlm`).
+const REPROJECT: &str = include_str!("reproject.wgsl");
 
 /// A compute pipeline from WGSL `source` (after [`COMMON`]), entry point `entry`, its bind
 /// group layout taken from the shader.

@@ -10,9 +10,9 @@
 
 use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
-use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::backend::BackendError;
-use crate::filters::passes::reproject_skip;
+use crate::filters::passes::{dilate_skip, reproject_skip};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
@@ -37,11 +37,15 @@ const FLAG_INVALID: u32 = 16;
 const FLAG_NEAREST: u32 = 32;
 const FLAG_VARIANCE_BOX: u32 = 64;
 const FLAG_SHIFT: u32 = 128;
+const FLAG_DILATE: u32 = 256;
+const FLAG_CATMULL_ROM: u32 = 512;
 
-// Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, invalid.
-const INPUT_PLANES: usize = 6;
+// Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, depth,
+// invalid.
+const INPUT_PLANES: usize = 7;
 const IN_MX: usize = 3;
-const IN_INVALID: usize = 5;
+const IN_DEPTH: usize = 5;
+const IN_INVALID: usize = 6;
 
 /// Words of the counters (C_ constants of phlm.wgsl): reset, clipped, off screen,
 /// repaired, the largest trace(P) as bits; padded.
@@ -151,7 +155,7 @@ impl GpuPhlm {
     pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
         let params: Params = build(Phlm::NAME, values)?;
         Ok(GpuPhlm {
-            pass: pipeline(&gpu, "phlm", SOURCE, "phlm"),
+            pass: pipeline(&gpu, "phlm", &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
             gpu,
             params,
             buffers: None,
@@ -176,7 +180,7 @@ impl GpuPhlm {
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
-        let p = &self.params;
+        let p = &self.params.effective();
         [
             width as u32,
             height as u32,
@@ -193,7 +197,7 @@ impl GpuPhlm {
             p.feature_alpha_min.to_bits(),
             p.test_gamma.to_bits(),
             hi.to_bits(),
-            0,
+            (1.0 / p.p0.max(p.clip_p)).to_bits(),
         ]
     }
 
@@ -308,7 +312,8 @@ impl GpuPhlm {
         }
         let tonemap_skip = inp.facts.tonemap();
         let reproject = reproject_skip(&inp, has_history);
-        let p = &self.params;
+        let p = &self.params.effective();
+        let dilate = dilate_skip(&inp, &reproject, p.dilation);
 
         let mut flags = 0;
         let mut set = |on: bool, bit: u32| {
@@ -324,6 +329,8 @@ impl GpuPhlm {
         set(p.model_fetch == ModelFetch::Nearest, FLAG_NEAREST);
         set(p.test_box == TestBox::Variance, FLAG_VARIANCE_BOX);
         set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
+        set(dilate.is_none(), FLAG_DILATE);
+        set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
         let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
         let words = self.param_words(w, h, flags, hi);
 
@@ -337,6 +344,9 @@ impl GpuPhlm {
             for (k, plane) in m.iter().enumerate() {
                 b.input.write(&gpu, (IN_MX + k) * n, plane.data());
             }
+        }
+        if let (None, Some(d)) = (&dilate, inp.depth.as_deref()) {
+            b.input.write(&gpu, IN_DEPTH * n, d.data());
         }
         if let Some(invalid) = &inp.invalid {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
@@ -381,6 +391,7 @@ impl GpuPhlm {
             vec![
                 ("tonemap", tonemap_skip.clone()),
                 ("ycocg", None),
+                ("dilate", dilate),
                 ("reproject", reproject),
                 ("feature", None),
                 ("model", None),

@@ -1,7 +1,7 @@
 // `phlm` on the GPU: one pass per frame, one invocation per pixel, computing what
 // `crate::filters::phlm::reference` computes stage by stage (each function names the CPU
 // function it mirrors): the working colour's 3x3 statistics in YCoCg, the previous
-// position, the temporal feature (sec. 5.1 of Iglesias-Guitian et al. 2016), and Algorithm 1
+// position (with velocity dilation, `reproject.wgsl`), the temporal feature (sec. 5.1 of Iglesias-Guitian et al. 2016), and Algorithm 1
 // (fetch, predict, box test, clip, the RLS update, output).
 //
 // The RLS update is `rls::update_information_f32`: the information form with regularized
@@ -31,7 +31,9 @@ struct Params {
     test_gamma: f32,
     // Largest output: just below 1 in the tonemapped space, else f32::MAX.
     hi: f32,
-    _pad2: f32,
+    // The bound R >= I / max(p0, clip_p) that every model keeps (resets to I / p0, clips
+    // blend toward I / clip_p, forgetting toward I / p0): the Cholesky pivots' floor.
+    pivot_floor: f32,
 }
 
 @group(0) @binding(0) var<storage, read> P: Params;
@@ -55,11 +57,14 @@ const FLAG_INVALID: u32 = 16u;
 const FLAG_NEAREST: u32 = 32u;
 const FLAG_VARIANCE_BOX: u32 = 64u;
 const FLAG_SHIFT: u32 = 128u;
+const FLAG_DILATE: u32 = 256u;
+const FLAG_CATMULL_ROM: u32 = 512u;
 
 // Planes of `inp`, in units of width * height.
 const IN_MX: u32 = 3u;
 const IN_MY: u32 = 4u;
-const IN_INVALID: u32 = 5u;
+const IN_DEPTH: u32 = 5u;
+const IN_INVALID: u32 = 6u;
 
 // The parts of the state (phlm::BETA, phlm::R, phlm::Z ranges, a buffer each).
 const BETA: u32 = 0u;
@@ -115,6 +120,39 @@ fn taps(px: f32, py: f32) -> Bilinear {
         return Bilinear(j, j, j, j, 0.0, 0.0);
     }
     return bilinear_taps(px, py, P.width, P.height);
+}
+
+// kernels::catmull_rom of beta's plane k over footprint f (phlm::fetch_model), summed in
+// the CPU's order: each row's two partial sums, weighted by the row, added last.
+fn beta_catmull_rom(k: u32, f: ptr<function, CatmullRom>) -> f32 {
+    let o = k * plane_len();
+    var lo = 0.0;
+    var hi = 0.0;
+    for (var j = 0; j < 4; j++) {
+        let row = o + (*f).ys[j] * P.width;
+        var a: f32;
+        var b: f32;
+        if j == 1 || j == 2 {
+            a = (*f).wx[0] * beta[row + (*f).xs[0]] + (*f).wx[2] * beta[row + (*f).xs[2]];
+            b = (*f).wx[1] * beta[row + (*f).xs[1]] + (*f).wx[3] * beta[row + (*f).xs[3]];
+        } else {
+            a = (*f).wx[1] * beta[row + (*f).xs[1]];
+            b = (*f).wx[2] * beta[row + (*f).xs[2]];
+        }
+        lo += (*f).wy[j] * a;
+        hi += (*f).wy[j] * b;
+    }
+    return lo + hi;
+}
+
+// Planes k .. k + 3 of beta by Catmull-Rom.
+fn beta_catmull_rom4(k: u32, f: ptr<function, CatmullRom>) -> vec4<f32> {
+    return vec4<f32>(
+        beta_catmull_rom(k, f),
+        beta_catmull_rom(k + 1u, f),
+        beta_catmull_rom(k + 2u, f),
+        beta_catmull_rom(k + 3u, f),
+    );
 }
 
 // Planes k .. k + 3 of part `part` (fetch).
@@ -249,7 +287,7 @@ fn forgetting(v: f32) -> f32 {
     return P.lambda + (P.lambda_moving - P.lambda) * min(v / P.lambda_speed, 1.0);
 }
 
-// A Cholesky pivot held at or above the prior (rls::cholesky with a floor); its square
+// A Cholesky pivot held at or above `floor` (rls::cholesky with a floor); its square
 // root, or -1 for a non-finite one.
 fn pivot_root(s: f32, floor: f32) -> f32 {
     if !finite(s) {
@@ -259,7 +297,9 @@ fn pivot_root(s: f32, floor: f32) -> f32 {
 }
 
 // rls::update_information_f32: R = lambda R + (1 - lambda) prior I + x x^T (one rounding per
-// entry), beta += R^-1 x e. Returns trace(R^-1), or -1 when R is not finite (m unchanged).
+// entry), beta += R^-1 x e, the pivots held at or above `P.pivot_floor` (the prior, or
+// 1 / clip_p where clips can take R below the prior). Returns trace(R^-1), or -1 when R
+// is not finite (m unchanged).
 fn update(m: ptr<function, Model>, x: vec4<f32>, e: vec3<f32>, lambda: f32, prior: f32) -> f32 {
     let q = (1.0 - lambda) * prior;
     let ra = (*m).ra;
@@ -276,19 +316,19 @@ fn update(m: ptr<function, Model>, x: vec4<f32>, e: vec3<f32>, lambda: f32, prio
     let a23 = fma(lambda, rc.x, x.z * x.w);
     let a33 = fma(lambda, rc.y, x.w * x.w + q);
     // Cholesky with reciprocal pivots (rls::cholesky).
-    let l00 = pivot_root(a00, prior);
+    let l00 = pivot_root(a00, P.pivot_floor);
     let i0 = 1.0 / l00;
     let l10 = a01 * i0;
-    let l11 = pivot_root(a11 - l10 * l10, prior);
+    let l11 = pivot_root(a11 - l10 * l10, P.pivot_floor);
     let i1 = 1.0 / l11;
     let l20 = a02 * i0;
     let l21 = (a12 - l20 * l10) * i1;
-    let l22 = pivot_root(a22 - l20 * l20 - l21 * l21, prior);
+    let l22 = pivot_root(a22 - l20 * l20 - l21 * l21, P.pivot_floor);
     let i2 = 1.0 / l22;
     let l30 = a03 * i0;
     let l31 = (a13 - l30 * l10) * i1;
     let l32 = (a23 - l30 * l20 - l31 * l21) * i2;
-    let l33 = pivot_root(a33 - l30 * l30 - l31 * l31 - l32 * l32, prior);
+    let l33 = pivot_root(a33 - l30 * l30 - l31 * l31 - l32 * l32, P.pivot_floor);
     let i3 = 1.0 / l33;
     if l00 < 0.0 || l11 < 0.0 || l22 < 0.0 || l33 < 0.0 {
         return -1.0;
@@ -396,22 +436,33 @@ fn phlm_pixel(x: u32, y: u32) {
     let cur = middle.centre;
     let mean = (left.sum + middle.sum + right.sum) * (1.0 / 9.0);
 
+    // The motion every stage reads: dilated (passes::dilate_motion) when `dilate` runs.
+    var mv = vec2<f32>(0.0);
     var speed = 0.0;
     if has(FLAG_MOTION) {
-        let mx = inp[IN_MX * n + i];
-        let my = inp[IN_MY * n + i];
-        speed = sqrt(mx * mx + my * my);
+        if has(FLAG_DILATE) {
+            mv = dilated_motion(x, y);
+        } else {
+            mv = vec2<f32>(inp[IN_MX * n + i], inp[IN_MY * n + i]);
+        }
+        speed = sqrt(mv.x * mv.x + mv.y * mv.y);
     }
     // Where the history is (phlm::From): nowhere, here, or at the previous position.
     var found = has(FLAG_HISTORY);
     var t = Bilinear(i, i, i, i, 0.0, 0.0);
+    var cr: CatmullRom;
+    var moved = false;
     if found && has(FLAG_REPROJECT) {
-        let px = f32(x) + 0.5 + inp[IN_MX * n + i];
-        let py = f32(y) + 0.5 + inp[IN_MY * n + i];
+        let px = f32(x) + 0.5 + mv.x;
+        let py = f32(y) + 0.5 + mv.y;
         // passes::on_screen.
         found = px >= 0.0 && px <= f32(P.width) && py >= 0.0 && py <= f32(P.height);
         if found {
             t = taps(px, py);
+            moved = true;
+            if has(FLAG_CATMULL_ROM) {
+                cr = catmull_rom_footprint(px, py, P.width, P.height);
+            }
         }
     }
     let invalid = has(FLAG_INVALID) && inp[IN_INVALID * n + i] != 0.0;
@@ -429,10 +480,17 @@ fn phlm_pixel(x: u32, y: u32) {
 
     // Algorithm 1.
     var m: Model;
-    if found {
+    if found && moved && has(FLAG_CATMULL_ROM) {
+        // phlm::fetch_model: beta by Catmull-Rom, R bilinear.
+        m.b0 = beta_catmull_rom4(0u, &cr);
+        m.b1 = beta_catmull_rom4(4u, &cr);
+        m.b2 = beta_catmull_rom4(8u, &cr);
+    } else if found {
         m.b0 = fetch4(BETA, 0u, t);
         m.b1 = fetch4(BETA, 4u, t);
         m.b2 = fetch4(BETA, 8u, t);
+    }
+    if found {
         m.ra = fetch4(R, 0u, t);
         m.rb = fetch4(R, 4u, t);
         m.rc = vec2<f32>(fetch(R, 8u, t), fetch(R, 9u, t));

@@ -6,7 +6,7 @@
 
 use super::buffers::{download, params_buffer, write_words};
 use super::timing::{self, FrameClock, PassTimer};
-use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::backend::BackendError;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::{Frame, Plane};
@@ -59,7 +59,7 @@ impl Passes {
             resolve: pipeline(
                 gpu,
                 "taa resolve",
-                &with(include_str!("taa_resolve.wgsl")),
+                &with(&format!("{}\n{REPROJECT}", include_str!("taa_resolve.wgsl"))),
                 "resolve",
             ),
             sharpen: pipeline(

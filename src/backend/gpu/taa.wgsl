@@ -55,18 +55,6 @@ const C_REJECTED: u32 = 2u;
 const MAX_COUNT: f32 = 255.0;
 const CLIP_EPS: f32 = 1.0e-8;
 
-// kernels::sample's catmull_rom_weights.
-fn catmull_rom_weights(t: f32) -> vec4<f32> {
-    let t2 = t * t;
-    let t3 = t2 * t;
-    return vec4<f32>(
-        -0.5 * t + t2 - 0.5 * t3,
-        1.0 - 2.5 * t2 + 1.5 * t3,
-        0.5 * t + 2.0 * t2 - 1.5 * t3,
-        -0.5 * t2 + 0.5 * t3,
-    );
-}
-
 // kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
 fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
     let center = 0.5 * (hi + lo);

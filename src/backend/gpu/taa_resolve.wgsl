@@ -34,31 +34,6 @@ fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
     return rgb_to_ycocg(c);
 }
 
-// passes::nearest_motion: the motion of the nearest (smallest depth) pixel of the 3x3,
-// in-image neighbours only, rows then columns, the first of equal depths winning, the
-// centre starting as the best.
-fn dilated_motion(x: u32, y: u32) -> vec2<f32> {
-    let n = plane_len();
-    let w = P.width;
-    var best = y * w + x;
-    var best_d = inp[IN_DEPTH * n + best];
-    let y0 = select(y - 1u, 0u, y == 0u);
-    let y1 = min(y + 2u, P.height);
-    let x0 = select(x - 1u, 0u, x == 0u);
-    let x1 = min(x + 2u, w);
-    for (var yy = y0; yy < y1; yy++) {
-        for (var xx = x0; xx < x1; xx++) {
-            let i = yy * w + xx;
-            let d = inp[IN_DEPTH * n + i];
-            if d < best_d {
-                best_d = d;
-                best = i;
-            }
-        }
-    }
-    return vec2<f32>(inp[IN_MX * n + best], inp[IN_MY * n + best]);
-}
-
 fn texel_at(i: u32) -> vec4<f32> {
     let k = 4u * i;
     return vec4<f32>(hist[k], hist[k + 1u], hist[k + 2u], hist[k + 3u]);
@@ -86,32 +61,17 @@ fn bilinear_depth(px: f32, py: f32) -> f32 {
 // kernels::catmull_rom_texel: Catmull-Rom of Y, Co, Cg over the 4x4 footprint without its
 // corners, renormalised (Karis 2014; Jimenez 2016), and bilinear of the count.
 fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
-    let fx = px - 0.5;
-    let fy = py - 0.5;
-    let x1 = floor(fx);
-    let y1 = floor(fy);
-    let wx = catmull_rom_weights(fx - x1);
-    var wy = catmull_rom_weights(fy - y1);
-    let middle = wx.y + wx.z;
-    let all = (wx.x + wx.y) + (wx.z + wx.w);
-    let wsum = middle * (wy.x + wy.w) + all * (wy.y + wy.z);
-    wy = wy / wsum;
-    var xs: array<u32, 4>;
-    var ys: array<u32, 4>;
-    for (var k = 0; k < 4; k++) {
-        xs[k] = clamp_index(x1 + f32(k - 1), P.width);
-        ys[k] = clamp_index(y1 + f32(k - 1), P.height);
-    }
+    var f = catmull_rom_footprint(px, py, P.width, P.height);
     var acc = vec3<f32>(0.0);
     for (var j = 0; j < 4; j++) {
         let inner = j == 1 || j == 2;
         var row = vec3<f32>(0.0);
         for (var k = 0; k < 4; k++) {
             if inner || k == 1 || k == 2 {
-                row += wx[k] * hist_texel(xs[k], ys[j]).xyz;
+                row += f.wx[k] * hist_texel(f.xs[k], f.ys[j]).xyz;
             }
         }
-        acc += wy[j] * row;
+        acc += f.wy[j] * row;
     }
     return vec4<f32>(acc, bilinear_texel(px, py).w);
 }

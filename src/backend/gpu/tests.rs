@@ -28,12 +28,16 @@ const GPU_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-3);
 /// [`GPU_OUTLIERS`] and [`GPU_OUTLIER_TOLERANCE`] for `phlm`, whose f32 solve differs from
 /// the CPU's f64 one by up to about the condition number times f32's epsilon in the least
 /// excited directions, and whose box test turns such a difference into a different clip
-/// now and then. With the paper's hard reset (`clip_p = 1000`) and `lambda = 0.9` the
+/// now and then. With the paper's settings (`variant=paper`: hard reset, `clip_p = 1000`)
+/// and `lambda = 0.9` the
 /// filter is that sensitive on the CPU alone: scaling the camera cut's input by
 /// `1 + 1.2e-7` (about one ulp) moves its output by up to 3.9e-4 within 64 frames; the GPU
 /// differs there by up to 2.1e-3 at one pixel (a clip taken on one backend only, at frame
-/// 54, decaying after), in 0.15% of a frame's samples past 1e-4.
-const PHLM_OUTLIERS: f64 = 0.005;
+/// 54, decaying after), in 0.15% of a frame's samples past 1e-4. With the defaults'
+/// Catmull-Rom model fetch (whose negative lobes carry a neighbour's difference further)
+/// the same one-ulp scaling of `hdr`'s input moves the CPU's own output past 1e-4 in 23 of
+/// a frame's 3,888 samples (0.6%, up to 5.2e-3); the GPU reached 21 there. Hence 1%.
+const PHLM_OUTLIERS: f64 = 0.01;
 const PHLM_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(5e-3);
 
 /// Pixel counts (reset, clipped, rejected) may differ in this fraction of the pixels plus
@@ -241,8 +245,9 @@ fn compare_adversarial(name: &str, variants: &[&[&str]]) {
 const PHLM_VARIANTS: &[&[&str]] = &[
     &[],
     &["model_fetch=nearest"],
-    &["test_box=variance", "on_clip=shift", "clip_keep=0.5"],
-    &["lambda=0.9", "clip_p=1000", "lambda_moving=0"],
+    &["test_box=variance", "on_clip=shift", "clip_keep=0.9"],
+    // The paper's settings (hard reset, clip_p = p0 = 1000, bilinear fetch) at lambda 0.9.
+    &["variant=paper", "lambda=0.9"],
 ];
 
 #[test]

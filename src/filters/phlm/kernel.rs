@@ -13,10 +13,16 @@
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
 use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, STATE_PLANES, Z};
-use crate::filters::passes::{on_screen_bits, previous_positions, reproject_skip, FrameContext, FrameResult};
+use crate::filters::passes::{
+    dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
+    FrameResult,
+};
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
-use crate::kernels::{bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse};
+use crate::kernels::{
+    bilinear_texels, catmull_rom_span_of, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse,
+    FootprintLanes,
+};
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
 use std::ops::{AddAssign, Range};
@@ -121,7 +127,19 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     let (w, h) = (inp.width, inp.height);
     let facts = inp.facts;
     let reproject_skip = reproject_skip(&inp, has_history);
+    let dilate_skip = dilate_skip(&inp, &reproject_skip, p.dilation);
     let tonemap_skip = facts.tonemap();
+    // Velocity dilation, a whole-plane pass before the fused one (its 3x3 depth search
+    // would otherwise run again for each of a band's halo rows).
+    let t = std::time::Instant::now();
+    let dilated = dilate_skip.is_none().then(|| {
+        dilate_motion_rows(
+            inp.motion.as_deref().expect("required"),
+            inp.depth.as_deref().expect("required"),
+            scratch,
+        )
+    });
+    let dilate_ms = t.elapsed().as_secs_f64() * 1e3;
     let plan = Plan {
         tonemap: tonemap_skip.is_none(),
         reproject: reproject_skip.is_none(),
@@ -134,7 +152,10 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         w,
         h,
         color: inp.color_slices(),
-        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
+        motion: dilated
+            .as_ref()
+            .or(inp.motion.as_deref())
+            .map(|m| m.each_ref().map(|p| p.data())),
         invalid: inp.invalid.as_deref(),
         state: has_history.then(|| read[0].data()),
     };
@@ -163,11 +184,19 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         tonemap_skip,
     ];
     for (k, skip) in skips.into_iter().enumerate() {
+        if k == REPROJECT {
+            // `dilate` runs before the fused pass and is recorded in its place.
+            match dilate_skip.clone() {
+                Some(why) => rec.skip("dilate", why),
+                None => rec.ran_for("dilate", dilate_ms),
+            }
+        }
         match skip {
             Some(why) => rec.skip(STAGES[k], why),
             None => rec.ran_for(STAGES[k], ms * shares[k]),
         }
     }
+    scratch.recycle(dilated.into_iter().flatten());
     let n = (w * h) as f64;
     Ok(FrameResult {
         color: out,
@@ -314,6 +343,9 @@ fn fetch_row(
             // [`crate::filters::passes::on_screen`] computes per pixel), then each lane's fetch in place.
             let [px, py] = previous_positions(&mx[row.clone()], &my[row.clone()], x0, y);
             have &= on_screen_bits(&px, &py, w, h);
+            // Catmull-Rom footprints of the eight positions in vectors (the same bits as
+            // one at a time).
+            let cr = (plan.p.model_fetch == ModelFetch::CatmullRom).then(|| FootprintLanes::at(&px, &py));
             for (l, texel) in texels.iter_mut().enumerate().take(n) {
                 *texel = if have >> l & 1 == 0 {
                     [0.0; TEXEL]
@@ -321,6 +353,14 @@ fn fetch_row(
                     match plan.p.model_fetch {
                         ModelFetch::Bilinear => bilinear_texels(state, w, h, px[l], py[l]),
                         ModelFetch::Nearest => nearest_texel(state, w, h, px[l], py[l]),
+                        ModelFetch::CatmullRom => {
+                            // beta by Catmull-Rom, R and z bilinear (as `fetch_model`).
+                            let mut t = bilinear_texels(state, w, h, px[l], py[l]);
+                            let f = cr.as_ref().expect("footprints").lane(l);
+                            let beta = catmull_rom_span_of(state, TEXEL, BETA, w, h, &f);
+                            t[BETA..BETA + 3 * D].copy_from_slice(&beta);
+                            t
+                        }
                     }
                 };
             }

@@ -11,26 +11,36 @@
 //! 2. `tonemap`: the reversible tonemap `c / (1 + max c)` (HDR input only): one firefly of
 //!    1e5 is then a bounded sample instead of a value that dominates the regression.
 //! 3. `ycocg`: the input in YCoCg, where the neighbourhood box and the luma range live.
-//! 4. `reproject`: each pixel's previous position `p + motion`; off screen -> the model is
+//! 4. `dilate`: velocity dilation (with depth, `dilation` on): each pixel takes the motion
+//!    of the nearest pixel of its 3x3, as `taa` does, so the pixels beside a thin moving
+//!    edge fetch the edge's models.
+//! 5. `reproject`: each pixel's previous position `p + motion`; off screen -> the model is
 //!    reset to the input (Algorithm 1 lines 7-9). Left out when nothing moves (the static
 //!    case of sec. 5.2: `pi(v)` is the identity and state is read in place).
-//! 5. `feature`: the temporal feature (sec. 5.1), fetched at the previous position.
-//! 6. `model`: Algorithm 1 lines 11-22: fetch beta and P, predict, test against the 3x3 box,
+//! 6. `feature`: the temporal feature (sec. 5.1), fetched at the previous position.
+//! 7. `model`: Algorithm 1 lines 11-22: fetch beta and P, predict, test against the 3x3 box,
 //!    clip toward the input and reset on failure, RLS update (eq. 5-7 with regularized
 //!    forgetting in information form, bounded forever: see [`rls`]), output `beta^T x`.
-//! 7. `untonemap` (HDR input only).
+//! 8. `untonemap` (HDR input only).
 //!
 //! State: beta (12), the information matrix R = P^-1 (10, packed symmetric), z (3) = 25
 //! float planes, double-buffered (200 bytes per pixel).
 //!
-//! Choices where the paper is open (each cited where it is made):
-//! - the model fetch is bilinear by default ("our linear models are stored in GPU texture
+//! Choices where the paper is open (each cited where it is made; `variant = paper` puts
+//! back the paper's own settings, [`Variant`]):
+//! - the model fetch: the paper's is bilinear ("our linear models are stored in GPU texture
 //!   memory, and thus we can exploit texture cache and hardware bilinear interpolation",
-//!   sec. 6); `model_fetch = nearest` is the cheaper alternative. A convex blend of
-//!   positive-definite matrices is positive definite (and of matrices `>= R0` is `>= R0`),
-//!   so bilinear R stays valid and the bound `P <= p0 I` holds. We blend the information
-//!   `R = P^-1` (what we store) where the paper's texture fetch blends P: blending R pools
-//!   the neighbours' evidence, and both are convex blends of SPD matrices.
+//!   sec. 6). Our default reads the model's coefficients `beta` with Catmull-Rom (sharper
+//!   under sub-pixel motion, as `taa`'s history) and its information `R` and the feature
+//!   bilinearly ([`ModelFetch::CatmullRom`]); `model_fetch = nearest` is the cheapest. A
+//!   convex blend of positive-definite matrices is positive definite (and of matrices
+//!   `>= R0` is `>= R0`), so bilinear R stays valid and the bound `P <= p0 I` holds;
+//!   Catmull-Rom's negative lobes would not keep R definite, which is why R stays
+//!   bilinear. We blend the information `R = P^-1` (what we store) where the paper's
+//!   texture fetch blends P: blending R pools the neighbours' evidence, and both are
+//!   convex blends of SPD matrices.
+//! - velocity dilation (`dilation`, our addition from `taa`; the paper reprojects with
+//!   each pixel's own motion).
 //! - the hull test runs in YCoCg ("the convex hull in a given colorspace (e.g. RGB or
 //!   YCgCo)", sec. 5.2): the same 3x3 pass then gives the luma range the feature needs; the
 //!   clip follows the paper's ray from the prediction toward the input (lines 14-17).
@@ -49,7 +59,7 @@ pub mod rls;
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
-use crate::kernels::{bilinear, tonemap};
+use crate::kernels::{bilinear, catmull_rom, tonemap};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{
     Filter, FilterError, FilterKind, FilterState, Output, ParamKind, PixelCounts, StateError,
@@ -67,6 +77,23 @@ pub enum ModelFetch {
     Bilinear,
     /// The nearest model (4x fewer reads; blocky under sub-pixel motion).
     Nearest,
+    /// `beta` by Catmull-Rom ([`crate::kernels::catmull_rom`]: 12 taps, sharp under
+    /// sub-pixel motion, can overshoot, which the box test then clips), `R` and `z`
+    /// bilinear (`R` must stay a convex blend to stay positive definite).
+    CatmullRom,
+}
+
+/// Which settings `phlm` runs with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Variant {
+    /// The parameters as given (defaults: our measured choices, docs/phlm-ablations.md).
+    Tuned,
+    /// Iglesias-Guitian et al. 2016's own settings where we depart from them: one
+    /// `lambda` for every pixel (`lambda_moving = 0`), no velocity dilation, bilinear model
+    /// fetch, `p0 = clip_p = 1000` and a hard reset on clip (`clip_keep = 0`); these six
+    /// parameters are then overridden ([`Params::effective`]).
+    Paper,
 }
 
 /// The box a prediction is tested against (Algorithm 1 lines 13-16).
@@ -98,9 +125,12 @@ filter_params! {
         lambda: f32 = DEFAULT_LAMBDA,
             ParamKind::Float { min: 0.5, max: 0.99999 },
             "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
+        variant: Variant = Variant::Tuned,
+            ParamKind::Choice { options: &["tuned", "paper"], },
+            "tuned (the parameters as given; defaults measured on the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0)";
         p0: f32 = DEFAULT_P0,
             ParamKind::Float { min: 1e-3, max: 1e6 },
-            "diagonal of P at initialisation and off-screen reset (paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
+            "diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
         clip_p: f32 = DEFAULT_CLIP_P,
             ParamKind::Float { min: 1e-3, max: 1e6 },
             "diagonal of P after a clip reset (default 1; paper: 1000 like p0, the model restarts from the input and the pixel shows its raw input). Lower keeps the clipped colour longer: less flicker on thin features, more lag";
@@ -113,9 +143,12 @@ filter_params! {
         feature_alpha_min: f32 = feature::DEFAULT_ALPHA_MIN,
             ParamKind::Float { min: 0.001, max: 1.0 },
             "smallest weight of the current low-pass sample in the feature (our choice, 0.03 = a 33-frame memory): lower gives a smoother feature that lags more";
-        model_fetch: ModelFetch = ModelFetch::Bilinear,
-            ParamKind::Choice { options: &["bilinear", "nearest"], },
-            "reprojected model read: bilinear (paper's texture fetch, smooth) or nearest (4x fewer reads)";
+        model_fetch: ModelFetch = ModelFetch::CatmullRom,
+            ParamKind::Choice { options: &["catmull_rom", "bilinear", "nearest"], },
+            "reprojected model read: catmull_rom (beta by Catmull-Rom, R and the feature bilinear: sharp under motion, 12 taps), bilinear (paper's texture fetch, smooth, blurs moving detail) or nearest (4x fewer reads, blocky)";
+        dilation: bool = true,
+            ParamKind::Bool,
+            "take the motion of the nearest pixel of the 3x3 (needs depth; as taa): pixels beside a thin moving edge follow the edge's models (off: the paper's own motion per pixel)";
         lambda_moving: f32 = DEFAULT_LAMBDA_MOVING,
             ParamKind::Float { min: 0.0, max: 0.99999 },
             "forgetting factor of moving pixels (default 0.8; 0 = off: the paper's lambda everywhere): lambda falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed px/frame and faster). Still content keeps the long memory that supersamples it, moving content follows its changes (0.8 from the lambda sweep of docs/phlm-ablations.md, table 4)";
@@ -131,17 +164,52 @@ filter_params! {
         on_clip: OnClip = OnClip::Reset,
             ParamKind::Choice { options: &["reset", "shift"], },
             "what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0) or shift (the intercept moves so the model predicts the clipped colour, slopes kept)";
-        clip_keep: f32 = 0.0,
+        clip_keep: f32 = DEFAULT_CLIP_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
-            "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (0 = the hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less, the model follows the new input more slowly (more lag)";
+            "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
+    }
+}
+
+impl Params {
+    /// The settings a frame runs with: these parameters, or with `variant = paper` the
+    /// paper's values of the six it overrides ([`Variant::Paper`]).
+    pub fn effective(&self) -> Params {
+        match self.variant {
+            Variant::Tuned => self.clone(),
+            Variant::Paper => Params {
+                lambda_moving: 0.0,
+                dilation: false,
+                model_fetch: ModelFetch::Bilinear,
+                p0: PAPER_P0,
+                clip_p: PAPER_P0,
+                clip_keep: 0.0,
+                ..self.clone()
+            },
+        }
     }
 }
 
 /// RLS forgetting factor `lambda = 0.998` (Iglesias-Guitian et al. 2016, sec. 4 after eq. 6: "we used lambda = 0.998
 /// as widely used in real-time tracking systems").
 pub const DEFAULT_LAMBDA: f32 = 0.998;
-/// Initial diagonal of P (Iglesias-Guitian et al. 2016, sec. 6: "initialized with a relatively high value, e.g. 1000").
-pub const DEFAULT_P0: f32 = 1000.0;
+/// Initial diagonal of P in the paper (Iglesias-Guitian et al. 2016, sec. 6: "initialized with a relatively high value, e.g. 1000"),
+/// also its P after a clip; `variant = paper` uses it for both.
+pub const PAPER_P0: f32 = 1000.0;
+
+/// Initial diagonal of P: 100 (our choice, measured). A new model still fits the input at
+/// once (P >> 1), and the prior `R0 = I / p0` that forgetting relaxes toward is 10x
+/// stronger than the paper's, which steadies models on still, jittered content. On the
+/// 10-scene catalogue (128x72, 32 frames, with dilation, Catmull-Rom fetch and
+/// `clip_keep = 0.5`): p0 = 10 / 100 / 1000 give 30.34 / 30.34 / 30.24 dB mean PSNR and
+/// tRMSE 0.0332 / 0.0335 / 0.0344 (docs/phlm-ablations.md, table 10).
+pub const DEFAULT_P0: f32 = 100.0;
+
+/// Confidence a clipped model keeps, 0.5 (our choice, measured; the paper resets P, 0).
+/// With the defaults of table 10 of docs/phlm-ablations.md (catalogue means, 128x72):
+/// 0.25 / 0.5 / 0.75 give 30.40 / 30.34 / 30.21 dB and tRMSE 0.0344 / 0.0335 / 0.0331;
+/// 0 gives 30.25 dB / 0.0366 (dilation and Catmull-Rom alone). A hard reset shows the
+/// clipped pixel's raw input for a frame, which is most of phlm's flicker.
+pub const DEFAULT_CLIP_KEEP: f32 = 0.5;
 
 /// Diagonal of P after a clip reset: 1 (our choice, measured). The paper resets a clipped
 /// model like a new one (P = 1000 I, sec. 5.2 and 6), so the next update fits the input
@@ -267,13 +335,26 @@ pub(crate) fn fetch<const N: usize>(
         From::Nothing => [0.0; N],
         From::Here(i) => planes.map(|p| p[i]),
         From::At(x, y) => match how {
-            ModelFetch::Bilinear => bilinear(planes, w, h, x, y),
+            // Catmull-Rom reads beta only ([`fetch_model`]); the rest is bilinear.
+            ModelFetch::Bilinear | ModelFetch::CatmullRom => bilinear(planes, w, h, x, y),
             ModelFetch::Nearest => {
                 let j = (y.max(0.0) as usize).min(h - 1) * w + (x.max(0.0) as usize).min(w - 1);
                 planes.map(|p| p[j])
             }
         },
     }
+}
+
+/// [`fetch`] of the model planes (beta, then R): with [`ModelFetch::CatmullRom`] beta's
+/// twelve planes are read by Catmull-Rom, R bilinearly.
+#[inline(always)]
+pub(crate) fn fetch_model(planes: [&[f32]; Z], w: usize, h: usize, at: From, how: ModelFetch) -> [f32; Z] {
+    let mut s = fetch(planes, w, h, at, how);
+    if let (ModelFetch::CatmullRom, From::At(x, y)) = (how, at) {
+        let beta: [f32; 3 * D] = catmull_rom(std::array::from_fn(|c| planes[BETA + c]), w, h, x, y);
+        s[BETA..BETA + 3 * D].copy_from_slice(&beta);
+    }
+    s
 }
 
 /// Per-row counters of the model pass.
@@ -309,6 +390,7 @@ impl FilterKind for Phlm {
         "repair",
         "tonemap",
         "ycocg",
+        "dilate",
         "reproject",
         "feature",
         "model",
@@ -319,7 +401,7 @@ impl FilterKind for Phlm {
         ChannelSet::of(&[ChannelKind::Color])
     }
     fn uses() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion])
+        ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
     }
     fn state_bytes_per_pixel(_: &Params) -> usize {
         2 * 4 * STATE_PLANES
@@ -423,10 +505,10 @@ impl Filter for Phlm {
     }
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        let p = &self.params;
+        let p = self.params.effective();
         self.hist
             .run(Self::NAME, Self::needs(), Self::uses(), false, frame, |ctx| {
-                kernel::frame(p, ctx)
+                kernel::frame(&p, ctx)
             })
     }
 
@@ -466,7 +548,14 @@ mod tests {
         let variants: &[&[&str]] = &[
             &[],
             &["model_fetch=nearest"],
-            &["lambda=0.9", "clip_p=1000", "feature_alpha_min=0.5"],
+            &["model_fetch=bilinear", "dilation=false"],
+            &["variant=paper"],
+            &[
+                "lambda=0.9",
+                "clip_p=1000",
+                "feature_alpha_min=0.5",
+                "clip_keep=0",
+            ],
             &["p0=0.01"],
             &["test_box=variance"],
             &[
@@ -562,6 +651,31 @@ mod tests {
         }
     }
 
+    /// `variant = paper` runs exactly the six settings it names, whatever they were set to.
+    #[test]
+    fn the_paper_variant_is_the_papers_settings() {
+        let (_, frames) = sequences(33, 19, 5, 9)
+            .into_iter()
+            .find(|(n, _)| *n == "random motion")
+            .unwrap();
+        let paper = run(&["variant=paper", "p0=3", "clip_keep=0.9"], &frames);
+        let explicit = run(
+            &[
+                "lambda_moving=0",
+                "dilation=false",
+                "model_fetch=bilinear",
+                "p0=1000",
+                "clip_p=1000",
+                "clip_keep=0",
+            ],
+            &frames,
+        );
+        for (a, b) in paper.iter().zip(&explicit) {
+            assert!((0..3).all(|c| a.color[c].data() == b.color[c].data()));
+        }
+        assert!((0..3).any(|c| paper[4].color[c].data() != run(&[], &frames)[4].color[c].data()));
+    }
+
     /// Every ablation knob reaches the output.
     #[test]
     fn each_ablation_knob_changes_the_output() {
@@ -574,9 +688,13 @@ mod tests {
             &["test_box=variance"][..],
             &["test_box=variance", "test_gamma=2"],
             &["on_clip=shift"],
-            &["clip_keep=0.5"],
+            &["clip_keep=0"],
             &["lambda_moving=0"],
             &["lambda_speed=3"],
+            &["dilation=false"],
+            &["model_fetch=bilinear"],
+            &["p0=1000"],
+            &["variant=paper"],
         ] {
             let other = run(set, &frames);
             let differs = base

@@ -4,11 +4,13 @@
 //! them frame by frame); this stays the readable statement of what the filter computes.
 
 use super::super::passes::{
-    from_working, on_screen, reproject_skip, slices_mut, to_working, to_ycocg, Conversion, TemporalState,
+    dilate_motion, dilate_skip, from_working, on_screen, reproject_skip, slices_mut, to_working, to_ycocg,
+    Conversion, TemporalState,
 };
 use super::rls::{self, D, P_LEN};
 use super::{
-    convert_state, feature, fetch, Counts, From, Model, Params, Phlm, TestBox, BETA, R, STATE_PLANES, Z,
+    convert_state, feature, fetch, fetch_model, Counts, From, Model, Params, Phlm, TestBox, BETA, R,
+    STATE_PLANES, Z,
 };
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
@@ -34,7 +36,7 @@ impl ReferencePhlm {
     /// Filters one frame.
     pub fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
-        let p = self.params.clone();
+        let p = self.params.effective();
         let mut rec = Recorder::new();
         let inp = prepare(frame, Phlm::uses(), &mut rec)?;
         let (w, h) = (inp.width, inp.height);
@@ -55,13 +57,21 @@ impl ReferencePhlm {
 
         // Previous positions (pixel units); NaN marks off screen.
         let skip = reproject_skip(&inp, has_history);
+        // Velocity dilation (with depth): the motion every later stage reads.
+        let dilated: Option<[Plane<f32>; 2]> =
+            rec.stage("dilate", dilate_skip(&inp, &skip, p.dilation), || {
+                dilate_motion(
+                    inp.motion.as_deref().expect("required"),
+                    inp.depth.as_deref().expect("required"),
+                    scratch,
+                )
+            });
+        let motion = dilated
+            .as_ref()
+            .or(inp.motion.as_deref())
+            .map(|m| m.each_ref().map(|p| p.data()));
         let positions: Option<[Plane<f32>; 2]> = rec.stage("reproject", skip, || {
-            let m = inp
-                .motion
-                .as_deref()
-                .expect("required")
-                .each_ref()
-                .map(|p| p.data());
+            let m = motion.expect("required");
             let mut out: [Plane<f32>; 2] = scratch.planes(w, h);
             for_rows(slices_mut(&mut out), w, |y, [px, py]| {
                 for x in 0..w {
@@ -77,7 +87,6 @@ impl ReferencePhlm {
             out
         });
         let pos = positions.as_ref().map(|p| p.each_ref().map(|p| p.data()));
-        let motion = inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data()));
 
         let (read, next) = self.hist.buffer.split();
         let src: [&[f32]; STATE_PLANES] = std::array::from_fn(|k| read[k].data());
@@ -162,7 +171,7 @@ impl ReferencePhlm {
                             }
                             Model::reset(input, z, p.p0)
                         }
-                        _ => Model::from_state(&fetch(src_model, w, h, f, p.model_fetch), z),
+                        _ => Model::from_state(&fetch_model(src_model, w, h, f, p.model_fetch), z),
                     };
                     let x_feat = m.x();
                     if !inp.is_invalid(i) {
@@ -219,6 +228,7 @@ impl ReferencePhlm {
         let n = (w * h) as f64;
         scratch.recycle(ycocg);
         scratch.recycle(positions.into_iter().flatten());
+        scratch.recycle(dilated.into_iter().flatten());
         if let std::borrow::Cow::Owned(w) = working {
             scratch.recycle(w);
         }

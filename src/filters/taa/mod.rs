@@ -22,7 +22,7 @@
 mod kernel;
 pub mod reference;
 
-use super::passes::{convert_texel_history, reproject_skip, Conversion, TemporalState};
+use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
 use crate::pipeline::{
@@ -107,10 +107,7 @@ impl StagePlan {
     /// holds a previous frame.
     pub fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
         let reproject = reproject_skip(inp, has_history);
-        let dilate = reproject
-            .clone()
-            .or_else(|| inp.require(ChannelKind::Depth))
-            .or_else(|| (!p.dilation).then_some(Skip::Disabled { param: "dilation" }));
+        let dilate = dilate_skip(inp, &reproject, p.dilation);
         let depth_reject = (p.depth_rejection <= 0.0)
             .then_some(Skip::Disabled {
                 param: "depth_rejection",
