@@ -33,8 +33,8 @@
 //! noisy feature P's condition grows without bound and f32 P turned NaN between 20,000 and
 //! 200,000 frames).
 
-use crate::kernels::lanes::{each, Lanes, Mask, LANES};
-use wide::f32x8;
+use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
+use wide::{f32x8, f64x4};
 
 /// Number of features: the intercept and three feature channels (Iglesias-Guitian et al. 2016, sec. 6, "the final
 /// dimension d ... is 4").
@@ -408,8 +408,120 @@ pub fn update_information_f32(
     solve_and_step(beta, r, x, e, &a, Some(prior))
 }
 
-/// One value in f64 for each pixel of a block.
-pub type Lanes64 = [f64; LANES];
+/// Half a block of pixels in f64: lanes `0..4` or `4..8`.
+type Half64 = f64x4;
+
+/// What [`update_half`] computes for four lanes, before the caller keeps it where the
+/// factorisation succeeded.
+struct HalfUpdate {
+    /// `(g_j e_c) as f32`, the increment of `beta[c][j]`.
+    step: [[[f32; 4]; D]; 3],
+    /// The new R, rounded to f32.
+    r: [[f32; 4]; P_LEN],
+    /// `trace(R^-1)`, rounded to f32.
+    trace: [f32; 4],
+    /// The lanes whose every pivot is in `(0, inf)` (bit `m` for lane `m` of the half).
+    ok: u32,
+}
+
+/// [`update_information_lanes`] for the block's lanes `4 h..4 h + 4`, in `f64x4` vectors:
+/// the operations and their order are those of [`forgotten`], [`cholesky`], [`solve`] and
+/// [`trace_of_inverse`], so every lane gets the scalar function's bits. One half at a
+/// time (written entry by entry, each named value one register) keeps the factor, the
+/// solve and the trace in registers: over all eight lanes at once they were twice as many
+/// and spilled to the stack.
+#[inline(always)]
+fn update_half(
+    r: &[Lanes; P_LEN],
+    x: &[Lanes; D],
+    e: &[Lanes; 3],
+    lambda: &Lanes,
+    prior: f32,
+    h: usize,
+) -> HalfUpdate {
+    let wide = |v: &Lanes| -> Half64 { f64x4::from(each::<f64, 4>(|m| v[4 * h + m] as f64)) };
+    let narrow = |v: Half64| -> [f32; 4] {
+        let v = v.to_array();
+        each(|m| v[m] as f32)
+    };
+    let (zero, one) = (f64x4::splat(0.0), f64x4::splat(1.0));
+    let l = wide(lambda);
+    let q = (one - l) * f64x4::splat(prior as f64);
+    let [x0, x1, x2, x3] = [wide(&x[0]), wide(&x[1]), wide(&x[2]), wide(&x[3])];
+    let xs = [x0, x1, x2, x3];
+    // lambda R + (1 - lambda) prior I + x x^T ([`forgotten`]); `+ 0` off the diagonal as
+    // there (it turns -0 into +0).
+    let a: [Half64; P_LEN] = each(|k| {
+        let (i, j) = PAIRS[k];
+        let extra = if i == j { q } else { zero };
+        l * wide(&r[k]) + xs[i] * xs[j] + extra
+    });
+    let at = |i: usize, j: usize| a[SYM[i][j]];
+    // Cholesky with reciprocal pivots ([`cholesky`]): the square root, then its
+    // reciprocal.
+    let rs = |s: Half64| one / s.sqrt();
+    let s0 = at(0, 0);
+    let i0 = rs(s0);
+    let l10 = at(1, 0) * i0;
+    let s1 = at(1, 1) - l10 * l10;
+    let i1 = rs(s1);
+    let l20 = at(2, 0) * i0;
+    let l21 = (at(2, 1) - l20 * l10) * i1;
+    let s2 = at(2, 2) - l20 * l20 - l21 * l21;
+    let i2 = rs(s2);
+    let l30 = at(3, 0) * i0;
+    let l31 = (at(3, 1) - l30 * l10) * i1;
+    let l32 = (at(3, 2) - l30 * l20 - l31 * l21) * i2;
+    let s3 = at(3, 3) - l30 * l30 - l31 * l31 - l32 * l32;
+    let i3 = rs(s3);
+    // Every pivot in (0, inf), as [`cholesky`] requires (NaN fails both compares).
+    let inf = f64x4::splat(f64::INFINITY);
+    let pivot = |s: Half64| s.simd_gt(zero) & s.simd_lt(inf);
+    let ok = (pivot(s0) & pivot(s1) & pivot(s2) & pivot(s3)).to_bitmask();
+    // g = R^-1 x ([`solve`]): forward, then back substitution.
+    let w0 = x0 * i0;
+    let w1 = (x1 - l10 * w0) * i1;
+    let w2 = (x2 - l20 * w0 - l21 * w1) * i2;
+    let w3 = (x3 - l30 * w0 - l31 * w1 - l32 * w2) * i3;
+    let g3 = w3 * i3;
+    let g2 = (w2 - l32 * g3) * i2;
+    let g1 = (w1 - l21 * g2 - l31 * g3) * i1;
+    let g0 = (w0 - l10 * g1 - l20 * g2 - l30 * g3) * i0;
+    let g = [g0, g1, g2, g3];
+    let step = each(|c| {
+        let ec = wide(&e[c]);
+        each(|j| narrow(g[j] * ec))
+    });
+    // trace(R^-1) = ||L^-1||_F^2 ([`trace_of_inverse`]), column by column of L^-1.
+    let v00 = i0;
+    let v10 = (zero - l10 * v00) * i1;
+    let v20 = (zero - l20 * v00 - l21 * v10) * i2;
+    let v30 = (zero - l30 * v00 - l31 * v10 - l32 * v20) * i3;
+    let v11 = i1;
+    let v21 = (zero - l21 * v11) * i2;
+    let v31 = (zero - l31 * v11 - l32 * v21) * i3;
+    let v22 = i2;
+    let v32 = (zero - l32 * v22) * i3;
+    let v33 = i3;
+    // [`trace_of_inverse`] starts from 0; `0 + v00 v00` is `v00 v00` (a square is +0 at
+    // least, or NaN), so the sum starts from it.
+    let sum = v00 * v00
+        + v10 * v10
+        + v20 * v20
+        + v30 * v30
+        + v11 * v11
+        + v21 * v21
+        + v31 * v31
+        + v22 * v22
+        + v32 * v32
+        + v33 * v33;
+    HalfUpdate {
+        step,
+        r: each(|k| narrow(a[k])),
+        trace: narrow(sum),
+        ok,
+    }
+}
 
 /// [`update_information`] for a block of pixels: lane `l` is updated (beta and R in place,
 /// with forgetting factor `lambda[l]`) when `active[l]`, exactly as the scalar function
@@ -426,128 +538,50 @@ pub fn update_information_lanes(
     prior: f32,
     active: &Mask,
 ) -> (Lanes, Mask) {
-    // Written out entry by entry (4x4 is small): each named value is one or two vector
-    // registers, with no array the compiler would zero first and index after. The
-    // operations and their order are those of [`forgotten`], [`cholesky`], [`solve`] and
-    // [`trace_of_inverse`], so every lane gets the scalar function's bits.
-    let l: Lanes64 = each(|m| lambda[m] as f64);
-    let q: Lanes64 = each(|m| (1.0 - l[m]) * prior as f64);
-    let [x0, x1, x2, x3]: [Lanes64; D] = each(|i| each(|m| x[i][m] as f64));
-    let xs = [&x0, &x1, &x2, &x3];
-    // lambda R + (1 - lambda) prior I + x x^T ([`forgotten`]).
-    let a: [Lanes64; P_LEN] = each(|k| {
-        let (i, j) = PAIRS[k];
-        each(|m| {
-            let extra = if i == j { q[m] } else { 0.0 };
-            l[m] * r[k][m] as f64 + xs[i][m] * xs[j][m] + extra
-        })
-    });
-    let at = |i: usize, j: usize| &a[SYM[i][j]];
-    // Cholesky with reciprocal pivots ([`cholesky`]).
-    let s0 = *at(0, 0);
-    let i0 = reciprocal_sqrt(&s0);
-    let l10: Lanes64 = each(|m| at(1, 0)[m] * i0[m]);
-    let s1: Lanes64 = each(|m| at(1, 1)[m] - l10[m] * l10[m]);
-    let i1 = reciprocal_sqrt(&s1);
-    let l20: Lanes64 = each(|m| at(2, 0)[m] * i0[m]);
-    let l21: Lanes64 = each(|m| (at(2, 1)[m] - l20[m] * l10[m]) * i1[m]);
-    let s2: Lanes64 = each(|m| at(2, 2)[m] - l20[m] * l20[m] - l21[m] * l21[m]);
-    let i2 = reciprocal_sqrt(&s2);
-    let l30: Lanes64 = each(|m| at(3, 0)[m] * i0[m]);
-    let l31: Lanes64 = each(|m| (at(3, 1)[m] - l30[m] * l10[m]) * i1[m]);
-    let l32: Lanes64 = each(|m| (at(3, 2)[m] - l30[m] * l20[m] - l31[m] * l21[m]) * i2[m]);
-    let s3: Lanes64 = each(|m| at(3, 3)[m] - l30[m] * l30[m] - l31[m] * l31[m] - l32[m] * l32[m]);
-    let i3 = reciprocal_sqrt(&s3);
-    // Every pivot in (0, inf), as [`cholesky`] requires (NaN fails): the smallest above 0
-    // and the largest below inf, with `min`/`max` that pass NaN on (`f64::min` would drop
-    // it), so the test stays in vectors.
-    let lo: Lanes64 = each(|m| nan_min(nan_min(s0[m], s1[m]), nan_min(s2[m], s3[m])));
-    let hi: Lanes64 = each(|m| nan_max(nan_max(s0[m], s1[m]), nan_max(s2[m], s3[m])));
-    let ok: Mask = each(|m| active[m] & (lo[m] > 0.0) & (hi[m] < f64::INFINITY));
-    // g = R^-1 x ([`solve`]): forward, then back substitution.
-    let w0: Lanes64 = each(|m| x0[m] * i0[m]);
-    let w1: Lanes64 = each(|m| (x1[m] - l10[m] * w0[m]) * i1[m]);
-    let w2: Lanes64 = each(|m| (x2[m] - l20[m] * w0[m] - l21[m] * w1[m]) * i2[m]);
-    let w3: Lanes64 = each(|m| (x3[m] - l30[m] * w0[m] - l31[m] * w1[m] - l32[m] * w2[m]) * i3[m]);
-    let g3: Lanes64 = each(|m| w3[m] * i3[m]);
-    let g2: Lanes64 = each(|m| (w2[m] - l32[m] * g3[m]) * i2[m]);
-    let g1: Lanes64 = each(|m| (w1[m] - l21[m] * g2[m] - l31[m] * g3[m]) * i1[m]);
-    let g0: Lanes64 = each(|m| (w0[m] - l10[m] * g1[m] - l20[m] * g2[m] - l30[m] * g3[m]) * i0[m]);
-    let g = [&g0, &g1, &g2, &g3];
+    // Two calls, not `[0, 1].map`: the map's closure was left out of line.
+    let lo = update_half(r, x, e, lambda, prior, 0);
+    let hi = update_half(r, x, e, lambda, prior, 1);
+    let join = |a: &[f32; 4], b: &[f32; 4]| -> f32x8 {
+        f32x8::from([a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]])
+    };
+    let active_bits = bits_of(active);
+    let ok_bits = (lo.ok | hi.ok << 4) & active_bits;
+    let trace = join(&lo.trace, &hi.trace);
     // The new beta and R where the factorisation succeeded; every lane of most blocks
     // did, and then no lane needs a blend.
-    let every = ok == [true; LANES];
+    if ok_bits == (1 << LANES) - 1 {
+        for c in 0..3 {
+            for j in 0..D {
+                beta[c][j] = (f32x8::from(beta[c][j]) + join(&lo.step[c][j], &hi.step[c][j])).to_array();
+            }
+        }
+        for k in 0..P_LEN {
+            r[k] = join(&lo.r[k], &hi.r[k]).to_array();
+        }
+        return (trace.to_array(), [false; LANES]);
+    }
+    let ok = lanes::mask_from(&each(|m| ok_bits >> m & 1 != 0));
     for c in 0..3 {
         for j in 0..D {
-            let b = each(|m| beta[c][j][m] + (g[j][m] * e[c][m] as f64) as f32);
-            beta[c][j] = if every {
-                b
-            } else {
-                each(|m| if ok[m] { b[m] } else { beta[c][j][m] })
-            };
+            let old = f32x8::from(beta[c][j]);
+            let b = old + join(&lo.step[c][j], &hi.step[c][j]);
+            beta[c][j] = ok.select(b, old).to_array();
         }
     }
     for k in 0..P_LEN {
-        let v = each(|m| a[k][m] as f32);
-        r[k] = if every {
-            v
-        } else {
-            each(|m| if ok[m] { v[m] } else { r[k][m] })
-        };
+        r[k] = ok.select(join(&lo.r[k], &hi.r[k]), f32x8::from(r[k])).to_array();
     }
-    // trace(R^-1) = ||L^-1||_F^2 ([`trace_of_inverse`]), column by column of L^-1.
-    let v00 = i0;
-    let v10: Lanes64 = each(|m| (0.0 - l10[m] * v00[m]) * i1[m]);
-    let v20: Lanes64 = each(|m| (0.0 - l20[m] * v00[m] - l21[m] * v10[m]) * i2[m]);
-    let v30: Lanes64 = each(|m| (0.0 - l30[m] * v00[m] - l31[m] * v10[m] - l32[m] * v20[m]) * i3[m]);
-    let v11 = i1;
-    let v21: Lanes64 = each(|m| (0.0 - l21[m] * v11[m]) * i2[m]);
-    let v31: Lanes64 = each(|m| (0.0 - l31[m] * v11[m] - l32[m] * v21[m]) * i3[m]);
-    let v22 = i2;
-    let v32: Lanes64 = each(|m| (0.0 - l32[m] * v22[m]) * i3[m]);
-    let v33 = i3;
-    let sq = |v: &Lanes64, m: usize| v[m] * v[m];
-    let sum: Lanes64 = each(|m| {
-        0.0 + sq(&v00, m)
-            + sq(&v10, m)
-            + sq(&v20, m)
-            + sq(&v30, m)
-            + sq(&v11, m)
-            + sq(&v21, m)
-            + sq(&v31, m)
-            + sq(&v22, m)
-            + sq(&v32, m)
-            + sq(&v33, m)
-    });
-    let trace = each(|m| if ok[m] { sum[m] as f32 } else { 0.0 });
-    let failed = each(|m| active[m] & !ok[m]);
+    let trace = ok.select(trace, f32x8::splat(0.0)).to_array();
+    let failed = each(|m| (active_bits & !ok_bits) >> m & 1 != 0);
     (trace, failed)
 }
 
-/// `1 / sqrt(s)` as [`cholesky`] computes it (the square root, then its reciprocal).
+/// The flags as bits (lane `l` is bit `l`): the flags' bytes (0 or 1) gathered into the
+/// top byte by one multiply (no two partial products meet, so nothing carries).
 #[inline(always)]
-fn reciprocal_sqrt(s: &Lanes64) -> Lanes64 {
-    each(|m| 1.0 / s[m].sqrt())
-}
-
-/// The smaller of two values, NaN if either is NaN.
-#[inline(always)]
-fn nan_min(a: f64, b: f64) -> f64 {
-    if a < b || a.is_nan() {
-        a
-    } else {
-        b
-    }
-}
-
-/// The larger of two values, NaN if either is NaN.
-#[inline(always)]
-fn nan_max(a: f64, b: f64) -> f64 {
-    if a > b || a.is_nan() {
-        a
-    } else {
-        b
-    }
+fn bits_of(m: &Mask) -> u32 {
+    let bytes = u64::from_le_bytes(each(|l| m[l] as u8));
+    (bytes.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u32
 }
 
 /// The `(i, j)` of each packed index, `i <= j` (the inverse of [`SYM`]'s upper triangle).
@@ -657,6 +691,14 @@ mod tests {
                 }
             }
             self.p = next;
+        }
+    }
+
+    #[test]
+    fn bits_of_gives_each_flag_as_its_bit() {
+        for bits in 0u32..256 {
+            let m: Mask = std::array::from_fn(|l| bits >> l & 1 == 1);
+            assert_eq!(bits_of(&m), bits);
         }
     }
 
