@@ -1,7 +1,7 @@
 //! Resampling of history planes at sub-pixel positions: bilinear and Catmull-Rom.
 
 use super::lanes::{block, each, Lanes, LANES};
-use wide::{f32x4, f32x8};
+use wide::{f32x4, f32x8, i32x8};
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
 #[inline(always)]
@@ -213,29 +213,67 @@ impl FootprintLanes {
     }
 
     /// [`catmull_rom_texel`] of each lane's footprint for the lanes set in `on` (lane `l`
-    /// is bit `l`); zero texels in the others. The fields of the lanes inside the image
-    /// are read in place, one lane at a time.
+    /// is bit `l`); zero texels in the others. Lane `l`'s weights come from one 8x8
+    /// transpose of the block's (`wx` in the low half of its vector, `wy` in the high
+    /// half), and the index of its footprint's first texel from one vector multiply, so a
+    /// lane inside the image loads one vector of weights and one index where it read ten
+    /// fields of its own; the lanes on the border go through [`catmull_rom_texel`].
     #[inline(always)]
     pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [[f32; TEXEL]; LANES] {
         let inside = self.inside_bits(width, height) & on;
         let mut out = [[0.0; TEXEL]; LANES];
-        for (l, o) in out.iter_mut().enumerate() {
-            if inside >> l & 1 != 0 {
-                let (wx, wy) = (&self.wx, &self.wy);
-                *o = catmull_rom_inside(
-                    tex,
-                    width,
-                    // Inside, `ix` and `iy` are at least 1 and exact.
-                    [self.ix[l] as usize, self.iy[l] as usize],
-                    [wx[0][l], wx[1][l], wx[2][l], wx[3][l]],
-                    [wy[0][l], wy[1][l], wy[2][l], wy[3][l]],
-                    [self.tx[l], self.ty[l]],
-                );
-            } else if on >> l & 1 != 0 {
-                *o = catmull_rom_texel(tex, width, height, &self.lane(l));
+        let v = |a: &Lanes| f32x8::from(*a);
+        let (wx, wy) = (&self.wx, &self.wy);
+        let weights = f32x8::transpose([
+            v(&wx[0]),
+            v(&wx[1]),
+            v(&wx[2]),
+            v(&wx[3]),
+            v(&wy[0]),
+            v(&wy[1]),
+            v(&wy[2]),
+            v(&wy[3]),
+        ]);
+        let (tx, ty) = (&self.tx, &self.ty);
+        // The lanes inside, by their set bits; then the others on screen.
+        let mut todo = inside;
+        if tex.len() <= i32::MAX as usize {
+            // Every texel index fits in an i32 and `width` in a u32: the index math below
+            // cannot overflow, and the compiler drops its overflow checks.
+            let first = self.first_texels(width);
+            let w32 = width as u32 as usize;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                out[l] = catmull_rom_weighted(tex, w32, first[l] as usize, weights[l], [tx[l], ty[l]]);
+            }
+        } else {
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let first = (self.iy[l] as usize - 1) * width + self.ix[l] as usize - 1;
+                out[l] = catmull_rom_weighted(tex, width, first, weights[l], [tx[l], ty[l]]);
             }
         }
+        let mut border = on & !inside;
+        while border != 0 {
+            let l = border.trailing_zeros() as usize;
+            border &= border - 1;
+            out[l] = catmull_rom_texel(tex, width, height, &self.lane(l));
+        }
         out
+    }
+
+    /// Each lane's first footprint texel `(y1 - 1) width + x1 - 1` (row-major), exact for
+    /// the lanes whose footprint lies inside the image (any value for the others), in
+    /// `i32x8` arithmetic: call only when every texel index of the texture fits in an i32
+    /// (inside, the index is below the texture's texel count).
+    #[inline(always)]
+    fn first_texels(&self, width: usize) -> [u32; LANES] {
+        let (ix, iy, one) = (i32x8::from(self.ix), i32x8::from(self.iy), i32x8::splat(1));
+        // The products of lanes outside the image wrap, and are not used.
+        let first = ((iy - one) * i32x8::splat(width as i32) + (ix - one)).to_array();
+        each(|l| first[l] as u32)
     }
 }
 
@@ -348,7 +386,16 @@ fn catmull_rom_inside(
     wy: [f32; 4],
     t: [f32; 2],
 ) -> [f32; TEXEL] {
-    let base = ((i1[1] - 1) * width + i1[0] - 1) * TEXEL;
+    let first = (i1[1] - 1) * width + i1[0] - 1;
+    let w = [wx[0], wx[1], wx[2], wx[3], wy[0], wy[1], wy[2], wy[3]];
+    catmull_rom_weighted(tex, width, first, f32x8::from(w), t)
+}
+
+/// [`catmull_rom_inside`] from the index of the footprint's first (top-left) texel and the
+/// weights in one vector, `wx` then `wy`.
+#[inline(always)]
+fn catmull_rom_weighted(tex: &[f32], width: usize, first: usize, w: f32x8, t: [f32; 2]) -> [f32; TEXEL] {
+    let base = first * TEXEL;
     let stride = width * TEXEL;
     // One bounds check for the whole footprint; the rows inside it are then known to fit.
     let win = &tex[base..base + 3 * stride + 4 * TEXEL];
@@ -358,7 +405,8 @@ fn catmull_rom_inside(
         block(win, 2 * stride),
         block(win, 3 * stride),
     ];
-    let mut out = catmull_rom_rows(rows, wx, wy);
+    let w = w.to_array();
+    let mut out = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
     // The count: bilinear over the four centre taps, which are bilinear's own taps inside
     // the image.
     let k = TEXEL - 1;
@@ -375,7 +423,10 @@ fn catmull_rom_inside(
 #[inline(always)]
 fn catmull_rom_rows(rows: [&[f32; 4 * TEXEL]; 4], wx: [f32; 4], wy: [f32; 4]) -> [f32; TEXEL] {
     // Column weights per lane: texels 0|1, 2|3 and 1|2 of a row.
-    let half = |a: usize| -> f32x8 { f32x8::from(each::<f32, 8>(|l| wx[a + l / TEXEL])) };
+    let half = |a: usize| -> f32x8 {
+        let (p, q) = (wx[a], wx[a + 1]);
+        f32x8::from([p, p, p, p, q, q, q, q])
+    };
     let (w01, w23, w12) = (half(0), half(2), half(1));
     let load = |r: &[f32; 4 * TEXEL], at: usize| f32x8::from(*block::<f32, 8>(r, at));
     let inner = |r| w01 * load(r, 0) + w23 * load(r, 2 * TEXEL);
@@ -701,6 +752,46 @@ pub(crate) mod tests {
             // callers never produce: they test positions before fetching).
             let _ = bilinear([&p], w, h, x, y);
             let _ = catmull_rom([&p], w, h, x, y);
+        }
+    }
+
+    #[test]
+    fn footprint_lanes_texels_give_each_lanes_scalar_texel() {
+        let mut rng = SplitMix64::new(16);
+        let wild = [f32::NAN, f32::INFINITY, -f32::INFINITY, 1e30, -1e30, -0.0, 0.5];
+        for (w, h) in [(1, 1), (1, 7), (2, 3), (5, 4), (13, 9), (37, 6)] {
+            let tex: Vec<f32> = (0..w * h * TEXEL)
+                .map(|i| (rng.next_f64() as f32 - 0.25) * [1.0, 1e4, 1e-4, 255.0][i % TEXEL])
+                .collect();
+            for k in 0..3000 {
+                // Mostly inside, some on and past the border, exact centres, wild values.
+                let pick = |rng: &mut SplitMix64, l: usize, n: usize| -> f32 {
+                    match (k + l) % 11 {
+                        0 => wild[(k + 3 * l) % wild.len()],
+                        1 => ((k + l) % (n + 2)) as f32 - 0.5,
+                        _ => rng.range(-2.0, n as f64 + 2.0) as f32,
+                    }
+                };
+                let x: Lanes = each(|l| pick(&mut rng, l, w));
+                let y: Lanes = each(|l| pick(&mut rng, l + 5, h));
+                let on = (k as u32).wrapping_mul(0x9e37_79b9) >> 24 | if k % 3 == 0 { 0xff } else { 0 };
+                let got = FootprintLanes::at(&x, &y).texels(&tex, w, h, on);
+                for l in 0..LANES {
+                    let want = if on >> l & 1 != 0 {
+                        catmull_rom_texels(&tex, w, h, x[l], y[l])
+                    } else {
+                        [0.0; TEXEL]
+                    };
+                    let bits = |v: &[f32; TEXEL]| v.map(f32::to_bits);
+                    assert_eq!(
+                        bits(&got[l]),
+                        bits(&want),
+                        "{w}x{h} lane {l} at ({}, {})",
+                        x[l],
+                        y[l]
+                    );
+                }
+            }
         }
     }
 
