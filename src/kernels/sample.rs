@@ -1,6 +1,6 @@
 //! Resampling of history planes at sub-pixel positions: bilinear and Catmull-Rom.
 
-use super::lanes::{block, each, Lanes, LANES};
+use super::lanes::{block, each, load_texels, Lanes, LANES};
 use wide::{f32x4, f32x8, i32x8};
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
@@ -213,15 +213,19 @@ impl FootprintLanes {
     }
 
     /// [`catmull_rom_texel`] of each lane's footprint for the lanes set in `on` (lane `l`
-    /// is bit `l`); zero texels in the others. Lane `l`'s weights come from one 8x8
-    /// transpose of the block's (`wx` in the low half of its vector, `wy` in the high
-    /// half), and the index of its footprint's first texel from one vector multiply, so a
-    /// lane inside the image loads one vector of weights and one index where it read ten
-    /// fields of its own; the lanes on the border go through [`catmull_rom_texel`].
+    /// is bit `l`), zero texels in the others, as lanes (channel by channel). Lane `l`'s
+    /// weights come from one 8x8 transpose of the block's (`wx` in the low half of its
+    /// vector, `wy` in the high half), and the index of its footprint's first texel from
+    /// one vector multiply, so a lane inside the image loads one vector of weights and one
+    /// index where it read ten fields of its own; the count's bilinear is computed for the
+    /// eight lanes at once from their centre taps. The lanes on the border go through
+    /// [`catmull_rom_texel`].
     #[inline(always)]
-    pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [[f32; TEXEL]; LANES] {
+    pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [Lanes; TEXEL] {
         let inside = self.inside_bits(width, height) & on;
         let mut out = [[0.0; TEXEL]; LANES];
+        // The centre taps' counts of the lanes inside ([`centre_counts`]), by tap.
+        let mut taps = [[0.0f32; LANES]; 4];
         let v = |a: &Lanes| f32x8::from(*a);
         let (wx, wy) = (&self.wx, &self.wy);
         let weights = f32x8::transpose([
@@ -234,9 +238,18 @@ impl FootprintLanes {
             v(&wy[2]),
             v(&wy[3]),
         ]);
-        let (tx, ty) = (&self.tx, &self.ty);
         // The lanes inside, by their set bits; then the others on screen.
         let mut todo = inside;
+        let mut one = |l: usize, width: usize, first: usize| {
+            let rows = footprint_rows(tex, width, first);
+            let w = weights[l].to_array();
+            // The count channel of this sum is replaced below.
+            out[l] = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
+            let c = centre_counts(&rows);
+            for (t, c) in taps.iter_mut().zip(c) {
+                t[l] = c;
+            }
+        };
         if tex.len() <= i32::MAX as usize {
             // Every texel index fits in an i32 and `width` in a u32: the index math below
             // cannot overflow, and the compiler drops its overflow checks.
@@ -245,14 +258,17 @@ impl FootprintLanes {
             while todo != 0 {
                 let l = todo.trailing_zeros() as usize;
                 todo &= todo - 1;
-                out[l] = catmull_rom_weighted(tex, w32, first[l] as usize, weights[l], [tx[l], ty[l]]);
+                one(l, w32, first[l] as usize);
             }
         } else {
             while todo != 0 {
                 let l = todo.trailing_zeros() as usize;
                 todo &= todo - 1;
-                let first = (self.iy[l] as usize - 1) * width + self.ix[l] as usize - 1;
-                out[l] = catmull_rom_weighted(tex, width, first, weights[l], [tx[l], ty[l]]);
+                one(
+                    l,
+                    width,
+                    (self.iy[l] as usize - 1) * width + self.ix[l] as usize - 1,
+                );
             }
         }
         let mut border = on & !inside;
@@ -261,7 +277,14 @@ impl FootprintLanes {
             border &= border - 1;
             out[l] = catmull_rom_texel(tex, width, height, &self.lane(l));
         }
-        out
+        let [a, b, c, d] = load_texels(&out);
+        // The count of the lanes inside: [`catmull_rom_weighted`]'s bilinear, lane by lane.
+        let (tx, ty) = (v(&self.tx), v(&self.ty));
+        let [c11, c12, c21, c22] = [v(&taps[0]), v(&taps[1]), v(&taps[2]), v(&taps[3])];
+        let top = c11 + (c12 - c11) * tx;
+        let bottom = c21 + (c22 - c21) * tx;
+        let count = top + (bottom - top) * ty;
+        [a, b, c, bits_mask(inside).select(count, v(&d)).to_array()]
     }
 
     /// Each lane's first footprint texel `(y1 - 1) width + x1 - 1` (row-major), exact for
@@ -275,6 +298,14 @@ impl FootprintLanes {
         let first = ((iy - one) * i32x8::splat(width as i32) + (ix - one)).to_array();
         each(|l| first[l] as u32)
     }
+}
+
+/// A vector mask (all bits set in lane `l` where bit `l` of `bits` is).
+#[inline(always)]
+fn bits_mask(bits: u32) -> f32x8 {
+    let lane_bit = i32x8::from([1, 2, 4, 8, 16, 32, 64, 128]);
+    let set = (i32x8::splat(bits as i32) & lane_bit).simd_eq(lane_bit);
+    wide::bytemuck::cast(set)
 }
 
 /// One row's two partial sums of the Catmull-Rom kernel for value `v(i)` at column tap
@@ -395,27 +426,45 @@ fn catmull_rom_inside(
 /// weights in one vector, `wx` then `wy`.
 #[inline(always)]
 fn catmull_rom_weighted(tex: &[f32], width: usize, first: usize, w: f32x8, t: [f32; 2]) -> [f32; TEXEL] {
-    let base = first * TEXEL;
-    let stride = width * TEXEL;
-    // One bounds check for the whole footprint; the rows inside it are then known to fit.
-    let win = &tex[base..base + 3 * stride + 4 * TEXEL];
-    let rows: [&[f32; 4 * TEXEL]; 4] = [
-        block(win, 0),
-        block(win, stride),
-        block(win, 2 * stride),
-        block(win, 3 * stride),
-    ];
+    let rows = footprint_rows(tex, width, first);
     let w = w.to_array();
     let mut out = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
     // The count: bilinear over the four centre taps, which are bilinear's own taps inside
     // the image.
-    let k = TEXEL - 1;
-    let (c11, c12) = (rows[1][TEXEL + k], rows[1][2 * TEXEL + k]);
-    let (c21, c22) = (rows[2][TEXEL + k], rows[2][2 * TEXEL + k]);
+    let [c11, c12, c21, c22] = centre_counts(&rows);
     let top = c11 + (c12 - c11) * t[0];
     let bottom = c21 + (c22 - c21) * t[0];
     out[TEXEL - 1] = top + (bottom - top) * t[1];
     out
+}
+
+/// The four rows of four texels of a footprint inside the image whose first (top-left)
+/// texel is `first`.
+#[inline(always)]
+fn footprint_rows(tex: &[f32], width: usize, first: usize) -> [&[f32; 4 * TEXEL]; 4] {
+    let base = first * TEXEL;
+    let stride = width * TEXEL;
+    // One bounds check for the whole footprint; the rows inside it are then known to fit.
+    let win = &tex[base..base + 3 * stride + 4 * TEXEL];
+    [
+        block(win, 0),
+        block(win, stride),
+        block(win, 2 * stride),
+        block(win, 3 * stride),
+    ]
+}
+
+/// The counts (last channel) of a footprint's centre taps: texels 1 and 2 of rows 1 and
+/// 2, in the order `[c11, c12, c21, c22]`.
+#[inline(always)]
+fn centre_counts(rows: &[&[f32; 4 * TEXEL]; 4]) -> [f32; 4] {
+    let k = TEXEL - 1;
+    [
+        rows[1][TEXEL + k],
+        rows[1][2 * TEXEL + k],
+        rows[2][TEXEL + k],
+        rows[2][2 * TEXEL + k],
+    ]
 }
 
 /// The Catmull-Rom sum of a footprint's four rows of four texels with column weights `wx`
@@ -777,6 +826,7 @@ pub(crate) mod tests {
                 let on = (k as u32).wrapping_mul(0x9e37_79b9) >> 24 | if k % 3 == 0 { 0xff } else { 0 };
                 let got = FootprintLanes::at(&x, &y).texels(&tex, w, h, on);
                 for l in 0..LANES {
+                    let got = [got[0][l], got[1][l], got[2][l], got[3][l]];
                     let want = if on >> l & 1 != 0 {
                         catmull_rom_texels(&tex, w, h, x[l], y[l])
                     } else {
@@ -784,7 +834,7 @@ pub(crate) mod tests {
                     };
                     let bits = |v: &[f32; TEXEL]| v.map(f32::to_bits);
                     assert_eq!(
-                        bits(&got[l]),
+                        bits(&got),
                         bits(&want),
                         "{w}x{h} lane {l} at ({}, {})",
                         x[l],

@@ -351,7 +351,7 @@ fn reproject_row(
         let [px, py] = previous_positions(mx, my, x0, y);
         let on = on_screen_bits(&px, &py, w, h);
         // Off-screen lanes keep zero texels: count 0, a restart.
-        let t = match filter {
+        let [a, b, c, d] = match filter {
             HistoryFilter::CatmullRom => FootprintLanes::at(&px, &py).texels(texels, w, h, on),
             HistoryFilter::Bilinear => {
                 let mut t = [[0.0; TEXEL]; LANES];
@@ -360,10 +360,9 @@ fn reproject_row(
                         *t = bilinear_texels::<TEXEL>(texels, w, h, px[l], py[l]);
                     }
                 }
-                t
+                lanes::load_texels(&t)
             }
         };
-        let [a, b, c, d] = lanes::load_texels(&t);
         lanes::store(hy, x0, &a);
         lanes::store(hco, x0, &b);
         lanes::store(hcg, x0, &c);
