@@ -9,7 +9,7 @@
 
 use super::clip::CLIP_EPS;
 use super::neighborhood::{fmax, fmin};
-use wide::{f32x4, f32x8};
+use wide::{f32x4, f32x8, i32x8};
 
 /// Pixels per block.
 pub const LANES: usize = 8;
@@ -128,6 +128,14 @@ pub fn arrays3(a: &[f32x8; 3]) -> [Lanes; 3] {
 pub fn mask_of(m: f32x8) -> Mask {
     let bits = m.to_bitmask();
     each(|l| (bits >> l) & 1 == 1)
+}
+
+/// A vector mask of bits (all bits set in lane `l` where bit `l` of `bits` is).
+#[inline(always)]
+pub fn mask_of_bits(bits: u32) -> f32x8 {
+    let lane_bit = i32x8::from([1, 2, 4, 8, 16, 32, 64, 128]);
+    let set = (i32x8::splat(bits as i32) & lane_bit).simd_eq(lane_bit);
+    wide::bytemuck::cast(set)
 }
 
 /// A vector mask of flags (all bits set where true).

@@ -1,6 +1,6 @@
 //! Resampling of history planes at sub-pixel positions: bilinear and Catmull-Rom.
 
-use super::lanes::{block, each, load_texels, Lanes, LANES};
+use super::lanes::{block, each, load_texels, mask_of_bits, Lanes, LANES};
 use wide::{f32x4, f32x8, i32x8};
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
@@ -284,7 +284,7 @@ impl FootprintLanes {
         let top = c11 + (c12 - c11) * tx;
         let bottom = c21 + (c22 - c21) * tx;
         let count = top + (bottom - top) * ty;
-        [a, b, c, bits_mask(inside).select(count, v(&d)).to_array()]
+        [a, b, c, mask_of_bits(inside).select(count, v(&d)).to_array()]
     }
 
     /// Each lane's first footprint texel `(y1 - 1) width + x1 - 1` (row-major), exact for
@@ -298,14 +298,6 @@ impl FootprintLanes {
         let first = ((iy - one) * i32x8::splat(width as i32) + (ix - one)).to_array();
         each(|l| first[l] as u32)
     }
-}
-
-/// A vector mask (all bits set in lane `l` where bit `l` of `bits` is).
-#[inline(always)]
-fn bits_mask(bits: u32) -> f32x8 {
-    let lane_bit = i32x8::from([1, 2, 4, 8, 16, 32, 64, 128]);
-    let set = (i32x8::splat(bits as i32) & lane_bit).simd_eq(lane_bit);
-    wide::bytemuck::cast(set)
 }
 
 /// One row's two partial sums of the Catmull-Rom kernel for value `v(i)` at column tap
@@ -658,6 +650,66 @@ impl BilinearLanes {
     }
 }
 
+impl BilinearLanes {
+    /// [`bilinear_texels`] of the lanes set in `on` (lane `l` is bit `l`; zero texels in
+    /// the others) of a plane of `N`-channel texels, `N` at most 4, each in four values
+    /// (those past `N` unspecified). A lane inside the image reads its four taps as four
+    /// 4-float vectors (past the texel for `N` < 4) and weights them in one vector each,
+    /// where [`bilinear_inside`] went channel by channel; its index comes from one `i32x8`
+    /// multiply for the block.
+    #[inline(always)]
+    pub fn texels4<const N: usize>(
+        &self,
+        tex: &[f32],
+        width: usize,
+        height: usize,
+        on: u32,
+    ) -> [[f32; 4]; LANES] {
+        const { assert!(N >= 1 && N <= 4) };
+        let pad = |t: [f32; N]| -> [f32; 4] {
+            let mut o = [0.0; 4];
+            o[..N].copy_from_slice(&t);
+            o
+        };
+        let mut out = [[0.0; 4]; LANES];
+        let inside = self.inside & on;
+        let mut todo = inside;
+        if tex.len() <= i32::MAX as usize {
+            // Every index fits in an i32 and `width` in a u32: no overflow checks below.
+            let (ix, iy) = (i32x8::from(self.ix), i32x8::from(self.iy));
+            let first = (iy * i32x8::splat(width as i32) + ix).to_array();
+            let row = width as u32 as usize * N;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let a = first[l] as u32 as usize * N;
+                let t = [self.tx[l], self.ty[l]];
+                out[l] = match tex.get(a..a + row + N + 4) {
+                    Some(win) => {
+                        let at = |i: usize| f32x4::from(*block::<f32, 4>(win, i));
+                        let (p00, p10, p01, p11) = (at(0), at(N), at(row), at(row + N));
+                        let (tx, ty) = (f32x4::splat(t[0]), f32x4::splat(t[1]));
+                        let top = p00 + (p10 - p00) * tx;
+                        let bottom = p01 + (p11 - p01) * tx;
+                        (top + (bottom - top) * ty).to_array()
+                    }
+                    // The last texels of the plane: no vector reads past them.
+                    None => pad(self.texel::<N>(tex, width, height, l)),
+                };
+            }
+        }
+        // Lanes inside left from above (a plane too large for i32 indices), then the
+        // lanes on the border.
+        let mut rest = on & !(inside & !todo);
+        while rest != 0 {
+            let l = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            out[l] = pad(self.texel::<N>(tex, width, height, l));
+        }
+        out
+    }
+}
+
 /// The texel of an interleaved `N`-channel plane nearest to `(x, y)` (the pixel holding
 /// it, clamped into the image).
 #[inline]
@@ -843,6 +895,52 @@ pub(crate) mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn bilinear_lanes_texels4_give_each_lanes_scalar_texel() {
+        fn case<const N: usize>(rng: &mut SplitMix64) {
+            let wild = [f32::NAN, f32::INFINITY, -f32::INFINITY, 1e30, -1e30, -0.0, 0.5];
+            for (w, h) in [(1, 1), (1, 7), (2, 3), (5, 4), (13, 9), (37, 6)] {
+                let tex: Vec<f32> = (0..w * h * N).map(|_| rng.range(-1.0, 3.0) as f32).collect();
+                for k in 0..2000 {
+                    // Mostly inside, some on and past the border (the plane's last texels
+                    // too), exact centres, wild values.
+                    let pick = |rng: &mut SplitMix64, l: usize, n: usize| -> f32 {
+                        match (k + l) % 11 {
+                            0 => wild[(k + 3 * l) % wild.len()],
+                            1 => ((k + l) % (n + 2)) as f32 - 0.5,
+                            2 => n as f32 - rng.range(0.0, 1.5) as f32,
+                            _ => rng.range(-2.0, n as f64 + 2.0) as f32,
+                        }
+                    };
+                    let x: Lanes = each(|l| pick(rng, l, w));
+                    let y: Lanes = each(|l| pick(rng, l + 5, h));
+                    let on = (k as u32).wrapping_mul(0x9e37_79b9) >> 24 | if k % 3 == 0 { 0xff } else { 0 };
+                    let got = BilinearLanes::at(&x, &y, w, h).texels4::<N>(&tex, w, h, on);
+                    for l in 0..LANES {
+                        let want = if on >> l & 1 != 0 {
+                            bilinear_texels::<N>(&tex, w, h, x[l], y[l])
+                        } else {
+                            [0.0; N]
+                        };
+                        let (got, want) = (got[l][..N].to_vec(), want.to_vec());
+                        let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+                        assert_eq!(
+                            bits(got),
+                            bits(want),
+                            "N {N} {w}x{h} lane {l} at ({}, {})",
+                            x[l],
+                            y[l]
+                        );
+                    }
+                }
+            }
+        }
+        let mut rng = SplitMix64::new(17);
+        case::<1>(&mut rng);
+        case::<3>(&mut rng);
+        case::<4>(&mut rng);
     }
 
     #[test]
