@@ -342,11 +342,23 @@ pub fn store_texels<const N: usize>(cols: &[Lanes; N], out: &mut [f32]) {
 /// compiler drops) where the lane-by-lane copy was 32 scalar stores.
 #[inline(always)]
 pub fn store_texels4(cols: &[f32x8; 4], out: &mut [f32; 4 * LANES]) {
+    store_texels_v::<4>(cols, out);
+}
+
+/// [`store_texels`] of a whole block of `N` values per pixel (`N` at most 4: the first
+/// `N` of `cols`) into `out`, which holds `N * LANES` values: one 4x8 transpose, and each
+/// pixel's values by one 4-float store (in order, so for `N` < 4 each store's last
+/// value is overwritten by the next pixel's; the last pixel's `N` values alone).
+#[inline(always)]
+pub fn store_texels_v<const N: usize>(cols: &[f32x8; 4], out: &mut [f32]) {
+    const { assert!(N >= 1 && N <= 4) };
+    let out = &mut out[..N * LANES];
     let z = f32x8::splat(0.0);
     let rows = f32x8::transpose([cols[0], cols[1], cols[2], cols[3], z, z, z, z]);
-    for (t, row) in out.chunks_exact_mut(4).zip(rows) {
-        t.copy_from_slice(&row.to_array()[..4]);
+    for (l, row) in rows.iter().enumerate().take(LANES - 1) {
+        out[N * l..N * l + 4].copy_from_slice(&row.to_array()[..4]);
     }
+    out[N * (LANES - 1)..].copy_from_slice(&rows[LANES - 1].to_array()[..N]);
 }
 
 /// The inverse of [`store_texels`]: eight texels of `N` values as `N` lanes.
@@ -435,6 +447,16 @@ mod tests {
             let mut want = [0.0; 4 * LANES];
             store_texels(&cols, &mut want);
             assert_eq!(out.map(f32::to_bits), want.map(f32::to_bits));
+            let three: [Lanes; 3] = [cols[0], cols[1], cols[2]];
+            let mut out = [f32::NAN; 3 * LANES + 1];
+            store_texels_v::<3>(&cols.map(f32x8::from), &mut out);
+            let mut want = [0.0; 3 * LANES];
+            store_texels(&three, &mut want);
+            assert_eq!(
+                out[..3 * LANES].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want.map(f32::to_bits)
+            );
+            assert!(out[3 * LANES].is_nan(), "wrote past the block");
         }
         case::<1>(&mut rng);
         case::<3>(&mut rng);

@@ -697,6 +697,25 @@ fn reproject_row<const N: usize>(
     }
 }
 
+/// A partial block's texels: pixel `l`'s colour and (with `sobel`, from its `l`th value)
+/// Sobel history, for the `out.len() / N` first pixels.
+#[inline(always)]
+fn partial_texels<const N: usize>(value: &[Lanes; 3], sobel: Option<&[f32]>, out: &mut [f32]) {
+    let texels = out.chunks_exact_mut(N);
+    match sobel {
+        Some(s) => {
+            for (l, t) in texels.enumerate() {
+                t.copy_from_slice(&[value[0][l], value[1][l], value[2][l], s[l]][..N]);
+            }
+        }
+        None => {
+            for (l, t) in texels.enumerate() {
+                t.copy_from_slice(&[value[0][l], value[1][l], value[2][l]][..N]);
+            }
+        }
+    }
+}
+
 /// Stores the lanes set in `on` (lane `l` is bit `l`) of a block from column `x0` that
 /// lie in the row; the others keep what the row held.
 #[inline(always)]
@@ -960,19 +979,20 @@ fn resolve_row<const N: usize>(
         for c in 0..3 {
             lanes::store(&mut out[c][..w], x0, &value[c]);
         }
-        let texels = next[N * x0..N * (x0 + n)].chunks_exact_mut(N);
-        match sobel {
-            Some(s) => {
-                let s: &Lanes = block(s, x0 + 1);
-                for (l, t) in texels.enumerate() {
-                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l], s[l]][..N]);
-                }
-            }
-            None => {
-                for (l, t) in texels.enumerate() {
-                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l]][..N]);
-                }
-            }
+        if n == LANES {
+            // A whole block by one transpose (the lane-by-lane copy was a scalar store per
+            // value).
+            let s = sobel.map_or(f32x8::splat(0.0), |s| {
+                f32x8::from(*block::<f32, LANES>(s, x0 + 1))
+            });
+            let v = lanes::v3(&value);
+            lanes::store_texels_v::<N>(&[v[0], v[1], v[2], s], &mut next[N * x0..N * (x0 + LANES)]);
+        } else {
+            partial_texels::<N>(
+                &value,
+                sobel.map(|s| &s[x0 + 1..]),
+                &mut next[N * x0..N * (x0 + n)],
+            );
         }
         // The flags as bytes of a word: counted with one popcount per block.
         let bits = |m: &Mask| u64::from_le_bytes(m.map(u8::from));
