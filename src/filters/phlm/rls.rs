@@ -601,9 +601,7 @@ pub fn update_information_lanes(
                 beta[c][j] = (f32x8::from(beta[c][j]) + f32x8::from(u.step[c][j])).to_array();
             }
         }
-        for k in 0..P_LEN {
-            r[k] = u.r[k];
-        }
+        *r = u.r;
         return (trace.to_array(), [false; LANES]);
     }
     let ok = lanes::mask_from(&each(|m| ok_bits >> m & 1 != 0));
