@@ -9,7 +9,7 @@
 
 use super::clip::CLIP_EPS;
 use super::neighborhood::{fmax, fmin};
-use wide::{f32x4, f32x8};
+use wide::{f32x4, f32x8, i32x8};
 
 /// Pixels per block.
 pub const LANES: usize = 8;
@@ -128,6 +128,14 @@ pub fn arrays3(a: &[f32x8; 3]) -> [Lanes; 3] {
 pub fn mask_of(m: f32x8) -> Mask {
     let bits = m.to_bitmask();
     each(|l| (bits >> l) & 1 == 1)
+}
+
+/// A vector mask of bits (all bits set in lane `l` where bit `l` of `bits` is).
+#[inline(always)]
+pub fn mask_of_bits(bits: u32) -> f32x8 {
+    let lane_bit = i32x8::from([1, 2, 4, 8, 16, 32, 64, 128]);
+    let set = (i32x8::splat(bits as i32) & lane_bit).simd_eq(lane_bit);
+    wide::bytemuck::cast(set)
 }
 
 /// A vector mask of flags (all bits set where true).
@@ -329,6 +337,30 @@ pub fn store_texels<const N: usize>(cols: &[Lanes; N], out: &mut [f32]) {
     }
 }
 
+/// [`store_texels`] of four values per pixel, from vectors: pixel `l`'s to
+/// `out[4 l..4 l + 4]`, by one 4x8 transpose (the 8x8 one with zero rows, whose halves the
+/// compiler drops) where the lane-by-lane copy was 32 scalar stores.
+#[inline(always)]
+pub fn store_texels4(cols: &[f32x8; 4], out: &mut [f32; 4 * LANES]) {
+    store_texels_v::<4>(cols, out);
+}
+
+/// [`store_texels`] of a whole block of `N` values per pixel (`N` at most 4: the first
+/// `N` of `cols`) into `out`, which holds `N * LANES` values: one 4x8 transpose, and each
+/// pixel's values by one 4-float store (in order, so for `N` < 4 each store's last
+/// value is overwritten by the next pixel's; the last pixel's `N` values alone).
+#[inline(always)]
+pub fn store_texels_v<const N: usize>(cols: &[f32x8; 4], out: &mut [f32]) {
+    const { assert!(N >= 1 && N <= 4) };
+    let out = &mut out[..N * LANES];
+    let z = f32x8::splat(0.0);
+    let rows = f32x8::transpose([cols[0], cols[1], cols[2], cols[3], z, z, z, z]);
+    for (l, row) in rows.iter().enumerate().take(LANES - 1) {
+        out[N * l..N * l + 4].copy_from_slice(&row.to_array()[..4]);
+    }
+    out[N * (LANES - 1)..].copy_from_slice(&rows[LANES - 1].to_array()[..N]);
+}
+
 /// The inverse of [`store_texels`]: eight texels of `N` values as `N` lanes.
 #[inline(always)]
 pub fn load_texels<const N: usize>(texels: &[[f32; N]; LANES]) -> [Lanes; N] {
@@ -408,6 +440,24 @@ mod tests {
             }
         }
         let mut rng = SplitMix64::new(5);
+        for _ in 0..100 {
+            let cols: [Lanes; 4] = std::array::from_fn(|_| block(&mut rng, 3.0));
+            let mut out = [f32::NAN; 4 * LANES];
+            store_texels4(&cols.map(f32x8::from), &mut out);
+            let mut want = [0.0; 4 * LANES];
+            store_texels(&cols, &mut want);
+            assert_eq!(out.map(f32::to_bits), want.map(f32::to_bits));
+            let three: [Lanes; 3] = [cols[0], cols[1], cols[2]];
+            let mut out = [f32::NAN; 3 * LANES + 1];
+            store_texels_v::<3>(&cols.map(f32x8::from), &mut out);
+            let mut want = [0.0; 3 * LANES];
+            store_texels(&three, &mut want);
+            assert_eq!(
+                out[..3 * LANES].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                want.map(f32::to_bits)
+            );
+            assert!(out[3 * LANES].is_nan(), "wrote past the block");
+        }
         case::<1>(&mut rng);
         case::<3>(&mut rng);
         case::<8>(&mut rng);

@@ -1,7 +1,7 @@
 //! Resampling of history planes at sub-pixel positions: bilinear and Catmull-Rom.
 
-use super::lanes::{block, each, Lanes, LANES};
-use wide::{f32x4, f32x8};
+use super::lanes::{block, each, load_texels, mask_of_bits, Lanes, LANES};
+use wide::{f32x4, f32x8, i32x8};
 
 /// Bilinear sample of `N` planes at `(x, y)` (pixel units, centres at +0.5, edges extended).
 #[inline(always)]
@@ -213,29 +213,90 @@ impl FootprintLanes {
     }
 
     /// [`catmull_rom_texel`] of each lane's footprint for the lanes set in `on` (lane `l`
-    /// is bit `l`); zero texels in the others. The fields of the lanes inside the image
-    /// are read in place, one lane at a time.
+    /// is bit `l`), zero texels in the others, as lanes (channel by channel). Lane `l`'s
+    /// weights come from one 8x8 transpose of the block's (`wx` in the low half of its
+    /// vector, `wy` in the high half), and the index of its footprint's first texel from
+    /// one vector multiply, so a lane inside the image loads one vector of weights and one
+    /// index where it read ten fields of its own; the count's bilinear is computed for the
+    /// eight lanes at once from their centre taps. The lanes on the border go through
+    /// [`catmull_rom_texel`].
     #[inline(always)]
-    pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [[f32; TEXEL]; LANES] {
+    pub fn texels(&self, tex: &[f32], width: usize, height: usize, on: u32) -> [Lanes; TEXEL] {
         let inside = self.inside_bits(width, height) & on;
         let mut out = [[0.0; TEXEL]; LANES];
-        for (l, o) in out.iter_mut().enumerate() {
-            if inside >> l & 1 != 0 {
-                let (wx, wy) = (&self.wx, &self.wy);
-                *o = catmull_rom_inside(
-                    tex,
+        // The centre taps' counts of the lanes inside ([`centre_counts`]), by tap.
+        let mut taps = [[0.0f32; LANES]; 4];
+        let v = |a: &Lanes| f32x8::from(*a);
+        let (wx, wy) = (&self.wx, &self.wy);
+        let weights = f32x8::transpose([
+            v(&wx[0]),
+            v(&wx[1]),
+            v(&wx[2]),
+            v(&wx[3]),
+            v(&wy[0]),
+            v(&wy[1]),
+            v(&wy[2]),
+            v(&wy[3]),
+        ]);
+        // The lanes inside, by their set bits; then the others on screen.
+        let mut todo = inside;
+        let mut one = |l: usize, width: usize, first: usize| {
+            let rows = footprint_rows(tex, width, first);
+            let w = weights[l].to_array();
+            // The count channel of this sum is replaced below.
+            out[l] = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
+            let c = centre_counts(&rows);
+            for (t, c) in taps.iter_mut().zip(c) {
+                t[l] = c;
+            }
+        };
+        if tex.len() <= i32::MAX as usize {
+            // Every texel index fits in an i32 and `width` in a u32: the index math below
+            // cannot overflow, and the compiler drops its overflow checks.
+            let first = self.first_texels(width);
+            let w32 = width as u32 as usize;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                one(l, w32, first[l] as usize);
+            }
+        } else {
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                one(
+                    l,
                     width,
-                    // Inside, `ix` and `iy` are at least 1 and exact.
-                    [self.ix[l] as usize, self.iy[l] as usize],
-                    [wx[0][l], wx[1][l], wx[2][l], wx[3][l]],
-                    [wy[0][l], wy[1][l], wy[2][l], wy[3][l]],
-                    [self.tx[l], self.ty[l]],
+                    (self.iy[l] as usize - 1) * width + self.ix[l] as usize - 1,
                 );
-            } else if on >> l & 1 != 0 {
-                *o = catmull_rom_texel(tex, width, height, &self.lane(l));
             }
         }
-        out
+        let mut border = on & !inside;
+        while border != 0 {
+            let l = border.trailing_zeros() as usize;
+            border &= border - 1;
+            out[l] = catmull_rom_texel(tex, width, height, &self.lane(l));
+        }
+        let [a, b, c, d] = load_texels(&out);
+        // The count of the lanes inside: [`catmull_rom_weighted`]'s bilinear, lane by lane.
+        let (tx, ty) = (v(&self.tx), v(&self.ty));
+        let [c11, c12, c21, c22] = [v(&taps[0]), v(&taps[1]), v(&taps[2]), v(&taps[3])];
+        let top = c11 + (c12 - c11) * tx;
+        let bottom = c21 + (c22 - c21) * tx;
+        let count = top + (bottom - top) * ty;
+        [a, b, c, mask_of_bits(inside).select(count, v(&d)).to_array()]
+    }
+
+    /// Each lane's first footprint texel `(y1 - 1) width + x1 - 1` (row-major), exact for
+    /// the lanes whose footprint lies inside the image (any value for the others), in
+    /// `i32x8` arithmetic: call only when every texel index of the texture fits in an i32
+    /// (inside, the index is below the texture's texel count).
+    #[inline(always)]
+    fn first_texels(&self, width: usize) -> [u32; LANES] {
+        let (ix, iy, one) = (i32x8::from(self.ix), i32x8::from(self.iy), i32x8::splat(1));
+        // The products of lanes outside the image wrap, and are not used.
+        let first = ((iy - one) * i32x8::splat(width as i32) + (ix - one)).to_array();
+        each(|l| first[l] as u32)
     }
 }
 
@@ -426,26 +487,54 @@ fn catmull_rom_inside(
     wy: [f32; 4],
     t: [f32; 2],
 ) -> [f32; TEXEL] {
-    let base = ((i1[1] - 1) * width + i1[0] - 1) * TEXEL;
-    let stride = width * TEXEL;
-    // One bounds check for the whole footprint; the rows inside it are then known to fit.
-    let win = &tex[base..base + 3 * stride + 4 * TEXEL];
-    let rows: [&[f32; 4 * TEXEL]; 4] = [
-        block(win, 0),
-        block(win, stride),
-        block(win, 2 * stride),
-        block(win, 3 * stride),
-    ];
-    let mut out = catmull_rom_rows(rows, wx, wy);
+    let first = (i1[1] - 1) * width + i1[0] - 1;
+    let w = [wx[0], wx[1], wx[2], wx[3], wy[0], wy[1], wy[2], wy[3]];
+    catmull_rom_weighted(tex, width, first, f32x8::from(w), t)
+}
+
+/// [`catmull_rom_inside`] from the index of the footprint's first (top-left) texel and the
+/// weights in one vector, `wx` then `wy`.
+#[inline(always)]
+fn catmull_rom_weighted(tex: &[f32], width: usize, first: usize, w: f32x8, t: [f32; 2]) -> [f32; TEXEL] {
+    let rows = footprint_rows(tex, width, first);
+    let w = w.to_array();
+    let mut out = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
     // The count: bilinear over the four centre taps, which are bilinear's own taps inside
     // the image.
-    let k = TEXEL - 1;
-    let (c11, c12) = (rows[1][TEXEL + k], rows[1][2 * TEXEL + k]);
-    let (c21, c22) = (rows[2][TEXEL + k], rows[2][2 * TEXEL + k]);
+    let [c11, c12, c21, c22] = centre_counts(&rows);
     let top = c11 + (c12 - c11) * t[0];
     let bottom = c21 + (c22 - c21) * t[0];
     out[TEXEL - 1] = top + (bottom - top) * t[1];
     out
+}
+
+/// The four rows of four texels of a footprint inside the image whose first (top-left)
+/// texel is `first`.
+#[inline(always)]
+fn footprint_rows(tex: &[f32], width: usize, first: usize) -> [&[f32; 4 * TEXEL]; 4] {
+    let base = first * TEXEL;
+    let stride = width * TEXEL;
+    // One bounds check for the whole footprint; the rows inside it are then known to fit.
+    let win = &tex[base..base + 3 * stride + 4 * TEXEL];
+    [
+        block(win, 0),
+        block(win, stride),
+        block(win, 2 * stride),
+        block(win, 3 * stride),
+    ]
+}
+
+/// The counts (last channel) of a footprint's centre taps: texels 1 and 2 of rows 1 and
+/// 2, in the order `[c11, c12, c21, c22]`.
+#[inline(always)]
+fn centre_counts(rows: &[&[f32; 4 * TEXEL]; 4]) -> [f32; 4] {
+    let k = TEXEL - 1;
+    [
+        rows[1][TEXEL + k],
+        rows[1][2 * TEXEL + k],
+        rows[2][TEXEL + k],
+        rows[2][2 * TEXEL + k],
+    ]
 }
 
 /// The Catmull-Rom sum of a footprint's four rows of four texels with column weights `wx`
@@ -453,7 +542,10 @@ fn catmull_rom_inside(
 #[inline(always)]
 fn catmull_rom_rows(rows: [&[f32; 4 * TEXEL]; 4], wx: [f32; 4], wy: [f32; 4]) -> [f32; TEXEL] {
     // Column weights per lane: texels 0|1, 2|3 and 1|2 of a row.
-    let half = |a: usize| -> f32x8 { f32x8::from(each::<f32, 8>(|l| wx[a + l / TEXEL])) };
+    let half = |a: usize| -> f32x8 {
+        let (p, q) = (wx[a], wx[a + 1]);
+        f32x8::from([p, p, p, p, q, q, q, q])
+    };
     let (w01, w23, w12) = (half(0), half(2), half(1));
     let load = |r: &[f32; 4 * TEXEL], at: usize| f32x8::from(*block::<f32, 8>(r, at));
     let inner = |r| w01 * load(r, 0) + w23 * load(r, 2 * TEXEL);
@@ -636,6 +728,66 @@ impl BilinearLanes {
     }
 }
 
+impl BilinearLanes {
+    /// [`bilinear_texels`] of the lanes set in `on` (lane `l` is bit `l`; zero texels in
+    /// the others) of a plane of `N`-channel texels, `N` at most 4, each in four values
+    /// (those past `N` unspecified). A lane inside the image reads its four taps as four
+    /// 4-float vectors (past the texel for `N` < 4) and weights them in one vector each,
+    /// where [`bilinear_inside`] went channel by channel; its index comes from one `i32x8`
+    /// multiply for the block.
+    #[inline(always)]
+    pub fn texels4<const N: usize>(
+        &self,
+        tex: &[f32],
+        width: usize,
+        height: usize,
+        on: u32,
+    ) -> [[f32; 4]; LANES] {
+        const { assert!(N >= 1 && N <= 4) };
+        let pad = |t: [f32; N]| -> [f32; 4] {
+            let mut o = [0.0; 4];
+            o[..N].copy_from_slice(&t);
+            o
+        };
+        let mut out = [[0.0; 4]; LANES];
+        let inside = self.inside & on;
+        let mut todo = inside;
+        if tex.len() <= i32::MAX as usize {
+            // Every index fits in an i32 and `width` in a u32: no overflow checks below.
+            let (ix, iy) = (i32x8::from(self.ix), i32x8::from(self.iy));
+            let first = (iy * i32x8::splat(width as i32) + ix).to_array();
+            let row = width as u32 as usize * N;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let a = first[l] as u32 as usize * N;
+                let t = [self.tx[l], self.ty[l]];
+                out[l] = match tex.get(a..a + row + N + 4) {
+                    Some(win) => {
+                        let at = |i: usize| f32x4::from(*block::<f32, 4>(win, i));
+                        let (p00, p10, p01, p11) = (at(0), at(N), at(row), at(row + N));
+                        let (tx, ty) = (f32x4::splat(t[0]), f32x4::splat(t[1]));
+                        let top = p00 + (p10 - p00) * tx;
+                        let bottom = p01 + (p11 - p01) * tx;
+                        (top + (bottom - top) * ty).to_array()
+                    }
+                    // The last texels of the plane: no vector reads past them.
+                    None => pad(self.texel::<N>(tex, width, height, l)),
+                };
+            }
+        }
+        // Lanes inside left from above (a plane too large for i32 indices), then the
+        // lanes on the border.
+        let mut rest = on & !(inside & !todo);
+        while rest != 0 {
+            let l = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            out[l] = pad(self.texel::<N>(tex, width, height, l));
+        }
+        out
+    }
+}
+
 /// The texel of an interleaved `N`-channel plane nearest to `(x, y)` (the pixel holding
 /// it, clamped into the image).
 #[inline]
@@ -804,6 +956,93 @@ pub(crate) mod tests {
             let _ = bilinear([&p], w, h, x, y);
             let _ = catmull_rom([&p], w, h, x, y);
         }
+    }
+
+    #[test]
+    fn footprint_lanes_texels_give_each_lanes_scalar_texel() {
+        let mut rng = SplitMix64::new(16);
+        let wild = [f32::NAN, f32::INFINITY, -f32::INFINITY, 1e30, -1e30, -0.0, 0.5];
+        for (w, h) in [(1, 1), (1, 7), (2, 3), (5, 4), (13, 9), (37, 6)] {
+            let tex: Vec<f32> = (0..w * h * TEXEL)
+                .map(|i| (rng.next_f64() as f32 - 0.25) * [1.0, 1e4, 1e-4, 255.0][i % TEXEL])
+                .collect();
+            for k in 0..3000 {
+                // Mostly inside, some on and past the border, exact centres, wild values.
+                let pick = |rng: &mut SplitMix64, l: usize, n: usize| -> f32 {
+                    match (k + l) % 11 {
+                        0 => wild[(k + 3 * l) % wild.len()],
+                        1 => ((k + l) % (n + 2)) as f32 - 0.5,
+                        _ => rng.range(-2.0, n as f64 + 2.0) as f32,
+                    }
+                };
+                let x: Lanes = each(|l| pick(&mut rng, l, w));
+                let y: Lanes = each(|l| pick(&mut rng, l + 5, h));
+                let on = (k as u32).wrapping_mul(0x9e37_79b9) >> 24 | if k % 3 == 0 { 0xff } else { 0 };
+                let got = FootprintLanes::at(&x, &y).texels(&tex, w, h, on);
+                for l in 0..LANES {
+                    let got = [got[0][l], got[1][l], got[2][l], got[3][l]];
+                    let want = if on >> l & 1 != 0 {
+                        catmull_rom_texels(&tex, w, h, x[l], y[l])
+                    } else {
+                        [0.0; TEXEL]
+                    };
+                    let bits = |v: &[f32; TEXEL]| v.map(f32::to_bits);
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "{w}x{h} lane {l} at ({}, {})",
+                        x[l],
+                        y[l]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bilinear_lanes_texels4_give_each_lanes_scalar_texel() {
+        fn case<const N: usize>(rng: &mut SplitMix64) {
+            let wild = [f32::NAN, f32::INFINITY, -f32::INFINITY, 1e30, -1e30, -0.0, 0.5];
+            for (w, h) in [(1, 1), (1, 7), (2, 3), (5, 4), (13, 9), (37, 6)] {
+                let tex: Vec<f32> = (0..w * h * N).map(|_| rng.range(-1.0, 3.0) as f32).collect();
+                for k in 0..2000 {
+                    // Mostly inside, some on and past the border (the plane's last texels
+                    // too), exact centres, wild values.
+                    let pick = |rng: &mut SplitMix64, l: usize, n: usize| -> f32 {
+                        match (k + l) % 11 {
+                            0 => wild[(k + 3 * l) % wild.len()],
+                            1 => ((k + l) % (n + 2)) as f32 - 0.5,
+                            2 => n as f32 - rng.range(0.0, 1.5) as f32,
+                            _ => rng.range(-2.0, n as f64 + 2.0) as f32,
+                        }
+                    };
+                    let x: Lanes = each(|l| pick(rng, l, w));
+                    let y: Lanes = each(|l| pick(rng, l + 5, h));
+                    let on = (k as u32).wrapping_mul(0x9e37_79b9) >> 24 | if k % 3 == 0 { 0xff } else { 0 };
+                    let got = BilinearLanes::at(&x, &y, w, h).texels4::<N>(&tex, w, h, on);
+                    for l in 0..LANES {
+                        let want = if on >> l & 1 != 0 {
+                            bilinear_texels::<N>(&tex, w, h, x[l], y[l])
+                        } else {
+                            [0.0; N]
+                        };
+                        let (got, want) = (got[l][..N].to_vec(), want.to_vec());
+                        let bits = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<_>>();
+                        assert_eq!(
+                            bits(got),
+                            bits(want),
+                            "N {N} {w}x{h} lane {l} at ({}, {})",
+                            x[l],
+                            y[l]
+                        );
+                    }
+                }
+            }
+        }
+        let mut rng = SplitMix64::new(17);
+        case::<1>(&mut rng);
+        case::<3>(&mut rng);
+        case::<4>(&mut rng);
     }
 
     #[test]

@@ -351,7 +351,7 @@ fn reproject_row(
         let [px, py] = previous_positions(mx, my, x0, y);
         let on = on_screen_bits(&px, &py, w, h);
         // Off-screen lanes keep zero texels: count 0, a restart.
-        let t = match filter {
+        let [a, b, c, d] = match filter {
             HistoryFilter::CatmullRom => FootprintLanes::at(&px, &py).texels(texels, w, h, on),
             HistoryFilter::Bilinear => {
                 let mut t = [[0.0; TEXEL]; LANES];
@@ -360,10 +360,9 @@ fn reproject_row(
                         *t = bilinear_texels::<TEXEL>(texels, w, h, px[l], py[l]);
                     }
                 }
-                t
+                lanes::load_texels(&t)
             }
         };
-        let [a, b, c, d] = lanes::load_texels(&t);
         lanes::store(hy, x0, &a);
         lanes::store(hco, x0, &b);
         lanes::store(hcg, x0, &c);
@@ -531,6 +530,8 @@ fn resolve_lanes(
 /// The resolve of pixels `xs` (with columns `x - 1` and `x + 1` inside the row) in blocks
 /// of [`LANES`]: every input of a block is a fixed-size array, so the per-pixel code below
 /// has no bounds checks or branches left and the compiler vectorises it across the block.
+/// Where `xs` is not a whole number of blocks, its last block overlaps the one before
+/// (its pixels computed twice, to the same values, and counted once).
 /// `REJECT` and `INVALID` say whether those rows exist (the others are not read). Returns
 /// where it stopped (the pixels after it are the caller's) and the counts.
 #[allow(clippy::too_many_arguments)]
@@ -546,8 +547,23 @@ fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
     xs: Range<usize>,
 ) -> (usize, u32, u32) {
     let (mut resets, mut clips) = (0u32, 0u32);
-    let mut x0 = xs.start;
-    while x0 + LANES <= xs.end {
+    if xs.len() < LANES {
+        return (xs.start, 0, 0);
+    }
+    // Every row cut to the columns the blocks read, so that one bounds check per block
+    // covers all of them (the same length for all).
+    let n = xs.end + 1;
+    let cols: [&[f32]; 12] = lanes::each(|i| &cols[i][..n]);
+    let centre: [&[f32]; 3] = lanes::each(|i| &centre[i][..n]);
+    let hist: [&[f32]; 4] = lanes::each(|i| &hist[i][..n]);
+    let reject = if REJECT { &reject[..n] } else { reject };
+    let invalid = if INVALID { &invalid[..n] } else { invalid };
+    let rgb_len = out.rgb[0].len().min(n);
+    // Blocks from `xs.start`, the last one ending at `xs.end`; `counted`: its lanes not
+    // counted before (one loop body: as a closure called twice it was left out of line).
+    let all = (1 << LANES) - 1;
+    let (mut x0, mut counted) = (xs.start, all);
+    loop {
         let c: [&[f32; SPAN]; 12] = std::array::from_fn(|i| block(cols[i], x0 - 1));
         let cen: [&[f32; LANES]; 3] = std::array::from_fn(|i| block(centre[i], x0));
         let hs: [&[f32; LANES]; 4] = std::array::from_fn(|i| block(hist[i], x0));
@@ -565,27 +581,32 @@ fn resolve_blocks<const REJECT: bool, const INVALID: bool>(
             *hs[3]
         };
         let (value, cnt, reset, clipped) = resolve_lanes(&c, &cur, &hist3, &n, &iv, k);
-        let (value, cnt) = (lanes::arrays3(&value), cnt.to_array());
-        let v = value;
-        let mut rgb = lanes::ycocg_to_rgb(&value);
+        let mut rgb = lanes::ycocg_to_rgb(&lanes::arrays3(&value));
         for c in &mut rgb {
             *c = lanes::map(c, |v| v.max(0.0));
         }
-        let at = x0..x0 + LANES;
         for ch in 0..3 {
-            out.rgb[ch][at.clone()].copy_from_slice(&rgb[ch]);
+            let row = &mut out.rgb[ch][..rgb_len];
+            *<&mut [f32; LANES]>::try_from(&mut row[x0..x0 + LANES]).expect("a block") = rgb[ch];
         }
         let texels: &mut [f32; 4 * LANES] = (&mut out.next[4 * x0..4 * (x0 + LANES)])
             .try_into()
             .expect("a block");
-        for l in 0..LANES {
-            texels[4 * l..4 * l + 4].copy_from_slice(&[v[0][l], v[1][l], v[2][l], cnt[l]]);
+        lanes::store_texels4(&[value[0], value[1], value[2], cnt], texels);
+        resets += (reset.to_bitmask() & counted).count_ones();
+        clips += (clipped.to_bitmask() & counted).count_ones();
+        let next = x0 + LANES;
+        if next + LANES <= xs.end {
+            x0 = next;
+        } else if next < xs.end {
+            // The last block ends at the end of `xs`; its lanes before `next` were counted.
+            x0 = xs.end - LANES;
+            counted = all & !((1 << (next - x0)) - 1);
+        } else {
+            break;
         }
-        resets += reset.to_bitmask().count_ones();
-        clips += clipped.to_bitmask().count_ones();
-        x0 += LANES;
     }
-    (x0, resets, clips)
+    (xs.end, resets, clips)
 }
 
 /// Stage `resolve` of one row: 3x3 statistics of the YCoCg rows above, here and below

@@ -26,7 +26,7 @@ use crate::filters::passes::{
     FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
-use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, block, mask_of_bits, Lanes, Mask, LANES};
 use crate::kernels::{fmax, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
@@ -658,11 +658,27 @@ fn reproject_row<const N: usize>(
     pd: &mut [f32],
 ) {
     let (mx, my, ok, pd) = (&m[0][..w], &m[1][..w], &mut ok[..w], &mut pd[..w]);
-    let hist = hist.map(|r| &mut r[..w]);
+    let mut hist = hist.map(|r| &mut r[..w]);
     for x0 in (0..w).step_by(LANES) {
         let [px, py] = previous_positions(mx, my, x0, y);
         let on = on_screen_bits(&px, &py, w, h);
         let taps = BilinearLanes::at(&px, &py, w, h);
+        if N < 4 && prev.is_none() {
+            // Three channels (baseline): each lane's four taps as 4-float vectors (one
+            // vector op per tap where it was one scalar op per channel), stored by one
+            // transpose. With four channels (already one vector per tap) and the depth,
+            // this block form measured slower: its transposes and gathers cost more than
+            // they saved.
+            let n = LANES.min(w - x0);
+            for (l, ok) in ok[x0..x0 + n].iter_mut().enumerate() {
+                *ok = on >> l & 1 != 0;
+            }
+            let t = lanes::load_texels(&taps.texels4::<N>(texels, w, h, on));
+            for (row, t) in hist.iter_mut().zip(&t).take(N) {
+                store_on(row, x0, on, t);
+            }
+            continue;
+        }
         for l in 0..LANES.min(w - x0) {
             let x = x0 + l;
             ok[x] = on >> l & 1 != 0;
@@ -676,6 +692,46 @@ fn reproject_row<const N: usize>(
             if let Some(prev) = prev {
                 // One plane is a plane of one-channel texels: `bilinear`'s bits.
                 pd[x] = taps.texel::<1>(prev, w, h, l)[0];
+            }
+        }
+    }
+}
+
+/// A partial block's texels: pixel `l`'s colour and (with `sobel`, from its `l`th value)
+/// Sobel history, for the `out.len() / N` first pixels.
+#[inline(always)]
+fn partial_texels<const N: usize>(value: &[Lanes; 3], sobel: Option<&[f32]>, out: &mut [f32]) {
+    let texels = out.chunks_exact_mut(N);
+    match sobel {
+        Some(s) => {
+            for (l, t) in texels.enumerate() {
+                t.copy_from_slice(&[value[0][l], value[1][l], value[2][l], s[l]][..N]);
+            }
+        }
+        None => {
+            for (l, t) in texels.enumerate() {
+                t.copy_from_slice(&[value[0][l], value[1][l], value[2][l]][..N]);
+            }
+        }
+    }
+}
+
+/// Stores the lanes set in `on` (lane `l` is bit `l`) of a block from column `x0` that
+/// lie in the row; the others keep what the row held.
+#[inline(always)]
+fn store_on(row: &mut [f32], x0: usize, on: u32, new: &Lanes) {
+    match row.get_mut(x0..x0 + LANES) {
+        Some(dst) => {
+            let dst = <&mut [f32; LANES]>::try_from(dst).expect("eight lanes");
+            *dst = mask_of_bits(on)
+                .select(f32x8::from(*new), f32x8::from(*dst))
+                .to_array();
+        }
+        None => {
+            for (l, v) in row[x0..].iter_mut().enumerate() {
+                if on >> l & 1 != 0 {
+                    *v = new[l];
+                }
             }
         }
     }
@@ -923,19 +979,20 @@ fn resolve_row<const N: usize>(
         for c in 0..3 {
             lanes::store(&mut out[c][..w], x0, &value[c]);
         }
-        let texels = next[N * x0..N * (x0 + n)].chunks_exact_mut(N);
-        match sobel {
-            Some(s) => {
-                let s: &Lanes = block(s, x0 + 1);
-                for (l, t) in texels.enumerate() {
-                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l], s[l]][..N]);
-                }
-            }
-            None => {
-                for (l, t) in texels.enumerate() {
-                    t.copy_from_slice(&[value[0][l], value[1][l], value[2][l]][..N]);
-                }
-            }
+        if n == LANES {
+            // A whole block by one transpose (the lane-by-lane copy was a scalar store per
+            // value).
+            let s = sobel.map_or(f32x8::splat(0.0), |s| {
+                f32x8::from(*block::<f32, LANES>(s, x0 + 1))
+            });
+            let v = lanes::v3(&value);
+            lanes::store_texels_v::<N>(&[v[0], v[1], v[2], s], &mut next[N * x0..N * (x0 + LANES)]);
+        } else {
+            partial_texels::<N>(
+                &value,
+                sobel.map(|s| &s[x0 + 1..]),
+                &mut next[N * x0..N * (x0 + n)],
+            );
         }
         // The flags as bytes of a word: counted with one popcount per block.
         let bits = |m: &Mask| u64::from_le_bytes(m.map(u8::from));
