@@ -384,8 +384,12 @@ pub fn catmull_rom_span_of(
         // Inside, `ix` and `iy` are at least 1 and exact: one bounds check for the window.
         let rs = width * stride;
         let base = ((f.iy as usize - 1) * width + f.ix as usize - 1) * stride + first;
-        let win = &tex[base..base + 3 * rs + 3 * stride + SPAN];
-        return span_rows(|r, i| block(win, r * rs + i * stride), f);
+        let len = 3 * stride + SPAN;
+        let win = &tex[base..base + 3 * rs + len];
+        // A slice per footprint row, so that the taps' offsets in it (`i * stride`, with
+        // `stride` known where this is inlined) need no bounds checks of their own.
+        let rows: [&[f32]; 4] = std::array::from_fn(|r| &win[r * rs..r * rs + len]);
+        return span_rows(|r, i| block(rows[r], i * stride), f);
     }
     let xs = Footprint::clamped(f.x1, width);
     let ys = Footprint::clamped(f.y1, height).map(|r| r * width);
@@ -423,8 +427,10 @@ fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], f: &Footprint) -
         lo = add(lo, mul(f.wy[j], a));
         hi = add(hi, mul(f.wy[j], b));
     }
-    let (s8, s4) = ((lo.0 + hi.0).to_array(), (lo.1 + hi.1).to_array());
-    std::array::from_fn(|c| if c < 8 { s8[c] } else { s4[c - 8] })
+    let mut out = [0.0; SPAN];
+    out[..8].copy_from_slice(&(lo.0 + hi.0).to_array());
+    out[8..].copy_from_slice(&(lo.1 + hi.1).to_array());
+    out
 }
 
 /// Channels of one texel of an interleaved history (e.g. Y, Co, Cg and a sample count).
@@ -602,6 +608,22 @@ fn bilinear_channel_from(
 /// bits as the planar function per channel).
 #[inline(always)]
 pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize, x: f32, y: f32) -> [f32; N] {
+    bilinear_span(tex, N, 0, width, height, x, y)
+}
+
+/// [`bilinear_texels`] of `N` channels that lie side by side in a plane of texels of
+/// `stride` floats, from float `first` of each texel (`tex[stride * (y * width + x) +
+/// first + c]` is channel `c`): the same bits as [`bilinear`] on those channels as planes.
+#[inline(always)]
+pub fn bilinear_span<const N: usize>(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    height: usize,
+    x: f32,
+    y: f32,
+) -> [f32; N] {
     let fx = x - 0.5;
     let fy = y - 0.5;
     let x0 = fx.floor();
@@ -609,19 +631,26 @@ pub fn bilinear_texels<const N: usize>(tex: &[f32], width: usize, height: usize,
     let t = [fx - x0, fy - y0];
     if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
         // Inside, `x0` and `y0` are whole, at least 0 and exact.
-        return bilinear_inside(tex, width, [x0 as usize, y0 as usize], t);
+        return bilinear_inside(tex, stride, first, width, [x0 as usize, y0 as usize], t);
     }
-    bilinear_clamped(tex, width, height, [x0, y0], t)
+    bilinear_clamped(tex, stride, first, width, height, [x0, y0], t)
 }
 
 /// [`bilinear_texels`] of a 2x2 footprint inside the image, whose top-left tap is texel
 /// `i0 = [column, row]`: no clamping, each row's two texels in one bounds check.
 #[inline(always)]
-fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t: [f32; 2]) -> [f32; N] {
-    let a = (i0[1] * width + i0[0]) * N;
+fn bilinear_inside<const N: usize>(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    i0: [usize; 2],
+    t: [f32; 2],
+) -> [f32; N] {
+    let a = (i0[1] * width + i0[0]) * stride + first;
     // One bounds check for both rows.
-    let win = &tex[a..a + width * N + 2 * N];
-    let (r0, r1) = (&win[..2 * N], &win[width * N..]);
+    let win = &tex[a..a + width * stride + stride + N];
+    let (r0, r1) = (&win[..stride + N], &win[width * stride..]);
     let mut out = [0.0; N];
     // Eight, then four channels at a time in vectors (the same operations per channel),
     // the rest one by one.
@@ -629,7 +658,7 @@ fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t:
     let (tx8, ty8) = (f32x8::splat(t[0]), f32x8::splat(t[1]));
     let at8 = |r: &[f32], i: usize| f32x8::from(*block::<f32, 8>(r, i));
     for c in (0..eights).step_by(8) {
-        let (p00, p10, p01, p11) = (at8(r0, c), at8(r0, N + c), at8(r1, c), at8(r1, N + c));
+        let (p00, p10, p01, p11) = (at8(r0, c), at8(r0, stride + c), at8(r1, c), at8(r1, stride + c));
         let top = p00 + (p10 - p00) * tx8;
         let bottom = p01 + (p11 - p01) * tx8;
         out[c..c + 8].copy_from_slice(&(top + (bottom - top) * ty8).to_array());
@@ -638,14 +667,14 @@ fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t:
     let (tx, ty) = (f32x4::splat(t[0]), f32x4::splat(t[1]));
     let at = |r: &[f32], i: usize| f32x4::from(*block::<f32, 4>(r, i));
     for c in (eights..whole).step_by(4) {
-        let (p00, p10, p01, p11) = (at(r0, c), at(r0, N + c), at(r1, c), at(r1, N + c));
+        let (p00, p10, p01, p11) = (at(r0, c), at(r0, stride + c), at(r1, c), at(r1, stride + c));
         let top = p00 + (p10 - p00) * tx;
         let bottom = p01 + (p11 - p01) * tx;
         out[c..c + 4].copy_from_slice(&(top + (bottom - top) * ty).to_array());
     }
     for c in whole..N {
-        let top = r0[c] + (r0[N + c] - r0[c]) * t[0];
-        let bottom = r1[c] + (r1[N + c] - r1[c]) * t[0];
+        let top = r0[c] + (r0[stride + c] - r0[c]) * t[0];
+        let bottom = r1[c] + (r1[stride + c] - r1[c]) * t[0];
         out[c] = top + (bottom - top) * t[1];
     }
     out
@@ -656,6 +685,8 @@ fn bilinear_inside<const N: usize>(tex: &[f32], width: usize, i0: [usize; 2], t:
 #[inline(always)]
 fn bilinear_clamped<const N: usize>(
     tex: &[f32],
+    stride: usize,
+    first: usize,
     width: usize,
     height: usize,
     x0y0: [f32; 2],
@@ -667,7 +698,7 @@ fn bilinear_clamped<const N: usize>(
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
     let yb = clamp_index(y0 + 1.0, height) * width;
-    let at = |i: usize| -> &[f32; N] { tex[i * N..i * N + N].try_into().expect("a texel") };
+    let at = |i: usize| -> &[f32; N] { block(tex, i * stride + first) };
     let [p00, p10, p01, p11] = [ya + xa, ya + xb, yb + xa, yb + xb].map(at);
     std::array::from_fn(|c| {
         let top = p00[c] + (p10[c] - p00[c]) * tx;
@@ -721,9 +752,9 @@ impl BilinearLanes {
         let t = [self.tx[l], self.ty[l]];
         if self.inside >> l & 1 != 0 {
             // Inside, the taps are at least 0 and exact.
-            bilinear_inside(tex, width, [self.ix[l] as usize, self.iy[l] as usize], t)
+            bilinear_inside(tex, N, 0, width, [self.ix[l] as usize, self.iy[l] as usize], t)
         } else {
-            bilinear_clamped(tex, width, height, [self.x0[l], self.y0[l]], t)
+            bilinear_clamped(tex, N, 0, width, height, [self.x0[l], self.y0[l]], t)
         }
     }
 }

@@ -20,8 +20,8 @@ use crate::filters::passes::{
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear_texels, catmull_rom_span_of, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse,
-    FootprintLanes,
+    bilinear_span, bilinear_texels, catmull_rom_span_of, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap,
+    tonemap_inverse, FootprintLanes,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
@@ -355,10 +355,11 @@ fn fetch_row(
                         ModelFetch::Nearest => nearest_texel(state, w, h, px[l], py[l]),
                         ModelFetch::CatmullRom => {
                             // beta by Catmull-Rom, R and z bilinear (as `fetch_model`).
-                            let mut t = bilinear_texels(state, w, h, px[l], py[l]);
                             let f = cr.as_ref().expect("footprints").lane(l);
-                            let beta = catmull_rom_span_of(state, TEXEL, BETA, w, h, &f);
-                            t[BETA..BETA + 3 * D].copy_from_slice(&beta);
+                            let mut t = [0.0; TEXEL];
+                            t[BETA..R].copy_from_slice(&catmull_rom_span_of(state, TEXEL, BETA, w, h, &f));
+                            let rest: [f32; TEXEL - R] = bilinear_span(state, TEXEL, R, w, h, px[l], py[l]);
+                            t[R..].copy_from_slice(&rest);
                             t
                         }
                     }
