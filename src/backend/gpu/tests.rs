@@ -242,6 +242,11 @@ fn compare_adversarial(name: &str, variants: &[&[&str]]) {
     }
 }
 
+/// `phlm`'s GPU variants. Not among them: `p0` below `clip_p` with `clip_keep > 0` (e.g.
+/// the defaults with `clip_p = 1000`), where clips take R below the prior and the f32
+/// solve's largest trace(P) differs from the CPU's f64 by up to 2.3% on `hdr` (over
+/// [`TRACE_TOLERANCE`]'s 1%; the outputs agree), and `model_fetch=nearest dilation=false`,
+/// which on `flyover` took a clip on one backend only (one pixel 0.016 apart at frame 53).
 const PHLM_VARIANTS: &[&[&str]] = &[
     &[],
     &["model_fetch=nearest"],
