@@ -48,8 +48,10 @@
 //!   measured: [`DEFAULT_LAMBDA_MOVING`]): the paper's `lambda = 0.998` for still pixels,
 //!   0.8 from 1 px/frame; `lambda_moving = 0` gives the paper's single `lambda`.
 //! - the model after a clip is reset to the clipped colour ("resetting a linear model with a
-//!   specific color value", sec. 5.2) with `P = clip_p I`; the paper's reset uses the init
-//!   value 1000, we default to 1 ([`DEFAULT_CLIP_P`] has the measurements).
+//!   specific color value", sec. 5.2), its information relaxed halfway toward `I / clip_p`
+//!   (`clip_keep = 0.5`, [`DEFAULT_CLIP_KEEP`]; the paper's reset is all the way, with the
+//!   init value 1000, we default `clip_p` to 1: [`DEFAULT_CLIP_P`] has the measurements).
+//! - `p0 = 100` where the paper initialises with 1000 ([`DEFAULT_P0`]).
 
 pub mod feature;
 mod kernel;
