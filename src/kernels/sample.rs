@@ -227,17 +227,7 @@ impl FootprintLanes {
         // The centre taps' counts of the lanes inside ([`centre_counts`]), by tap.
         let mut taps = [[0.0f32; LANES]; 4];
         let v = |a: &Lanes| f32x8::from(*a);
-        let (wx, wy) = (&self.wx, &self.wy);
-        let weights = f32x8::transpose([
-            v(&wx[0]),
-            v(&wx[1]),
-            v(&wx[2]),
-            v(&wx[3]),
-            v(&wy[0]),
-            v(&wy[1]),
-            v(&wy[2]),
-            v(&wy[3]),
-        ]);
+        let weights = self.weights();
         // The lanes inside, by their set bits; then the others on screen.
         let mut todo = inside;
         let mut one = |l: usize, width: usize, first: usize| {
@@ -285,6 +275,65 @@ impl FootprintLanes {
         let bottom = c21 + (c22 - c21) * tx;
         let count = top + (bottom - top) * ty;
         [a, b, c, mask_of_bits(inside).select(count, v(&d)).to_array()]
+    }
+
+    /// [`catmull_rom_span_of`] of each lane's footprint for the lanes set in `on` (lane `l`
+    /// is bit `l`; zeros in the others), with [`FootprintLanes::texels`]'s weights by one
+    /// transpose and first texels by one vector multiply.
+    #[inline(always)]
+    pub fn spans(
+        &self,
+        tex: &[f32],
+        stride: usize,
+        first: usize,
+        width: usize,
+        height: usize,
+        on: u32,
+    ) -> [[f32; SPAN]; LANES] {
+        let inside = self.inside_bits(width, height) & on;
+        let mut out = [[0.0; SPAN]; LANES];
+        let weights = self.weights();
+        // As in [`FootprintLanes::texels`]: with every texel index in an i32 the index math
+        // cannot overflow; the lanes inside then take the fast path.
+        let fast = tex.len() <= i32::MAX as usize;
+        if fast {
+            let firsts = self.first_texels(width);
+            let w32 = width as u32 as usize;
+            let mut todo = inside;
+            while todo != 0 {
+                let l = todo.trailing_zeros() as usize;
+                todo &= todo - 1;
+                let w = weights[l].to_array();
+                let (wx, wy) = ([w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
+                out[l] = span_inside(tex, stride, first, w32, firsts[l] as usize, wx, wy);
+            }
+        }
+        // The others on screen, one footprint at a time.
+        let mut rest = if fast { on & !inside } else { on };
+        while rest != 0 {
+            let l = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            out[l] = catmull_rom_span_of(tex, stride, first, width, height, &self.lane(l));
+        }
+        out
+    }
+
+    /// Each lane's weights as one vector, `wx` in the low half and `wy` in the high (one
+    /// 8x8 transpose of the block's).
+    #[inline(always)]
+    fn weights(&self) -> [f32x8; LANES] {
+        let v = |a: &Lanes| f32x8::from(*a);
+        let (wx, wy) = (&self.wx, &self.wy);
+        f32x8::transpose([
+            v(&wx[0]),
+            v(&wx[1]),
+            v(&wx[2]),
+            v(&wx[3]),
+            v(&wy[0]),
+            v(&wy[1]),
+            v(&wy[2]),
+            v(&wy[3]),
+        ])
     }
 
     /// Each lane's first footprint texel `(y1 - 1) width + x1 - 1` (row-major), exact for
@@ -381,25 +430,41 @@ pub fn catmull_rom_span_of(
     f: &Footprint,
 ) -> [f32; SPAN] {
     if f.inside(width, height) {
-        // Inside, `ix` and `iy` are at least 1 and exact: one bounds check for the window.
-        let rs = width * stride;
-        let base = ((f.iy as usize - 1) * width + f.ix as usize - 1) * stride + first;
-        let len = 3 * stride + SPAN;
-        let win = &tex[base..base + 3 * rs + len];
-        // A slice per footprint row, so that the taps' offsets in it (`i * stride`, with
-        // `stride` known where this is inlined) need no bounds checks of their own.
-        let rows: [&[f32]; 4] = std::array::from_fn(|r| &win[r * rs..r * rs + len]);
-        return span_rows(|r, i| block(rows[r], i * stride), f);
+        // Inside, `ix` and `iy` are at least 1 and exact.
+        let first_texel = (f.iy as usize - 1) * width + f.ix as usize - 1;
+        return span_inside(tex, stride, first, width, first_texel, f.wx, f.wy);
     }
     let xs = Footprint::clamped(f.x1, width);
     let ys = Footprint::clamped(f.y1, height).map(|r| r * width);
-    span_rows(|r, i| block(tex, (ys[r] + xs[i]) * stride + first), f)
+    span_rows(|r, i| block(tex, (ys[r] + xs[i]) * stride + first), f.wx, f.wy)
 }
 
-/// [`catmull_rom_span`]'s sums over footprint `f`, tap `i` of row `r` read by `tap(r, i)`:
+/// [`catmull_rom_span_of`] of the footprint whose first (top-left) texel is `first_texel`,
+/// inside the image, with column weights `wx` and normalised row weights `wy`.
+#[inline(always)]
+fn span_inside(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    first_texel: usize,
+    wx: [f32; 4],
+    wy: [f32; 4],
+) -> [f32; SPAN] {
+    let rs = width * stride;
+    let base = first_texel * stride + first;
+    let len = 3 * stride + SPAN;
+    let win = &tex[base..base + 3 * rs + len];
+    let rows: [&[f32]; 4] = std::array::from_fn(|r| &win[r * rs..r * rs + len]);
+    span_rows(|r, i| block(rows[r], i * stride), wx, wy)
+}
+
+/// [`catmull_rom_span`]'s sums over a footprint with weights `wx`, `wy`, tap `i` of row `r`
+/// read by `tap(r, i)` (one slice per footprint row, so that the taps' offsets in it, `i *
+/// stride` with `stride` known where this is inlined, need no bounds checks of their own):
 /// [`catmull_rom_row`]'s two partial sums for every channel at once, in its order.
 #[inline(always)]
-fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], f: &Footprint) -> [f32; SPAN] {
+fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], wx: [f32; 4], wy: [f32; 4]) -> [f32; SPAN] {
     /// Channels 0-7 and 8-11.
     #[derive(Clone, Copy)]
     struct V(f32x8, f32x4);
@@ -411,10 +476,9 @@ fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], f: &Footprint) -
     };
     let mul = |w: f32, a: V| V(f32x8::splat(w) * a.0, f32x4::splat(w) * a.1);
     let add = |a: V, b: V| V(a.0 + b.0, a.1 + b.1);
-    let wx = f.wx;
     // Row 0 (outer: columns 1 and 2).
     let (a, b) = (mul(wx[1], load(tap(0, 1))), mul(wx[2], load(tap(0, 2))));
-    let (mut lo, mut hi) = (mul(f.wy[0], a), mul(f.wy[0], b));
+    let (mut lo, mut hi) = (mul(wy[0], a), mul(wy[0], b));
     for j in 1..4 {
         let (a, b) = if j == 1 || j == 2 {
             (
@@ -424,8 +488,8 @@ fn span_rows<'a>(tap: impl Fn(usize, usize) -> &'a [f32; SPAN], f: &Footprint) -
         } else {
             (mul(wx[1], load(tap(j, 1))), mul(wx[2], load(tap(j, 2))))
         };
-        lo = add(lo, mul(f.wy[j], a));
-        hi = add(hi, mul(f.wy[j], b));
+        lo = add(lo, mul(wy[j], a));
+        hi = add(hi, mul(wy[j], b));
     }
     let mut out = [0.0; SPAN];
     out[..8].copy_from_slice(&(lo.0 + hi.0).to_array());
@@ -906,6 +970,29 @@ pub(crate) mod tests {
                 let want = catmull_rom(planes, w, h, x, y).map(f32::to_bits);
                 let got = catmull_rom_span(&tex, stride, first, w, h, x, y).map(f32::to_bits);
                 assert_eq!(got, want, "{w}x{h} at ({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
+    fn footprint_lanes_spans_give_each_lanes_span() {
+        let mut rng = SplitMix64::new(43);
+        for (w, h) in [(1, 1), (3, 2), (9, 7), (37, 5)] {
+            let stride = SPAN + 5;
+            let tex: Vec<f32> = (0..w * h * stride).map(|_| (rng.next_f64() * 4.0 - 1.0) as f32).collect();
+            for _ in 0..100 {
+                let mut r = || -> Lanes { each(|_| (rng.next_f64() * (w + 6) as f64 - 3.0) as f32) };
+                let (x, y) = (r(), r());
+                let on = (rng.next_f64() * 256.0) as u32 & 0xff;
+                let got = FootprintLanes::at(&x, &y).spans(&tex, stride, 3, w, h, on);
+                for l in 0..LANES {
+                    let want = if on >> l & 1 != 0 {
+                        catmull_rom_span(&tex, stride, 3, w, h, x[l], y[l])
+                    } else {
+                        [0.0; SPAN]
+                    };
+                    assert_eq!(got[l].map(f32::to_bits), want.map(f32::to_bits), "{w}x{h} lane {l}");
+                }
             }
         }
     }

@@ -20,8 +20,8 @@ use crate::filters::passes::{
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear_span, bilinear_texels, catmull_rom_span_of, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap,
-    tonemap_inverse, FootprintLanes,
+    bilinear_span, bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse,
+    FootprintLanes,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
@@ -345,7 +345,8 @@ fn fetch_row(
             have &= on_screen_bits(&px, &py, w, h);
             // Catmull-Rom footprints of the eight positions in vectors (the same bits as
             // one at a time).
-            let cr = (plan.p.model_fetch == ModelFetch::CatmullRom).then(|| FootprintLanes::at(&px, &py));
+            let beta = (plan.p.model_fetch == ModelFetch::CatmullRom)
+                .then(|| FootprintLanes::at(&px, &py).spans(state, TEXEL, BETA, w, h, have));
             for (l, texel) in texels.iter_mut().enumerate().take(n) {
                 *texel = if have >> l & 1 == 0 {
                     [0.0; TEXEL]
@@ -355,9 +356,8 @@ fn fetch_row(
                         ModelFetch::Nearest => nearest_texel(state, w, h, px[l], py[l]),
                         ModelFetch::CatmullRom => {
                             // beta by Catmull-Rom, R and z bilinear (as `fetch_model`).
-                            let f = cr.as_ref().expect("footprints").lane(l);
                             let mut t = [0.0; TEXEL];
-                            t[BETA..R].copy_from_slice(&catmull_rom_span_of(state, TEXEL, BETA, w, h, &f));
+                            t[BETA..R].copy_from_slice(&beta.as_ref().expect("spans")[l]);
                             let rest: [f32; TEXEL - R] = bilinear_span(state, TEXEL, R, w, h, px[l], py[l]);
                             t[R..].copy_from_slice(&rest);
                             t
