@@ -979,7 +979,9 @@ pub(crate) mod tests {
         let mut rng = SplitMix64::new(43);
         for (w, h) in [(1, 1), (3, 2), (9, 7), (37, 5)] {
             let stride = SPAN + 5;
-            let tex: Vec<f32> = (0..w * h * stride).map(|_| (rng.next_f64() * 4.0 - 1.0) as f32).collect();
+            let tex: Vec<f32> = (0..w * h * stride)
+                .map(|_| (rng.next_f64() * 4.0 - 1.0) as f32)
+                .collect();
             for _ in 0..100 {
                 let mut r = || -> Lanes { each(|_| (rng.next_f64() * (w + 6) as f64 - 3.0) as f32) };
                 let (x, y) = (r(), r());
@@ -991,7 +993,11 @@ pub(crate) mod tests {
                     } else {
                         [0.0; SPAN]
                     };
-                    assert_eq!(got[l].map(f32::to_bits), want.map(f32::to_bits), "{w}x{h} lane {l}");
+                    assert_eq!(
+                        got[l].map(f32::to_bits),
+                        want.map(f32::to_bits),
+                        "{w}x{h} lane {l}"
+                    );
                 }
             }
         }
