@@ -22,8 +22,7 @@ pub use neighborhood::{
 };
 pub use sample::{
     bilinear, bilinear_span, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_span,
-    catmull_rom_span_of, catmull_rom_texel, catmull_rom_texels, nearest_texel, BilinearLanes, Footprint,
-    FootprintLanes, TEXEL,
+    catmull_rom_texel, catmull_rom_texels, nearest_texel, BilinearLanes, Footprint, FootprintLanes, TEXEL,
 };
 pub use sharpen::sharpen_cross;
 pub use sobel::{sobel_magnitude, sobel_magnitude_v, sobel_plane};

@@ -421,7 +421,7 @@ pub fn catmull_rom_span(
 
 /// [`catmull_rom_span`] with footprint `f` (e.g. a lane of [`FootprintLanes`]).
 #[inline(always)]
-pub fn catmull_rom_span_of(
+fn catmull_rom_span_of(
     tex: &[f32],
     stride: usize,
     first: usize,

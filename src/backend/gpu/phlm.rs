@@ -179,8 +179,8 @@ impl GpuPhlm {
         Ok(())
     }
 
-    fn param_words(&self, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
-        let p = &self.params.effective();
+    /// The shader's `Params` words for settings `p` (the effective ones).
+    fn param_words(p: &Params, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
         [
             width as u32,
             height as u32,
@@ -332,7 +332,7 @@ impl GpuPhlm {
         set(dilate.is_none(), FLAG_DILATE);
         set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
         let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
-        let words = self.param_words(w, h, flags, hi);
+        let words = Self::param_words(p, w, h, flags, hi);
 
         let gpu = Arc::clone(&self.gpu);
         let b = self.buffers.as_ref().expect("sized");

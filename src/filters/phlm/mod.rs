@@ -653,13 +653,19 @@ mod tests {
         }
     }
 
+    /// `n` frames of the "random motion" sequence at 33x19 from `seed`.
+    fn random_motion(n: u64, seed: u64) -> Vec<Frame> {
+        sequences(33, 19, n, seed)
+            .into_iter()
+            .find(|(name, _)| *name == "random motion")
+            .expect("a random motion sequence")
+            .1
+    }
+
     /// `variant = paper` runs exactly the six settings it names, whatever they were set to.
     #[test]
     fn the_paper_variant_is_the_papers_settings() {
-        let (_, frames) = sequences(33, 19, 5, 9)
-            .into_iter()
-            .find(|(n, _)| *n == "random motion")
-            .unwrap();
+        let frames = random_motion(5, 9);
         let paper = run(&["variant=paper", "p0=3", "clip_keep=0.9"], &frames);
         let explicit = run(
             &[
@@ -681,10 +687,7 @@ mod tests {
     /// Every ablation knob reaches the output.
     #[test]
     fn each_ablation_knob_changes_the_output() {
-        let (_, frames) = sequences(33, 19, 6, 8)
-            .into_iter()
-            .find(|(n, _)| *n == "random motion")
-            .unwrap();
+        let frames = random_motion(6, 8);
         let base = run(&[], &frames);
         for set in [
             &["test_box=variance"][..],
