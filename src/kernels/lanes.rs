@@ -130,6 +130,14 @@ pub fn mask_of(m: f32x8) -> Mask {
     each(|l| (bits >> l) & 1 == 1)
 }
 
+/// The flags as bits (lane `l` is bit `l`): the flags' bytes (0 or 1) gathered into the
+/// top byte by one multiply (no two partial products meet, so nothing carries).
+#[inline(always)]
+pub fn bits_of(m: &Mask) -> u32 {
+    let bytes = u64::from_le_bytes(each(|l| m[l] as u8));
+    (bytes.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u32
+}
+
 /// A vector mask of bits (all bits set in lane `l` where bit `l` of `bits` is).
 #[inline(always)]
 pub fn mask_of_bits(bits: u32) -> f32x8 {
@@ -267,14 +275,14 @@ pub fn min_of(a: f32x8, b: f32x8) -> f32x8 {
 
 /// [`super::clip_toward_point`] in lanes: each `q` outside its box moved along the ray
 /// toward `target` (clamped into the box) until it enters; returns the points and which
-/// moved.
+/// moved, as bits (lane `l` is bit `l`).
 #[inline(always)]
 pub fn clip_toward_point(
     q: &[Lanes; 3],
     target: &[Lanes; 3],
     min: &[Lanes; 3],
     max: &[Lanes; 3],
-) -> ([Lanes; 3], Mask) {
+) -> ([Lanes; 3], u32) {
     // In `f32x8` vectors with float masks, as [`clip_toward_center_v`].
     let [q, target, min, max] = [v3(q), v3(target), v3(min), v3(max)];
     let one = f32x8::splat(1.0);
@@ -294,7 +302,7 @@ pub fn clip_toward_point(
         let moved = min_of(max_of(q[k] + t * (tgt[k] - q[k]), min[k]), max[k]);
         outside.select(moved, q[k]).to_array()
     });
-    (p, mask_of(outside))
+    (p, outside.to_bitmask())
 }
 
 /// [`super::rgb_to_ycocg`] in lanes.
@@ -552,7 +560,7 @@ mod tests {
                     at(&pc)
                 );
                 let (sp, smp) = clip::clip_toward_point(at(&q), at(&target), at(&min), at(&max));
-                assert_eq!(smp, mp[l], "case {case} lane {l}: point, moved");
+                assert_eq!(smp, mp >> l & 1 == 1, "case {case} lane {l}: point, moved");
                 assert!(
                     same(sp, at(&pp)),
                     "case {case} lane {l}: point {:?} scalar {:?} lanes {:?}",
@@ -561,6 +569,15 @@ mod tests {
                     at(&pp)
                 );
             }
+        }
+    }
+
+    #[test]
+    fn bits_of_gives_each_flag_as_its_bit() {
+        for bits in 0u32..256 {
+            let m: Mask = std::array::from_fn(|l| bits >> l & 1 == 1);
+            assert_eq!(bits_of(&m), bits);
+            assert_eq!(mask_of_bits(bits).to_bitmask(), bits);
         }
     }
 

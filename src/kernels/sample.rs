@@ -277,22 +277,35 @@ impl FootprintLanes {
         [a, b, c, mask_of_bits(inside).select(count, v(&d)).to_array()]
     }
 
-    /// [`catmull_rom_span_of`] of each lane's footprint for the lanes set in `on` (lane `l`
-    /// is bit `l`; zeros in the others), with [`FootprintLanes::texels`]'s weights by one
-    /// transpose and first texels by one vector multiply.
+    /// For the lanes set in `on` (lane `l` is bit `l`) of a plane of `T`-float texels:
+    /// [`catmull_rom_span`] of the [`SPAN`] channels from float `span_at` of each texel into
+    /// `out[l][span_at..]`, and [`bilinear_span`] at the same position of the `N` channels
+    /// from float `rest_at` into `out[l][rest_at..]` (e.g. phlm's model: its coefficients
+    /// by Catmull-Rom, its information matrix bilinear; floats in neither range are left as
+    /// they were); the other lanes' texels are zeros.
+    /// The same bits as those functions lane by lane. A lane whose 4x4 footprint lies
+    /// inside takes its weights from one 8x8 transpose and its first texel from one vector
+    /// multiply (as [`FootprintLanes::texels`]), and its bilinear taps are the footprint's
+    /// inner four, at its fractions: nothing of the bilinear position is computed again.
+    /// The lanes on the border go through those functions' clamped paths.
     #[inline(always)]
-    pub fn spans(
+    #[allow(clippy::too_many_arguments)]
+    pub fn span_and_bilinear<const T: usize, const N: usize>(
         &self,
         tex: &[f32],
-        stride: usize,
-        first: usize,
         width: usize,
         height: usize,
         on: u32,
-    ) -> [[f32; SPAN]; LANES] {
+        span_at: usize,
+        rest_at: usize,
+        out: &mut [[f32; T]; LANES],
+    ) {
         let inside = self.inside_bits(width, height) & on;
-        let mut out = [[0.0; SPAN]; LANES];
         let weights = self.weights();
+        let mut write = |l: usize, span: [f32; SPAN], rest: [f32; N]| {
+            out[l][span_at..span_at + SPAN].copy_from_slice(&span);
+            out[l][rest_at..rest_at + N].copy_from_slice(&rest);
+        };
         // As in [`FootprintLanes::texels`]: with every texel index in an i32 the index math
         // cannot overflow; the lanes inside then take the fast path.
         let fast = tex.len() <= i32::MAX as usize;
@@ -305,7 +318,13 @@ impl FootprintLanes {
                 todo &= todo - 1;
                 let w = weights[l].to_array();
                 let (wx, wy) = ([w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
-                out[l] = span_inside(tex, stride, first, w32, firsts[l] as usize, wx, wy);
+                let first = firsts[l] as usize;
+                let span = span_inside(tex, T, span_at, w32, first, wx, wy);
+                // Taps 1 and 2 of rows 1 and 2: the bilinear footprint's top left is one
+                // row and one column past the Catmull-Rom one's.
+                let t = [self.tx[l], self.ty[l]];
+                let rest = bilinear_inside_from(tex, T, rest_at, w32, first + w32 + 1, t);
+                write(l, span, rest);
             }
         }
         // The others on screen, one footprint at a time.
@@ -313,9 +332,17 @@ impl FootprintLanes {
         while rest != 0 {
             let l = rest.trailing_zeros() as usize;
             rest &= rest - 1;
-            out[l] = catmull_rom_span_of(tex, stride, first, width, height, &self.lane(l));
+            let f = self.lane(l);
+            let span = catmull_rom_span_of(tex, T, span_at, width, height, &f);
+            let bil = bilinear_at(tex, T, rest_at, width, height, [f.x1, f.y1], [f.tx, f.ty]);
+            write(l, span, bil);
         }
-        out
+        let mut off = !on & ((1 << LANES) - 1);
+        while off != 0 {
+            let l = off.trailing_zeros() as usize;
+            off &= off - 1;
+            out[l] = [0.0; T];
+        }
     }
 
     /// Each lane's weights as one vector, `wx` in the low half and `wy` in the high (one
@@ -692,12 +719,27 @@ pub fn bilinear_span<const N: usize>(
     let fy = y - 0.5;
     let x0 = fx.floor();
     let y0 = fy.floor();
-    let t = [fx - x0, fy - y0];
+    bilinear_at(tex, stride, first, width, height, [x0, y0], [fx - x0, fy - y0])
+}
+
+/// [`bilinear_span`] from its top-left tap `x0y0` (whole numbers as f32, possibly outside,
+/// huge or NaN) and fractions `t`.
+#[inline(always)]
+fn bilinear_at<const N: usize>(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    height: usize,
+    x0y0: [f32; 2],
+    t: [f32; 2],
+) -> [f32; N] {
+    let [x0, y0] = x0y0;
     if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
         // Inside, `x0` and `y0` are whole, at least 0 and exact.
         return bilinear_inside(tex, stride, first, width, [x0 as usize, y0 as usize], t);
     }
-    bilinear_clamped(tex, stride, first, width, height, [x0, y0], t)
+    bilinear_clamped(tex, stride, first, width, height, x0y0, t)
 }
 
 /// [`bilinear_texels`] of a 2x2 footprint inside the image, whose top-left tap is texel
@@ -711,7 +753,20 @@ fn bilinear_inside<const N: usize>(
     i0: [usize; 2],
     t: [f32; 2],
 ) -> [f32; N] {
-    let a = (i0[1] * width + i0[0]) * stride + first;
+    bilinear_inside_from(tex, stride, first, width, i0[1] * width + i0[0], t)
+}
+
+/// [`bilinear_inside`] whose top-left tap is texel `top_left` (row-major).
+#[inline(always)]
+fn bilinear_inside_from<const N: usize>(
+    tex: &[f32],
+    stride: usize,
+    first: usize,
+    width: usize,
+    top_left: usize,
+    t: [f32; 2],
+) -> [f32; N] {
+    let a = top_left * stride + first;
     // One bounds check for both rows.
     let win = &tex[a..a + width * stride + stride + N];
     let (r0, r1) = (&win[..stride + N], &win[width * stride..]);
@@ -975,28 +1030,48 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn footprint_lanes_spans_give_each_lanes_span() {
+    fn footprint_lanes_span_and_bilinear_give_each_lanes_span_and_bilinear() {
+        const T: usize = SPAN + 13 + 2;
+        const N: usize = 13;
         let mut rng = SplitMix64::new(43);
-        for (w, h) in [(1, 1), (3, 2), (9, 7), (37, 5)] {
-            let stride = SPAN + 5;
-            let tex: Vec<f32> = (0..w * h * stride)
+        for (w, h) in [(1, 1), (2, 1), (3, 2), (4, 4), (9, 7), (37, 5)] {
+            let tex: Vec<f32> = (0..w * h * T)
                 .map(|_| (rng.next_f64() * 4.0 - 1.0) as f32)
                 .collect();
-            for _ in 0..100 {
-                let mut r = || -> Lanes { each(|_| (rng.next_f64() * (w + 6) as f64 - 3.0) as f32) };
-                let (x, y) = (r(), r());
+            for case in 0..150 {
+                let mut r = |n: usize| -> Lanes { each(|_| (rng.next_f64() * (n + 6) as f64 - 3.0) as f32) };
+                let (mut x, mut y) = (r(w), r(h));
+                if case % 10 == 0 {
+                    // Whole and half positions (taps exactly on texels), and wild ones.
+                    x = each(|l| [0.5, 1.0, 2.5, -0.5, f32::NAN, 1e30, -1e30, w as f32][l]);
+                    y = each(|l| [0.5, 1.5, 1.0, 3.0, 0.5, f32::INFINITY, 2.0, h as f32 - 0.5][l]);
+                }
                 let on = (rng.next_f64() * 256.0) as u32 & 0xff;
-                let got = FootprintLanes::at(&x, &y).spans(&tex, stride, 3, w, h, on);
+                // Stale values in every texel: the lanes off must come back zero.
+                let mut got = [[7.0; T]; LANES];
+                FootprintLanes::at(&x, &y).span_and_bilinear::<T, N>(&tex, w, h, on, 2, SPAN + 2, &mut got);
                 for l in 0..LANES {
-                    let want = if on >> l & 1 != 0 {
-                        catmull_rom_span(&tex, stride, 3, w, h, x[l], y[l])
-                    } else {
-                        [0.0; SPAN]
-                    };
+                    let mut want = [0.0; T];
+                    if on >> l & 1 != 0 {
+                        // The floats outside both ranges are left as they were.
+                        want[..2].fill(7.0);
+                        want[2..2 + SPAN].copy_from_slice(&catmull_rom_span(&tex, T, 2, w, h, x[l], y[l]));
+                        want[SPAN + 2..].copy_from_slice(&bilinear_span::<N>(
+                            &tex,
+                            T,
+                            SPAN + 2,
+                            w,
+                            h,
+                            x[l],
+                            y[l],
+                        ));
+                    }
                     assert_eq!(
                         got[l].map(f32::to_bits),
                         want.map(f32::to_bits),
-                        "{w}x{h} lane {l}"
+                        "{w}x{h} lane {l} at ({}, {})",
+                        x[l],
+                        y[l]
                     );
                 }
             }

@@ -20,6 +20,7 @@
 
 use super::Params;
 use crate::kernels::lanes::{self, Lanes};
+use wide::f32x8;
 
 /// `a = 0.125` (Iglesias-Guitian et al. 2016, sec. 5.1: "we have used a = 0.125 and b = 0.25").
 pub const DEFAULT_A: f32 = 0.125;
@@ -62,16 +63,27 @@ pub fn accumulate_lanes(
     lowpass: &[Lanes; 3],
     lo: &Lanes,
     hi: &Lanes,
-    v: &Lanes,
+    v_speed: &Lanes,
     p: &Params,
 ) -> [Lanes; 3] {
-    let fl = lanes::map3(&prev[0], &prev[1], &prev[2], |r, g, b| y_of([r, g, b]));
-    let a: Lanes = lanes::each(|k| {
-        let l = (lo[k] - fl[k]).max(fl[k] - hi[k]).max(0.0);
-        let phi = p.feature_a * l * l + p.feature_b * v[k] * l * l * l;
-        (phi / (l + (hi[k] - lo[k]) + EPS)).clamp(p.feature_alpha_min, 1.0)
-    });
-    lanes::each(|c| lanes::each(|k| prev[c][k] + a[k] * (lowpass[c][k] - prev[c][k])))
+    // In `f32x8` with the scalar operations in their order (`max` and `clamp` as
+    // [`lanes::max_of`] and comparisons, NaN as there): as a lane loop it compiled to
+    // 4-float halves with a NaN blend per `max`.
+    let v = |a: &Lanes| f32x8::from(*a);
+    let splat = f32x8::splat;
+    let [r, g, b] = [v(&prev[0]), v(&prev[1]), v(&prev[2])];
+    let fl = splat(0.25) * r + splat(0.5) * g + splat(0.25) * b;
+    let (lo, hi, speed) = (v(lo), v(hi), v(v_speed));
+    let l = lanes::max_of(lanes::max_of(lo - fl, fl - hi), splat(0.0));
+    let phi = splat(p.feature_a) * l * l + splat(p.feature_b) * speed * l * l * l;
+    let a = phi / (l + (hi - lo) + splat(EPS));
+    // `f32::clamp`: below the floor -> the floor, above 1 -> 1 (NaN stays).
+    let a = a
+        .simd_lt(splat(p.feature_alpha_min))
+        .select(splat(p.feature_alpha_min), a);
+    let a = a.simd_gt(splat(1.0)).select(splat(1.0), a);
+    let out = |c: f32x8, lp: &Lanes| (c + a * (v(lp) - c)).to_array();
+    [out(r, &lowpass[0]), out(g, &lowpass[1]), out(b, &lowpass[2])]
 }
 
 #[cfg(test)]

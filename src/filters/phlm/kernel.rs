@@ -18,10 +18,9 @@ use crate::filters::passes::{
     FrameResult,
 };
 use crate::frame::Rgb;
-use crate::kernels::lanes::{self, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, Lanes, LANES};
 use crate::kernels::{
-    bilinear_span, bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse,
-    FootprintLanes,
+    bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
@@ -36,6 +35,9 @@ const REPROJECT: usize = 2;
 const FEATURE: usize = 3;
 const MODEL: usize = 4;
 const UNTONEMAP: usize = 5;
+
+/// Every lane of a block, as bits.
+const ALL: u32 = (1 << LANES) - 1;
 
 /// Floats of one pixel's state texel: beta (12), R (10), z (3).
 pub(super) const TEXEL: usize = STATE_PLANES;
@@ -108,8 +110,9 @@ struct Fetched {
     /// The previous state (beta, R, z; [`TEXEL`] floats), one lane per pixel; zero where
     /// there is none.
     state: [Lanes; TEXEL],
-    /// Pixels without history (first frame, reset, off screen, padding).
-    none: Mask,
+    /// Pixels without history (first frame, reset, off screen, padding), as bits (lane `l`
+    /// is bit `l`).
+    none: u32,
     /// Motion length.
     speed: Lanes,
 }
@@ -322,7 +325,7 @@ fn fetch_row(
     };
     for (b, blk) in blocks.iter_mut().enumerate() {
         let x0 = b * LANES;
-        blk.none = [true; LANES];
+        blk.none = ALL;
         blk.speed = [0.0; LANES];
         if let Some([mx, my]) = src.motion {
             let (mx, my) = (
@@ -343,38 +346,34 @@ fn fetch_row(
             // [`crate::filters::passes::on_screen`] computes per pixel), then each lane's fetch in place.
             let [px, py] = previous_positions(&mx[row.clone()], &my[row.clone()], x0, y);
             have &= on_screen_bits(&px, &py, w, h);
-            // Catmull-Rom footprints of the eight positions in vectors (the same bits as
-            // one at a time).
-            let beta = (plan.p.model_fetch == ModelFetch::CatmullRom)
-                .then(|| FootprintLanes::at(&px, &py).spans(state, TEXEL, BETA, w, h, have));
-            for (l, texel) in texels.iter_mut().enumerate().take(n) {
-                *texel = if have >> l & 1 == 0 {
-                    [0.0; TEXEL]
-                } else {
-                    match plan.p.model_fetch {
-                        ModelFetch::Bilinear => bilinear_texels(state, w, h, px[l], py[l]),
-                        ModelFetch::Nearest => nearest_texel(state, w, h, px[l], py[l]),
-                        ModelFetch::CatmullRom => {
-                            // beta by Catmull-Rom, R and z bilinear (as `fetch_model`).
-                            let mut t = [0.0; TEXEL];
-                            t[BETA..R].copy_from_slice(&beta.as_ref().expect("spans")[l]);
-                            let rest: [f32; TEXEL - R] = bilinear_span(state, TEXEL, R, w, h, px[l], py[l]);
-                            t[R..].copy_from_slice(&rest);
-                            t
-                        }
+            match plan.p.model_fetch {
+                // beta by Catmull-Rom, R and z bilinear (as `fetch_model`), the eight
+                // footprints in vectors (the same bits as one at a time); zeros where there
+                // is no texel, padding included.
+                ModelFetch::CatmullRom => FootprintLanes::at(&px, &py)
+                    .span_and_bilinear::<TEXEL, { TEXEL - R }>(state, w, h, have, BETA, R, texels),
+                fetch => {
+                    for (l, texel) in texels.iter_mut().enumerate() {
+                        *texel = if have >> l & 1 == 0 {
+                            [0.0; TEXEL]
+                        } else if fetch == ModelFetch::Bilinear {
+                            bilinear_texels(state, w, h, px[l], py[l])
+                        } else {
+                            nearest_texel(state, w, h, px[l], py[l])
+                        };
                     }
-                };
+                }
             }
         } else {
             for (l, texel) in texels.iter_mut().enumerate().take(n) {
                 *texel = *lanes::block(state, (y * w + x0 + l) * TEXEL);
             }
+            // Padding lanes have zero texels.
+            for texel in texels.iter_mut().skip(n) {
+                *texel = [0.0; TEXEL];
+            }
         }
-        // Padding lanes have zero texels.
-        for texel in texels.iter_mut().skip(n) {
-            *texel = [0.0; TEXEL];
-        }
-        blk.none = lanes::each(|l| have >> l & 1 == 0);
+        blk.none = !have & ALL;
         blk.state = lanes::load_texels(texels);
     }
 }
@@ -473,6 +472,13 @@ fn lanes_of<T: Copy>(s: &[T], x0: usize, n: usize, pad: T) -> [T; LANES] {
     }
 }
 
+/// The repaired-input flags of the block at `x0` as bits (lane `l` is bit `l`; none past
+/// the row's `n` pixels, none without flags).
+#[inline(always)]
+fn invalid_bits(invalid: Option<&[bool]>, x0: usize, n: usize) -> u32 {
+    invalid.map_or(0, |v| lanes::bits_of(&lanes_of(v, x0, n, false)))
+}
+
 /// Stage `feature` of one row (Iglesias-Guitian et al. 2016, sec. 5.1): the temporal feature `z` of each pixel from
 /// its previous feature, the 3x3 mean (the low-pass) and luma range, and its speed; the
 /// input itself where there is no history, the previous feature where the input was
@@ -492,74 +498,82 @@ fn feature_row(
         let [min, max, mean] = stats.block(x0);
         let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
         let prev: [Lanes; 3] = lanes::each(|c| f.state[Z + c]);
-        let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
+        let inv = lanes::mask_of_bits(invalid_bits(invalid, x0, w));
+        let none = lanes::mask_of_bits(f.none);
         let lowpass = lanes::ycocg_to_rgb(&mean);
         let acc = accumulate_lanes(&prev, &lowpass, &min[0], &max[0], &f.speed, p);
         *zb = lanes::each(|c| {
-            let kept = lanes::select(&inv, &prev[c], &acc[c]);
-            lanes::select(&f.none, &input[c], &kept)
+            let kept = inv.select(lanes::v(&prev[c]), lanes::v(&acc[c]));
+            none.select(lanes::v(&input[c]), kept).to_array()
         });
     }
 }
 
 /// A model reset to colour `c` with `P = p I` ([`super::Model::reset`]) where `m` is set.
 #[inline(always)]
-fn reset_where(m: &Mask, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: &[Lanes; 3], p: f32) {
+fn reset_where(bits: u32, beta: &mut [[Lanes; D]; 3], r: &mut [Lanes; P_LEN], c: &[Lanes; 3], p: f32) {
     // Most blocks reset nothing (a reset follows a cut, a disocclusion or a clip).
-    if !m.contains(&true) {
+    if bits == 0 {
         return;
     }
+    let m = lanes::mask_of_bits(bits);
     let init = rls::init_information(p);
+    let zero = f32x8::splat(0.0);
     for ch in 0..3 {
-        beta[ch][0] = lanes::select(m, &c[ch], &beta[ch][0]);
+        beta[ch][0] = m.select(lanes::v(&c[ch]), lanes::v(&beta[ch][0])).to_array();
         for j in 1..D {
-            beta[ch][j] = lanes::select(m, &[0.0; LANES], &beta[ch][j]);
+            beta[ch][j] = m.select(zero, lanes::v(&beta[ch][j])).to_array();
         }
     }
     for k in 0..P_LEN {
-        r[k] = lanes::select(m, &[init[k]; LANES], &r[k]);
+        r[k] = m.select(f32x8::splat(init[k]), lanes::v(&r[k])).to_array();
     }
 }
 
-/// [`super::Model::clip`] where `m` is set: the model whose prediction `pred` left the box,
-/// after its prediction was clipped to `c` (RGB).
+/// [`super::Model::clip`] where bit `l` of `bits` is set: the model whose prediction `pred`
+/// left the box, after its prediction was clipped to `c` (RGB).
 #[inline(always)]
 fn clip_where(
-    m: &Mask,
+    bits: u32,
     beta: &mut [[Lanes; D]; 3],
     r: &mut [Lanes; P_LEN],
     pred: &[Lanes; 3],
     c: &[Lanes; 3],
     p: &Params,
 ) {
-    if !m.contains(&true) {
+    if bits == 0 {
         return;
     }
+    let m = lanes::mask_of_bits(bits);
+    let v = lanes::v;
+    let pick = |a: f32x8, b: &Lanes| m.select(a, v(b)).to_array();
     match p.on_clip {
         OnClip::Reset => {
             for ch in 0..3 {
-                beta[ch][0] = lanes::select(m, &c[ch], &beta[ch][0]);
+                beta[ch][0] = pick(v(&c[ch]), &beta[ch][0]);
                 for j in 1..D {
-                    beta[ch][j] = lanes::select(m, &[0.0; LANES], &beta[ch][j]);
+                    beta[ch][j] = pick(f32x8::splat(0.0), &beta[ch][j]);
                 }
             }
         }
         OnClip::Shift => {
             for ch in 0..3 {
-                let shifted = lanes::each(|l| beta[ch][0][l] + (c[ch][l] - pred[ch][l]));
-                beta[ch][0] = lanes::select(m, &shifted, &beta[ch][0]);
+                let shifted = v(&beta[ch][0]) + (v(&c[ch]) - v(&pred[ch]));
+                beta[ch][0] = pick(shifted, &beta[ch][0]);
             }
         }
     }
     let init = rls::init_information(p.clip_p);
     if p.clip_keep == 0.0 {
         for k in 0..P_LEN {
-            r[k] = lanes::select(m, &[init[k]; LANES], &r[k]);
+            r[k] = pick(f32x8::splat(init[k]), &r[k]);
         }
     } else {
+        let (keep, rest) = (f32x8::splat(p.clip_keep), 1.0 - p.clip_keep);
         for k in 0..P_LEN {
-            let relaxed = lanes::map(&r[k], |v| p.clip_keep * v + (1.0 - p.clip_keep) * init[k]);
-            r[k] = lanes::select(m, &relaxed, &r[k]);
+            // `clip_keep * v + (1 - clip_keep) * init`, as [`super::Model::clip`].
+            let relaxed = keep * v(&r[k]) + f32x8::splat(rest * init[k]);
+            r[k] = pick(relaxed, &r[k]);
         }
     }
 }
@@ -583,10 +597,11 @@ fn model_row(
     let p = plan.p;
     let [or, og, ob] = out;
     let mut counts = Counts::default();
+    let mut max_trace = f32x8::splat(0.0);
     for ((b, f), zl) in fetched.iter().enumerate().zip(z) {
         let x0 = b * LANES;
         let n = LANES.min(w - x0);
-        let real: Mask = lanes::each(|l| l < n);
+        let real = ALL >> (LANES - n);
         let [min, max, _] = stats.block(x0);
         let (lo, hi) = match p.test_box {
             TestBox::Minmax => (min, max),
@@ -598,61 +613,51 @@ fn model_row(
         };
         let input: [Lanes; 3] = lanes::each(|c| lanes_of(working[c], x0, w, 0.0));
         let cur: [Lanes; 3] = lanes::each(|c| lanes_of(ycocg[c], x0, w, 0.0));
+        // Flags as bits (lane `l` is bit `l`): `none` from the fetch, `active` the lanes
+        // whose input was not repaired.
         let none = f.none;
-        let inv: Mask = invalid.map_or([false; LANES], |v| lanes_of(v, x0, w, false));
+        let active = !invalid_bits(invalid, x0, w) & ALL;
         let mut beta: [[Lanes; D]; 3] = lanes::each(|c| lanes::each(|j| f.state[BETA + c * D + j]));
         let mut r: [Lanes; P_LEN] = lanes::each(|k| f.state[R + k]);
-        reset_where(&none, &mut beta, &mut r, &input, p.p0);
-        let fresh: Mask = lanes::each(|l| none[l] && real[l]);
+        reset_where(none, &mut beta, &mut r, &input, p.p0);
         let x: [Lanes; D] = [lanes::splat(1.0), zl[0], zl[1], zl[2]];
         // Lines 12-19: predict; outside the 3x3 box -> clip toward the input and reset.
-        let active: Mask = lanes::each(|l| !inv[l]);
         let pred = rls::predict_lanes(&beta, &x);
         let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &lo, &hi);
-        let moved: Mask = lanes::each(|l| moved[l] && active[l]);
-        clip_where(
-            &moved,
-            &mut beta,
-            &mut r,
-            &pred,
-            &lanes::ycocg_to_rgb(&clipped),
-            p,
-        );
+        let moved = moved & active;
+        clip_where(moved, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
-        let e: [Lanes; 3] = lanes::each(|c| lanes::map2(&input[c], &pred[c], |a, b| a - b));
+        let e: [Lanes; 3] = lanes::each(|c| (lanes::v(&input[c]) - lanes::v(&pred[c])).to_array());
         let lambda: Lanes = if p.lambda_moving == 0.0 {
             lanes::splat(p.lambda)
         } else {
             lanes::map(&f.speed, |v| super::forgetting(v, p))
         };
         let (trace, failed) =
-            rls::update_information_lanes(&mut beta, &mut r, &x, &e, &lambda, plan.prior, &active);
-        reset_where(&failed, &mut beta, &mut r, &input, p.p0);
+            rls::update_information_lanes(&mut beta, &mut r, &x, &e, &lambda, plan.prior, active);
+        reset_where(failed, &mut beta, &mut r, &input, p.p0);
         // Every coefficient finite: `b * 0` is zero for a finite `b` and NaN for an
         // infinite or NaN one, so the sum is zero exactly when all are finite (float
         // lanes, which stay in vectors where a flag per coefficient would not).
-        let mut probe: Lanes = [0.0; LANES];
+        let mut probe = f32x8::splat(0.0);
         for b in beta.iter().flatten() {
-            probe = lanes::each(|l| probe[l] + b[l] * 0.0);
+            probe = probe + lanes::v(b) * f32x8::splat(0.0);
         }
-        let broken: Mask = lanes::each(|l| active[l] & (probe[l] != 0.0));
-        reset_where(&broken, &mut beta, &mut r, &input, p.p0);
+        let broken = probe.simd_ne(f32x8::splat(0.0)).to_bitmask() & active;
+        reset_where(broken, &mut beta, &mut r, &input, p.p0);
         // Line 22: the output.
         let o = rls::predict_lanes(&beta, &x);
-        // The counts from bit masks (a lane loop over the flags was a branch per lane);
-        // `fresh` holds real lanes only, the others are masked to them.
-        let bits = |m: &Mask| lanes::mask_from(m).to_bitmask();
-        let real_bits = bits(&real);
-        let fresh_n = bits(&fresh).count_ones() as u64;
+        let fresh_n = (none & real).count_ones() as u64;
         counts.pixels.history_reset += fresh_n;
         counts.offscreen += if plan.has_history { fresh_n } else { 0 };
-        counts.pixels.history_clipped += (bits(&moved) & real_bits).count_ones() as u64;
-        counts.repaired +=
-            ((bits(&failed) & real_bits).count_ones() + (bits(&broken) & real_bits).count_ones()) as u64;
-        // Traces are at least 0 (0 where nothing was updated), as `max_trace` starts.
-        let real_trace = lanes::mask_from(&real).select(lanes::v(&trace), f32x8::splat(0.0));
-        counts.max_trace = real_trace.to_array().into_iter().fold(counts.max_trace, f32::max);
+        counts.pixels.history_clipped += (moved & real).count_ones() as u64;
+        counts.repaired += ((failed & real).count_ones() + (broken & real).count_ones()) as u64;
+        // Traces are at least 0 (0 where nothing was updated), as `max_trace` starts; the
+        // row's lanes are folded at its end (`f32::max` ignores NaN, as `max_of` with a
+        // NaN first operand, and the order of a maximum does not matter).
+        let real_trace = lanes::mask_of_bits(real).select(lanes::v(&trace), f32x8::splat(0.0));
+        max_trace = lanes::max_of(real_trace, max_trace);
         for (c, row) in [&mut *or, &mut *og, &mut *ob].into_iter().enumerate() {
             // `f32::clamp` written as comparisons (NaN passes, as there), in `f32x8` (as a
             // lane loop it stayed scalar).
@@ -673,5 +678,6 @@ fn model_row(
         state[R..R + P_LEN].copy_from_slice(&r);
         lanes::store_texels(&state, &mut next[TEXEL * x0..TEXEL * (x0 + n)]);
     }
+    counts.max_trace = max_trace.to_array().into_iter().fold(counts.max_trace, f32::max);
     counts
 }

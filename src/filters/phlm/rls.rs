@@ -33,7 +33,7 @@
 //! noisy feature P's condition grows without bound and f32 P turned NaN between 20,000 and
 //! 200,000 frames).
 
-use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
+use crate::kernels::lanes::{self, each, Lanes, LANES};
 use wide::{f32x8, f64x4};
 
 /// Number of features: the intercept and three feature channels (Iglesias-Guitian et al. 2016, sec. 6, "the final
@@ -575,10 +575,10 @@ fn update_block(
 }
 
 /// [`update_information`] for a block of pixels: lane `l` is updated (beta and R in place,
-/// with forgetting factor `lambda[l]`) when `active[l]`, exactly as the scalar function
-/// updates one pixel. Returns each lane's
-/// `trace(P)` (0 where nothing was updated) and which lanes failed (inactive lanes never
-/// fail; a failed lane is left unchanged, as the scalar function leaves it).
+/// with forgetting factor `lambda[l]`) when bit `l` of `active` is set, exactly as the
+/// scalar function updates one pixel. Returns each lane's `trace(P)` (0 where nothing was
+/// updated) and which lanes failed, as bits (inactive lanes never fail; a failed lane is
+/// left unchanged, as the scalar function leaves it).
 #[inline(always)]
 pub fn update_information_lanes(
     beta: &mut [[Lanes; D]; 3],
@@ -587,10 +587,10 @@ pub fn update_information_lanes(
     e: &[Lanes; 3],
     lambda: &Lanes,
     prior: f32,
-    active: &Mask,
-) -> (Lanes, Mask) {
+    active: u32,
+) -> (Lanes, u32) {
     let u = update_block(r, x, e, lambda, prior);
-    let active_bits = bits_of(active);
+    let active_bits = active;
     let ok_bits = u.ok & active_bits;
     let trace = f32x8::from(u.trace);
     // The new beta and R where the factorisation succeeded; every lane of most blocks
@@ -602,9 +602,9 @@ pub fn update_information_lanes(
             }
         }
         *r = u.r;
-        return (trace.to_array(), [false; LANES]);
+        return (trace.to_array(), 0);
     }
-    let ok = lanes::mask_from(&each(|m| ok_bits >> m & 1 != 0));
+    let ok = lanes::mask_of_bits(ok_bits);
     for c in 0..3 {
         for j in 0..D {
             let old = f32x8::from(beta[c][j]);
@@ -616,16 +616,7 @@ pub fn update_information_lanes(
         r[k] = ok.select(f32x8::from(u.r[k]), f32x8::from(r[k])).to_array();
     }
     let trace = ok.select(trace, f32x8::splat(0.0)).to_array();
-    let failed = each(|m| (active_bits & !ok_bits) >> m & 1 != 0);
-    (trace, failed)
-}
-
-/// The flags as bits (lane `l` is bit `l`): the flags' bytes (0 or 1) gathered into the
-/// top byte by one multiply (no two partial products meet, so nothing carries).
-#[inline(always)]
-fn bits_of(m: &Mask) -> u32 {
-    let bytes = u64::from_le_bytes(each(|l| m[l] as u8));
-    (bytes.wrapping_mul(0x0102_0408_1020_4080) >> 56) as u32
+    (trace, active_bits & !ok_bits)
 }
 
 /// The `(i, j)` of each packed index, `i <= j` (the inverse of [`SYM`]'s upper triangle).
@@ -686,6 +677,7 @@ fn unpack(p: &[f32; P_LEN]) -> [[f64; D]; D] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::kernels::lanes::Mask;
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
 
@@ -735,14 +727,6 @@ mod tests {
                 }
             }
             self.p = next;
-        }
-    }
-
-    #[test]
-    fn bits_of_gives_each_flag_as_its_bit() {
-        for bits in 0u32..256 {
-            let m: Mask = std::array::from_fn(|l| bits >> l & 1 == 1);
-            assert_eq!(bits_of(&m), bits);
         }
     }
 
@@ -1207,7 +1191,8 @@ mod tests {
             let lambda: Lanes = std::array::from_fn(|_| rng.range(0.7, 0.9999) as f32);
             let prior = rng.range(1e-4, 1.0) as f32;
             let (mut lb, mut lr) = (beta, r);
-            let (trace, failed) = update_information_lanes(&mut lb, &mut lr, &x, &e, &lambda, prior, &active);
+            let (trace, failed) =
+                update_information_lanes(&mut lb, &mut lr, &x, &e, &lambda, prior, lanes::bits_of(&active));
             for m in 0..LANES {
                 let mut sb: [[f32; D]; 3] = std::array::from_fn(|c| std::array::from_fn(|j| beta[c][j][m]));
                 let mut sr: [f32; P_LEN] = std::array::from_fn(|k| r[k][m]);
@@ -1224,7 +1209,7 @@ mod tests {
                 } else {
                     Some(0.0)
                 };
-                assert_eq!(got.is_none(), failed[m], "case {case} lane {m}");
+                assert_eq!(got.is_none(), failed >> m & 1 == 1, "case {case} lane {m}");
                 assert_eq!(
                     got.unwrap_or(0.0).to_bits(),
                     trace[m].to_bits(),
