@@ -641,8 +641,11 @@ fn model_row(
         // infinite or NaN one, so the sum is zero exactly when all are finite (float
         // lanes, which stay in vectors where a flag per coefficient would not).
         let mut probe = f32x8::splat(0.0);
-        for b in beta.iter().flatten() {
-            probe = probe + lanes::v(b) * f32x8::splat(0.0);
+        for b in &beta {
+            // Four at a time, so the loop unrolls.
+            for c in b {
+                probe = probe + lanes::v(c) * f32x8::splat(0.0);
+            }
         }
         let broken = probe.simd_ne(f32x8::splat(0.0)).to_bitmask() & active;
         reset_where(broken, &mut beta, &mut r, &input, p.p0);
