@@ -12,6 +12,10 @@
 //! Halton jitter (`AFTERIMAGE_JITTER=none` for pixel centres). `AFTERIMAGE_SCENES`:
 //! `catalogue` (default: the ten scenes of the catalogue, in its order), `noisy` (the four
 //! scenes of issue 21 with `--noise`), or a comma-separated list (`name` or `name+noise`).
+//! `AFTERIMAGE_NOISE_SIGMA=s` multiplies each input pixel's colour by `1 + s n` (n uniform,
+//! unit variance, a new draw per pixel and frame) and leaves the reference clean: not a
+//! rendering model but a probe of how well each filter averages strong per-pixel noise
+//! (docs/phlm-ablations.md, table 11).
 
 use afterimage::filters::create;
 use afterimage::frame::Frame;
@@ -42,7 +46,29 @@ fn render(spec: &str, jitter: Jitter) -> Vec<Frame> {
         shading: 1,
     };
     let scene = Scene::new(name, s).expect("a catalogue scene");
-    (0..s.frames).map(|i| scene.frame(i)).collect()
+    let sigma: f64 = std::env::var("AFTERIMAGE_NOISE_SIGMA")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0);
+    (0..s.frames)
+        .map(|i| {
+            let mut f = scene.frame(i);
+            if sigma > 0.0 {
+                // Each pixel's colour times `1 + sigma n`, n uniform with unit variance
+                // (floored at 0), one draw per pixel and frame; the reference stays clean.
+                let mut rng = afterimage::rng::SplitMix64::new(1000 + i);
+                let [r, g, b] = f.color_mut();
+                for k in 0..r.len() {
+                    let n = (rng.next_f64() * 2.0 - 1.0) * 3f64.sqrt();
+                    let m = (1.0 + sigma * n).max(0.0) as f32;
+                    r[k] *= m;
+                    g[k] *= m;
+                    b[k] *= m;
+                }
+            }
+            f
+        })
+        .collect()
 }
 
 /// The metrics and the mean fraction of pixels whose history was clipped per frame.
