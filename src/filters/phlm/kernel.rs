@@ -644,7 +644,7 @@ fn model_row(
         for b in &beta {
             // Four at a time, so the loop unrolls.
             for c in b {
-                probe = probe + lanes::v(c) * f32x8::splat(0.0);
+                probe += lanes::v(c) * f32x8::splat(0.0);
             }
         }
         let broken = probe.simd_ne(f32x8::splat(0.0)).to_bitmask() & active;
