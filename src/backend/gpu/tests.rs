@@ -603,7 +603,7 @@ fn f16_colour_widens_on_the_device_to_the_halves_values() {
         .flat_map(|b| [half_value(b) as f32, -(half_value(b) as f32)])
         .collect();
     v.extend([f32::NAN, 1e6, -1e6, 65519.0, 0.1]);
-    while v.len() % 3 != 0 || (v.len() / 3) % 2 == 0 {
+    while !v.len().is_multiple_of(3) || (v.len() / 3).is_multiple_of(2) {
         v.push(0.5);
     }
     let n = v.len() / 3;
