@@ -378,6 +378,56 @@ fn eval_uses_the_reference_channel_and_checks_sizes() {
     );
 }
 
+/// `--backend gpu-f16` (the GPU with f16 colour) is a backend like the others: refused
+/// with the build's reason where there is no GPU backend, else run, its records saying the
+/// colour went up as f16 and in fewer bytes than with `--backend gpu`.
+#[test]
+fn filter_takes_the_f16_upload_as_a_backend() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("in");
+    let d = input.to_str().unwrap();
+    let (ok, _, err) = run(&[
+        "scene", "flyover", "--frames", "2", "--size", "16x8", "--spp", "1", "-o", d,
+    ]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = run(&["filter", "--filter", "taa", "--backend", "cuda", "-i", d, "-o", d]);
+    assert!(!ok && err.contains("gpu-f16"), "{err}");
+    let device = |backend: &str| -> Option<serde_json::Value> {
+        let out = dir.path().join(backend);
+        let args = [
+            "filter",
+            "--filter",
+            "taa",
+            "--backend",
+            backend,
+            "-i",
+            d,
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        let (ok, _, err) = run(&args);
+        if !afterimage::backend::GPU_BUILT {
+            assert!(!ok && err.contains("--features gpu"), "{backend}: {err}");
+            return None;
+        }
+        assert!(ok, "{backend}: {err}");
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("records.json")).unwrap()).unwrap();
+        Some(v["frames"][1]["device"].clone())
+    };
+    if let (Some(f16), Some(f32)) = (device("gpu-f16"), device("gpu")) {
+        assert_eq!(
+            (f16["upload"].as_str(), f32["upload"].as_str()),
+            (Some("f16"), Some("f32"))
+        );
+        let bytes = |v: &serde_json::Value| v["upload_bytes"].as_u64().unwrap();
+        assert_eq!(bytes(&f32) - bytes(&f16), 16 * 8 * 6, "{f32} {f16}");
+    }
+    let (ok, out, err) = run(&["info", "--backends"]);
+    assert!(ok, "{err}");
+    assert_eq!(out.contains("f16"), afterimage::backend::GPU_BUILT, "{out}");
+}
+
 #[test]
 fn filter_cuts_drop_history_at_the_frames_named() {
     let dir = tempfile::tempdir().unwrap();

@@ -14,6 +14,12 @@
 //! precise [`BackendError`] when the build has no GPU backend, the machine no adapter, or
 //! the filter (or one of its parameter values) no GPU implementation; [`BackendChoice::Auto`]
 //! takes the GPU when all three are there, else the CPU, and says which it took.
+//! [`BackendChoice::GpuF16`] and [`BackendChoice::AutoF16`] are the same with the colour
+//! uploaded as f16 ([`UploadPrecision::F16`]: half its bytes, rounded to 11 significant
+//! bits). The precision rides on the backend's name (`gpu-f16`) rather than a separate
+//! option because the choice already flows everywhere a filter is made (the CLI's
+//! `--backend`, a report's `NAME@BACKEND`, a session's `backend`, the server's
+//! `default_backend`), and the precision means nothing without the GPU.
 
 #[cfg(feature = "gpu")]
 pub mod gpu;
@@ -24,7 +30,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 use thiserror::Error;
 
-pub use crate::pipeline::Backend;
+pub use crate::pipeline::{Backend, UploadPrecision};
 
 /// The backend a caller asks for.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -37,6 +43,36 @@ pub enum BackendChoice {
     Gpu,
     /// The GPU where the build, the machine and the filter allow it, else the CPU.
     Auto,
+    /// [`BackendChoice::Gpu`] with the colour uploaded as f16.
+    #[serde(rename = "gpu-f16")]
+    GpuF16,
+    /// [`BackendChoice::Auto`] with the colour uploaded as f16 where it takes the GPU.
+    #[serde(rename = "auto-f16")]
+    AutoF16,
+}
+
+impl BackendChoice {
+    /// Every choice, in the order help texts list them.
+    pub const ALL: [BackendChoice; 5] = [
+        BackendChoice::Cpu,
+        BackendChoice::Gpu,
+        BackendChoice::Auto,
+        BackendChoice::GpuF16,
+        BackendChoice::AutoF16,
+    ];
+
+    /// The precision of the colour upload where the choice takes the GPU.
+    pub fn upload(self) -> UploadPrecision {
+        match self {
+            BackendChoice::GpuF16 | BackendChoice::AutoF16 => UploadPrecision::F16,
+            _ => UploadPrecision::F32,
+        }
+    }
+
+    /// Whether the choice insists on the GPU (an error where there is none).
+    pub fn requires_gpu(self) -> bool {
+        matches!(self, BackendChoice::Gpu | BackendChoice::GpuF16)
+    }
 }
 
 impl std::str::FromStr for BackendChoice {
@@ -46,6 +82,8 @@ impl std::str::FromStr for BackendChoice {
             "cpu" => Ok(BackendChoice::Cpu),
             "gpu" => Ok(BackendChoice::Gpu),
             "auto" => Ok(BackendChoice::Auto),
+            "gpu-f16" => Ok(BackendChoice::GpuF16),
+            "auto-f16" => Ok(BackendChoice::AutoF16),
             _ => Err(BackendError::UnknownChoice { got: s.to_string() }),
         }
     }
@@ -57,6 +95,8 @@ impl std::fmt::Display for BackendChoice {
             BackendChoice::Cpu => "cpu",
             BackendChoice::Gpu => "gpu",
             BackendChoice::Auto => "auto",
+            BackendChoice::GpuF16 => "gpu-f16",
+            BackendChoice::AutoF16 => "auto-f16",
         })
     }
 }
@@ -64,8 +104,8 @@ impl std::fmt::Display for BackendChoice {
 /// Why a filter could not be had on the backend asked for.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum BackendError {
-    /// A choice other than cpu, gpu or auto.
-    #[error("unknown backend {got:?}; expected cpu, gpu or auto")]
+    /// A choice other than cpu, gpu, auto, gpu-f16 or auto-f16.
+    #[error("unknown backend {got:?}; expected cpu, gpu or auto (or gpu-f16, auto-f16: the GPU with the colour uploaded as f16)")]
     UnknownChoice {
         /// The text given.
         got: String,
@@ -169,6 +209,8 @@ pub struct Created {
     pub state_bytes_per_pixel: usize,
     /// Where it runs.
     pub backend: Backend,
+    /// The precision its colour goes up in (on the GPU; `None` on the CPU).
+    pub upload: Option<UploadPrecision>,
 }
 
 impl std::fmt::Debug for Created {
@@ -177,6 +219,7 @@ impl std::fmt::Debug for Created {
             .field("filter", &self.filter.name())
             .field("state_bytes_per_pixel", &self.state_bytes_per_pixel)
             .field("backend", &self.backend)
+            .field("upload", &self.upload)
             .finish()
     }
 }
@@ -220,11 +263,13 @@ pub fn create(
         filter,
         state_bytes_per_pixel: bytes,
         backend: Backend::Cpu,
+        upload: None,
     };
+    let upload = choice.upload();
     match choice {
         BackendChoice::Cpu => Ok(on_cpu(cpu)),
-        BackendChoice::Gpu => create_gpu(cpu.name(), values, bytes),
-        BackendChoice::Auto => match create_gpu(cpu.name(), values, bytes) {
+        BackendChoice::Gpu | BackendChoice::GpuF16 => create_gpu(cpu.name(), values, bytes, upload),
+        BackendChoice::Auto | BackendChoice::AutoF16 => match create_gpu(cpu.name(), values, bytes, upload) {
             Ok(made) => {
                 tracing::info!(filter = name, "backend auto: took the GPU");
                 Ok(made)
@@ -242,11 +287,13 @@ fn create_gpu(
     name: &'static str,
     values: &Map<String, Value>,
     bytes: usize,
+    upload: UploadPrecision,
 ) -> Result<Created, BackendError> {
     Ok(Created {
-        filter: gpu::create(name, values)?,
+        filter: gpu::create(name, values, upload)?,
         state_bytes_per_pixel: bytes,
         backend: Backend::Gpu,
+        upload: Some(upload),
     })
 }
 
@@ -255,6 +302,7 @@ fn create_gpu(
     _name: &'static str,
     _values: &Map<String, Value>,
     _bytes: usize,
+    _upload: UploadPrecision,
 ) -> Result<Created, BackendError> {
     Err(BackendError::NotBuilt)
 }
@@ -266,9 +314,17 @@ mod tests {
 
     #[test]
     fn choices_parse_and_print() {
-        for c in [BackendChoice::Cpu, BackendChoice::Gpu, BackendChoice::Auto] {
+        for c in BackendChoice::ALL {
             assert_eq!(c.to_string().parse::<BackendChoice>().unwrap(), c);
+            // The config file's spelling (serde) is the command line's.
+            let json = serde_json::to_value(c).unwrap();
+            assert_eq!(json, Value::from(c.to_string()));
+            assert_eq!(serde_json::from_value::<BackendChoice>(json).unwrap(), c);
         }
+        assert_eq!(BackendChoice::GpuF16.upload(), UploadPrecision::F16);
+        assert_eq!(BackendChoice::AutoF16.upload(), UploadPrecision::F16);
+        assert_eq!(BackendChoice::Gpu.upload(), UploadPrecision::F32);
+        assert!(BackendChoice::GpuF16.requires_gpu() && !BackendChoice::AutoF16.requires_gpu());
         let e = "cuda".parse::<BackendChoice>().unwrap_err().to_string();
         assert!(e.contains("\"cuda\"") && e.contains("cpu, gpu or auto"), "{e}");
     }
@@ -288,7 +344,7 @@ mod tests {
         }
         let mut bad = Map::new();
         bad.insert("alpha".into(), Value::from(7.0));
-        for c in [BackendChoice::Cpu, BackendChoice::Gpu, BackendChoice::Auto] {
+        for c in BackendChoice::ALL {
             let e = create("taa", &bad, c).unwrap_err();
             assert!(
                 matches!(e, BackendError::Filter(FilterError::BadParam { .. })),
@@ -306,11 +362,15 @@ mod tests {
     #[cfg(not(feature = "gpu"))]
     #[test]
     fn without_the_feature_gpu_is_refused_and_auto_takes_the_cpu() {
-        let e = create("taa", &Map::new(), BackendChoice::Gpu).unwrap_err();
-        assert_eq!(e, BackendError::NotBuilt);
-        assert!(e.to_string().contains("--features gpu"), "{e}");
-        let made = create("taa", &Map::new(), BackendChoice::Auto).unwrap();
-        assert_eq!(made.backend, Backend::Cpu);
+        for c in [BackendChoice::Gpu, BackendChoice::GpuF16] {
+            let e = create("taa", &Map::new(), c).unwrap_err();
+            assert_eq!(e, BackendError::NotBuilt);
+            assert!(e.to_string().contains("--features gpu"), "{e}");
+        }
+        for c in [BackendChoice::Auto, BackendChoice::AutoF16] {
+            let made = create("taa", &Map::new(), c).unwrap();
+            assert_eq!((made.backend, made.upload), (Backend::Cpu, None));
+        }
         assert!(adapters().is_empty() && gpu_filters().is_empty());
     }
 }

@@ -24,8 +24,10 @@ pub struct FilterArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub(super) set: Vec<String>,
     /// Where the filter runs: cpu, gpu (an error where the build, the machine or the filter
-    /// has none; see `afterimage backends`), or auto (the GPU where it can, else the CPU).
-    #[arg(long, default_value = "cpu", value_name = "cpu|gpu|auto")]
+    /// has none; see `afterimage backends`), or auto (the GPU where it can, else the CPU);
+    /// gpu-f16 and auto-f16 upload the colour to the GPU as f16 (half the bytes, 11
+    /// significant bits, clamped to +-65504; see the README's GPU backend section).
+    #[arg(long, default_value = "cpu", value_name = "cpu|gpu|auto|gpu-f16|auto-f16")]
     pub(super) backend: afterimage::backend::BackendChoice,
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]

@@ -66,6 +66,7 @@ fn backends(json: bool) -> anyhow::Result<()> {
             "cpu": { "threads": afterimage::pipeline::exec::pool().current_num_threads() },
             "gpu_built": GPU_BUILT,
             "gpu_filters": gpu_filters(),
+            "gpu_uploads": if GPU_BUILT { &["f32", "f16"][..] } else { &[][..] },
             "adapters": found,
         });
         outln!("{}", serde_json::to_string_pretty(&doc)?);
@@ -92,6 +93,9 @@ fn backends(json: bool) -> anyhow::Result<()> {
         );
     }
     outln!("gpu filters: {}", gpu_filters().join(", "));
+    outln!(
+        "gpu colour upload: f32 (--backend gpu or auto), or f16 (--backend gpu-f16 or auto-f16: half the colour's bytes, rounded to 11 significant bits, clamped to +-65504)"
+    );
     Ok(())
 }
 

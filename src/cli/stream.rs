@@ -45,8 +45,9 @@ pub struct StreamArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
     /// Where the server runs the filter: cpu, gpu or auto (default: the server's own
-    /// default). The session's answer says which it took.
-    #[arg(long, value_name = "cpu|gpu|auto")]
+    /// default); gpu-f16 or auto-f16 upload the colour to the GPU as f16. The session's
+    /// answer says which it took.
+    #[arg(long, value_name = "cpu|gpu|auto|gpu-f16|auto-f16")]
     backend: Option<afterimage::backend::BackendChoice>,
     /// Frames to send: a directory, pattern, glob or file.
     #[arg(

@@ -21,7 +21,7 @@ pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
 pub use record::{
     summarize_stages, Backend, DeviceTimes, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder,
-    Skip, StageRecord, StageSummary, WindowRecord,
+    Skip, StageRecord, StageSummary, UploadPrecision, WindowRecord,
 };
 pub use state::{FilterState, StateError};
 

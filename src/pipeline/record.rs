@@ -150,8 +150,44 @@ pub struct DeviceTimes {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub shaders_ms: Option<f64>,
     /// Host time from the submission to the colour in host memory, less `shaders_ms` where
-    /// known (the queue, the copy back and the map), milliseconds.
+    /// known (the queue, the copy back and the map; with f16 colour, also the untimed pass
+    /// that widens it to f32 on the device), milliseconds.
     pub readback_ms: f64,
+    /// The precision the frame's colour went up in.
+    pub upload: UploadPrecision,
+    /// Bytes the frame queued for the device: its channels and its parameters.
+    pub upload_bytes: u64,
+}
+
+/// The precision a GPU filter's colour planes go up to the device in. Motion, depth and
+/// the invalid mask always go as f32: f16's 11 significant bits leave a motion of 1024 to
+/// 2048 pixels a whole pixel's resolution, and depth three decimal digits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UploadPrecision {
+    /// 32-bit floats: the samples as the CPU filter sees them.
+    #[default]
+    F32,
+    /// IEEE half floats, two to a 32-bit word, widened to f32 on the device: half the
+    /// colour's bytes, each sample rounded to nearest (relative error at most 2^-11) and
+    /// held within +-65504 (f16's largest finite value; brighter HDR colour is clamped).
+    F16,
+}
+
+impl UploadPrecision {
+    /// Its name in records and options: `f32` or `f16`.
+    pub fn name(self) -> &'static str {
+        match self {
+            UploadPrecision::F32 => "f32",
+            UploadPrecision::F16 => "f16",
+        }
+    }
+}
+
+impl std::fmt::Display for UploadPrecision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// Where a filter runs: the CPU (on the crate's rayon pool; the reference) or a GPU (the

@@ -115,7 +115,7 @@ pub struct FilterSpec {
 
 impl FilterSpec {
     /// Parses `NAME[@BACKEND][:key=value...]` (`taa`, `traa:variant=baseline`,
-    /// `taa@gpu:alpha=0.2`; BACKEND cpu, gpu or auto, default cpu) and checks it against
+    /// `taa@gpu:alpha=0.2`; BACKEND cpu, gpu, auto, gpu-f16 or auto-f16, default cpu) and checks it against
     /// the registry (unknown filter, unknown parameter and out-of-bound values are refused
     /// here; a backend that cannot be had, when the filter is made).
     pub fn parse(spec: &str) -> Result<FilterSpec, ReportError> {
@@ -521,6 +521,9 @@ pub struct TimingRow {
     pub filter: String,
     /// Where it ran.
     pub backend: crate::backend::Backend,
+    /// The precision its colour went up to the GPU in (GPU rows only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub upload: Option<crate::backend::UploadPrecision>,
     /// Run time and memory.
     pub cost: Cost,
 }
@@ -786,7 +789,7 @@ fn time_filters(
     for spec in filters {
         let label = format!("{}x{}: {}", size.width, size.height, spec.label);
         let made = spec.create()?;
-        let backend = made.backend;
+        let (backend, upload) = (made.backend, made.upload);
         let mut filter = made.filter;
         let run_err = |index: u64, source| ReportError::Run {
             filter: spec.label.clone(),
@@ -818,6 +821,7 @@ fn time_filters(
         timing.push(TimingRow {
             filter: spec.label.clone(),
             backend,
+            upload,
             cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
         });
     }
@@ -834,6 +838,8 @@ mod tests {
         assert_eq!((s.name, s.backend), ("taa", BackendChoice::Auto));
         assert_eq!(s.label, "taa@auto:alpha=0.2");
         assert_eq!(FilterSpec::parse("taa").unwrap().backend, BackendChoice::Cpu);
+        let s = FilterSpec::parse("taa@gpu-f16:alpha=0.2").unwrap();
+        assert_eq!((s.name, s.backend), ("taa", BackendChoice::GpuF16));
         let e = FilterSpec::parse("taa@cuda").unwrap_err().to_string();
         assert!(e.contains("\"cuda\"") && e.contains("cpu, gpu or auto"), "{e}");
         let s = FilterSpec::parse("traa:variant=baseline").unwrap();

@@ -154,7 +154,7 @@ fn timing_table(o: &mut String, rows: &[TimingRow], t: TimingSize, what: &str) {
             o,
             "| {} | {} | {} | {:.1} | {} |",
             row.filter,
-            row.backend,
+            backend_label(row.backend, row.upload),
             cost_cells(&row.cost),
             1e3 / row.cost.time.median_ms,
             stages_text(&row.cost.stages)
@@ -286,9 +286,29 @@ pub fn csv(r: &Report) -> String {
     o
 }
 
+/// The timing table's backend cell: `cpu`, `gpu`, or `gpu-f16` where the colour went up as
+/// f16.
+fn backend_label(
+    backend: crate::backend::Backend,
+    upload: Option<crate::backend::UploadPrecision>,
+) -> String {
+    match upload {
+        Some(crate::backend::UploadPrecision::F16) => format!("{backend}-f16"),
+        _ => backend.to_string(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_backend_cell_says_an_f16_upload() {
+        use crate::backend::{Backend, UploadPrecision};
+        assert_eq!(backend_label(Backend::Cpu, None), "cpu");
+        assert_eq!(backend_label(Backend::Gpu, Some(UploadPrecision::F32)), "gpu");
+        assert_eq!(backend_label(Backend::Gpu, Some(UploadPrecision::F16)), "gpu-f16");
+    }
 
     #[test]
     fn csv_fields_are_quoted_only_when_needed() {

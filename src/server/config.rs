@@ -77,8 +77,9 @@ pub struct Config {
     /// This replica's name, said in "no such session" answers (empty: the `HOSTNAME`
     /// variable, which Kubernetes sets to the pod's name, else `local`).
     pub replica: String,
-    /// Where the filters of sessions that do not say run: cpu, gpu or auto (see
-    /// `afterimage info --backends`). gpu needs a build with `--features gpu`.
+    /// Where the filters of sessions that do not say run: cpu, gpu or auto, or gpu-f16 or
+    /// auto-f16 (the GPU with the colour uploaded as f16; see `afterimage info --backends`).
+    /// gpu and gpu-f16 need a build with `--features gpu`.
     pub default_backend: crate::backend::BackendChoice,
     /// Plain API keys from the environment (`AFTERIMAGE_API_KEYS`); never printed.
     #[serde(skip)]
@@ -323,11 +324,11 @@ impl Config {
                 got: "only one of them".into(),
             });
         }
-        if self.default_backend == crate::backend::BackendChoice::Gpu && !crate::backend::GPU_BUILT {
+        if self.default_backend.requires_gpu() && !crate::backend::GPU_BUILT {
             return Err(ConfigError::Invalid {
                 field: "default_backend",
                 expected: "cpu or auto (this build has no GPU backend: rebuild with --features gpu)".into(),
-                got: "gpu".into(),
+                got: self.default_backend.to_string(),
             });
         }
         if !(0.0..=1.0).contains(&self.max_non_finite_fraction) {

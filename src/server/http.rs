@@ -127,7 +127,7 @@ pub struct CreateBody {
     /// Channels that will be sent.
     #[serde(default)]
     pub channels: Vec<String>,
-    /// Where the filter runs: cpu, gpu or auto (default: the server's).
+    /// Where the filter runs: cpu, gpu, auto, gpu-f16 or auto-f16 (default: the server's).
     #[serde(default)]
     pub backend: String,
 }

@@ -40,13 +40,14 @@ impl StorageBuffer {
     }
 
     /// Queues `data` to be written at sample `at` (it reaches the device with the next
-    /// submission).
-    pub(crate) fn write(&self, gpu: &Gpu, at: usize, data: &[f32]) {
+    /// submission); the bytes queued.
+    pub(crate) fn write(&self, gpu: &Gpu, at: usize, data: &[f32]) -> u64 {
         debug_assert!(at + data.len() <= self.len);
         if !data.is_empty() {
             gpu.queue
                 .write_buffer(&self.buffer, (at * 4) as u64, bytemuck::cast_slice(data));
         }
+        (data.len() * 4) as u64
     }
 
     /// Bytes held on the device.
@@ -74,9 +75,10 @@ pub(crate) fn params_buffer(gpu: &Gpu, label: &str, words: &[u32]) -> wgpu::Buff
     buffer
 }
 
-/// Queues `words` to be written at the start of `buffer`.
-pub(crate) fn write_words(gpu: &Gpu, buffer: &wgpu::Buffer, words: &[u32]) {
+/// Queues `words` to be written at the start of `buffer`; the bytes queued.
+pub(crate) fn write_words(gpu: &Gpu, buffer: &wgpu::Buffer, words: &[u32]) -> u64 {
     gpu.queue.write_buffer(buffer, 0, bytemuck::cast_slice(words));
+    (words.len() * 4) as u64
 }
 
 /// Planes of a `width` x `height` image from `words` read back, plane after plane.

@@ -3,6 +3,7 @@
 
 use super::buffers::params_buffer;
 use super::timing::{begin, FrameClock, PassTimer};
+use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::fxaa::{Fxaa, Params};
@@ -10,7 +11,7 @@ use crate::frame::Frame;
 use crate::pipeline::params::build;
 use crate::pipeline::{
     check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
-    Recorder, StateError,
+    Recorder, StateError, UploadPrecision,
 };
 use serde_json::{Map, Value};
 use std::sync::Arc;
@@ -23,6 +24,8 @@ const WORKGROUP: usize = 8;
 struct Buffers {
     n: usize,
     color: StorageBuffer,
+    /// The colour's way into `color`.
+    upload: ColorUpload,
     luma: StorageBuffer,
     out: StorageBuffer,
     /// The two passes' timestamps, where the device has them.
@@ -36,6 +39,7 @@ struct Buffers {
 pub struct GpuFxaa {
     gpu: Arc<Gpu>,
     params: Params,
+    upload: UploadPrecision,
     luma: wgpu::ComputePipeline,
     fxaa: wgpu::ComputePipeline,
     buffers: Option<Buffers>,
@@ -43,10 +47,16 @@ pub struct GpuFxaa {
 }
 
 impl GpuFxaa {
-    /// The filter with `values` overriding the defaults.
-    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        values: &Map<String, Value>,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
         let params: Params = build(Fxaa::NAME, values)?;
         Ok(GpuFxaa {
+            upload,
             luma: pipeline(&gpu, "fxaa luma", SOURCE, "luma_pass"),
             fxaa: pipeline(&gpu, "fxaa", SOURCE, "fxaa_pass"),
             gpu,
@@ -67,9 +77,11 @@ impl GpuFxaa {
             let gpu = &self.gpu;
             let timer = PassTimer::new(gpu, 2);
             let timer_words = timer.as_ref().map_or(0, PassTimer::words);
+            let color = StorageBuffer::new(gpu, "fxaa colour", 3 * n)?;
             self.buffers = Some(Buffers {
                 n,
-                color: StorageBuffer::new(gpu, "fxaa colour", 3 * n)?,
+                upload: ColorUpload::new(gpu, self.upload, &color, n)?,
+                color,
                 luma: StorageBuffer::new(gpu, "fxaa luma", n)?,
                 out: StorageBuffer::new(gpu, "fxaa output", 3 * n)?,
                 back: Readback::new(gpu, "fxaa readback", 3 * n + timer_words),
@@ -77,27 +89,25 @@ impl GpuFxaa {
             });
         }
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("just made");
-        for (k, p) in inp.color.iter().enumerate() {
-            b.color.write(gpu, k * n, p.data());
-        }
+        let b = self.buffers.as_mut().expect("just made");
+        let mut bytes = b.upload.write(gpu, &b.color, &inp.color);
+        let b = &*b;
         let p = &self.params;
-        let params = params_buffer(
-            gpu,
-            "fxaa params",
-            &[
-                w as u32,
-                h as u32,
-                inp.facts.hdr as u32,
-                0,
-                p.subpix.to_bits(),
-                p.edge_threshold.to_bits(),
-                p.edge_threshold_min.to_bits(),
-                0,
-            ],
-        );
+        let param_words = [
+            w as u32,
+            h as u32,
+            inp.facts.hdr as u32,
+            0,
+            p.subpix.to_bits(),
+            p.edge_threshold.to_bits(),
+            p.edge_threshold_min.to_bits(),
+            0,
+        ];
+        let params = params_buffer(gpu, "fxaa params", &param_words);
+        bytes += (param_words.len() * 4) as u64;
         let (gx, gy) = groups(w, h, WORKGROUP);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
+        b.upload.encode(gpu, &mut enc);
         let timer = b.timer.as_ref();
         for (k, (pipe, buffers)) in [
             (&self.luma, vec![&params, &b.color.buffer, &b.luma.buffer]),
@@ -128,7 +138,7 @@ impl GpuFxaa {
         // One pass per stage: each its own device time where there are timestamps, else
         // the frame's round trip shared evenly.
         let pass_ms = timer.map(|t| t.pass_ms(&self.words[3 * n..], 2));
-        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()));
+        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
         let each = match &pass_ms {
             Some(v) => [v[0], v[1]],
             None => [(device.upload_ms + device.readback_ms) / 2.0; 2],

@@ -9,6 +9,9 @@
 //! ([`crate::pipeline::prepare`]), so both backends see the same repaired input and write
 //! the same records. Shader sources are `common.wgsl` followed by the filter's own.
 //!
+//! The colour goes up as f32 or, at the caller's choice ([`UploadPrecision::F16`]), as f16
+//! widened on the device (`upload`); motion, depth and the invalid mask always as f32.
+//!
 //! Filters here: `passthrough`, `fxaa`, `taa` and `phlm` (its per-pixel 4x4 solve in f32:
 //! [`crate::filters::phlm::rls::update_information_f32`]). Left for later: `traa`,
 //! `upsample`, `pixel_trace`.
@@ -19,9 +22,10 @@ mod passthrough;
 mod phlm;
 mod taa;
 mod timing;
+mod upload;
 
 use super::{AdapterInfo, BackendError};
-use crate::pipeline::Filter;
+use crate::pipeline::{Filter, UploadPrecision};
 use serde_json::{Map, Value};
 use std::sync::{Arc, OnceLock};
 
@@ -39,6 +43,15 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     /// The adapter it was opened on.
     pub adapter: AdapterInfo,
+    /// The pass widening f16 colour to f32 (`upload`), compiled on first use.
+    unpack: OnceLock<wgpu::ComputePipeline>,
+}
+
+impl Gpu {
+    /// The pass widening f16 colour to f32, compiled on its first use.
+    pub(crate) fn unpack(&self) -> &wgpu::ComputePipeline {
+        self.unpack.get_or_init(|| upload::unpack_pipeline(self))
+    }
 }
 
 fn instance() -> wgpu::Instance {
@@ -89,6 +102,7 @@ fn open() -> Result<Gpu, String> {
         device,
         queue,
         adapter,
+        unpack: OnceLock::new(),
     })
 }
 
@@ -102,8 +116,12 @@ pub fn shared() -> Result<Arc<Gpu>, BackendError> {
 }
 
 /// Filter `name` on the GPU, `values` overriding its defaults (already checked by the
-/// registry).
-pub fn create(name: &'static str, values: &Map<String, Value>) -> Result<Box<dyn Filter>, BackendError> {
+/// registry), its colour uploaded at `upload` precision.
+pub fn create(
+    name: &'static str,
+    values: &Map<String, Value>,
+    upload: UploadPrecision,
+) -> Result<Box<dyn Filter>, BackendError> {
     let known = || BackendError::FilterNotOnGpu {
         filter: name.to_string(),
         have: FILTERS.join(", "),
@@ -113,10 +131,10 @@ pub fn create(name: &'static str, values: &Map<String, Value>) -> Result<Box<dyn
     }
     let gpu = shared()?;
     match name {
-        "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu))),
-        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values)?)),
-        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values)?)),
-        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, values)?)),
+        "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload))),
+        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values, upload)?)),
+        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values, upload)?)),
+        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, values, upload)?)),
         _ => Err(known()),
     }
 }

@@ -1,13 +1,15 @@
 //! `passthrough` on the GPU: the repaired colour through the device and back. The
-//! round trip's floor: what any GPU filter pays for its upload and readback.
+//! round trip's floor: what any GPU filter pays for its upload and readback. With f16
+//! upload the colour comes back widened (`upload`): rounded to f16, not bit for bit.
 
+use super::upload::ColorUpload;
 use super::{Gpu, Readback, StorageBuffer};
 use crate::backend::BackendError;
 use crate::filters::passthrough::{Params, Passthrough};
 use crate::frame::Frame;
 use crate::pipeline::{
     check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
-    Recorder, StateError,
+    Recorder, StateError, UploadPrecision,
 };
 use serde_json::Value;
 use std::sync::Arc;
@@ -16,16 +18,18 @@ use std::sync::Arc;
 #[derive(Debug)]
 pub struct GpuPassthrough {
     gpu: Arc<Gpu>,
-    /// The colour on the device and its readback, for the last frame size.
-    buffers: Option<(usize, StorageBuffer, Readback)>,
+    upload: UploadPrecision,
+    /// The colour on the device, its readback and its upload, for the last frame size.
+    buffers: Option<(usize, StorageBuffer, Readback, ColorUpload)>,
     words: Vec<f32>,
 }
 
 impl GpuPassthrough {
-    /// The filter on `gpu`.
-    pub fn new(gpu: Arc<Gpu>) -> Self {
+    /// The filter on `gpu`, its colour uploaded at `upload` precision.
+    pub fn new(gpu: Arc<Gpu>, upload: UploadPrecision) -> Self {
         GpuPassthrough {
             gpu,
+            upload,
             buffers: None,
             words: Vec::new(),
         }
@@ -39,17 +43,19 @@ impl GpuPassthrough {
         let n = w * h;
         let mut clock = super::timing::FrameClock::start();
         if self.buffers.as_ref().map(|b| b.0) != Some(n) {
+            let dev = StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n)?;
+            let upload = ColorUpload::new(&self.gpu, self.upload, &dev, n)?;
             self.buffers = Some((
                 n,
-                StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n)?,
+                dev,
                 Readback::new(&self.gpu, "passthrough readback", 3 * n),
+                upload,
             ));
         }
-        let (_, dev, back) = self.buffers.as_ref().expect("just made");
-        for (k, p) in inp.color.iter().enumerate() {
-            dev.write(&self.gpu, k * n, p.data());
-        }
+        let (_, dev, back, upload) = self.buffers.as_mut().expect("just made");
+        let bytes = upload.write(&self.gpu, dev, &inp.color);
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        upload.encode(&self.gpu, &mut enc);
         back.copy_from(&mut enc, &dev.buffer, 0, 3 * n);
         self.gpu.queue.submit([enc.finish()]);
         clock.submitted();
@@ -57,7 +63,7 @@ impl GpuPassthrough {
         clock.back();
         let color = super::buffers::planes_from(&self.words, w, h)?;
         // No shader: the copy is the upload and the readback.
-        let device = clock.times(None);
+        let device = clock.times(None, self.upload, bytes);
         rec.ran_for("copy", device.upload_ms + device.readback_ms);
         let mut record = rec.finish(
             Passthrough::NAME,

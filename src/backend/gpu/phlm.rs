@@ -10,6 +10,7 @@
 
 use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
+use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::backend::BackendError;
 use crate::filters::passes::{dilate_skip, reproject_skip};
@@ -20,7 +21,7 @@ use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
 use crate::pipeline::{
     check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, ModelHealth,
-    Output, PixelCounts, Recorder, StateError,
+    Output, PixelCounts, Recorder, StateError, UploadPrecision,
 };
 use serde_json::{Map, Value};
 use std::sync::Arc;
@@ -67,6 +68,8 @@ struct Buffers {
     height: usize,
     params: wgpu::Buffer,
     input: StorageBuffer,
+    /// The colour's way into `input`.
+    upload: ColorUpload,
     /// The models, in [`PARTS`]: `state[read]` is the previous frame's, the other is
     /// written.
     state: [[StorageBuffer; 3]; 2],
@@ -86,10 +89,12 @@ impl Buffers {
         pass: &wgpu::ComputePipeline,
         width: usize,
         height: usize,
+        upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let n = width * height;
         let params = params_buffer(gpu, "phlm params", &[0; 16]);
         let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n)?;
+        let upload = ColorUpload::new(gpu, upload, &input, n)?;
         let models = || -> Result<[StorageBuffer; 3], BackendError> {
             let [a, b, c] = PARTS.map(|(label, planes)| StorageBuffer::new(gpu, label, planes * n));
             Ok([a?, b?, c?])
@@ -123,6 +128,7 @@ impl Buffers {
             height,
             params,
             input,
+            upload,
             state,
             out,
             counters,
@@ -138,6 +144,8 @@ impl Buffers {
 pub struct GpuPhlm {
     gpu: Arc<Gpu>,
     params: Params,
+    /// The precision of the colour's upload.
+    upload: UploadPrecision,
     pass: wgpu::ComputePipeline,
     buffers: Option<Buffers>,
     /// Which of `buffers.state` holds the previous frame's models.
@@ -151,10 +159,16 @@ pub struct GpuPhlm {
 }
 
 impl GpuPhlm {
-    /// The filter with `values` overriding the defaults.
-    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        values: &Map<String, Value>,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
         let params: Params = build(Phlm::NAME, values)?;
         Ok(GpuPhlm {
+            upload,
             pass: pipeline(&gpu, "phlm", &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
             gpu,
             params,
@@ -174,7 +188,7 @@ impl GpuPhlm {
             self.buffers = None;
             self.valid = false;
             self.read = 0;
-            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height)?);
+            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height, self.upload)?);
         }
         Ok(())
     }
@@ -335,25 +349,26 @@ impl GpuPhlm {
         let words = Self::param_words(p, w, h, flags, hi);
 
         let gpu = Arc::clone(&self.gpu);
-        let b = self.buffers.as_ref().expect("sized");
-        write_words(&gpu, &b.params, &words);
-        for (k, plane) in inp.color.iter().enumerate() {
-            b.input.write(&gpu, k * n, plane.data());
-        }
+        let b = self.buffers.as_mut().expect("sized");
+        let mut bytes = write_words(&gpu, &b.params, &words);
+        // The colour (as f32 or f16), then motion, depth and the invalid mask as f32.
+        bytes += b.upload.write(&gpu, &b.input, &inp.color);
+        let b = &*b;
         if let Some(m) = inp.motion.as_deref() {
             for (k, plane) in m.iter().enumerate() {
-                b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
             }
         }
         if let (None, Some(d)) = (&dilate, inp.depth.as_deref()) {
-            b.input.write(&gpu, IN_DEPTH * n, d.data());
+            bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
         }
         if let Some(invalid) = &inp.invalid {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            b.input.write(&gpu, IN_INVALID * n, &mask);
+            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
         }
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        write_words(&gpu, &b.counters, &[0; COUNTERS]);
+        bytes += write_words(&gpu, &b.counters, &[0; COUNTERS]);
+        b.upload.encode(&gpu, &mut enc);
         {
             let (gx, gy) = groups(w, h, WORKGROUP);
             let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
@@ -381,7 +396,7 @@ impl GpuPhlm {
         let color = planes_from(&self.words, w, h)?;
         let c: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
         let shaders_ms = b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]);
-        let device = clock.times(shaders_ms);
+        let device = clock.times(shaders_ms, self.upload, bytes);
 
         // The CPU filter's stages, run or left out for the same reasons; one pass runs them
         // all, so they share its device time (without timestamps, the frame's round trip).

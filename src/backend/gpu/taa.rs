@@ -6,6 +6,7 @@
 
 use super::buffers::{download, params_buffer, write_words};
 use super::timing::{self, FrameClock, PassTimer};
+use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::backend::BackendError;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
@@ -13,7 +14,7 @@ use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
 use crate::pipeline::{
     check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
-    PixelCounts, Recorder, StateError,
+    PixelCounts, Recorder, StateError, UploadPrecision,
 };
 use serde_json::{Map, Value};
 use std::sync::Arc;
@@ -87,6 +88,8 @@ struct Buffers {
     params: wgpu::Buffer,
     convert_params: wgpu::Buffer,
     input: StorageBuffer,
+    /// The colour's way into `input`.
+    upload: ColorUpload,
     /// The history: `hist[read]` is the previous frame's, the other is written.
     hist: [StorageBuffer; 2],
     counters: wgpu::Buffer,
@@ -112,12 +115,14 @@ impl Buffers {
         width: usize,
         height: usize,
         depth: bool,
+        upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let n = width * height;
         let hist_len = n * (4 + depth as usize);
         let params = params_buffer(gpu, "taa params", &[0; 8]);
         let convert_params = params_buffer(gpu, "taa convert params", &[0; 8]);
         let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
+        let upload = ColorUpload::new(gpu, upload, &input, n)?;
         let hist = [
             StorageBuffer::new(gpu, "taa history", hist_len)?,
             StorageBuffer::new(gpu, "taa history", hist_len)?,
@@ -151,6 +156,7 @@ impl Buffers {
             params,
             convert_params,
             input,
+            upload,
             hist,
             counters,
             resolve,
@@ -168,6 +174,8 @@ impl Buffers {
 pub struct GpuTaa {
     gpu: Arc<Gpu>,
     params: Params,
+    /// The precision of the colour's upload.
+    upload: UploadPrecision,
     passes: Passes,
     buffers: Option<Buffers>,
     /// Which of `buffers.hist` holds the previous frame.
@@ -181,10 +189,16 @@ pub struct GpuTaa {
 }
 
 impl GpuTaa {
-    /// The filter with `values` overriding the defaults.
-    pub fn new(gpu: Arc<Gpu>, values: &Map<String, Value>) -> Result<Self, BackendError> {
+    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        values: &Map<String, Value>,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
         let params: Params = build(Taa::NAME, values)?;
         Ok(GpuTaa {
+            upload,
             passes: Passes::new(&gpu),
             gpu,
             params,
@@ -209,7 +223,14 @@ impl GpuTaa {
             self.buffers = None;
             self.valid = false;
             self.read = 0;
-            self.buffers = Some(Buffers::new(&self.gpu, &self.passes, width, height, depth)?);
+            self.buffers = Some(Buffers::new(
+                &self.gpu,
+                &self.passes,
+                width,
+                height,
+                depth,
+                self.upload,
+            )?);
         }
         Ok(self.buffers.as_ref().expect("just made"))
     }
@@ -345,34 +366,35 @@ impl GpuTaa {
         let words = self.param_words(w, h, flags);
         let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 });
         let convert = has_history && self.tonemapped != hdr;
-        let b = self.buffers.as_ref().expect("sized");
 
-        // Upload what the plan reads.
-        for (k, plane) in inp.color.iter().enumerate() {
-            b.input.write(&gpu, k * n, plane.data());
-        }
+        // Upload what the plan reads: the colour (as f32 or f16), then motion, depth and
+        // the invalid mask as f32.
+        let b = self.buffers.as_mut().expect("sized");
+        let mut bytes = b.upload.write(&gpu, &b.input, &inp.color);
+        let b = &*b;
         if plan.reproject.is_none() {
             let m = inp.motion.as_deref().expect("reprojection needs motion");
             for (k, plane) in m.iter().enumerate() {
-                b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
             }
         }
         if let Some(d) = inp.depth.as_deref() {
             if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
-                b.input.write(&gpu, IN_DEPTH * n, d.data());
+                bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
             }
         }
         if let Some(invalid) = &inp.invalid {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            b.input.write(&gpu, IN_INVALID * n, &mask);
+            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
         }
-        write_words(&gpu, &b.params, &words);
+        bytes += write_words(&gpu, &b.params, &words);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&b.counters, 0, None);
+        b.upload.encode(&gpu, &mut enc);
         let timer = b.timer.as_ref();
         let mut passes = 0;
         if convert {
-            write_words(&gpu, &b.convert_params, &convert_words);
+            bytes += write_words(&gpu, &b.convert_params, &convert_words);
             let groups = n.div_ceil(64);
             let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
             let mut pass = timing::begin(&mut enc, timer, passes);
@@ -419,7 +441,7 @@ impl GpuTaa {
         let color = super::buffers::planes_from(&self.words, w, h)?;
         let counts: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
         let pass_ms = timer.map(|t| t.pass_ms(&self.words[timer_at..], passes));
-        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()));
+        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
 
         // The same stages as the CPU filter's record, run or left out for the same reasons.
         // With timestamps `sharpen` gets its pass's time and the others share the rest (one

@@ -3,7 +3,7 @@
 //! around them, and the stages' shares in the frame's record.
 
 use super::{Gpu, Readback};
-use crate::pipeline::{DeviceTimes, Recorder, Skip};
+use crate::pipeline::{DeviceTimes, Recorder, Skip, UploadPrecision};
 use std::time::Instant;
 
 /// Timestamps at the start and end of up to `passes` compute passes of one frame.
@@ -121,8 +121,9 @@ impl FrameClock {
         self.back = Some(Instant::now());
     }
 
-    /// The frame's device times, `shaders_ms` from timestamps where there are some.
-    pub(crate) fn times(&self, shaders_ms: Option<f64>) -> DeviceTimes {
+    /// The frame's device times, `shaders_ms` from timestamps where there are some, with
+    /// the `bytes` it uploaded and their colour's `upload` precision.
+    pub(crate) fn times(&self, shaders_ms: Option<f64>, upload: UploadPrecision, bytes: u64) -> DeviceTimes {
         let ms = |a: Instant, b: Instant| b.saturating_duration_since(a).as_secs_f64() * 1e3;
         let submitted = self.submitted.unwrap_or(self.start);
         let back = self.back.unwrap_or(submitted);
@@ -131,6 +132,8 @@ impl FrameClock {
             upload_ms: ms(self.start, submitted),
             shaders_ms,
             readback_ms: (round_trip - shaders_ms.unwrap_or(0.0)).max(0.0),
+            upload,
+            upload_bytes: bytes,
         }
     }
 }
