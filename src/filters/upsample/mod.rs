@@ -106,7 +106,7 @@ impl Method {
     /// History planes the method keeps.
     fn planes(self) -> usize {
         match self {
-            Method::Spatiotemporal => 11,
+            Method::Spatiotemporal => 13,
             Method::Temporal => 5,
             Method::Taa => 4,
             Method::Spatial => 0,
@@ -127,7 +127,8 @@ const DEPTH: usize = 4;
 const ID: usize = 5;
 const G1: usize = 6;
 /// Luma of the pixel's last shaded sample times `K`, and `K`: 1 where that sample is known
-/// (both carried along the motion; their ratio survives bilinear fetches across unknowns).
+/// (both carried along the motion; their ratio survives bilinear fetches across unknowns);
+/// then the same two for the shaded sample before it (`gradient_lag` 2).
 const LK: usize = 9;
 
 filter_params! {
@@ -142,6 +143,9 @@ filter_params! {
         gradient_scale: f32 = 1.0,
             ParamKind::Float { min: 0.01, max: 100.0 },
             "relative luma gradient at which history is no longer trusted (Herzog et al. 2010, eq. 8: 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag";
+        gradient_lag: u32 = GRADIENT_LAG,
+            ParamKind::Int { min: 1, max: 2 },
+            "which of the pixel's past shaded samples the temporal gradient compares its new sample with: 1, the last (Herzog et al. 2010, sec. 3.4), or 2, the one before it (1 where that is unknown). With 8-phase jitter and 2x2 shading (period 4) that sample had the same jitter offset, so the sub-pixel offset stops reading as change; a change of the shading is measured over twice the time";
         gradient_cancel: f32 = GRADIENT_CANCEL,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "share of the gradient that changes of random sign may cancel: the confidence reads the filtered magnitudes (Herzog et al. 2010, sec. 3.4; 0) less this share of what the same filters cancel on the signed gradients (1). Higher: Monte Carlo noise and jittered samples of sub-pixel detail stop reading as change and history is kept; lower: history resampled under motion, blurred, is caught and replaced sooner";
@@ -178,6 +182,11 @@ filter_params! {
 /// blurs textures in ways of random sign: at 1 the noise-free flyover falls below temporal
 /// reprojection (25.23 against 25.27 dB), at 0.75 it stays above (25.32).
 pub const GRADIENT_CANCEL: f32 = 0.75;
+
+/// Default `gradient_lag`: see the parameter (Herzog et al. 2010, sec. 3.4 compare with the
+/// last shaded sample, 1). Chosen on the mean over the ten catalogue scenes
+/// (docs/upsample-realistic.md).
+pub const GRADIENT_LAG: u32 = 1;
 
 /// Default `neighbour_motion` (px): how closely the surface of a history tap that failed
 /// the validity test of Herzog et al. 2010, sec. 3.2 must move with the pixel when one of the
@@ -315,6 +324,14 @@ mod tests {
             &["method=spatiotemporal"],
             &["method=spatiotemporal", "gradient_cancel=0"],
             &["method=spatiotemporal", "neighbour_motion=0.5"],
+            &["method=spatiotemporal", "gradient_lag=2"],
+            &["method=spatiotemporal", "gradient_lag=1"],
+            &[
+                "method=spatiotemporal",
+                "gradient_lag=2",
+                "gradient_cancel=0",
+                "decay=0.6",
+            ],
             &[
                 "method=spatiotemporal",
                 "neighbour_motion=50",
