@@ -41,8 +41,8 @@ const GRADIENT: usize = 1;
 const BLEND: usize = 2;
 
 /// Texel sizes of the history: `spatiotemporal` [R, G, B, W, depth, id, G1, G2, G3, LK,
-/// K], `temporal` [R, G, B, depth, id], `taa` [R, G, B, count] (the reference's planes).
-const ST: usize = 11;
+/// K, LK2, K2], `temporal` [R, G, B, depth, id], `taa` [R, G, B, count] (the reference's planes).
+const ST: usize = 13;
 const TM: usize = 5;
 const TA: usize = 4;
 
@@ -715,7 +715,9 @@ pub(super) fn frame(
         let mut counts = PixelCounts::default();
         match method {
             Method::Spatiotemporal => {
-                clock.time(GRADIENT, || gradient_band(&fr, rp, band, rows.clone()));
+                clock.time(GRADIENT, || {
+                    gradient_band(&fr, rp, p.gradient_lag == 2, band, rows.clone())
+                });
             }
             Method::Spatial | Method::Temporal | Method::Taa => {}
         }
@@ -1000,7 +1002,8 @@ fn box_radius(f: isize) -> usize {
 /// `spatiotemporal`'s stage `gradient` for a band: the raw gradient (Herzog et al. 2010,
 /// sec. 3.4; see [`super::reference`]) and its temporal filter for the band's rows and
 /// `r` rows each side, into the band's buffers.
-fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<usize>) {
+/// With `lag2` a sample is compared with the shaded sample before the last (`gradient_lag`).
+fn gradient_band(fr: &Setup, rp: Option<&[f32]>, lag2: bool, band: &mut Band, rows: Range<usize>) {
     let (w, h) = (fr.w, fr.h);
     let r = box_radius(fr.f);
     let (ylo, yhi) = (rows.start.saturating_sub(r), (rows.end + r).min(h));
@@ -1031,8 +1034,10 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, band: &mut Band, rows: Range<us
                                 let t: &[f32; ST] = rp[ST * j..ST * j + ST].try_into().expect("a texel");
                                 if t[DEPTH] >= 0.5 {
                                     let l = crate::kernels::luma(sp.color.map(|p| p[kk]));
-                                    let known = t[LK + 1];
-                                    let before = if known >= 0.5 {
+                                    let (known, known2) = (t[LK + 1], t[LK + 3]);
+                                    let before = if lag2 && known2 >= 0.5 {
+                                        t[LK + 2] / known2
+                                    } else if known >= 0.5 {
                                         t[LK] / known
                                     } else {
                                         crate::kernels::luma([t[R], t[R + 1], t[R + 2]])
@@ -1162,7 +1167,7 @@ fn st_row<const D: bool, const N: bool>(
         let g = PixelGeo::load::<D, N>(fr, y, x0);
         let image: [[Lanes; 3]; 3] = three(|k| three(|s| falloff_v(f32x8::from(dist[k][s]), inv).to_array()));
         let (sum, wsum) = gather_lanes::<D, N>(fr, &slots, x0, &g, &image);
-        let (prev, wh, pg, hk): ([Lanes; 3], Lanes, [Lanes; 2], [Lanes; 2]) = match row {
+        let (prev, wh, pg, hk, hk2): ([Lanes; 3], Lanes, [Lanes; 2], [Lanes; 2], [Lanes; 2]) = match row {
             Some(t) => {
                 let ch = |k: usize| ld_texel(t, ST, k, x0);
                 let (wgt, frac) = (ch(W), ch(DEPTH));
@@ -1171,12 +1176,14 @@ fn st_row<const D: bool, const N: bool>(
                     each(|l| c[l] * wgt[l] * frac[l]),
                     [ch(G1), ch(G1 + 1)],
                     [ch(LK), ch(LK + 1)],
+                    [ch(LK + 2), ch(LK + 3)],
                 )
             }
             None => (
                 [[0.0; LANES]; 3],
                 [0.0; LANES],
                 [[1.0; LANES]; 2],
+                [[0.0; LANES]; 2],
                 [[0.0; LANES]; 2],
             ),
         };
@@ -1190,13 +1197,20 @@ fn st_row<const D: bool, const N: bool>(
         let (own_c, own) = own_lanes(fr, &slots, my, x0);
         let lk = lanes::select(&own, &luma_lanes(&own_c), &hk[0]);
         let kn = lanes::select(&own, &[1.0; LANES], &hk[1]);
+        // The sample before: the last one where a new one comes.
+        let lk2 = lanes::select(&own, &hk[0], &hk2[0]);
+        let kn2 = lanes::select(&own, &hk[1], &hk2[1]);
         lanes::store(or, x0, &v[0]);
         lanes::store(og, x0, &v[1]);
         lanes::store(ob, x0, &v[2]);
         let (d, i) = depth_ids(fr, y, x0);
         let n = ld(now, x0);
         let wn = lanes::map(&total, |t| decay * t);
-        st_texels::<ST>(next, x0, &[v[0], v[1], v[2], wn, d, i, n, pg[0], pg[1], lk, kn]);
+        st_texels::<ST>(
+            next,
+            x0,
+            &[v[0], v[1], v[2], wn, d, i, n, pg[0], pg[1], lk, kn, lk2, kn2],
+        );
     }
     PixelCounts::default()
 }

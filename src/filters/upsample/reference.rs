@@ -113,7 +113,7 @@ impl ReferenceUpsample {
                 };
                 match method {
                     Method::Spatiotemporal => {
-                        let mut o: [Plane<f32>; 9] = scratch.planes(w, h);
+                        let mut o: [Plane<f32>; 11] = scratch.planes(w, h);
                         let lost = reproject(
                             [
                                 src(R),
@@ -125,6 +125,8 @@ impl ReferenceUpsample {
                                 src(G1 + 2),
                                 src(LK),
                                 src(LK + 1),
+                                src(LK + 2),
+                                src(LK + 3),
                             ],
                             motion,
                             Some(&validity),
@@ -187,6 +189,7 @@ impl ReferenceUpsample {
                     h,
                     p.gradient_scale,
                     p.gradient_cancel,
+                    p.gradient_lag,
                     grad_now.data_mut(),
                     conf.data_mut(),
                     scratch,
@@ -204,13 +207,15 @@ impl ReferenceUpsample {
                     let (c, g0) = (conf.data(), grad_now.data());
                     let [o0, o1, o2] = slices_mut(&mut out);
                     let mut it = next.iter_mut();
-                    let n: [&mut [f32]; 11] =
-                        std::array::from_fn(|_| it.next().expect("11 planes").data_mut());
-                    let [n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk] = n;
+                    let n: [&mut [f32]; 13] =
+                        std::array::from_fn(|_| it.next().expect("13 planes").data_mut());
+                    let [n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk, nlk2, nk2] = n;
                     for_rows(
-                        [o0, o1, o2, n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk],
+                        [
+                            o0, o1, o2, n0, n1, n2, nw, nd, ni, ng1, ng2, ng3, nlk, nk, nlk2, nk2,
+                        ],
                         w,
-                        |y, [or, og, ob, hr, hg, hb, hw, hd, hi, g1, g2, g3, lk, kn]| {
+                        |y, [or, og, ob, hr, hg, hb, hw, hd, hi, g1, g2, g3, lk, kn, lk2, kn2]| {
                             for x in 0..w {
                                 let i = y * w + x;
                                 let sigma = p.kernel_sharp + (1.0 - c[i]) * (p.kernel_wide - p.kernel_sharp);
@@ -237,10 +242,22 @@ impl ReferenceUpsample {
                                 hd[x] = depth.map_or(0.0, |d| d[i]);
                                 hi[x] = ids.map_or(0.0, |d| d[i] as f32);
                                 (g1[x], g2[x], g3[x]) = (g0[i], pg[0], pg[1]);
-                                (lk[x], kn[x]) = match (sparse.own(x, y, w, h), hist) {
-                                    (Some(k), _) => (luma(sparse.color.map(|p| p[k])), 1.0),
-                                    (None, Some(hp)) => (hp[7].data()[i], hp[8].data()[i]),
-                                    (None, None) => (0.0, 0.0),
+                                // The last shaded sample's luma and the one before it.
+                                (lk[x], kn[x], lk2[x], kn2[x]) = match (sparse.own(x, y, w, h), hist) {
+                                    (Some(k), Some(hp)) => (
+                                        luma(sparse.color.map(|p| p[k])),
+                                        1.0,
+                                        hp[7].data()[i],
+                                        hp[8].data()[i],
+                                    ),
+                                    (Some(k), None) => (luma(sparse.color.map(|p| p[k])), 1.0, 0.0, 0.0),
+                                    (None, Some(hp)) => (
+                                        hp[7].data()[i],
+                                        hp[8].data()[i],
+                                        hp[9].data()[i],
+                                        hp[10].data()[i],
+                                    ),
+                                    (None, None) => (0.0, 0.0, 0.0, 0.0),
                                 };
                             }
                         },
@@ -382,6 +399,7 @@ fn gradients(
     h: usize,
     scale: f32,
     cancel: f32,
+    lag: u32,
     now: &mut [f32],
     conf: &mut [f32],
     scratch: &mut Scratch,
@@ -399,8 +417,10 @@ fn gradients(
                     let l = luma(sparse.color.map(|p| p[k]));
                     // The same point's last shaded luma when known, else the paper's
                     // reconstruction of the previous frame.
-                    let known = hp[8].data()[j];
-                    let before = if known >= 0.5 {
+                    let (known, known2) = (hp[8].data()[j], hp[10].data()[j]);
+                    let before = if lag == 2 && known2 >= 0.5 {
+                        hp[9].data()[j] / known2
+                    } else if known >= 0.5 {
                         hp[7].data()[j] / known
                     } else {
                         luma([hp[0].data()[j], hp[1].data()[j], hp[2].data()[j]])
