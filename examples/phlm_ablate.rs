@@ -46,10 +46,12 @@ fn render(spec: &str, jitter: Jitter) -> Vec<Frame> {
         shading: 1,
     };
     let scene = Scene::new(name, s).expect("a catalogue scene");
-    let sigma: f64 = std::env::var("AFTERIMAGE_NOISE_SIGMA")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(0.0);
+    let sigma: f64 = std::env::var("AFTERIMAGE_NOISE_SIGMA").map_or(0.0, |v| {
+        v.parse()
+            .ok()
+            .filter(|s: &f64| *s >= 0.0)
+            .unwrap_or_else(|| panic!("AFTERIMAGE_NOISE_SIGMA={v:?}: expected a number >= 0"))
+    });
     (0..s.frames)
         .map(|i| {
             let mut f = scene.frame(i);

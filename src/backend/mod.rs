@@ -52,7 +52,8 @@ pub enum BackendChoice {
 }
 
 impl BackendChoice {
-    /// Every choice, in the order help texts list them.
+    /// Every choice (the tests go through them all; the CLI's help texts list the same
+    /// names, written out).
     pub const ALL: [BackendChoice; 5] = [
         BackendChoice::Cpu,
         BackendChoice::Gpu,

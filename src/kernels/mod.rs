@@ -22,7 +22,8 @@ pub use neighborhood::{
 };
 pub use sample::{
     bilinear, bilinear_span, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_span,
-    catmull_rom_texel, catmull_rom_texels, nearest_texel, BilinearLanes, Footprint, FootprintLanes, TEXEL,
+    catmull_rom_texel, catmull_rom_texels, nearest_texel, BilinearLanes, Footprint, FootprintLanes, SPAN,
+    TEXEL,
 };
 pub use sharpen::sharpen_cross;
 pub use sobel::{sobel_magnitude, sobel_magnitude_v, sobel_plane};

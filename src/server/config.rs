@@ -432,15 +432,17 @@ mod tests {
             e.contains("AFTERIMAGE_DEFAULT_BACKEND") || e.contains("tpu"),
             "{e}"
         );
-        let gpu = Config::load(None, env(&[("AFTERIMAGE_DEFAULT_BACKEND", "gpu")]));
-        match crate::backend::GPU_BUILT {
-            true => assert_eq!(gpu.unwrap().default_backend, BackendChoice::Gpu),
-            false => {
-                let e = gpu.unwrap_err().to_string();
-                assert!(
-                    e.contains("default_backend") && e.contains("--features gpu"),
-                    "{e}"
-                );
+        for (name, choice) in [("gpu", BackendChoice::Gpu), ("gpu-f16", BackendChoice::GpuF16)] {
+            let gpu = Config::load(None, env(&[("AFTERIMAGE_DEFAULT_BACKEND", name)]));
+            match crate::backend::GPU_BUILT {
+                true => assert_eq!(gpu.unwrap().default_backend, choice),
+                false => {
+                    let e = gpu.unwrap_err().to_string();
+                    assert!(
+                        e.contains("default_backend") && e.contains("--features gpu") && e.contains(name),
+                        "{e}"
+                    );
+                }
             }
         }
     }

@@ -8,8 +8,9 @@
 //! instructions where it has them), after clamping to +-[`F16_MAX`]: brighter HDR colour
 //! would otherwise become infinite on the device, where no repair follows (the CPU's
 //! repair of NaN and infinite input, [`crate::pipeline::prepare`], runs before the
-//! conversion). Values below f16's smallest normal (6.1e-5) go as subnormals, and f16's
-//! signed zeros and NaN are kept.
+//! conversion). Values below f16's smallest normal (6.1e-5) go as subnormals (a device may
+//! flush those to zero when it widens them, as WGSL allows), and f16's signed zeros and
+//! NaN are kept.
 //!
 //! A separate pass rather than `unpack2x16float` in every filter's loads: one path for the
 //! four filters, their shaders (which mirror the CPU functions line by line) untouched.
@@ -28,7 +29,9 @@ use rayon::prelude::*;
 /// f16's largest finite value: colour is clamped to +-this before conversion.
 pub(crate) const F16_MAX: f32 = 65504.0;
 
-/// Samples per parallel block of the conversion (as the server's wire conversions).
+/// Samples per parallel block of the conversion (as the server's wire conversions, whose
+/// f16 replies are not clamped: they send the client what the filter computed, where this
+/// conversion feeds shaders that no repair follows).
 const BLOCK: usize = 1 << 16;
 
 /// Workgroup size of `unpack.wgsl`.
@@ -38,18 +41,22 @@ const UNPACK_GROUP: usize = 64;
 /// stays NaN), then rounded to nearest, ties to even.
 pub(crate) fn to_f16(src: &[f32], dst: &mut [f16]) {
     debug_assert_eq!(src.len(), dst.len());
-    dst.par_chunks_mut(BLOCK)
-        .zip(src.par_chunks(BLOCK))
-        .for_each(|(d, s)| {
-            let mut clamped = [0.0f32; 1024];
-            for (dc, sc) in d.chunks_mut(1024).zip(s.chunks(1024)) {
-                let c = &mut clamped[..sc.len()];
-                for (o, &v) in c.iter_mut().zip(sc) {
-                    *o = v.clamp(-F16_MAX, F16_MAX);
+    // On the crate's pool, as every filter's parallel work (its size is the one
+    // `--threads` / `AFTERIMAGE_THREADS` set).
+    crate::pipeline::exec::pool().install(|| {
+        dst.par_chunks_mut(BLOCK)
+            .zip(src.par_chunks(BLOCK))
+            .for_each(|(d, s)| {
+                let mut clamped = [0.0f32; 1024];
+                for (dc, sc) in d.chunks_mut(1024).zip(s.chunks(1024)) {
+                    let c = &mut clamped[..sc.len()];
+                    for (o, &v) in c.iter_mut().zip(sc) {
+                        *o = v.clamp(-F16_MAX, F16_MAX);
+                    }
+                    dc.convert_from_f32_slice(c);
                 }
-                dc.convert_from_f32_slice(c);
-            }
-        });
+            })
+    });
 }
 
 /// The f16 side: the packed halves on the device and the pass that widens them.

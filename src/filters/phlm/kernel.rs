@@ -20,7 +20,7 @@ use crate::filters::passes::{
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, LANES};
 use crate::kernels::{
-    bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes,
+    bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes, SPAN,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
@@ -41,6 +41,10 @@ const ALL: u32 = (1 << LANES) - 1;
 
 /// Floats of one pixel's state texel: beta (12), R (10), z (3).
 pub(super) const TEXEL: usize = STATE_PLANES;
+
+// The Catmull-Rom fetch writes beta's span and the bilinear R and z side by side: together
+// they must be the whole texel, or stale floats of the reused block buffer would leak.
+const _: () = assert!(BETA == 0 && R - BETA == SPAN);
 
 /// What the pass reads for one frame.
 struct Sources<'a> {

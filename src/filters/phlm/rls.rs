@@ -590,7 +590,8 @@ pub fn update_information_lanes(
     active: u32,
 ) -> (Lanes, u32) {
     let u = update_block(r, x, e, lambda, prior);
-    let active_bits = active;
+    // Lanes 0-7 only: higher bits name no lane.
+    let active_bits = active & ((1 << LANES) - 1);
     let ok_bits = u.ok & active_bits;
     let trace = f32x8::from(u.trace);
     // The new beta and R where the factorisation succeeded; every lane of most blocks

@@ -192,8 +192,8 @@ pub const GRADIENT_CANCEL: f32 = 0.75;
 
 /// Default `gradient_lag`: see the parameter (Herzog et al. 2010, sec. 3.4 compare with the
 /// last shaded sample, 1). Chosen on the mean over the ten catalogue scenes with 2x2
-/// shading at 128x72, 32 frames (docs/upsample-realistic.md), never on one scene: with
-/// `--jitter 8 --noise` 1 / 2 give 25.262 / 25.429 dB (tRMSE 0.0630 / 0.0614), noise-free
+/// shading at 128x72, 32 frames (docs/upsample-realistic.md), never on one scene, measured
+/// with `min_decay = 0` (before that default): with `--jitter 8 --noise` 1 / 2 give 25.262 / 25.429 dB (tRMSE 0.0630 / 0.0614), noise-free
 /// 25.627 / 25.633 dB; with 4x4 shading (where the last sample already had the same jitter
 /// offset) 24.201 / 24.203 and 24.909 / 24.908 dB.
 pub const GRADIENT_LAG: u32 = 2;
