@@ -323,7 +323,7 @@ impl FootprintLanes {
                 // Taps 1 and 2 of rows 1 and 2: the bilinear footprint's top left is one
                 // row and one column past the Catmull-Rom one's.
                 let t = [self.tx[l], self.ty[l]];
-                let rest = bilinear_inside_from(tex, T, rest_at, w32, first + w32 + 1, t);
+                let rest = bilinear_inside(tex, T, rest_at, w32, first + w32 + 1, t);
                 write(l, span, rest);
             }
         }
@@ -737,28 +737,15 @@ fn bilinear_at<const N: usize>(
     let [x0, y0] = x0y0;
     if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
         // Inside, `x0` and `y0` are whole, at least 0 and exact.
-        return bilinear_inside(tex, stride, first, width, [x0 as usize, y0 as usize], t);
+        return bilinear_inside(tex, stride, first, width, y0 as usize * width + x0 as usize, t);
     }
     bilinear_clamped(tex, stride, first, width, height, x0y0, t)
 }
 
 /// [`bilinear_texels`] of a 2x2 footprint inside the image, whose top-left tap is texel
-/// `i0 = [column, row]`: no clamping, each row's two texels in one bounds check.
+/// `top_left` (row-major): no clamping, each row's two texels in one bounds check.
 #[inline(always)]
 fn bilinear_inside<const N: usize>(
-    tex: &[f32],
-    stride: usize,
-    first: usize,
-    width: usize,
-    i0: [usize; 2],
-    t: [f32; 2],
-) -> [f32; N] {
-    bilinear_inside_from(tex, stride, first, width, i0[1] * width + i0[0], t)
-}
-
-/// [`bilinear_inside`] whose top-left tap is texel `top_left` (row-major).
-#[inline(always)]
-fn bilinear_inside_from<const N: usize>(
     tex: &[f32],
     stride: usize,
     first: usize,
@@ -871,7 +858,14 @@ impl BilinearLanes {
         let t = [self.tx[l], self.ty[l]];
         if self.inside >> l & 1 != 0 {
             // Inside, the taps are at least 0 and exact.
-            bilinear_inside(tex, N, 0, width, [self.ix[l] as usize, self.iy[l] as usize], t)
+            bilinear_inside(
+                tex,
+                N,
+                0,
+                width,
+                self.iy[l] as usize * width + self.ix[l] as usize,
+                t,
+            )
         } else {
             bilinear_clamped(tex, N, 0, width, height, [self.x0[l], self.y0[l]], t)
         }
