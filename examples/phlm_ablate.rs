@@ -15,7 +15,8 @@
 //! `AFTERIMAGE_NOISE_SIGMA=s` multiplies each input pixel's colour by `1 + s n` (n uniform,
 //! unit variance, a new draw per pixel and frame) and leaves the reference clean: not a
 //! rendering model but a probe of how well each filter averages strong per-pixel noise
-//! (docs/phlm-ablations.md, table 11).
+//! (docs/phlm-ablations.md, table 11). `AFTERIMAGE_PER_FRAME=1` also prints each run's
+//! per-frame PSNR (on standard error), to see where a filter converges or lags.
 
 use afterimage::filters::create;
 use afterimage::frame::Frame;
@@ -89,6 +90,10 @@ fn run(config: &[&str], frames: &[Frame]) -> (Summary, f64) {
             fr.meta.reset,
         )
         .expect("metrics");
+    }
+    if std::env::var("AFTERIMAGE_PER_FRAME").is_ok() {
+        let psnr: Vec<String> = eval.frames.iter().map(|m| format!("{:.1}", m.psnr)).collect();
+        eprintln!("{}: {}", config.join(" "), psnr.join(" "));
     }
     (eval.summary().expect("frames"), clipped / frames.len() as f64)
 }

@@ -22,15 +22,19 @@ fn settings() -> Settings {
     }
 }
 
-/// Each scene is rendered once per test binary.
+/// Each scene is rendered once per test binary; `name+noise` is the scene with `--noise`.
 fn frames(name: &str) -> Arc<Vec<Frame>> {
     static CACHE: OnceLock<Mutex<HashMap<String, Arc<Vec<Frame>>>>> = OnceLock::new();
     let cache = CACHE.get_or_init(Default::default);
     if let Some(f) = cache.lock().unwrap().get(name) {
         return f.clone();
     }
-    let s = settings();
-    let scene = Scene::new(name, s).unwrap();
+    let (scene, noise) = match name.strip_suffix("+noise") {
+        Some(scene) => (scene, true),
+        None => (name, false),
+    };
+    let s = Settings { noise, ..settings() };
+    let scene = Scene::new(scene, s).unwrap();
     let frames: Vec<Frame> = (0..s.frames).map(|i| scene.frame(i)).collect();
     let frames = Arc::new(frames);
     cache.lock().unwrap().insert(name.to_string(), frames.clone());
@@ -337,6 +341,55 @@ fn phlm_beats_taa_on_the_catalogue() {
         paper / n,
         psnr[1] / n
     );
+}
+
+/// Issue 21's bar for `phlm` on noisy input at this file's size: on the four scenes the
+/// issue names with `--noise` (the sun's soft shadow as a one-sample estimate), at least
+/// 1 dB more mean PSNR than `taa`, a mean tRMSE no higher, no scene below it; and the
+/// persistent box test (`clip_after`, `fail_keep`) is what gets it there: with the paper's
+/// clip at every failure (`clip_after = 1`) the gain is under half of that
+/// (docs/phlm-ablations.md, table 12).
+#[test]
+fn phlm_beats_taa_by_a_decibel_on_the_noisy_variants() {
+    let scenes = [
+        "static+noise",
+        "dynamic-light+noise",
+        "foliage+noise",
+        "moving-sphere+noise",
+    ];
+    let (mut psnr, mut trmse, mut every_failure) = ([0.0; 2], [0.0; 2], 0.0);
+    for scene in scenes {
+        let fr = frames(scene);
+        let taa = summary(&run("taa", &[], &fr));
+        let phlm = summary(&run("phlm", &[], &fr));
+        let d = phlm.mean_psnr - taa.mean_psnr;
+        println!(
+            "{scene:>20}: phlm {:.2} dB, taa {:.2} dB ({d:+.2})",
+            phlm.mean_psnr, taa.mean_psnr
+        );
+        assert!(d > 0.0, "{scene}: phlm {d:+.2} dB against taa");
+        psnr[0] += phlm.mean_psnr;
+        psnr[1] += taa.mean_psnr;
+        trmse[0] += phlm.trmse.unwrap();
+        trmse[1] += taa.trmse.unwrap();
+        every_failure += summary(&run("phlm", &["clip_after=1"], &fr)).mean_psnr;
+    }
+    let n = scenes.len() as f64;
+    let gain = (psnr[0] - psnr[1]) / n;
+    let before = (every_failure - psnr[1]) / n;
+    println!(
+        "mean: {gain:+.2} dB (clip_after=1: {before:+.2}), tRMSE {:.4} vs {:.4}",
+        trmse[0] / n,
+        trmse[1] / n
+    );
+    assert!(gain >= 1.0, "phlm {gain:+.2} dB over taa on the noisy variants");
+    assert!(
+        trmse[0] <= trmse[1],
+        "phlm tRMSE {} > taa {}",
+        trmse[0] / n,
+        trmse[1] / n
+    );
+    assert!(before < 0.5, "clip_after=1 {before:+.2} dB over taa");
 }
 
 /// PHLM's comparison with the paper (PSNR, SSIM, tRMSE of `phlm`, `taa`, `passthrough` per

@@ -261,6 +261,38 @@ fn report_refuses_bad_specs_with_the_reason() {
     );
 }
 
+/// `--noise` renders the scenes' noisy input (the catalogue's `--noise`): the header says
+/// so, and the unfiltered input of a scene with soft shadows scores other figures.
+#[test]
+fn report_noise_renders_noisy_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let psnr = |noise: bool| {
+        let out = dir.path().join(if noise { "noisy" } else { "clean" });
+        let mut args = vec![
+            "report",
+            "--quick",
+            "--scenes",
+            "static",
+            "--filters",
+            "passthrough",
+        ];
+        args.extend(["--timing-size", "none", "--upsampling-scenes", "none", "-o"]);
+        args.push(out.to_str().unwrap());
+        if noise {
+            args.push("--noise");
+        }
+        let (ok, _, err) = run(&args);
+        assert!(ok, "{err}");
+        let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+        assert_eq!(md.contains("noisy input"), noise, "{md}");
+        let r: Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+        finite(&r["scenes"][0]["cells"][0]["mean_psnr"], "passthrough on static")
+    };
+    let (clean, noisy) = (psnr(false), psnr(true));
+    assert!(clean != noisy, "clean {clean} noisy {noisy}");
+}
+
 #[test]
 fn report_is_deterministic_apart_from_timings() {
     use afterimage::report::{run, Config};

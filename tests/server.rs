@@ -464,9 +464,10 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_budget_idle_eviction_and_reconnect() {
-    // phlm at 64x36 holds 200 B/px = 460,800 bytes; a 2 MiB budget fits four, and
-    // leaves 253,952 bytes for frames in flight (a 64x36 phlm frame with its reference
-    // takes 202,752: wire bytes, decoded frame, output and reply).
+    // phlm at 64x36 holds 208 B/px = 479,232 bytes; a 2 MiB budget fits four, and leaves
+    // 180,224 bytes, less than a 64x36 phlm frame in flight takes (221,184 with its
+    // reference: wire bytes, decoded frame, output and reply), so one of the four is
+    // closed before frames stream.
     let r = server(|c| {
         c.memory_budget_mib = 2;
         c.idle_timeout_s = 2;
@@ -474,17 +475,27 @@ async fn memory_budget_idle_eviction_and_reconnect() {
     .await;
     let mut c = client(&r).await;
     let a = open(&mut c, "phlm").await;
-    for _ in 0..3 {
-        open(&mut c, "phlm").await;
-    }
+    let others: Vec<_> = {
+        let mut v = Vec::new();
+        for _ in 0..3 {
+            v.push(open(&mut c, "phlm").await);
+        }
+        v
+    };
     let e = c.inner.create_session(session_req("phlm")).await.unwrap_err();
     assert_eq!(e.code(), Code::ResourceExhausted);
     assert!(
         e.message()
-            .contains("needs 460800 bytes; 253952 of the 2097152 bytes of the memory budget are free"),
+            .contains("needs 479232 bytes; 180224 of the 2097152 bytes of the memory budget are free"),
         "{}",
         e.message()
     );
+    c.inner
+        .close_session(pb::CloseSessionRequest {
+            id: others[0].id.clone(),
+        })
+        .await
+        .unwrap();
     // Reconnect by id: two frames on one stream, the third on a new connection.
     let fr = frames("flyover", 3, 1);
     stream_all(&mut c, &a, &fr[..2], F32).await.unwrap();

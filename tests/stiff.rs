@@ -237,12 +237,13 @@ fn hdr_extremes_and_a_firefly_decay() {
         10f32.powf(-6.0 + 12.0 * ((y * w + x) as f32 / (w * h - 1) as f32)) * (1.0 + 0.1 * c as f32)
     };
     // Frames until the firefly pixel is back within 1% (stated per filter).
-    // Measured: phlm 17, taa 63, traa 58 (taa/traa clip the firefly into the box the next
+    // Measured: phlm 30, taa 63, traa 58 (taa/traa clip the firefly into the box the next
     // frame, then forget the clipped excess at their feedback rate; PHLM's update moves the
-    // model by the small RLS gain only, and the next frame's clip resets it; 8 frames with
-    // the earlier defaults `p0 = 1000, clip_keep = 0`: today's keeps half the model's
-    // confidence through a clip, so the clipped colour fades more slowly).
-    for (name, within) in [("phlm", 20), ("taa", 70), ("traa", 64)] {
+    // model by the small RLS gain only, and a clip resets it once the model has failed the
+    // box test three frames in a row (`clip_after`); 17 frames while every failure clipped,
+    // 8 with the defaults before that, `p0 = 1000, clip_keep = 0`: today's keeps half the
+    // model's confidence through a clip, so the clipped colour fades more slowly).
+    for (name, within) in [("phlm", 35), ("taa", 70), ("traa", 64)] {
         let mut f = filter(name, &[]);
         let mut before = 0.0f32;
         let mut back_at = None;
@@ -438,11 +439,17 @@ fn phlm_record_reports_model_health() {
     let m = r0.model.unwrap();
     assert_eq!(m.reset_by_disocclusion, 0.0);
     assert!(m.max_trace_p > 0.0 && m.max_trace_p <= 4000.0);
-    // A jump outside every box resets every model by clipping.
+    // A jump outside every box fails every model's test; the third failure in a row
+    // (`clip_after = 1.75`) resets every model by clipping.
     let r1 = f.process(&frame(8, 8, 1, |_, _, _| 0.9)).unwrap().record;
-    assert_eq!(r1.model.unwrap().reset_by_clip, 1.0);
+    assert_eq!(r1.model.as_ref().unwrap().reset_by_clip, 0.0);
+    let r1 = (2..4)
+        .map(|t| f.process(&frame(8, 8, t, |_, _, _| 0.9)).unwrap().record)
+        .last()
+        .unwrap();
+    assert_eq!(r1.model.as_ref().unwrap().reset_by_clip, 1.0);
     // Motion that takes every pixel off screen resets every model by disocclusion.
-    let mut fr = frame(8, 8, 2, |_, _, _| 0.9);
+    let mut fr = frame(8, 8, 4, |_, _, _| 0.9);
     fr.set_f32(
         ChannelKind::Motion,
         vec![Plane::filled(8, 8, 100.0), Plane::filled(8, 8, 0.0)],

@@ -28,6 +28,11 @@ pub struct ReportArgs {
     /// Seed of the scenes' random choices.
     #[arg(long)]
     seed: Option<u64>,
+    /// Render the main section's scenes with `--noise` (the sun's soft shadow as a
+    /// one-sample estimate in the input, as `afterimage scene --noise`; references stay
+    /// converged).
+    #[arg(long)]
+    noise: bool,
     /// Size of the timing section's synthetic G-buffer, WxH, or `none` to leave the
     /// section out (default 1920x1080; 320x180 with --quick).
     #[arg(long, value_parser = parse_timing_size)]
@@ -94,6 +99,7 @@ fn config(args: &ReportArgs) -> anyhow::Result<Config> {
     if let Some(n) = args.seed {
         c.render.seed = n;
     }
+    c.render.noise |= args.noise;
     c.strip_frame = args.strip_frame;
     match args.upsampling_scenes.as_slice() {
         [] => {}

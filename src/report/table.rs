@@ -63,7 +63,7 @@ pub fn markdown(r: &Report) -> String {
     let _ = writeln!(o, "# afterimage report\n");
     let _ = writeln!(
         o,
-        "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, seed {}. \
+        "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, {}seed {}. \
          Copy bandwidth {:.1} GB/s ({} threads, {} MiB buffers, median of {}). \
          ms/frame is the wall time of filtering one frame (one `push`; a windowed filter's gives the \
          frame T/2 back); the floor is the bytes a filter must move per frame over that bandwidth. PSNR and SSIM are means over frames against the \
@@ -74,6 +74,7 @@ pub fn markdown(r: &Report) -> String {
         s.frames,
         s.spp,
         s.jitter,
+        if s.noise { "noisy input (one-sample soft shadows), " } else { "" },
         s.seed,
         r.bandwidth.bytes_per_s / 1e9,
         r.bandwidth.threads,

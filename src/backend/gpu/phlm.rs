@@ -1,5 +1,5 @@
 //! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
-//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z: 25 planes)
+//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count of failed box tests: 26 planes)
 //! stay on the device, double-buffered; a frame uploads its colour (and motion and the
 //! invalid mask when it has them) and reads back the colour and the model counters in one
 //! buffer.
@@ -54,12 +54,15 @@ const COUNTERS: usize = 8;
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
 /// matrix R, the feature z; a buffer each, so a 1080p frame's parts fit the 128 MiB a
-/// shader's buffer may have on many devices (all 25 planes at 1080p are 207 MB).
+/// shader's buffer may have on many devices (all 26 planes at 1080p are 216 MB).
 const PARTS: [(&str, usize); 3] = [
     ("phlm models (beta)", 12),
     ("phlm models (R)", 10),
-    ("phlm models (z)", 3),
+    ("phlm models (z and the count of failed box tests)", 4),
 ];
+
+/// Words of the shader's `Params`.
+const PARAM_WORDS: usize = 17;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
@@ -92,7 +95,7 @@ impl Buffers {
         upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let n = width * height;
-        let params = params_buffer(gpu, "phlm params", &[0; 16]);
+        let params = params_buffer(gpu, "phlm params", &[0; PARAM_WORDS]);
         let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n)?;
         let upload = ColorUpload::new(gpu, upload, &input, n)?;
         let models = || -> Result<[StorageBuffer; 3], BackendError> {
@@ -194,12 +197,12 @@ impl GpuPhlm {
     }
 
     /// The shader's `Params` words for settings `p` (the effective ones).
-    fn param_words(p: &Params, width: usize, height: usize, flags: u32, hi: f32) -> [u32; 16] {
+    fn param_words(p: &Params, width: usize, height: usize, flags: u32, hi: f32) -> [u32; PARAM_WORDS] {
         [
             width as u32,
             height as u32,
             flags,
-            0,
+            p.clip_after.to_bits(),
             p.lambda.to_bits(),
             p.lambda_moving.to_bits(),
             p.lambda_speed.to_bits(),
@@ -212,10 +215,11 @@ impl GpuPhlm {
             p.test_gamma.to_bits(),
             hi.to_bits(),
             (1.0 / p.p0.max(p.clip_p)).to_bits(),
+            p.fail_keep.to_bits(),
         ]
     }
 
-    /// The previous frame's models as 25 planes (the CPU reference's planar layout).
+    /// The previous frame's models as 26 planes (the CPU reference's planar layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
         let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
@@ -230,7 +234,7 @@ impl GpuPhlm {
             .collect()
     }
 
-    /// Writes 25 model planes as the previous frame's.
+    /// Writes 26 model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
         let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;

@@ -9,16 +9,17 @@
 // factorisation whose pivots are held at or above the prior (the rls module's docs give
 // the bound and the still-pixel measurements).
 //
-// State: 25 planes (beta 12, R = P^-1 packed 10, z 3; the CPU filter's texel order, one
-// plane each so neighbouring invocations read neighbouring words), in three buffers,
-// double-buffered.
+// State: 26 planes (beta 12, R = P^-1 packed 10, z 3, the count of failed box tests 1;
+// the CPU filter's texel order, one plane each so neighbouring invocations read
+// neighbouring words), in three buffers (beta, R, z with the count), double-buffered.
 
 struct Params {
     width: u32,
     height: u32,
     // Bits: see the FLAG_ constants.
     flags: u32,
-    _pad: u32,
+    // phlm::Params::clip_after (phlm::strikes).
+    clip_after: f32,
     lambda: f32,
     lambda_moving: f32,
     lambda_speed: f32,
@@ -34,6 +35,8 @@ struct Params {
     // The bound R >= I / max(p0, clip_p) that every model keeps (resets to I / p0, clips
     // blend toward I / clip_p, forgetting toward I / p0): the Cholesky pivots' floor.
     pivot_floor: f32,
+    // phlm::Params::fail_keep.
+    fail_keep: f32,
 }
 
 @group(0) @binding(0) var<storage, read> P: Params;
@@ -265,18 +268,27 @@ fn model_clip(m: ptr<function, Model>, pred: vec3<f32>, c: vec3<f32>) {
         (*m).b1 = vec4<f32>(c.y, 0.0, 0.0, 0.0);
         (*m).b2 = vec4<f32>(c.z, 0.0, 0.0, 0.0);
     }
+    relax(m, P.clip_keep);
+}
+
+// phlm::Model::relax: R relaxed toward I / clip_p, keeping `k` of it.
+fn relax(m: ptr<function, Model>, k: f32) {
     var init: Model;
     set_information(&init, P.clip_p);
-    if P.clip_keep == 0.0 {
+    if k == 0.0 {
         (*m).ra = init.ra;
         (*m).rb = init.rb;
         (*m).rc = init.rc;
     } else {
-        let k = P.clip_keep;
         (*m).ra = k * (*m).ra + (1.0 - k) * init.ra;
         (*m).rb = k * (*m).rb + (1.0 - k) * init.rb;
         (*m).rc = k * (*m).rc + (1.0 - k) * init.rc;
     }
+}
+
+// phlm::strikes: the count of failed box tests after this frame (halved, +1 on a failure).
+fn strikes(prev: f32, failed: bool) -> f32 {
+    return 0.5 * prev + select(0.0, 1.0, failed);
 }
 
 // phlm::forgetting: lambda, falling with the speed v toward lambda_moving.
@@ -502,6 +514,12 @@ fn phlm_pixel(x: u32, y: u32) {
         m = model_reset(input, P.p0);
     }
     let xf = vec4<f32>(1.0, z);
+    // The count of failed box tests, read as R is (0 without history).
+    var s_prev = 0.0;
+    if found {
+        s_prev = fetch(Z, 3u, t);
+    }
+    var s = strikes(s_prev, false);
     if !invalid {
         // Lines 12-19: predict; outside the box, clip toward the input and reset.
         var pred = predict(m, xf);
@@ -515,9 +533,14 @@ fn phlm_pixel(x: u32, y: u32) {
             bhi = min(mean + P.test_gamma * sigma, hi);
         }
         let clipped = clip_toward_point(rgb_to_ycocg(pred), cur, blo, bhi);
-        if clipped.w != 0.0 {
+        // A failure clips once it persists (clip_after); before, it relaxes R (fail_keep).
+        let failed = clipped.w != 0.0;
+        s = strikes(s_prev, failed);
+        if failed && s >= P.clip_after {
             atomicAdd(&wg_counts[C_CLIPPED], 1u);
             model_clip(&m, pred, ycocg_to_rgb(clipped.xyz));
+        } else if failed && P.fail_keep != 1.0 {
+            relax(&m, P.fail_keep);
         }
         // Lines 19-21: the (possibly reset) model's error, the RLS update.
         pred = predict(m, xf);
@@ -548,4 +571,5 @@ fn phlm_pixel(x: u32, y: u32) {
     next_feat[i] = z.x;
     next_feat[n + i] = z.y;
     next_feat[2u * n + i] = z.z;
+    next_feat[3u * n + i] = s;
 }

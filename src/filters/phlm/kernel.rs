@@ -1,7 +1,7 @@
 //! `phlm`'s stages fused into one pass over bands of rows ([`par_bands_strided`]): a band's
 //! working colour and YCoCg (rows and their 3x3 halo) go to band-local buffers; then each
-//! row's models are fetched at their previous positions (one texel of 25 floats per tap:
-//! beta, R and z of a pixel side by side), its 3x3 statistics are computed once for both the
+//! row's models are fetched at their previous positions (one texel of 26 floats per tap:
+//! beta, R, z and the count of failed box tests of a pixel side by side), its 3x3 statistics are computed once for both the
 //! feature and the model test, and the feature and Algorithm 1 (prediction, box test, clip,
 //! the RLS update in f64 with reciprocal pivots) run on blocks of eight pixels in vector
 //! lanes. The reference ([`super::reference`]) reads 25 planes per pixel, computes the
@@ -12,7 +12,7 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, STATE_PLANES, Z};
+use super::{strikes, ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, Z};
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
     FrameResult,
@@ -39,7 +39,8 @@ const UNTONEMAP: usize = 5;
 /// Every lane of a block, as bits.
 const ALL: u32 = (1 << LANES) - 1;
 
-/// Floats of one pixel's state texel: beta (12), R (10), z (3).
+/// Floats of one pixel's state texel: beta (12), R (10), z (3), the count of failed box
+/// tests (1).
 pub(super) const TEXEL: usize = STATE_PLANES;
 
 // The Catmull-Rom fetch writes beta's span and the bilinear R and z side by side: together
@@ -567,16 +568,29 @@ fn clip_where(
             }
         }
     }
-    let init = rls::init_information(p.clip_p);
-    if p.clip_keep == 0.0 {
+    relax_where(bits, r, p.clip_keep, p.clip_p);
+}
+
+/// [`super::Model::relax`] where bit `l` of `bits` is set: `R` relaxed toward
+/// `I / clip_p`, keeping `keep` of it.
+#[inline(always)]
+fn relax_where(bits: u32, r: &mut [Lanes; P_LEN], keep: f32, clip_p: f32) {
+    if bits == 0 {
+        return;
+    }
+    let m = lanes::mask_of_bits(bits);
+    let v = lanes::v;
+    let pick = |a: f32x8, b: &Lanes| m.select(a, v(b)).to_array();
+    let init = rls::init_information(clip_p);
+    if keep == 0.0 {
         for k in 0..P_LEN {
             r[k] = pick(f32x8::splat(init[k]), &r[k]);
         }
     } else {
-        let (keep, rest) = (f32x8::splat(p.clip_keep), 1.0 - p.clip_keep);
+        let (kept, rest) = (f32x8::splat(keep), 1.0 - keep);
         for k in 0..P_LEN {
-            // `clip_keep * v + (1 - clip_keep) * init`, as [`super::Model::clip`].
-            let relaxed = keep * v(&r[k]) + f32x8::splat(rest * init[k]);
+            // `keep * v + (1 - keep) * init`, as [`super::Model::relax`].
+            let relaxed = kept * v(&r[k]) + f32x8::splat(rest * init[k]);
             r[k] = pick(relaxed, &r[k]);
         }
     }
@@ -629,7 +643,19 @@ fn model_row(
         let pred = rls::predict_lanes(&beta, &x);
         let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &lo, &hi);
         let moved = moved & active;
-        clip_where(moved, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
+        // A failure clips once it persists (`clip_after`, [`strikes`]), one lane at a time
+        // (a decay, an add and a compare).
+        let mut count = [0.0; LANES];
+        let mut clip = 0;
+        for (l, c) in count.iter_mut().enumerate() {
+            let (s, clips) = strikes(f.state[S][l], moved >> l & 1 == 1, p.clip_after);
+            *c = s;
+            clip |= (clips as u32) << l;
+        }
+        clip_where(clip, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
+        if p.fail_keep != 1.0 {
+            relax_where(moved & !clip, &mut r, p.fail_keep, p.clip_p);
+        }
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
         let e: [Lanes; 3] = lanes::each(|c| (lanes::v(&input[c]) - lanes::v(&pred[c])).to_array());
@@ -658,7 +684,7 @@ fn model_row(
         let fresh_n = (none & real).count_ones() as u64;
         counts.pixels.history_reset += fresh_n;
         counts.offscreen += if plan.has_history { fresh_n } else { 0 };
-        counts.pixels.history_clipped += (moved & real).count_ones() as u64;
+        counts.pixels.history_clipped += (clip & real).count_ones() as u64;
         counts.repaired += ((failed & real).count_ones() + (broken & real).count_ones()) as u64;
         // Traces are at least 0 (0 where nothing was updated), as `max_trace` starts; the
         // row's lanes are folded at its end (`f32::max` ignores NaN, as `max_of` with a
@@ -683,6 +709,7 @@ fn model_row(
             state[Z + c] = zl[c];
         }
         state[R..R + P_LEN].copy_from_slice(&r);
+        state[S] = count;
         lanes::store_texels(&state, &mut next[TEXEL * x0..TEXEL * (x0 + n)]);
     }
     counts.max_trace = max_trace.to_array().into_iter().fold(counts.max_trace, f32::max);
