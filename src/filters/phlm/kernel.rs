@@ -12,7 +12,7 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{strikes, ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, Z};
+use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STRIKE_DECAY, STATE_PLANES, Z};
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
     FrameResult,
@@ -643,15 +643,12 @@ fn model_row(
         let pred = rls::predict_lanes(&beta, &x);
         let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &lo, &hi);
         let moved = moved & active;
-        // A failure clips once it persists (`clip_after`, [`strikes`]), one lane at a time
-        // (a decay, an add and a compare).
-        let mut count = [0.0; LANES];
-        let mut clip = 0;
-        for (l, c) in count.iter_mut().enumerate() {
-            let (s, clips) = strikes(f.state[S][l], moved >> l & 1 == 1, p.clip_after);
-            *c = s;
-            clip |= (clips as u32) << l;
-        }
+        // A failure clips once it persists (`clip_after`): [`strikes`] in `f32x8`, the
+        // same operations in the same order.
+        let failed = lanes::mask_of_bits(moved).select(f32x8::splat(1.0), f32x8::splat(0.0));
+        let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + failed;
+        let clip = moved & count_v.simd_ge(f32x8::splat(p.clip_after)).to_bitmask();
+        let count: Lanes = count_v.to_array();
         clip_where(clip, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
         if p.fail_keep != 1.0 {
             relax_where(moved & !clip, &mut r, p.fail_keep, p.clip_p);

@@ -270,7 +270,8 @@ pub const STRIKE_DECAY: f32 = 0.5;
 /// A pixel's count of failed box tests after this frame, and whether this frame's failure
 /// clips: `s = STRIKE_DECAY s_prev + [failed]`, clipping when it failed and
 /// `s >= clip_after` (`s_prev` is fetched with the model's information, 0 without
-/// history). With `clip_after <= 1` every failure clips, as the paper.
+/// history). With `clip_after <= 1` every failure clips, as the paper. The fused kernel
+/// computes it in `f32x8` with the same operations.
 #[inline(always)]
 pub(crate) fn strikes(prev: f32, failed: bool, clip_after: f32) -> (f32, bool) {
     let s = STRIKE_DECAY * prev + if failed { 1.0 } else { 0.0 };
