@@ -474,6 +474,8 @@ fn reproject_row<const N: usize>(
     let (w, h) = (fr.w, fr.h);
     let near_motion = valid.map_or(0.0, |v| v.3);
     let subpixel = valid.map_or(0.0, |v| v.4);
+    // Whether a tap that fails may still be kept.
+    let fallback = near_motion > 0.0 || subpixel > 0.0;
     let nearby = Nearby {
         depth: fr.depth,
         ids: fr.ids,
@@ -482,10 +484,6 @@ fn reproject_row<const N: usize>(
         height: h,
         depth_tolerance: valid.map_or(0.0, |v| v.2),
         max_motion: near_motion,
-    };
-    let anywhere = Nearby {
-        max_motion: f32::INFINITY,
-        ..nearby
     };
     let row = y * w..(y + 1) * w;
     let motion = fr.motion.map(|m| m.map(|m| &m[row.clone()]));
@@ -546,7 +544,6 @@ fn reproject_row<const N: usize>(
                 // which leaves sums that start at +0 and only grow as they were), so the
                 // sums are the reference's, which skips it.
                 for (t, wt) in taps {
-                    let wt_all = wt;
                     let tex: &[f32; N] = hist[N * t..N * t + N].try_into().expect("a texel");
                     let mut same = true;
                     if let Some(id) = id {
@@ -557,21 +554,19 @@ fn reproject_row<const N: usize>(
                         same &= !far;
                     }
                     let mut ok = wt > 0.0 && same;
-                    if !same && wt > 0.0 && near_motion > 0.0 {
-                        ok = surface_nearby(&nearby, y * w + x, tex[ic], tex[dc]);
-                    }
-                    let mut wt = if ok { wt } else { 0.0 };
-                    if !ok
-                        && !same
-                        && subpixel > 0.0
-                        && surface_nearby(&anywhere, y * w + x, tex[ic], tex[dc])
-                    {
-                        let prev = |q: usize| (hist[N * q + ic], hist[N * q + dc]);
-                        if !seen_before(&prev, w, h, t, id, z, tol) {
-                            wt = wt_all * subpixel;
-                            kept += wt;
+                    // The weight kept for a sub-pixel surface (`subpixel`) when `ok` is not.
+                    let mut sub = 0.0;
+                    if !same && wt > 0.0 && fallback {
+                        ok = near_motion > 0.0 && surface_nearby(&nearby, y * w + x, tex[ic], tex[dc]);
+                        if !ok
+                            && subpixel > 0.0
+                            && sub_pixel_tap::<N>(&nearby, hist, y * w + x, t, (ic, dc), (id, z))
+                        {
+                            sub = wt * subpixel;
                         }
                     }
+                    kept += sub;
+                    let wt = if ok { wt } else { sub };
                     total += wt;
                     lanes::add_scaled(&mut acc, wt, tex);
                 }
@@ -582,6 +577,37 @@ fn reproject_row<const N: usize>(
         }
     }
     lost
+}
+
+/// Whether a tap `t` of pixel `i` that failed the validity test (channels `ic`, `dc` of its
+/// texel in `hist` hold its id and depth; `id`, `z` are the pixel's) is kept for a sub-pixel
+/// surface (`subpixel_keep`): its surface is next to the pixel this frame, whatever its
+/// motion, and the pixel's surface was not within a pixel of the tap in the previous frame
+/// (the reference's `Validity::intruder`; out of line, few taps fail).
+#[inline(never)]
+fn sub_pixel_tap<const N: usize>(
+    nearby: &Nearby,
+    hist: &[f32],
+    i: usize,
+    t: usize,
+    (ic, dc): (usize, usize),
+    (id, z): (Option<f32>, Option<f32>),
+) -> bool {
+    let anywhere = Nearby {
+        max_motion: f32::INFINITY,
+        ..*nearby
+    };
+    let prev = |q: usize| (hist[N * q + ic], hist[N * q + dc]);
+    surface_nearby(&anywhere, i, hist[N * t + ic], hist[N * t + dc])
+        && !seen_before(
+            &prev,
+            nearby.width,
+            nearby.height,
+            t,
+            id,
+            z,
+            nearby.depth_tolerance,
+        )
 }
 
 /// One band task's buffers, reused across the bands it runs.
