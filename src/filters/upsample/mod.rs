@@ -232,8 +232,8 @@ pub const MIN_DECAY: f32 = 0.93;
 /// catalogue scenes with 2x2 shading at 128x72, 32 frames (docs/upsample-realistic.md),
 /// never on one scene, with `subpixel_keep` 0: false / true give 25.509 / 25.722 dB (tRMSE
 /// 0.0605 / 0.0600) with `--jitter 8 --noise` and 25.651 / 25.808 dB (0.0478 / 0.0476)
-/// noise-free. No scene loses; fence gains most (+0.73 / +1.12 dB), through its edges
-/// against the sky. The tradeoff: two sky pixels are no longer told apart by anything but
+/// noise-free; with 4x4 shading 24.203 / 24.316 and 24.908 / 24.984 dB. No scene loses at
+/// 2x2; fence gains most (+0.73 / +1.12 dB), through its edges against the sky. The tradeoff: two sky pixels are no longer told apart by anything but
 /// the image-space kernel (they have no geometry; the scenes' skies are smooth).
 pub const SKY_DEPTH_ONLY: bool = true;
 
@@ -242,8 +242,10 @@ pub const SKY_DEPTH_ONLY: bool = true;
 /// `sky_depth_only`: 0 / 0.25 / 0.5 / 1 give 25.722 / 25.934 / 26.049 / 26.112 dB (tRMSE
 /// 0.0600 / 0.0584 / 0.0577 / 0.0573) with `--jitter 8 --noise` and 25.808 / 26.039 /
 /// 26.174 / 26.252 dB (0.0476 / 0.0459 / 0.0451 / 0.0446) noise-free; 1 is the largest
-/// value. Thin-line gains most (30.18 -> 34.00 dB with jitter and noise), then spokes
-/// (+0.29); foliage loses 0.17 dB with jitter and noise (+0.16 noise-free), hdr 0.05.
+/// value. With 4x4 shading 0 / 1 give 24.316 / 24.494 dB with jitter and noise and 24.984 /
+/// 25.188 noise-free. Thin-line gains most (30.18 -> 34.00 dB with jitter and noise at 2x2),
+/// then spokes (+0.29); foliage loses 0.17 dB with jitter and noise (+0.16 noise-free), hdr
+/// 0.05.
 pub const SUBPIXEL_KEEP: f32 = 1.0;
 
 /// Default `neighbour_motion` (px): how closely the surface of a history tap that failed
