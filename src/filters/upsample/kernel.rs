@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{filter_gradients, signed_gradient, surface_nearby, Nearby};
+use super::temporal::{filter_gradients, seen_before, signed_gradient, surface_nearby, Nearby};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen_bits, previous_positions, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -130,6 +130,7 @@ struct Setup<'a> {
     normal: Option<[&'a [f32]; 3]>,
     inv_depth_scale: f32,
     normal_sigma: f32,
+    sky_depth_only: bool,
     /// This frame's depth, ids and motion (validity, the next history).
     depth: Option<&'a [f32]>,
     ids: Option<&'a [u32]>,
@@ -347,26 +348,42 @@ impl SampleRows {
 struct PixelGeo {
     depth: Lanes,
     normal: [Lanes; 3],
+    /// `1 / normal_sigma`, or 0 for a pixel whose normal term is 1 (`sky_depth_only`).
+    inv_normal: f32x8,
 }
 
 impl PixelGeo {
     #[inline(always)]
     fn load<const D: bool, const N: bool>(fr: &Setup, y: usize, x0: usize) -> Self {
         let row = y * fr.w..(y + 1) * fr.w;
+        let normal = if N {
+            // `three`, not `map`: `map`'s closure stayed out of line (a call per
+            // channel and block, its result passed through memory).
+            let n = fr.normal.expect("N");
+            three(|c| ld(&n[c][row.clone()], x0))
+        } else {
+            [[0.0; LANES]; 3]
+        };
+        let inv = 1.0 / fr.normal_sigma;
+        let inv_normal = if N && fr.sky_depth_only {
+            f32x8::from(each(|l| {
+                if normal[0][l] == 0.0 && normal[1][l] == 0.0 && normal[2][l] == 0.0 {
+                    0.0
+                } else {
+                    inv
+                }
+            }))
+        } else {
+            f32x8::splat(inv)
+        };
         PixelGeo {
             depth: if D {
                 ld(&fr.geo_depth.expect("D")[row.clone()], x0)
             } else {
                 [0.0; LANES]
             },
-            normal: if N {
-                // `three`, not `map`: `map`'s closure stayed out of line (a call per
-                // channel and block, its result passed through memory).
-                let n = fr.normal.expect("N");
-                three(|c| ld(&n[c][row.clone()], x0))
-            } else {
-                [[0.0; LANES]; 3]
-            },
+            normal,
+            inv_normal,
         }
     }
 }
@@ -403,7 +420,7 @@ fn gather_lanes<const D: bool, const N: bool>(
             if N {
                 let (nx, ny, nz) = (v(e(E_N)), v(e(E_N + 1)), v(e(E_N + 2)));
                 let dot = v(&g.normal[0]) * nx + v(&g.normal[1]) * ny + v(&g.normal[2]) * nz;
-                geo *= falloff(lanes::fmax_v(f(1.0) - dot, f(0.0)), fr.normal_sigma);
+                geo *= falloff_v(lanes::fmax_v(f(1.0) - dot, f(0.0)), g.inv_normal);
             }
             // 1 where the slot has a sample, else 0: the weight is exact or +0.
             let mask = if s == 0 { mul(valid, &fr.column) } else { *valid };
@@ -442,18 +459,23 @@ fn own_lanes(fr: &Setup, slots: &[Option<Slot>; 3], my: isize, x0: usize) -> ([L
 /// The bilinear reprojection of [`super::temporal::reproject`] for row `y`, from a plane of
 /// `N`-float texels: each pixel's taps at `p + motion` that pass the validity test (this
 /// pixel's id against the tap's channel `id`, its depth against channel `depth`; all taps
-/// when `valid` is off), renormalised; calls `emit(x, texel, tap weight)`. Returns the
-/// pixels with less than half of the weight.
+/// when `valid` is off; a failing tap's surface next to the pixel and the pixel's nowhere
+/// near the tap before keeps the share `valid.4` of its weight, `subpixel_keep`),
+/// renormalised; calls `emit(x, texel, tap weight, weight kept for sub-pixel surfaces)`.
+/// Returns the pixels with less than half of the weight.
 #[inline(always)]
 fn reproject_row<const N: usize>(
     fr: &Setup,
     hist: &[f32],
     y: usize,
-    valid: Option<(usize, usize, f32, f32)>,
-    mut emit: impl FnMut(usize, [f32; N], f32),
+    valid: Option<(usize, usize, f32, f32, f32)>,
+    mut emit: impl FnMut(usize, [f32; N], f32, f32),
 ) -> u64 {
     let (w, h) = (fr.w, fr.h);
     let near_motion = valid.map_or(0.0, |v| v.3);
+    let subpixel = valid.map_or(0.0, |v| v.4);
+    // Whether a tap that fails may still be kept.
+    let fallback = near_motion > 0.0 || subpixel > 0.0;
     let nearby = Nearby {
         depth: fr.depth,
         ids: fr.ids,
@@ -467,7 +489,7 @@ fn reproject_row<const N: usize>(
     let motion = fr.motion.map(|m| m.map(|m| &m[row.clone()]));
     let depth = valid.and(fr.depth).map(|d| &d[row.clone()]);
     let ids = valid.and(fr.ids).map(|d| &d[row.clone()]);
-    let (dc, ic, tol, _) = valid.unwrap_or((0, 0, 0.0, 0.0));
+    let (dc, ic, tol, _, _) = valid.unwrap_or((0, 0, 0.0, 0.0, 0.0));
     let mut lost = 0u64;
     let f = f32x8::splat;
     for x0 in (0..w).step_by(LANES) {
@@ -506,6 +528,7 @@ fn reproject_row<const N: usize>(
             let x = x0 + l;
             let mut acc = [0.0f32; N];
             let mut total = 0.0f32;
+            let mut kept = 0.0f32;
             if on >> l & 1 != 0 {
                 let (ya, yb) = (ya[l] as usize * w, yb[l] as usize * w);
                 let (xa, xb) = (xa[l] as usize, xb[l] as usize);
@@ -531,20 +554,60 @@ fn reproject_row<const N: usize>(
                         same &= !far;
                     }
                     let mut ok = wt > 0.0 && same;
-                    if !same && wt > 0.0 && near_motion > 0.0 {
-                        ok = surface_nearby(&nearby, y * w + x, tex[ic], tex[dc]);
+                    // The weight kept for a sub-pixel surface (`subpixel`) when `ok` is not.
+                    let mut sub = 0.0;
+                    if !same && wt > 0.0 && fallback {
+                        ok = near_motion > 0.0 && surface_nearby(&nearby, y * w + x, tex[ic], tex[dc]);
+                        if !ok
+                            && subpixel > 0.0
+                            && sub_pixel_tap::<N>(&nearby, hist, y * w + x, t, (ic, dc), (id, z))
+                        {
+                            sub = wt * subpixel;
+                        }
                     }
-                    let wt = if ok { wt } else { 0.0 };
+                    kept += sub;
+                    let wt = if ok { wt } else { sub };
                     total += wt;
                     lanes::add_scaled(&mut acc, wt, tex);
                 }
             }
             let inv = if total > 0.0 { 1.0 / total } else { 0.0 };
-            emit(x, acc.map(|a| a * inv), total);
+            emit(x, acc.map(|a| a * inv), total, kept);
             lost += (total < 0.5) as u64;
         }
     }
     lost
+}
+
+/// Whether a tap `t` of pixel `i` that failed the validity test (channels `ic`, `dc` of its
+/// texel in `hist` hold its id and depth; `id`, `z` are the pixel's) is kept for a sub-pixel
+/// surface (`subpixel_keep`): its surface is next to the pixel this frame, whatever its
+/// motion, and the pixel's surface was not within a pixel of the tap in the previous frame
+/// (the reference's `Validity::intruder`; out of line, few taps fail).
+#[inline(never)]
+fn sub_pixel_tap<const N: usize>(
+    nearby: &Nearby,
+    hist: &[f32],
+    i: usize,
+    t: usize,
+    (ic, dc): (usize, usize),
+    (id, z): (Option<f32>, Option<f32>),
+) -> bool {
+    let anywhere = Nearby {
+        max_motion: f32::INFINITY,
+        ..*nearby
+    };
+    let prev = |q: usize| (hist[N * q + ic], hist[N * q + dc]);
+    surface_nearby(&anywhere, i, hist[N * t + ic], hist[N * t + dc])
+        && !seen_before(
+            &prev,
+            nearby.width,
+            nearby.height,
+            t,
+            id,
+            z,
+            nearby.depth_tolerance,
+        )
 }
 
 /// One band task's buffers, reused across the bands it runs.
@@ -653,6 +716,7 @@ pub(super) fn frame(
             .flatten(),
         inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
         normal_sigma: p.normal_sigma,
+        sky_depth_only: p.sky_depth_only,
         depth,
         ids,
         motion: inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data)),
@@ -685,13 +749,15 @@ pub(super) fn frame(
             let mut lost = 0;
             for y in rows.clone() {
                 let o = &mut band[ST * w * (y - rows.start)..ST * w * (y - rows.start + 1)];
-                let valid = Some((DEPTH, ID, p.depth_tolerance, p.neighbour_motion));
+                let valid = Some((DEPTH, ID, p.depth_tolerance, p.neighbour_motion, p.subpixel_keep));
                 lost += clock.time(REPROJECT, || {
-                    reproject_row::<ST>(&fr, hist, y, valid, |x, t, total| {
+                    reproject_row::<ST>(&fr, hist, y, valid, |x, t, total, kept| {
                         let dst: &mut [f32; ST] = (&mut o[ST * x..ST * x + ST]).try_into().expect("a texel");
                         *dst = t;
-                        // The tap weight takes the depth's place.
+                        // The tap weight takes the depth's place, the weight kept for a
+                        // sub-pixel surface the id's.
                         dst[DEPTH] = total;
+                        dst[ID] = kept;
                     })
                 });
             }
@@ -716,7 +782,14 @@ pub(super) fn frame(
         match method {
             Method::Spatiotemporal => {
                 clock.time(GRADIENT, || {
-                    gradient_band(&fr, rp, p.gradient_lag == 2, band, rows.clone())
+                    gradient_band(
+                        &fr,
+                        rp,
+                        p.gradient_lag == 2,
+                        p.subpixel_keep > 0.0,
+                        band,
+                        rows.clone(),
+                    )
                 });
             }
             Method::Spatial | Method::Temporal | Method::Taa => {}
@@ -738,8 +811,8 @@ pub(super) fn frame(
                                 &fr,
                                 hist,
                                 y,
-                                Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0)),
-                                |x, t, total| {
+                                Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0, 0.0)),
+                                |x, t, total, _| {
                                     hrow[TM * x..TM * x + TM].copy_from_slice(&t);
                                     frow[x] = total;
                                 },
@@ -758,7 +831,7 @@ pub(super) fn frame(
                     let mut c = PixelCounts::default();
                     if let Some(hist) = hist {
                         c.history_reset += clock.time(REPROJECT, || {
-                            reproject_row::<TA>(&fr, hist, y, None, |x, t, total| {
+                            reproject_row::<TA>(&fr, hist, y, None, |x, t, total, _| {
                                 hrow[TA * x..TA * x + TA].copy_from_slice(&t);
                                 frow[x] = total;
                             })
@@ -1002,8 +1075,17 @@ fn box_radius(f: isize) -> usize {
 /// `spatiotemporal`'s stage `gradient` for a band: the raw gradient (Herzog et al. 2010,
 /// sec. 3.4; see [`super::reference`]) and its temporal filter for the band's rows and
 /// `r` rows each side, into the band's buffers.
-/// With `lag2` a sample is compared with the shaded sample before the last (`gradient_lag`).
-fn gradient_band(fr: &Setup, rp: Option<&[f32]>, lag2: bool, band: &mut Band, rows: Range<usize>) {
+/// With `lag2` a sample is compared with the shaded sample before the last (`gradient_lag`);
+/// with `sub_zero` a sample whose history was mostly kept for a sub-pixel surface
+/// (`subpixel_keep`) has gradient 0.
+fn gradient_band(
+    fr: &Setup,
+    rp: Option<&[f32]>,
+    lag2: bool,
+    sub_zero: bool,
+    band: &mut Band,
+    rows: Range<usize>,
+) {
     let (w, h) = (fr.w, fr.h);
     let r = box_radius(fr.f);
     let (ylo, yhi) = (rows.start.saturating_sub(r), (rows.end + r).min(h));
@@ -1032,7 +1114,11 @@ fn gradient_band(fr: &Setup, rp: Option<&[f32]>, lag2: bool, band: &mut Band, ro
                         *c = match sp.sample(a as isize, b, w, h) {
                             Some((kk, j)) => {
                                 let t: &[f32; ST] = rp[ST * j..ST * j + ST].try_into().expect("a texel");
-                                if t[DEPTH] >= 0.5 {
+                                // At least half of the kept history kept for a sub-pixel
+                                // surface: nothing of this sample's surface to compare with.
+                                if t[DEPTH] >= 0.5 && sub_zero && t[ID] >= 0.5 * t[DEPTH] {
+                                    0.0
+                                } else if t[DEPTH] >= 0.5 {
                                     let l = crate::kernels::luma(sp.color.map(|p| p[kk]));
                                     let (known, known2) = (t[LK + 1], t[LK + 3]);
                                     let before = if lag2 && known2 >= 0.5 {

@@ -28,6 +28,11 @@
 //!   The gradient compares a new sample with the pixel's shaded sample before the last
 //!   (`gradient_lag` 2, [`GRADIENT_LAG`]; the paper's is the last, 1): with 8-phase jitter and
 //!   2x2 shading that one had the same sub-pixel offset, so jitter stops reading as change.
+//!   A tap that fails because a sub-pixel surface caught by this frame's jittered G-buffer
+//!   sample covers the pixel (the tap's surface is next to the pixel, the pixel's was nowhere
+//!   near the tap before) is kept too, so that surface's sample blends in as partial coverage
+//!   (`subpixel_keep` 1, [`SUBPIXEL_KEEP`]). A pixel with no normal (the sky) weighs samples by
+//!   depth alone (`sky_depth_only`, [`SKY_DEPTH_ONLY`]; all methods' gathers).
 //! - `spatial`: the joint-bilateral upsampling alone, wide kernel (Yang et al.'s spatial
 //!   method as Herzog et al. 2010 compare it).
 //! - `temporal`: reverse reprojection with hole filling (Herzog et al. 2010, eq. 3-4; Nehab et al.):
@@ -72,8 +77,8 @@ mod temporal;
 use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{
-    confidence, filter_gradients, relative_gradient, reproject, signed_gradient, surface_nearby, Nearby,
-    Validity, GRADIENT_WEIGHTS, LUMA_FLOOR,
+    confidence, filter_gradients, relative_gradient, reproject, seen_before, signed_gradient, surface_nearby,
+    Nearby, Validity, GRADIENT_WEIGHTS, LUMA_FLOOR,
 };
 
 use super::passes::{Conversion, TemporalState};
@@ -174,6 +179,12 @@ filter_params! {
         neighbour_motion: f32 = NEIGHBOUR_MOTION,
             ParamKind::Float { min: 0.0, max: 100.0 },
             "spatiotemporal: a history tap that fails the validity test (Herzog et al. 2010, sec. 3.2: same object id, same depth) is still accepted when one of the pixel's eight neighbours this frame shows its surface (id and depth) and moves within this many pixels of the pixel (0: off, the paper's test). Higher: a jittered G-buffer's edges and sub-pixel objects keep their history; too high: history of an object that moved away survives next to it (ghosting at disocclusions)";
+        sky_depth_only: bool = SKY_DEPTH_ONLY,
+            ParamKind::Bool,
+            "a pixel whose normal is zero (the sky: the ray hit nothing) weighs samples by depth alone. false: the normal term as for a surface, 1 - n.n' = 1 against every sample, so the sky's samples and history weigh the clamp 1e-5 and any surface's sample or history outweighs them (a jittered edge against the sky takes the object's full colour, a sub-pixel object over the sky its full colour). true leaves two sky directions, which have no geometry, to the image-space kernel";
+        subpixel_keep: f32 = SUBPIXEL_KEEP,
+            ParamKind::Float { min: 0.0, max: 1.0 },
+            "spatiotemporal: share of its weight a history tap keeps when it fails the validity test because a sub-pixel surface, caught by this frame's jittered G-buffer sample, covers the pixel: the tap's surface is next to the pixel this frame (any motion) and the pixel's surface was nowhere within a pixel of the tap in the previous frame. The new surface's sample then blends into the history as one sample of partial coverage, and its gradient is 0 (nothing of that surface to compare with). 0: off (Herzog et al. 2010, sec. 3.2: rejected, the pixel takes the sub-pixel surface's full colour). Higher: thin objects converge toward their coverage; an object uncovered faster than a pixel per frame from behind another blends in over a few frames";
         taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA,
             ParamKind::Float { min: 0.01, max: 1.0 },
             "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)";
@@ -215,6 +226,27 @@ pub const GRADIENT_LAG: u32 = 2;
 /// lowers its means (24.909 -> 24.879 dB noise-free, 24.201 -> 24.180 with jitter and
 /// noise), whose automatic 0.969 it leaves.
 pub const MIN_DECAY: f32 = 0.93;
+
+/// Default `sky_depth_only`: true (the paper's normal term, false, treats a pixel without a
+/// normal as a surface at right angles to every sample). Chosen on the mean over the ten
+/// catalogue scenes with 2x2 shading at 128x72, 32 frames (docs/upsample-realistic.md),
+/// never on one scene, with `subpixel_keep` 0: false / true give 25.509 / 25.722 dB (tRMSE
+/// 0.0605 / 0.0600) with `--jitter 8 --noise` and 25.651 / 25.808 dB (0.0478 / 0.0476)
+/// noise-free; with 4x4 shading 24.203 / 24.316 and 24.908 / 24.984 dB. No scene loses at
+/// 2x2; fence gains most (+0.73 / +1.12 dB), through its edges against the sky. The tradeoff: two sky pixels are no longer told apart by anything but
+/// the image-space kernel (they have no geometry; the scenes' skies are smooth).
+pub const SKY_DEPTH_ONLY: bool = true;
+
+/// Default `subpixel_keep`. Chosen on the mean over the ten catalogue scenes with 2x2
+/// shading at 128x72, 32 frames (docs/upsample-realistic.md), never on one scene, with
+/// `sky_depth_only`: 0 / 0.25 / 0.5 / 1 give 25.722 / 25.934 / 26.049 / 26.112 dB (tRMSE
+/// 0.0600 / 0.0584 / 0.0577 / 0.0573) with `--jitter 8 --noise` and 25.808 / 26.039 /
+/// 26.174 / 26.252 dB (0.0476 / 0.0459 / 0.0451 / 0.0446) noise-free; 1 is the largest
+/// value. With 4x4 shading 0 / 1 give 24.316 / 24.494 dB with jitter and noise and 24.984 /
+/// 25.188 noise-free. Thin-line gains most (30.18 -> 34.00 dB with jitter and noise at 2x2),
+/// then spokes (+0.29); foliage loses 0.17 dB with jitter and noise (+0.16 noise-free), hdr
+/// 0.05.
+pub const SUBPIXEL_KEEP: f32 = 1.0;
 
 /// Default `neighbour_motion` (px): how closely the surface of a history tap that failed
 /// the validity test of Herzog et al. 2010, sec. 3.2 must move with the pixel when one of the
@@ -349,6 +381,7 @@ mod tests {
     use crate::filters::check::{assert_filter_matches, sparse_sequences, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
+    use crate::tolerance::Tolerance;
 
     /// The fused kernels give the reference's output, bit for bit, for every method and
     /// option, on every kind of sparse sequence (2x2, 4x4 and full shading), at odd sizes.
@@ -360,6 +393,10 @@ mod tests {
             &["method=spatiotemporal", "neighbour_motion=0.5"],
             &["method=spatiotemporal", "gradient_lag=2"],
             &["method=spatiotemporal", "gradient_lag=1", "min_decay=0"],
+            &["method=spatiotemporal", "sky_depth_only=false", "subpixel_keep=0"],
+            &["method=spatiotemporal", "subpixel_keep=0.5", "neighbour_motion=0"],
+            &["method=spatial", "sky_depth_only=false"],
+            &["method=temporal", "sky_depth_only=false"],
             &[
                 "method=spatiotemporal",
                 "gradient_lag=2",
@@ -399,7 +436,10 @@ mod tests {
         for (w, h) in sizes {
             for factor in [2, 4, 1] {
                 let seed = (w * 31 + h) as u64 + factor as u64;
-                for (name, frames) in sparse_sequences(w, h, 7, seed, factor) {
+                let mut seqs = sparse_sequences(w, h, 7, seed, factor);
+                let sky = sky_without_normals(&seqs[0].1);
+                seqs.push(("sky without normals", sky));
+                for (name, frames) in seqs {
                     for set in variants {
                         let params: Params = build("upsample", &parse_assignments(set).unwrap()).unwrap();
                         let mut slow = ReferenceUpsample::new(params.clone());
@@ -412,6 +452,56 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// `frames` with the normals of their pixels of object 0 (the sky) zeroed, as the
+    /// renderer writes them.
+    fn sky_without_normals(frames: &[Frame]) -> Vec<Frame> {
+        frames
+            .iter()
+            .map(|f| {
+                let mut f = f.clone();
+                let ids = f.object_id().expect("ids").clone();
+                let normal: Vec<Plane<f32>> = f
+                    .planes(ChannelKind::Normal)
+                    .expect("normals")
+                    .iter()
+                    .map(|p| {
+                        Plane::from_fn(f.width(), f.height(), |x, y| {
+                            if ids.get(x, y) == 0 {
+                                0.0
+                            } else {
+                                p.get(x, y)
+                            }
+                        })
+                    })
+                    .collect();
+                f.set_f32(ChannelKind::Normal, normal).expect("same size");
+                f
+            })
+            .collect()
+    }
+
+    /// The sequences of `fused_kernel_matches_the_reference` take the paths of
+    /// `subpixel_keep` and `sky_depth_only`: switching either off changes the output.
+    #[test]
+    fn the_sequences_exercise_sub_pixel_history_and_the_sky() {
+        let frames = sky_without_normals(&sparse_sequences(33, 19, 7, 5, 2)[0].1);
+        let last = |set: &[&str]| {
+            let params: Params = build("upsample", &parse_assignments(set).unwrap()).unwrap();
+            let mut f = ReferenceUpsample::new(params);
+            let outs: Vec<Output> = frames.iter().map(|fr| f.process(fr).unwrap()).collect();
+            outs.into_iter()
+                .flat_map(|o| o.color.into_iter().flat_map(|p| p.data().to_vec()))
+                .collect::<Vec<f32>>()
+        };
+        let now = last(&[]);
+        for off in ["subpixel_keep=0", "sky_depth_only=false"] {
+            assert!(
+                Tolerance::EXACT.check_slices(off, &now, &last(&[off])).is_err(),
+                "{off} changes nothing on these frames"
+            );
         }
     }
 

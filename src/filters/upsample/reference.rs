@@ -73,6 +73,7 @@ impl ReferenceUpsample {
             normal: inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)),
             inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
             normal_sigma: p.normal_sigma,
+            sky_depth_only: p.sky_depth_only,
         };
 
         let mut pixels = PixelCounts::default();
@@ -83,6 +84,8 @@ impl ReferenceUpsample {
         // Reprojected history: colour (+ weight or count, + the three past gradients) and
         // the share of valid taps.
         let mut frac = scratch.plane(w, h);
+        // The part of `frac` kept for sub-pixel surfaces.
+        let mut kept = scratch.plane(w, h);
         let reprojected: Option<Vec<Plane<f32>>> = rec.stage(
             "reproject",
             (!stateful)
@@ -91,6 +94,7 @@ impl ReferenceUpsample {
             || {
                 let src = |k: usize| read[k].data();
                 let fr = frac.data_mut();
+                let kp = kept.data_mut();
                 let (prev_depth, prev_ids) = match method {
                     Method::Temporal => (src(T_DEPTH), src(T_ID)),
                     _ if method.planes() > ID => (src(DEPTH), src(ID)),
@@ -104,6 +108,11 @@ impl ReferenceUpsample {
                     depth_tolerance: p.depth_tolerance,
                     neighbour_motion: if method == Method::Spatiotemporal {
                         p.neighbour_motion
+                    } else {
+                        0.0
+                    },
+                    subpixel: if method == Method::Spatiotemporal {
+                        p.subpixel_keep
                     } else {
                         0.0
                     },
@@ -134,6 +143,7 @@ impl ReferenceUpsample {
                             h,
                             slices_mut(&mut o),
                             fr,
+                            kp,
                         );
                         pixels.history_rejected += lost;
                         o.into()
@@ -148,6 +158,7 @@ impl ReferenceUpsample {
                             h,
                             slices_mut(&mut o),
                             fr,
+                            kp,
                         );
                         pixels.history_rejected += lost;
                         o.into()
@@ -162,6 +173,7 @@ impl ReferenceUpsample {
                             h,
                             slices_mut(&mut o),
                             fr,
+                            kp,
                         );
                         pixels.history_reset += lost;
                         o.into()
@@ -185,6 +197,8 @@ impl ReferenceUpsample {
                     &sparse,
                     reprojected.as_deref(),
                     frac.data(),
+                    kept.data(),
+                    p.subpixel_keep > 0.0,
                     w,
                     h,
                     p.gradient_scale,
@@ -365,7 +379,7 @@ impl ReferenceUpsample {
             }
         });
 
-        scratch.recycle([frac, conf, grad_now]);
+        scratch.recycle([frac, kept, conf, grad_now]);
         scratch.recycle(reprojected.into_iter().flatten());
         let bytes = if stateful {
             self.hist.swap();
@@ -389,12 +403,16 @@ impl ReferenceUpsample {
 /// the confidence, `now` the unfiltered gradient to store (with its sign,
 /// [`signed_gradient`]). Both filters run on the magnitudes (the paper's) and on the signed
 /// values, where changes of random sign cancel; the confidence reads
-/// [`cancelled`]`(magnitudes, signed, cancel)`.
+/// [`cancelled`]`(magnitudes, signed, cancel)`. With `sub_grad` a sample whose history was
+/// at least half kept for a sub-pixel surface (`kept`, `subpixel_keep`) has gradient 0:
+/// nothing of its surface was there to compare with.
 #[allow(clippy::too_many_arguments)]
 fn gradients(
     sparse: &Sparse,
     hist: Option<&[Plane<f32>]>,
     frac: &[f32],
+    kept: &[f32],
+    sub_grad: bool,
     w: usize,
     h: usize,
     scale: f32,
@@ -413,6 +431,12 @@ fn gradients(
             let i = y * w + x;
             let a = sparse.cell(x, s.phase[0]).max(0);
             row[x] = match (hist, sparse.sample(a, b, w, h)) {
+                // A sample whose history was kept for a sub-pixel surface: nothing to compare.
+                (Some(_), Some((_, j)))
+                    if frac[j] >= 0.5 && frac[i] >= 0.5 && sub_grad && kept[j] >= 0.5 * frac[j] =>
+                {
+                    0.0
+                }
                 (Some(hp), Some((k, j))) if frac[j] >= 0.5 && frac[i] >= 0.5 => {
                     let l = luma(sparse.color.map(|p| p[k]));
                     // The same point's last shaded luma when known, else the paper's

@@ -37,6 +37,9 @@ pub struct Geometry<'a> {
     pub inv_depth_scale: f32,
     /// Falloff width on `1 - n_i . n_j`.
     pub normal_sigma: f32,
+    /// A pixel whose normal is zero (no surface: sky) weighs its samples by depth alone
+    /// (normal term 1) instead of as a surface at right angles to every other.
+    pub sky_depth_only: bool,
 }
 
 /// Up to nine shaded samples around a pixel: colour index, pixel index, offset index.
@@ -61,8 +64,10 @@ impl Geometry<'_> {
             w *= falloff((d[i] - d[j]).abs() * self.inv_depth_scale, 1.0);
         }
         if let Some([nx, ny, nz]) = self.normal {
-            let dot = nx[i] * nx[j] + ny[i] * ny[j] + nz[i] * nz[j];
-            w *= falloff((1.0 - dot).max(0.0), self.normal_sigma);
+            if !(self.sky_depth_only && nx[i] == 0.0 && ny[i] == 0.0 && nz[i] == 0.0) {
+                let dot = nx[i] * nx[j] + ny[i] * ny[j] + nz[i] * nz[j];
+                w *= falloff((1.0 - dot).max(0.0), self.normal_sigma);
+            }
         }
         w
     }
@@ -348,6 +353,7 @@ mod tests {
                     normal: Some([&nn[0], &nn[1], &nn[2]]),
                     inv_depth_scale: 1.0 / (0.1 * 3.0),
                     normal_sigma: 0.5,
+                    sky_depth_only: false,
                 };
                 let sparse = Sparse::new([&color[0], &color[1], &color[2]], cw, ch, s, None);
                 let g64 =

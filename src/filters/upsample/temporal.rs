@@ -27,6 +27,11 @@ pub struct Validity<'a> {
     /// A tap that fails is still accepted when a pixel of this frame's 3x3 shows its
     /// surface and moves within this many pixels of this pixel ([`surface_nearby`]); 0: off.
     pub neighbour_motion: f32,
+    /// Share of its weight a tap that fails keeps when its surface is next to the pixel
+    /// this frame (any motion) and the pixel's surface was nowhere near the tap in the
+    /// previous frame ([`seen_before`]): a sub-pixel surface that this frame's jittered
+    /// G-buffer sample caught; 0: off.
+    pub subpixel: f32,
     /// This frame's motion (for `neighbour_motion`; `None`: nothing moves).
     pub motion: Option<[&'a [f32]; 2]>,
     /// Frame size (the rows of the planes above).
@@ -36,6 +41,45 @@ pub struct Validity<'a> {
 }
 
 impl Validity<'_> {
+    /// Whether pixel `i` keeps tap `tap`: `Some(false)` when it passes, `Some(true)` when it
+    /// fails but shows a surface that a sub-pixel one covers at `i` this frame (kept with the
+    /// share `subpixel` of its weight), `None` when it is rejected.
+    #[inline(always)]
+    fn keeps(&self, i: usize, tap: usize) -> Option<bool> {
+        if self.ok(i, tap) {
+            Some(false)
+        } else if self.subpixel > 0.0 && self.intruder(i, tap) {
+            Some(true)
+        } else {
+            None
+        }
+    }
+
+    /// Whether a failing tap's surface is next to pixel `i` this frame (any motion) and
+    /// `i`'s surface was not within a pixel of the tap in the previous frame.
+    #[inline(always)]
+    fn intruder(&self, i: usize, tap: usize) -> bool {
+        let g = Nearby {
+            depth: self.depth,
+            ids: self.ids,
+            motion: self.motion,
+            width: self.width,
+            height: self.height,
+            depth_tolerance: self.depth_tolerance,
+            max_motion: f32::INFINITY,
+        };
+        surface_nearby(&g, i, self.prev_ids[tap], self.prev_depth[tap])
+            && !seen_before(
+                &|q| (self.prev_ids[q], self.prev_depth[q]),
+                self.width,
+                self.height,
+                tap,
+                self.ids.map(|d| d[i] as f32),
+                self.depth.map(|d| d[i]),
+                self.depth_tolerance,
+            )
+    }
+
     #[inline(always)]
     fn ok(&self, i: usize, tap: usize) -> bool {
         if let Some(ids) = self.ids {
@@ -132,11 +176,44 @@ pub fn surface_nearby(g: &Nearby, i: usize, id: f32, z: f32) -> bool {
     false
 }
 
+/// Whether the previous frame showed the surface of object `id` at depth `z` at pixel `t`
+/// or one of its eight neighbours: `prev(q)` gives pixel `q`'s previous id and depth; an
+/// absent channel (`id` or `z` `None`) matches anything. Relative depth differences are
+/// measured against `z`, as [`Validity`] measures a tap's.
+#[inline(never)]
+pub fn seen_before(
+    prev: &impl Fn(usize) -> (f32, f32),
+    width: usize,
+    height: usize,
+    t: usize,
+    id: Option<f32>,
+    z: Option<f32>,
+    depth_tolerance: f32,
+) -> bool {
+    let (w, h) = (width, height);
+    let (x, y) = (t % w, t / w);
+    for yy in y.saturating_sub(1)..(y + 2).min(h) {
+        for xx in x.saturating_sub(1)..(x + 2).min(w) {
+            let (pid, pz) = prev(yy * w + xx);
+            if id.is_some_and(|id| id != pid) {
+                continue;
+            }
+            if z.is_some_and(|z| (pz - z).abs() > depth_tolerance * z.abs()) {
+                continue;
+            }
+            return true;
+        }
+    }
+    false
+}
+
 /// Fetches `N` history planes at each pixel's previous position `p + motion` (no motion:
 /// in place) bilinearly, over the taps that pass `validity` (all on-screen taps when
 /// `None`), renormalised by their weight; `frac` gets the weight of the taps that passed
-/// (1: all of the history is usable, 0: none, off screen or disoccluded). Returns the
+/// (1: all of the history is usable, 0: none, off screen or disoccluded), `kept` the part
+/// of it that taps kept for a sub-pixel surface ([`Validity::subpixel`]). Returns the
 /// pixels with `frac < 0.5`.
+#[allow(clippy::too_many_arguments)]
 pub fn reproject<const N: usize>(
     src: [&[f32]; N],
     motion: Option<[&[f32]; 2]>,
@@ -145,14 +222,16 @@ pub fn reproject<const N: usize>(
     height: usize,
     out: [&mut [f32]; N],
     frac: &mut [f32],
+    kept: &mut [f32],
 ) -> u64 {
     let (w, h) = (width, height);
     let rows = rows_mut(out, w);
     pool().install(|| {
         rows.into_par_iter()
             .zip(frac.par_chunks_mut(w))
+            .zip(kept.par_chunks_mut(w))
             .enumerate()
-            .map(|(y, (row, fr))| {
+            .map(|(y, ((row, fr), kp))| {
                 let mut lost = 0u64;
                 for x in 0..w {
                     let i = y * w + x;
@@ -160,6 +239,7 @@ pub fn reproject<const N: usize>(
                     let (px, py) = (x as f32 + 0.5 + mx, y as f32 + 0.5 + my);
                     let mut acc = [0.0f32; N];
                     let mut total = 0.0f32;
+                    let mut sub = 0.0f32;
                     if on_screen(px, py, w, h) {
                         let (fx, fy) = (px - 0.5, py - 0.5);
                         let (x0, y0) = (fx.floor(), fy.floor());
@@ -173,7 +253,15 @@ pub fn reproject<const N: usize>(
                         ];
                         for (tx, ty, wt) in taps {
                             let t = ty * w + tx;
-                            if wt > 0.0 && validity.is_none_or(|v| v.ok(i, t)) {
+                            let keeps = validity.map_or(Some(false), |v| v.keeps(i, t));
+                            if let (true, Some(sub_pixel)) = (wt > 0.0, keeps) {
+                                let wt = if sub_pixel {
+                                    let wt = wt * validity.expect("kept as sub-pixel").subpixel;
+                                    sub += wt;
+                                    wt
+                                } else {
+                                    wt
+                                };
                                 total += wt;
                                 for c in 0..N {
                                     acc[c] += wt * src[c][t];
@@ -186,6 +274,7 @@ pub fn reproject<const N: usize>(
                         row[c][x] = acc[c] * inv;
                     }
                     fr[x] = total;
+                    kp[x] = sub;
                     lost += (total < 0.5) as u64;
                 }
                 lost
@@ -259,7 +348,17 @@ mod tests {
         let my = vec![0.0f32; w * h];
         let mut out = vec![0.0f32; w * h];
         let mut frac = vec![0.0f32; w * h];
-        let lost = reproject([&src], Some([&mx, &my]), None, w, h, [&mut out], &mut frac);
+        let mut kept = vec![0.0f32; w * h];
+        let lost = reproject(
+            [&src],
+            Some([&mx, &my]),
+            None,
+            w,
+            h,
+            [&mut out],
+            &mut frac,
+            &mut kept,
+        );
         // Half a pixel to the left: the mean of a pixel and its left neighbour.
         Tolerance::abs(1e-6).check("x=2", out[w + 2] as f64, 5.5).unwrap();
         assert_eq!(frac[w + 2], 1.0);
@@ -276,16 +375,35 @@ mod tests {
             prev_ids: &prev_ids,
             depth_tolerance: 0.1,
             neighbour_motion: 0.0,
+            subpixel: 0.0,
             motion: None,
             width: w,
             height: h,
         };
-        reproject([&src], Some([&mx, &my]), Some(&v), w, h, [&mut out], &mut frac);
+        reproject(
+            [&src],
+            Some([&mx, &my]),
+            Some(&v),
+            w,
+            h,
+            [&mut out],
+            &mut frac,
+            &mut kept,
+        );
         assert_eq!(out[w + 2], 6.0, "only the pixel's own tap is left");
         assert_eq!(frac[w + 2], 0.5);
         // Off screen: nothing.
         let far = vec![-1e9f32; w * h];
-        let lost = reproject([&src], Some([&far, &my]), None, w, h, [&mut out], &mut frac);
+        let lost = reproject(
+            [&src],
+            Some([&far, &my]),
+            None,
+            w,
+            h,
+            [&mut out],
+            &mut frac,
+            &mut kept,
+        );
         assert_eq!(lost, (w * h) as u64);
         assert!(frac.iter().all(|&f| f == 0.0) && out.iter().all(|&v| v == 0.0));
     }
