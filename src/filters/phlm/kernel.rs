@@ -12,7 +12,7 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STRIKE_DECAY, STATE_PLANES, Z};
+use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, STRIKE_DECAY, Z};
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
     FrameResult,
