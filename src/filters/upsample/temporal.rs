@@ -346,19 +346,14 @@ mod tests {
         let src: Vec<f32> = (0..w * h).map(|i| i as f32).collect();
         let mx = vec![-0.5f32; w * h];
         let my = vec![0.0f32; w * h];
-        let mut out = vec![0.0f32; w * h];
-        let mut frac = vec![0.0f32; w * h];
-        let mut kept = vec![0.0f32; w * h];
-        let lost = reproject(
-            [&src],
-            Some([&mx, &my]),
-            None,
-            w,
-            h,
-            [&mut out],
-            &mut frac,
-            &mut kept,
-        );
+        // Reprojects `src` by (`mx`, 0): the output, the fraction of valid taps, the lost count.
+        let run = |mx: &[f32], v: Option<&Validity>| {
+            let (mut out, mut frac, mut kept) =
+                (vec![0.0f32; w * h], vec![0.0f32; w * h], vec![0.0f32; w * h]);
+            let lost = reproject([&src], Some([mx, &my]), v, w, h, [&mut out], &mut frac, &mut kept);
+            (out, frac, lost)
+        };
+        let (out, frac, lost) = run(&mx, None);
         // Half a pixel to the left: the mean of a pixel and its left neighbour.
         Tolerance::abs(1e-6).check("x=2", out[w + 2] as f64, 5.5).unwrap();
         assert_eq!(frac[w + 2], 1.0);
@@ -380,30 +375,12 @@ mod tests {
             width: w,
             height: h,
         };
-        reproject(
-            [&src],
-            Some([&mx, &my]),
-            Some(&v),
-            w,
-            h,
-            [&mut out],
-            &mut frac,
-            &mut kept,
-        );
+        let (out, frac, _) = run(&mx, Some(&v));
         assert_eq!(out[w + 2], 6.0, "only the pixel's own tap is left");
         assert_eq!(frac[w + 2], 0.5);
         // Off screen: nothing.
         let far = vec![-1e9f32; w * h];
-        let lost = reproject(
-            [&src],
-            Some([&far, &my]),
-            None,
-            w,
-            h,
-            [&mut out],
-            &mut frac,
-            &mut kept,
-        );
+        let (out, frac, lost) = run(&far, None);
         assert_eq!(lost, (w * h) as u64);
         assert!(frac.iter().all(|&f| f == 0.0) && out.iter().all(|&v| v == 0.0));
     }
