@@ -289,8 +289,9 @@ fn report_noise_renders_noisy_input() {
             serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
         finite(&r["scenes"][0]["cells"][0]["mean_psnr"], "passthrough on static")
     };
+    // One-sample soft shadows: the unfiltered input is further from the reference.
     let (clean, noisy) = (psnr(false), psnr(true));
-    assert!(clean != noisy, "clean {clean} noisy {noisy}");
+    assert!(noisy < clean - 0.01, "clean {clean} dB, noisy {noisy} dB");
 }
 
 #[test]

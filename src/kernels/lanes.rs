@@ -471,6 +471,7 @@ mod tests {
         case::<8>(&mut rng);
         case::<9>(&mut rng);
         case::<25>(&mut rng);
+        case::<26>(&mut rng);
     }
 
     #[test]

@@ -300,9 +300,12 @@ impl UpsamplingConfig {
         }
     }
 
+    /// The main section's settings with this section's sparse shading, without jitter and
+    /// noise (as Herzog et al. 2010 sample).
     fn render(&self, main: Settings) -> Settings {
         Settings {
             jitter: Jitter::None,
+            noise: false,
             shading: self.factor,
             ..main
         }

@@ -1,6 +1,6 @@
 //! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
-//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count of failed box tests: 26 planes)
-//! stay on the device, double-buffered; a frame uploads its colour (and motion and the
+//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count
+//! of failed box tests: 26 planes) stay on the device, double-buffered; a frame uploads its colour (and motion and the
 //! invalid mask when it has them) and reads back the colour and the model counters in one
 //! buffer.
 //!
@@ -53,7 +53,7 @@ const IN_INVALID: usize = 6;
 const COUNTERS: usize = 8;
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
-/// matrix R, the feature z; a buffer each, so a 1080p frame's parts fit the 128 MiB a
+/// matrix R, the feature z with the count of failed box tests; a buffer each, so a 1080p frame's parts fit the 128 MiB a
 /// shader's buffer may have on many devices (all 26 planes at 1080p are 216 MB).
 const PARTS: [(&str, usize); 3] = [
     ("phlm models (beta)", 12),
@@ -61,7 +61,11 @@ const PARTS: [(&str, usize); 3] = [
     ("phlm models (z and the count of failed box tests)", 4),
 ];
 
-/// Words of the shader's `Params`.
+// The parts are the whole state, in its order.
+const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
+
+/// Words of the shader's `Params` (`phlm.wgsl`: 17 four-byte fields, in
+/// [`GpuPhlm::param_words`]'s order).
 const PARAM_WORDS: usize = 17;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.

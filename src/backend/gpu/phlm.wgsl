@@ -41,7 +41,8 @@ struct Params {
 
 @group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
-// The previous models and the next, each in three parts (beta, R, z), so that no buffer
+// The previous models and the next, each in three parts (beta, R, z with the count of failed
+// box tests), so that no buffer
 // is past the 128 MiB a shader's buffer may have on many devices at 1080p.
 @group(0) @binding(2) var<storage, read> beta: array<f32>;
 @group(0) @binding(3) var<storage, read> info: array<f32>;

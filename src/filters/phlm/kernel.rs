@@ -1,11 +1,12 @@
 //! `phlm`'s stages fused into one pass over bands of rows ([`par_bands_strided`]): a band's
 //! working colour and YCoCg (rows and their 3x3 halo) go to band-local buffers; then each
 //! row's models are fetched at their previous positions (one texel of 26 floats per tap:
-//! beta, R, z and the count of failed box tests of a pixel side by side), its 3x3 statistics are computed once for both the
-//! feature and the model test, and the feature and Algorithm 1 (prediction, box test, clip,
-//! the RLS update in f64 with reciprocal pivots) run on blocks of eight pixels in vector
-//! lanes. The reference ([`super::reference`]) reads 25 planes per pixel, computes the
-//! statistics twice and solves each pixel alone.
+//! beta, R, z and the count of failed box tests of a pixel side by side), its 3x3
+//! statistics are computed once for both the feature and the model test, and the feature
+//! and Algorithm 1 (prediction, box test, clip, the RLS update in f64 with reciprocal
+//! pivots) run on blocks of eight pixels in vector lanes. The reference
+//! ([`super::reference`]) reads 26 planes per pixel, computes the statistics twice and
+//! solves each pixel alone.
 //!
 //! Every stage computes what the reference computes, with the same float operations in the
 //! same order, so the outputs are the same bits; the tests compare them frame by frame.
@@ -43,7 +44,7 @@ const ALL: u32 = (1 << LANES) - 1;
 /// tests (1).
 pub(super) const TEXEL: usize = STATE_PLANES;
 
-// The Catmull-Rom fetch writes beta's span and the bilinear R and z side by side: together
+// The Catmull-Rom fetch writes beta's span and the bilinear R, z and count side by side: together
 // they must be the whole texel, or stale floats of the reused block buffer would leak.
 const _: () = assert!(BETA == 0 && R - BETA == SPAN);
 
@@ -103,7 +104,7 @@ struct Band {
     /// This row's fetched state, block by block.
     fetched: Vec<Fetched>,
     /// One block's fetched texels, before they are taken into lanes (kept across blocks:
-    /// zeroing 800 bytes per block was a `memset` call).
+    /// zeroing 832 bytes per block was a `memset` call).
     texels: [[f32; TEXEL]; LANES],
     /// This row's new feature, block by block.
     z: Vec<[Lanes; 3]>,
@@ -112,7 +113,7 @@ struct Band {
 /// What stage `reproject` hands the feature and the model for one block of pixels.
 #[derive(Clone, Copy, Default)]
 struct Fetched {
-    /// The previous state (beta, R, z; [`TEXEL`] floats), one lane per pixel; zero where
+    /// The previous state (beta, R, z, the count; [`TEXEL`] floats), one lane per pixel; zero where
     /// there is none.
     state: [Lanes; TEXEL],
     /// Pixels without history (first frame, reset, off screen, padding), as bits (lane `l`

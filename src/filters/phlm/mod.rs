@@ -56,7 +56,7 @@
 //! - a failed box test clips only when it persists: three failures in a row
 //!   (`clip_after = 1.75`, [`DEFAULT_CLIP_AFTER`]); before that it only relaxes the model's
 //!   information (`fail_keep = 0.25`, [`DEFAULT_FAIL_KEEP`]) and the RLS update pulls it
-//!   toward the input. The paper clips at every failure (lines 13-18). With jittered input
+//!   toward the input. The paper clips at every failure (lines 12-19). With jittered input
 //!   one frame's 3x3 box misses what a still pixel has rightly converged to (sub-pixel
 //!   detail this frame's samples missed); clipping it there threw away what the model had
 //!   averaged (docs/phlm-ablations.md, table 12).
@@ -177,7 +177,7 @@ filter_params! {
             "what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0) or shift (the intercept moves so the model predicts the clipped colour, slopes kept)";
         clip_after: f32 = DEFAULT_CLIP_AFTER,
             ParamKind::Float { min: 0.0, max: 2.0 },
-            "how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev / 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise), and a failure clips and resets only when s >= clip_after (default 1.75: three frames in a row; 1.5: two; 1 or less: every failure, the paper; 2: never). Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content converges); a real change shows its old colour longer (fail_keep makes the model follow it meanwhile)";
+            "how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev / 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise), and a failure clips and resets only when s >= clip_after (default 1.75: three frames in a row; 1.5: two; 1 or less: every failure, the paper; 2: only after 24 in a row, where f32 rounds the count to 2). Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content converges); a real change shows its old colour longer (fail_keep makes the model follow it meanwhile)";
         fail_keep: f32 = DEFAULT_FAIL_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a model whose prediction left the box without clipping yet (clip_after > 1): R = fail_keep R + (1 - fail_keep) I / clip_p, beta kept (default 0.25; 1 = untouched). Lower: the RLS update follows a real change at once; higher: still detail keeps more of what it accumulated";
@@ -243,7 +243,7 @@ pub const DEFAULT_TEST_GAMMA: f32 = 1.0;
 
 /// The count a failed box test must reach to clip the model: 1.75, three failures in a row
 /// (our choice, measured; see [`strikes`]). The paper clips at every failure
-/// ([`PAPER_CLIP_AFTER`]). With jittered input the 3x3 box of one frame can miss a value
+/// ([`PAPER_CLIP_AFTER`], Algorithm 1 lines 12-19). With jittered input the 3x3 box of one frame can miss a value
 /// the pixel's model has rightly converged to (a sub-pixel pole or texture detail that this
 /// frame's samples missed); a clip then resets what the model had accumulated. Chosen on
 /// the mean over the 10-scene catalogue (128x72, 32 frames, with `fail_keep = 0.25`):
@@ -260,7 +260,7 @@ pub const DEFAULT_CLIP_AFTER: f32 = 1.75;
 /// = 1.75`): 0 / 0.1 / 0.25 / 0.35 / 0.5 / 1 give 30.64 / 30.72 / 30.74 / 30.72 / 30.67 /
 /// 30.42 dB (docs/phlm-ablations.md, table 12).
 pub const DEFAULT_FAIL_KEEP: f32 = 0.25;
-/// `clip_after` of the paper: every failed box test clips (Algorithm 1 lines 13-18).
+/// `clip_after` of the paper: every failed box test clips (Algorithm 1 lines 12-19).
 pub const PAPER_CLIP_AFTER: f32 = 1.0;
 /// How a pixel's count of failed box tests decays per frame: it halves ([`strikes`]), so
 /// `clip_after` 1.5 needs two failures in a row and 1.75 three (our choice: a failure
@@ -538,7 +538,7 @@ pub fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
 }
 
 impl Phlm {
-    /// The filter's state, empty: one texel of the 25 state floats per pixel (a fetch reads
+    /// The filter's state, empty: one texel of the 26 state floats per pixel (a fetch reads
     /// a pixel's model at once), converted between linear and tonemapped working space by
     /// [`convert_state`]. The GPU backend saves and loads this same format.
     pub fn history() -> TemporalState {
