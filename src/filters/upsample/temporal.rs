@@ -59,25 +59,20 @@ impl Validity<'_> {
     /// `i`'s surface was not within a pixel of the tap in the previous frame.
     #[inline(always)]
     fn intruder(&self, i: usize, tap: usize) -> bool {
-        let g = Nearby {
-            depth: self.depth,
-            ids: self.ids,
-            motion: self.motion,
-            width: self.width,
-            height: self.height,
-            depth_tolerance: self.depth_tolerance,
-            max_motion: f32::INFINITY,
-        };
-        surface_nearby(&g, i, self.prev_ids[tap], self.prev_depth[tap])
-            && !seen_before(
-                &|q| (self.prev_ids[q], self.prev_depth[q]),
-                self.width,
-                self.height,
-                tap,
-                self.ids.map(|d| d[i] as f32),
-                self.depth.map(|d| d[i]),
-                self.depth_tolerance,
-            )
+        surface_nearby(
+            &self.neighbours(f32::INFINITY),
+            i,
+            self.prev_ids[tap],
+            self.prev_depth[tap],
+        ) && !seen_before(
+            &|q| (self.prev_ids[q], self.prev_depth[q]),
+            self.width,
+            self.height,
+            tap,
+            self.ids.map(|d| d[i] as f32),
+            self.depth.map(|d| d[i]),
+            self.depth_tolerance,
+        )
     }
 
     #[inline(always)]
@@ -96,20 +91,27 @@ impl Validity<'_> {
         true
     }
 
+    /// The pixel's neighbourhood for [`surface_nearby`], accepting a surface that moves
+    /// within `max_motion` pixels of the pixel.
+    #[inline(always)]
+    fn neighbours(&self, max_motion: f32) -> Nearby<'_> {
+        Nearby {
+            depth: self.depth,
+            ids: self.ids,
+            motion: self.motion,
+            width: self.width,
+            height: self.height,
+            depth_tolerance: self.depth_tolerance,
+            max_motion,
+        }
+    }
+
     /// The fallback of a failed tap: [`surface_nearby`] when `neighbour_motion` is on.
     #[inline(always)]
     fn nearby(&self, i: usize, tap: usize) -> bool {
         self.neighbour_motion > 0.0
             && surface_nearby(
-                &Nearby {
-                    depth: self.depth,
-                    ids: self.ids,
-                    motion: self.motion,
-                    width: self.width,
-                    height: self.height,
-                    depth_tolerance: self.depth_tolerance,
-                    max_motion: self.neighbour_motion,
-                },
+                &self.neighbours(self.neighbour_motion),
                 i,
                 self.prev_ids[tap],
                 self.prev_depth[tap],
