@@ -1,8 +1,8 @@
 //! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
 //! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count
-//! of failed box tests: 26 planes) stay on the device, double-buffered; a frame uploads its colour (and motion and the
-//! invalid mask when it has them) and reads back the colour and the model counters in one
-//! buffer.
+//! of failed box tests: 26 planes) stay on the device, double-buffered; a frame uploads its
+//! colour (and motion and the invalid mask when it has them) and reads back the colour and
+//! the model counters in one buffer.
 //!
 //! The RLS update is solved in f32 ([`rls::update_information_f32`], which the shader
 //! mirrors): the information matrix formed with one rounding per entry and Cholesky pivots
@@ -53,8 +53,9 @@ const IN_INVALID: usize = 6;
 const COUNTERS: usize = 8;
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
-/// matrix R, the feature z with the count of failed box tests; a buffer each, so a 1080p frame's parts fit the 128 MiB a
-/// shader's buffer may have on many devices (all 26 planes at 1080p are 216 MB).
+/// matrix R, the feature z with the count of failed box tests; a buffer each, so a 1080p
+/// frame's parts fit the 128 MiB a shader's buffer may have on many devices (all 26 planes
+/// at 1080p are 216 MB).
 const PARTS: [(&str, usize); 3] = [
     ("phlm models (beta)", 12),
     ("phlm models (R)", 10),

@@ -42,8 +42,8 @@ struct Params {
 @group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
 // The previous models and the next, each in three parts (beta, R, z with the count of failed
-// box tests), so that no buffer
-// is past the 128 MiB a shader's buffer may have on many devices at 1080p.
+// box tests), so that no buffer is past the 128 MiB a shader's buffer may have on many
+// devices at 1080p.
 @group(0) @binding(2) var<storage, read> beta: array<f32>;
 @group(0) @binding(3) var<storage, read> info: array<f32>;
 @group(0) @binding(4) var<storage, read> feat: array<f32>;
@@ -287,9 +287,12 @@ fn relax(m: ptr<function, Model>, k: f32) {
     }
 }
 
+// phlm::STRIKE_DECAY.
+const STRIKE_DECAY: f32 = 0.5;
+
 // phlm::strikes: the count of failed box tests after this frame (halved, +1 on a failure).
 fn strikes(prev: f32, failed: bool) -> f32 {
-    return 0.5 * prev + select(0.0, 1.0, failed);
+    return STRIKE_DECAY * prev + select(0.0, 1.0, failed);
 }
 
 // phlm::forgetting: lambda, falling with the speed v toward lambda_moving.

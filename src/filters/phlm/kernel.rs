@@ -44,8 +44,8 @@ const ALL: u32 = (1 << LANES) - 1;
 /// tests (1).
 pub(super) const TEXEL: usize = STATE_PLANES;
 
-// The Catmull-Rom fetch writes beta's span and the bilinear R, z and count side by side: together
-// they must be the whole texel, or stale floats of the reused block buffer would leak.
+// The Catmull-Rom fetch writes beta's span and the bilinear R, z and count side by side:
+// together they must be the whole texel, or stale floats of the reused block buffer would leak.
 const _: () = assert!(BETA == 0 && R - BETA == SPAN);
 
 /// What the pass reads for one frame.
@@ -113,8 +113,8 @@ struct Band {
 /// What stage `reproject` hands the feature and the model for one block of pixels.
 #[derive(Clone, Copy, Default)]
 struct Fetched {
-    /// The previous state (beta, R, z, the count; [`TEXEL`] floats), one lane per pixel; zero where
-    /// there is none.
+    /// The previous state (beta, R, z, the count; [`TEXEL`] floats), one lane per pixel;
+    /// zero where there is none.
     state: [Lanes; TEXEL],
     /// Pixels without history (first frame, reset, off screen, padding), as bits (lane `l`
     /// is bit `l`).
@@ -646,8 +646,8 @@ fn model_row(
         let moved = moved & active;
         // A failure clips once it persists (`clip_after`): [`strikes`] in `f32x8`, the
         // same operations in the same order.
-        let failed = lanes::mask_of_bits(moved).select(f32x8::splat(1.0), f32x8::splat(0.0));
-        let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + failed;
+        let hit = lanes::mask_of_bits(moved).select(f32x8::splat(1.0), f32x8::splat(0.0));
+        let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + hit;
         let clip = moved & count_v.simd_ge(f32x8::splat(p.clip_after)).to_bitmask();
         let count: Lanes = count_v.to_array();
         clip_where(clip, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);

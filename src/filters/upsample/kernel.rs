@@ -23,7 +23,7 @@
 //! them frame by frame.
 
 use super::spatial::{falloff, Sparse, WEIGHT_EPSILON};
-use super::temporal::{filter_gradients, seen_before, signed_gradient, surface_nearby, Nearby};
+use super::temporal::{filter_gradients, signed_gradient, sub_pixel_intruder, surface_nearby, Nearby};
 use super::{Method, Params, DEPTH, G1, ID, LK, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W};
 use crate::filters::passes::{on_screen_bits, previous_positions, FrameContext, FrameResult};
 use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
@@ -579,12 +579,10 @@ fn reproject_row<const N: usize>(
     lost
 }
 
-/// Whether a tap `t` of pixel `i` that failed the validity test (channels `ic`, `dc` of its
-/// texel in `hist` hold its id and depth; `id`, `z` are the pixel's) is kept for a sub-pixel
-/// surface (`subpixel_keep`): its surface is next to the pixel this frame, whatever its
-/// motion, and the pixel's surface was not within a pixel of the tap in the previous frame
-/// (the reference's `Validity::intruder`; out of line, few taps fail).
-#[inline(never)]
+/// [`sub_pixel_intruder`] for tap `t` of pixel `i` read from texels of `N` floats in `hist`
+/// (channels `ic`, `dc` hold the previous id and depth; `id`, `z` are the pixel's; the
+/// reference's `Validity::intruder`).
+#[inline(always)]
 fn sub_pixel_tap<const N: usize>(
     nearby: &Nearby,
     hist: &[f32],
@@ -593,21 +591,14 @@ fn sub_pixel_tap<const N: usize>(
     (ic, dc): (usize, usize),
     (id, z): (Option<f32>, Option<f32>),
 ) -> bool {
-    let anywhere = Nearby {
-        max_motion: f32::INFINITY,
-        ..*nearby
-    };
-    let prev = |q: usize| (hist[N * q + ic], hist[N * q + dc]);
-    surface_nearby(&anywhere, i, hist[N * t + ic], hist[N * t + dc])
-        && !seen_before(
-            &prev,
-            nearby.width,
-            nearby.height,
-            t,
-            id,
-            z,
-            nearby.depth_tolerance,
-        )
+    sub_pixel_intruder(
+        nearby,
+        i,
+        t,
+        &|q: usize| (hist[N * q + ic], hist[N * q + dc]),
+        id,
+        z,
+    )
 }
 
 /// One band task's buffers, reused across the bands it runs.

@@ -233,8 +233,9 @@ pub const MIN_DECAY: f32 = 0.93;
 /// never on one scene, with `subpixel_keep` 0: false / true give 25.509 / 25.722 dB (tRMSE
 /// 0.0605 / 0.0600) with `--jitter 8 --noise` and 25.651 / 25.808 dB (0.0478 / 0.0476)
 /// noise-free; with 4x4 shading 24.203 / 24.316 and 24.908 / 24.984 dB. No scene loses at
-/// 2x2; fence gains most (+0.73 / +1.12 dB), through its edges against the sky. The tradeoff: two sky pixels are no longer told apart by anything but
-/// the image-space kernel (they have no geometry; the scenes' skies are smooth).
+/// 2x2; fence gains most (+0.73 / +1.12 dB), through its edges against the sky. The
+/// tradeoff: two sky pixels are no longer told apart by anything but the image-space
+/// kernel (they have no geometry; the scenes' skies are smooth).
 pub const SKY_DEPTH_ONLY: bool = true;
 
 /// Default `subpixel_keep`. Chosen on the mean over the ten catalogue scenes with 2x2

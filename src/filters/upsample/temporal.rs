@@ -59,19 +59,13 @@ impl Validity<'_> {
     /// `i`'s surface was not within a pixel of the tap in the previous frame.
     #[inline(always)]
     fn intruder(&self, i: usize, tap: usize) -> bool {
-        surface_nearby(
+        sub_pixel_intruder(
             &self.neighbours(f32::INFINITY),
             i,
-            self.prev_ids[tap],
-            self.prev_depth[tap],
-        ) && !seen_before(
-            &|q| (self.prev_ids[q], self.prev_depth[q]),
-            self.width,
-            self.height,
             tap,
+            &|q| (self.prev_ids[q], self.prev_depth[q]),
             self.ids.map(|d| d[i] as f32),
             self.depth.map(|d| d[i]),
-            self.depth_tolerance,
         )
     }
 
@@ -176,6 +170,37 @@ pub fn surface_nearby(g: &Nearby, i: usize, id: f32, z: f32) -> bool {
         }
     }
     false
+}
+
+/// Whether tap `t` of pixel `i`, which failed the validity test, is kept for a sub-pixel
+/// surface (`subpixel_keep`): the tap's surface (`prev(t)`, the previous frame's id and
+/// depth) is next to the pixel this frame (`nearby`, whatever its motion: its
+/// `max_motion` is not read), and the pixel's own surface (`id`, `z`) was not within a
+/// pixel of the tap in the previous frame ([`seen_before`]).
+#[inline(never)]
+pub fn sub_pixel_intruder(
+    nearby: &Nearby,
+    i: usize,
+    t: usize,
+    prev: &impl Fn(usize) -> (f32, f32),
+    id: Option<f32>,
+    z: Option<f32>,
+) -> bool {
+    let anywhere = Nearby {
+        max_motion: f32::INFINITY,
+        ..*nearby
+    };
+    let (tid, tz) = prev(t);
+    surface_nearby(&anywhere, i, tid, tz)
+        && !seen_before(
+            prev,
+            nearby.width,
+            nearby.height,
+            t,
+            id,
+            z,
+            nearby.depth_tolerance,
+        )
 }
 
 /// Whether the previous frame showed the surface of object `id` at depth `z` at pixel `t`
