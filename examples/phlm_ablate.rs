@@ -17,6 +17,8 @@
 //! rendering model but a probe of how well each filter averages strong per-pixel noise
 //! (docs/phlm-ablations.md, table 11). `AFTERIMAGE_PER_FRAME=1` also prints each run's
 //! per-frame PSNR (on standard error), to see where a filter converges or lags.
+//! `AFTERIMAGE_SIZE=report` renders at the report's default size instead (256x144, 16x16
+//! reference samples).
 
 use afterimage::filters::create;
 use afterimage::frame::Frame;
@@ -36,7 +38,7 @@ fn render(spec: &str, jitter: Jitter) -> Vec<Frame> {
         Some(n) => (n, true),
         None => (spec, false),
     };
-    let s = Settings {
+    let mut s = Settings {
         width: 128,
         height: 72,
         frames: 32,
@@ -46,6 +48,11 @@ fn render(spec: &str, jitter: Jitter) -> Vec<Frame> {
         seed: 1,
         shading: 1,
     };
+    if std::env::var("AFTERIMAGE_SIZE").as_deref() == Ok("report") {
+        // The report's default run: 256x144 with 16x16 reference samples.
+        let d = Settings::default();
+        (s.width, s.height, s.spp) = (d.width, d.height, d.spp);
+    }
     let scene = Scene::new(name, s).expect("a catalogue scene");
     let sigma: f64 = std::env::var("AFTERIMAGE_NOISE_SIGMA").map_or(0.0, |v| {
         v.parse()

@@ -251,14 +251,16 @@ fn reference_frame(
 /// of pixel-frames where it exceeded 1e-3, and the max over the last frame.
 fn compare(frames: u64) -> (f64, u64, f64) {
     // The defaults, with the fetch and the clip this reference states: bilinear models
-    // and a hard reset of P at every failed box test (the Catmull-Rom fetch of beta,
-    // `clip_keep`, `clip_after` and `fail_keep` are checked against the scalar reference
-    // bit for bit, `phlm::tests`; this test is about f32 against f64). The scene has no
-    // depth, so no dilation.
+    // and a hard reset of P at every failed box test, however far out (the Catmull-Rom
+    // fetch of beta, `clip_keep`, `clip_after`, `fail_keep`, `fail_ramp` and `speed_jump`
+    // are checked against the scalar reference bit for bit, `phlm::tests`; this test is
+    // about f32 against f64). The scene has no depth, so no dilation.
     let params = Params {
         model_fetch: afterimage::filters::phlm::ModelFetch::Bilinear,
         clip_keep: 0.0,
         clip_after: 1.0,
+        fail_ramp: 0.0,
+        speed_jump: 0.0,
         ..Params::default()
     };
     let mut f = Phlm::new(params.clone());

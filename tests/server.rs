@@ -464,8 +464,8 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_budget_idle_eviction_and_reconnect() {
-    // phlm at 64x36 holds 208 B/px = 479,232 bytes; a 2 MiB budget fits four, and leaves
-    // 180,224 bytes, less than a 64x36 phlm frame in flight takes (221,184 with its
+    // phlm at 64x36 holds 216 B/px = 497,664 bytes; a 2 MiB budget fits four, and leaves
+    // 106,496 bytes, less than a 64x36 phlm frame in flight takes (221,184 with its
     // reference: wire bytes, decoded frame, output and reply), so one of the four is
     // closed before frames stream.
     let r = server(|c| {
@@ -486,7 +486,7 @@ async fn memory_budget_idle_eviction_and_reconnect() {
     assert_eq!(e.code(), Code::ResourceExhausted);
     assert!(
         e.message()
-            .contains("needs 479232 bytes; 180224 of the 2097152 bytes of the memory budget are free"),
+            .contains("needs 497664 bytes; 106496 of the 2097152 bytes of the memory budget are free"),
         "{}",
         e.message()
     );

@@ -1,6 +1,6 @@
 //! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
 //! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count
-//! of failed box tests: 26 planes) stay on the device, double-buffered; a frame uploads its
+//! of failed box tests, the speed: 27 planes) stay on the device, double-buffered; a frame uploads its
 //! colour (and motion and the invalid mask when it has them) and reads back the colour and
 //! the model counters in one buffer.
 //!
@@ -53,21 +53,21 @@ const IN_INVALID: usize = 6;
 const COUNTERS: usize = 8;
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
-/// matrix R, the feature z with the count of failed box tests; a buffer each, so a 1080p
-/// frame's parts fit the 128 MiB a shader's buffer may have on many devices (all 26 planes
-/// at 1080p are 216 MB).
+/// matrix R, the feature z with the count of failed box tests and the speed; a buffer each, so a 1080p
+/// frame's parts fit the 128 MiB a shader's buffer may have on many devices (all 27 planes
+/// at 1080p are 224 MB).
 const PARTS: [(&str, usize); 3] = [
     ("phlm models (beta)", 12),
     ("phlm models (R)", 10),
-    ("phlm models (z and the count of failed box tests)", 4),
+    ("phlm models (z, the count of failed box tests, the speed)", 5),
 ];
 
 // The parts are the whole state, in its order.
 const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
 
-/// Words of the shader's `Params` (`phlm.wgsl`: 17 four-byte fields, in
+/// Words of the shader's `Params` (`phlm.wgsl`: 19 four-byte fields, in
 /// [`GpuPhlm::param_words`]'s order).
-const PARAM_WORDS: usize = 17;
+const PARAM_WORDS: usize = 19;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
@@ -221,10 +221,12 @@ impl GpuPhlm {
             hi.to_bits(),
             (1.0 / p.p0.max(p.clip_p)).to_bits(),
             p.fail_keep.to_bits(),
+            p.fail_ramp.to_bits(),
+            p.speed_jump.to_bits(),
         ]
     }
 
-    /// The previous frame's models as 26 planes (the CPU reference's planar layout).
+    /// The previous frame's models as 27 planes (the CPU reference's planar layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
         let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
@@ -239,7 +241,7 @@ impl GpuPhlm {
             .collect()
     }
 
-    /// Writes 26 model planes as the previous frame's.
+    /// Writes 27 model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
         let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;

@@ -9,7 +9,8 @@
 // factorisation whose pivots are held at or above the prior (the rls module's docs give
 // the bound and the still-pixel measurements).
 //
-// State: 26 planes (beta 12, R = P^-1 packed 10, z 3, the count of failed box tests 1;
+// State: 27 planes (beta 12, R = P^-1 packed 10, z 3, the count of failed box tests 1,
+// the speed 1;
 // the CPU filter's texel order, one plane each so neighbouring invocations read
 // neighbouring words), in three buffers (beta, R, z with the count), double-buffered.
 
@@ -37,6 +38,10 @@ struct Params {
     pivot_floor: f32,
     // phlm::Params::fail_keep.
     fail_keep: f32,
+    // phlm::Params::fail_ramp (phlm::miss).
+    fail_ramp: f32,
+    // phlm::Params::speed_jump (phlm::jump).
+    speed_jump: f32,
 }
 
 @group(0) @binding(0) var<storage, read> P: Params;
@@ -290,9 +295,31 @@ fn relax(m: ptr<function, Model>, k: f32) {
 // phlm::STRIKE_DECAY.
 const STRIKE_DECAY: f32 = 0.5;
 
-// phlm::strikes: the count of failed box tests after this frame (halved, +1 on a failure).
-fn strikes(prev: f32, failed: bool) -> f32 {
-    return STRIKE_DECAY * prev + select(0.0, 1.0, failed);
+// phlm::strikes: the count of failed box tests after this frame (halved, + the miss).
+fn strikes(prev: f32, hit: f32) -> f32 {
+    return STRIKE_DECAY * prev + hit;
+}
+
+// phlm::miss: how much of a failure a box test is, from the prediction q and where the
+// clip took it (w = 1 when it moved): min(1, d / fail_ramp), d the largest channel of
+// |q - c|; 1 with no ramp, 0 inside the box.
+fn miss(q: vec3<f32>, c: vec4<f32>) -> f32 {
+    if c.w == 0.0 {
+        return 0.0;
+    }
+    if P.fail_ramp == 0.0 {
+        return 1.0;
+    }
+    let d = abs(q - c.xyz);
+    return min(max(max(d.x, d.y), d.z) / P.fail_ramp, 1.0);
+}
+
+// phlm::jump: how many times a failure counts where the speed changed (1 to 2).
+fn jump(v: f32, v_prev: f32) -> f32 {
+    if P.speed_jump == 0.0 {
+        return 1.0;
+    }
+    return 1.0 + min(abs(v - v_prev) / P.speed_jump, 1.0);
 }
 
 // phlm::forgetting: lambda, falling with the speed v toward lambda_moving.
@@ -519,11 +546,14 @@ fn phlm_pixel(x: u32, y: u32) {
     }
     let xf = vec4<f32>(1.0, z);
     // The count of failed box tests, read as R is (0 without history).
+    // And the speed stored with it (phlm::jump).
     var s_prev = 0.0;
+    var v_prev = 0.0;
     if found {
         s_prev = fetch(Z, 3u, t);
+        v_prev = fetch(Z, 4u, t);
     }
-    var s = strikes(s_prev, false);
+    var s = strikes(s_prev, 0.0);
     if !invalid {
         // Lines 12-19: predict; outside the box, clip toward the input and reset.
         var pred = predict(m, xf);
@@ -536,15 +566,21 @@ fn phlm_pixel(x: u32, y: u32) {
             blo = max(mean - P.test_gamma * sigma, lo);
             bhi = min(mean + P.test_gamma * sigma, hi);
         }
-        let clipped = clip_toward_point(rgb_to_ycocg(pred), cur, blo, bhi);
+        let q = rgb_to_ycocg(pred);
+        let clipped = clip_toward_point(q, cur, blo, bhi);
         // A failure clips once it persists (clip_after); before, it relaxes R (fail_keep).
-        let failed = clipped.w != 0.0;
-        s = strikes(s_prev, failed);
-        if failed && s >= P.clip_after {
+        // Each counts, and relaxes, as much as it missed by (fail_ramp).
+        let hit = miss(q, clipped) * jump(speed, v_prev);
+        s = strikes(s_prev, hit);
+        if hit > 0.0 && s >= P.clip_after {
             atomicAdd(&wg_counts[C_CLIPPED], 1u);
             model_clip(&m, pred, ycocg_to_rgb(clipped.xyz));
-        } else if failed && P.fail_keep != 1.0 {
-            relax(&m, P.fail_keep);
+        } else if hit > 0.0 {
+            // phlm::fail_relax: fail_keep for a whole miss or more, in proportion for less.
+            let keep = 1.0 - min(hit, 1.0) * (1.0 - P.fail_keep);
+            if keep != 1.0 {
+                relax(&m, keep);
+            }
         }
         // Lines 19-21: the (possibly reset) model's error, the RLS update.
         pred = predict(m, xf);
@@ -576,4 +612,5 @@ fn phlm_pixel(x: u32, y: u32) {
     next_feat[n + i] = z.y;
     next_feat[2u * n + i] = z.z;
     next_feat[3u * n + i] = s;
+    next_feat[4u * n + i] = speed;
 }

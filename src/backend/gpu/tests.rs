@@ -302,8 +302,11 @@ fn compare_adversarial(name: &str, variants: &[&[&str]]) {
 /// which on `flyover` took a clip on one backend only (one pixel 0.016 apart at frame 53),
 /// and `clip_after=1.5 fail_keep=1`, whose models left outside the box unrelaxed follow
 /// the f32 and f64 solves apart on `hdr` (0.0053 at frame 42, over the 0.005 bound; two
-/// samples past 1e-4 in a 7x1 frame). The default runs the count of failed box tests and
-/// the relax of `fail_keep`; `variant=paper` a clip at every failure.
+/// samples past 1e-4 in a 7x1 frame), and `fail_ramp=0` (whole misses: a prediction on
+/// the box's edge that fails on one backend only starts a relax and a count there, one
+/// pixel of `camera-cut` 0.058 apart with f16 colour; `phlm::miss`). The default runs the
+/// count of failed box tests with its ramp and speed jump and the relax of `fail_keep`;
+/// `variant=paper` a clip at every failure.
 const PHLM_VARIANTS: &[&[&str]] = &[
     &[],
     &["model_fetch=nearest"],
@@ -742,7 +745,11 @@ const PHLM_ROUNDED_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-2);
 /// - `taa`: up to 4.9% of a frame's samples (camera cut, sharpen 0.5), each within 0.054;
 ///   pixel counts within 2.3% of the pixels (the clip's decisions).
 /// - `phlm`: up to 15.7% of a frame's samples (`flyover`, nearest model fetch), each
-///   within 0.42; pixel counts within 2.8%, the largest trace(P) within 1.5%.
+///   within 0.42; pixel counts within 2.8%, the largest trace(P) within 8.8% (5x9 `hdr`
+///   with `on_clip=shift`; 4.8% with the defaults on `flyover`): a failed box test that
+///   waits (`clip_after`) keeps its model, and how long the largest-trace model lives turns
+///   on whether the rounded colour left the box. On the rounded colour itself the GPU's
+///   largest trace(P) is within 0.07% of the CPU's ([`TRACE_TOLERANCE`]).
 fn f16_bounds(filter: &str) -> Bounds {
     let (tol, outliers, outlier, count_slack, trace) = match filter {
         "passthrough" => (
@@ -754,7 +761,7 @@ fn f16_bounds(filter: &str) -> Bounds {
         ),
         "fxaa" => (F16_TOLERANCE, 0.15, 1.0, COUNT_SLACK, TRACE_TOLERANCE.rel),
         "taa" => (F16_TOLERANCE, 0.07, 0.1, 0.035, TRACE_TOLERANCE.rel),
-        _ => (F16_TOLERANCE, 0.2, 0.6, 0.04, 0.03),
+        _ => (F16_TOLERANCE, 0.2, 0.6, 0.04, 0.12),
     };
     Bounds {
         tol,

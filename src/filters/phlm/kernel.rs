@@ -1,11 +1,11 @@
 //! `phlm`'s stages fused into one pass over bands of rows ([`par_bands_strided`]): a band's
 //! working colour and YCoCg (rows and their 3x3 halo) go to band-local buffers; then each
-//! row's models are fetched at their previous positions (one texel of 26 floats per tap:
-//! beta, R, z and the count of failed box tests of a pixel side by side), its 3x3
+//! row's models are fetched at their previous positions (one texel of 27 floats per tap:
+//! beta, R, z, the count of failed box tests and the speed of a pixel side by side), its 3x3
 //! statistics are computed once for both the feature and the model test, and the feature
 //! and Algorithm 1 (prediction, box test, clip, the RLS update in f64 with reciprocal
 //! pivots) run on blocks of eight pixels in vector lanes. The reference
-//! ([`super::reference`]) reads 26 planes per pixel, computes the statistics twice and
+//! ([`super::reference`]) reads 27 planes per pixel, computes the statistics twice and
 //! solves each pixel alone.
 //!
 //! Every stage computes what the reference computes, with the same float operations in the
@@ -13,7 +13,7 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, STRIKE_DECAY, Z};
+use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, STRIKE_DECAY, V, Z};
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
     FrameResult,
@@ -569,32 +569,49 @@ fn clip_where(
             }
         }
     }
-    relax_where(bits, r, p.clip_keep, p.clip_p);
+    relax_lanes(bits, r, f32x8::splat(p.clip_keep), p.clip_p);
 }
 
-/// [`super::Model::relax`] where bit `l` of `bits` is set: `R` relaxed toward
-/// `I / clip_p`, keeping `keep` of it.
-#[inline(always)]
-fn relax_where(bits: u32, r: &mut [Lanes; P_LEN], keep: f32, clip_p: f32) {
+/// [`super::Model::relax`] in the lanes of `bits`, each with its own `keep`: `R = keep R +
+/// (1 - keep) I / clip_p`, and `I / clip_p` itself where `keep` is 0.
+fn relax_lanes(bits: u32, r: &mut [Lanes; P_LEN], keep: f32x8, clip_p: f32) {
     if bits == 0 {
         return;
     }
     let m = lanes::mask_of_bits(bits);
     let v = lanes::v;
-    let pick = |a: f32x8, b: &Lanes| m.select(a, v(b)).to_array();
     let init = rls::init_information(clip_p);
-    if keep == 0.0 {
-        for k in 0..P_LEN {
-            r[k] = pick(f32x8::splat(init[k]), &r[k]);
-        }
-    } else {
-        let (kept, rest) = (f32x8::splat(keep), 1.0 - keep);
-        for k in 0..P_LEN {
-            // `keep * v + (1 - keep) * init`, as [`super::Model::relax`].
-            let relaxed = kept * v(&r[k]) + f32x8::splat(rest * init[k]);
-            r[k] = pick(relaxed, &r[k]);
-        }
+    let rest = f32x8::splat(1.0) - keep;
+    let zero = keep.simd_eq(f32x8::splat(0.0));
+    for k in 0..P_LEN {
+        let i = f32x8::splat(init[k]);
+        // `keep * v + (1 - keep) * init`, as [`super::Model::relax`].
+        let relaxed = zero.select(i, keep * v(&r[k]) + rest * i);
+        r[k] = m.select(relaxed, v(&r[k])).to_array();
     }
+}
+
+/// [`super::jump`] in lanes.
+fn jump_lanes(v: &Lanes, v_prev: &Lanes, speed_jump: f32) -> f32x8 {
+    let one = f32x8::splat(1.0);
+    if speed_jump == 0.0 {
+        return one;
+    }
+    let d = (lanes::v(v) - lanes::v(v_prev)).abs() / f32x8::splat(speed_jump);
+    one + lanes::min_of(d, one)
+}
+
+/// [`super::miss`] in lanes: 0 where `moved` is clear, else `min(1, d / ramp)` with `d`
+/// the largest channel of `|pred - clipped|` (1 where `ramp` is 0).
+fn miss_lanes(pred: &[Lanes; 3], clipped: &[Lanes; 3], moved: u32, ramp: f32) -> f32x8 {
+    let m = lanes::mask_of_bits(moved);
+    if ramp == 0.0 {
+        return m.select(f32x8::splat(1.0), f32x8::splat(0.0));
+    }
+    let d = |c: usize| (lanes::v(&pred[c]) - lanes::v(&clipped[c])).abs();
+    let d = lanes::max_of(lanes::max_of(d(0), d(1)), d(2));
+    let share = lanes::min_of(d / f32x8::splat(ramp), f32x8::splat(1.0));
+    m.select(share, f32x8::splat(0.0))
 }
 
 /// Stage `model` of one row: Algorithm 1 lines 11-22 (Iglesias-Guitian et al. 2016) on blocks of eight pixels: the
@@ -642,18 +659,24 @@ fn model_row(
         let x: [Lanes; D] = [lanes::splat(1.0), zl[0], zl[1], zl[2]];
         // Lines 12-19: predict; outside the 3x3 box -> clip toward the input and reset.
         let pred = rls::predict_lanes(&beta, &x);
-        let (clipped, moved) = lanes::clip_toward_point(&lanes::rgb_to_ycocg(&pred), &cur, &lo, &hi);
+        let pred_ycocg = lanes::rgb_to_ycocg(&pred);
+        let (clipped, moved) = lanes::clip_toward_point(&pred_ycocg, &cur, &lo, &hi);
         let moved = moved & active;
-        // A failure clips once it persists (`clip_after`): [`strikes`] in `f32x8`, the
-        // same operations in the same order.
-        let hit = lanes::mask_of_bits(moved).select(f32x8::splat(1.0), f32x8::splat(0.0));
+        // A failure clips once it persists (`clip_after`): [`miss`](super::miss) and
+        // [`strikes`](super::strikes) in `f32x8`, the same operations in the same order.
+        let hit = miss_lanes(&pred_ycocg, &clipped, moved, p.fail_ramp)
+            * jump_lanes(&f.speed, &f.state[V], p.speed_jump);
         let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + hit;
-        let clip = moved & count_v.simd_ge(f32x8::splat(p.clip_after)).to_bitmask();
+        let zero = f32x8::splat(0.0);
+        let clip = (hit.simd_gt(zero) & count_v.simd_ge(f32x8::splat(p.clip_after))).to_bitmask() & moved;
         let count: Lanes = count_v.to_array();
         clip_where(clip, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
-        if p.fail_keep != 1.0 {
-            relax_where(moved & !clip, &mut r, p.fail_keep, p.clip_p);
-        }
+        // [`super::fail_relax`]: `1 - min(hit, 1) (1 - fail_keep)`; lanes kept whole are
+        // left as they are (the reference skips them).
+        let one = f32x8::splat(1.0);
+        let keep = one - lanes::min_of(hit, one) * f32x8::splat(1.0 - p.fail_keep);
+        let relaxing = moved & !clip & keep.simd_ne(f32x8::splat(1.0)).to_bitmask();
+        relax_lanes(relaxing, &mut r, keep, p.clip_p);
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);
         let e: [Lanes; 3] = lanes::each(|c| (lanes::v(&input[c]) - lanes::v(&pred[c])).to_array());
@@ -708,6 +731,7 @@ fn model_row(
         }
         state[R..R + P_LEN].copy_from_slice(&r);
         state[S] = count;
+        state[V] = f.speed;
         lanes::store_texels(&state, &mut next[TEXEL * x0..TEXEL * (x0 + n)]);
     }
     counts.max_trace = max_trace.to_array().into_iter().fold(counts.max_trace, f32::max);

@@ -19,13 +19,15 @@
 //!    case of sec. 5.2: `pi(v)` is the identity and state is read in place).
 //! 6. `feature`: the temporal feature (sec. 5.1), fetched at the previous position.
 //! 7. `model`: Algorithm 1 lines 11-22: fetch beta and P, predict, test against the 3x3 box,
-//!    clip toward the input and reset on a failure that persists ([`strikes`]), RLS update
+//!    clip toward the input and reset on a failure that persists ([`strikes`], [`miss`],
+//!    [`jump`]), RLS update
 //!    (eq. 5-7 with regularized forgetting in information form, bounded forever: see
 //!    [`rls`]), output `beta^T x`.
 //! 8. `untonemap` (HDR input only).
 //!
 //! State: beta (12), the information matrix R = P^-1 (10, packed symmetric), z (3), the
-//! count of failed box tests (1) = 26 float planes, double-buffered (208 bytes per pixel).
+//! count of failed box tests (1) and the speed of the frame that wrote it (1) = 27 float
+//! planes, double-buffered (216 bytes per pixel).
 //!
 //! Choices where the paper is open (each cited where it is made; `variant = paper` puts
 //! back the paper's own settings, [`Variant`]):
@@ -60,6 +62,12 @@
 //!   one frame's 3x3 box misses what a still pixel has rightly converged to (sub-pixel
 //!   detail this frame's samples missed); clipping it there threw away what the model had
 //!   averaged (docs/phlm-ablations.md, table 12).
+//! - a failure counts, and relaxes, as much as the prediction missed the box by
+//!   (`fail_ramp`, [`DEFAULT_FAIL_RAMP`], [`miss`]), so that a miss by a rounding moves
+//!   both by a rounding and the GPU follows the CPU; and twice where the pixel's speed
+//!   changed since its history was written (`speed_jump`, [`DEFAULT_SPEED_JUMP`],
+//!   [`jump`]), so that a surface that left the pixel (a fast thin spoke) is clipped at
+//!   once rather than after three frames (docs/phlm-ablations.md, table 13).
 
 pub mod feature;
 mod kernel;
@@ -102,7 +110,8 @@ pub enum Variant {
     /// Iglesias-Guitian et al. 2016's own settings where we depart from them: one
     /// `lambda` for every pixel (`lambda_moving = 0`), no velocity dilation, bilinear model
     /// fetch, `p0 = clip_p = 1000`, and a hard reset on clip (`clip_keep = 0`) at every
-    /// failed box test (`clip_after = 1`); these seven parameters are then overridden
+    /// failed box test, however far out and whatever the pixel's speed did (`clip_after =
+    /// 1`, `fail_ramp = 0`, `speed_jump = 0`); these nine parameters are then overridden
     /// ([`Params::effective`]).
     Paper,
 }
@@ -138,7 +147,7 @@ filter_params! {
             "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
         variant: Variant = Variant::Tuned,
             ParamKind::Choice { options: &["tuned", "paper"], },
-            "tuned (the parameters as given; defaults measured on the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1)";
+            "tuned (the parameters as given; defaults measured on the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = 0, speed_jump = 0)";
         p0: f32 = DEFAULT_P0,
             ParamKind::Float { min: 1e-3, max: 1e6 },
             "diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
@@ -177,10 +186,16 @@ filter_params! {
             "what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0) or shift (the intercept moves so the model predicts the clipped colour, slopes kept)";
         clip_after: f32 = DEFAULT_CLIP_AFTER,
             ParamKind::Float { min: 0.0, max: 2.0 },
-            "how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev / 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise), and a failure clips and resets only when s >= clip_after (default 1.75: three frames in a row; 1.875: four; 1.5: two; 1 or less: every failure, the paper; 2: only after 24 in a row, where f32 rounds the count to 2). Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content converges); a real change shows its old colour longer (fail_keep makes the model follow it meanwhile)";
+            "how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev / 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise; a miss by less than fail_ramp adds less, one where the speed jumped up to 2: speed_jump), and a failure clips and resets only when s >= clip_after (default 1.75: three frames in a row; 1.875: four; 1.5: two; 1 or less: every failure, the paper; 2: only after 24 in a row, where f32 rounds the count to 2). Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content converges); a real change shows its old colour longer (fail_keep makes the model follow it meanwhile)";
         fail_keep: f32 = DEFAULT_FAIL_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a model whose prediction left the box without clipping yet (clip_after > 1): R = fail_keep R + (1 - fail_keep) I / clip_p, beta kept (default 0.25; 1 = untouched). Lower: the RLS update follows a real change at once; higher: still detail keeps more of what it accumulated";
+        fail_ramp: f32 = DEFAULT_FAIL_RAMP,
+            ParamKind::Float { min: 0.0, max: 1.0 },
+            "how far outside its box (the largest YCoCg channel of the working space) a prediction must be to count as a whole failure: a miss by d adds h = min(1, d / fail_ramp) to the count of clip_after and relaxes R with 1 - h (1 - fail_keep) (default 0.002; 0: every miss counts whole, the paper). Higher: misses by a sliver hardly count (still detail keeps its model, and the GPU and CPU agree at the box's edge); a slow real change (a moving light) is followed later";
+        speed_jump: f32 = DEFAULT_SPEED_JUMP,
+            ParamKind::Float { min: 0.0, max: 1000.0 },
+            "change of a pixel's speed (px/frame) at which a failed box test counts twice, so that it clips at once: a miss counts 1 + min(1, |v - v_prev| / speed_jump) times, v_prev the speed stored with the fetched history (default 1; 0: off). Lower: a surface that leaves a pixel (a spoke passing, a disocclusion) is cut sooner; higher: still content under a moving neighbour keeps its model";
         clip_keep: f32 = DEFAULT_CLIP_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
@@ -189,7 +204,7 @@ filter_params! {
 
 impl Params {
     /// The settings a frame runs with: these parameters, or with `variant = paper` the
-    /// paper's values of the seven it overrides ([`Variant::Paper`]).
+    /// paper's values of the nine it overrides ([`Variant::Paper`]).
     pub fn effective(&self) -> Params {
         match self.variant {
             Variant::Tuned => self.clone(),
@@ -201,6 +216,8 @@ impl Params {
                 clip_p: PAPER_P0,
                 clip_keep: 0.0,
                 clip_after: PAPER_CLIP_AFTER,
+                fail_ramp: 0.0,
+                speed_jump: 0.0,
                 ..self.clone()
             },
         }
@@ -252,8 +269,9 @@ pub const DEFAULT_TEST_GAMMA: f32 = 1.0;
 /// paper's clip) / 30.68 / 30.74 / 30.76 dB, tRMSE 0.0335 / 0.0338 / 0.0331 / 0.0328, the
 /// worst scene against `taa` -0.09 / +0.18 / +0.18 / +0.16 dB; 1.875 is within what
 /// another catalogue would move and waits a frame longer on a real change. In the report's
-/// run (256x144) this pair leaves spokes 0.62 dB below `taa` (docs/phlm-ablations.md,
-/// table 12).
+/// run (256x144) this pair alone left spokes 0.62 dB below `taa` (docs/phlm-ablations.md,
+/// table 12); a failure where the pixel's speed changed now clips at once
+/// ([`DEFAULT_SPEED_JUMP`]), and spokes is 2.10 dB above it (table 13).
 pub const DEFAULT_CLIP_AFTER: f32 = 1.75;
 /// Confidence a failed box test leaves a model that it does not clip yet: 0.25 (our
 /// choice, measured). The relax of a clip ([`DEFAULT_CLIP_KEEP`]) without the reset of
@@ -262,26 +280,93 @@ pub const DEFAULT_CLIP_AFTER: f32 = 1.75;
 /// pixel keeps its converged colour as the starting point. At 128x72 with `clip_after =
 /// 1.75`: 0 / 0.1 / 0.15 / 0.25 / 0.35 / 0.5 / 1 give 30.64 / 30.72 / 30.73 / 30.74 /
 /// 30.72 / 30.67 / 30.42 dB. Lower values follow a passing spoke better (in the report's
-/// run spokes is -0.62 dB against `taa` at 0.25, -0.20 at 0.15), but at 0.15 and 0.1 the
-/// GPU's f32 solve leaves its bounds of the CPU's f64 one (docs/phlm-ablations.md, table
-/// 12).
+/// run spokes was -0.62 dB against `taa` at 0.25, -0.20 at 0.15, before
+/// [`DEFAULT_SPEED_JUMP`]), but at 0.15 and 0.1 the GPU's f32 solve left its bounds of the
+/// CPU's f64 one (docs/phlm-ablations.md, table 12, before the ramp of [`miss`]).
 pub const DEFAULT_FAIL_KEEP: f32 = 0.25;
 /// `clip_after` of the paper: every failed box test clips (Algorithm 1 lines 12-19).
 pub const PAPER_CLIP_AFTER: f32 = 1.0;
+/// How far outside its box a prediction must be to count as a whole failure ([`miss`]):
+/// 0.002 of the working space's range, about half an 8-bit code value (our
+/// choice, measured; 0 is the paper's all-or-nothing test). Chosen for the GPU, not for
+/// the image: with whole misses a prediction on the box's edge fails on one backend only
+/// (f32 against f64, or f16 colour), and the count and relax it starts moved one pixel of
+/// `camera-cut` 0.058 apart on lavapipe. The catalogue's means hardly move with it (128x72:
+/// 0 / 0.001 / 0.002 / 0.005 give 30.85 / 30.86 / 30.86 / 30.87 dB; 256x144: 33.23 /
+/// 33.24 / 33.23 / 33.21), but larger ramps let a smooth change lag (`dynamic-light` at
+/// 256x144: -0.04 / -0.07 / -0.10 / -0.20 dB against `taa`), and 0.0005 left a GPU
+/// variant's HDR pixel 0.02 from the CPU's (docs/phlm-ablations.md, table 13).
+pub const DEFAULT_FAIL_RAMP: f32 = 0.002;
+/// The change of speed at which a failed box test clips at once ([`jump`]): 1 px/frame
+/// (our choice, measured on the catalogue's mean: `speed_jump` 0 (off) / 0.5 / 1 / 2
+/// give 30.72 / 30.85 / 30.86 / 30.82 dB at 128x72 and 32.92 / 33.23 / 33.23 / 33.18 at
+/// 256x144, where off leaves `spokes` 0.66 dB below `taa` and 1 puts it 2.10 above;
+/// docs/phlm-ablations.md, table 13). A jittered still pixel's speed is 0 frame after
+/// frame, so the count of [`strikes`] still waits there.
+pub const DEFAULT_SPEED_JUMP: f32 = 1.0;
 /// How a pixel's count of failed box tests decays per frame: it halves ([`strikes`]), so
 /// `clip_after` 1.5 needs two failures in a row, 1.75 three and 1.875 four (our choice: a
 /// failure three frames back still counts an eighth).
 pub const STRIKE_DECAY: f32 = 0.5;
 
 /// A pixel's count of failed box tests after this frame, and whether this frame's failure
-/// clips: `s = STRIKE_DECAY s_prev + [failed]`, clipping when it failed and
+/// clips: `s = STRIKE_DECAY s_prev + hit`, clipping when it failed (`hit > 0`) and
 /// `s >= clip_after` (`s_prev` is fetched with the model's information, 0 without
-/// history). With `clip_after <= 1` every failure clips, as the paper. The fused kernel
-/// computes it in `f32x8` with the same operations.
+/// history; `hit` is [`miss`]). With `clip_after <= 1` and `fail_ramp = 0` every failure
+/// clips, as the paper. The fused kernel computes it in `f32x8` with the same operations.
 #[inline(always)]
-pub(crate) fn strikes(prev: f32, failed: bool, clip_after: f32) -> (f32, bool) {
-    let s = STRIKE_DECAY * prev + if failed { 1.0 } else { 0.0 };
-    (s, failed && s >= clip_after)
+pub(crate) fn strikes(prev: f32, hit: f32, clip_after: f32) -> (f32, bool) {
+    let s = STRIKE_DECAY * prev + hit;
+    (s, hit > 0.0 && s >= clip_after)
+}
+
+/// How much of a failure a prediction's box test is, in [0, 1]: 0 inside the box, else
+/// `min(1, d / ramp)` where `d` is how far the clip moves it (the largest YCoCg channel
+/// of `pred - clipped`), and 1 with `ramp = 0`. A miss by a sliver counts a sliver toward
+/// [`strikes`], so the count is continuous in the prediction: at the box's edge a rounding
+/// moves it by a rounding (the GPU's f32 and the CPU's f64 solves, or f16 colour, then
+/// agree), where a whole strike would start a clip on one backend alone frames later.
+/// The fused kernel computes it in `f32x8` with the same operations.
+#[inline(always)]
+pub(crate) fn miss(pred: [f32; 3], clipped: [f32; 3], moved: bool, ramp: f32) -> f32 {
+    if !moved {
+        return 0.0;
+    }
+    if ramp == 0.0 {
+        return 1.0;
+    }
+    let d = (pred[0] - clipped[0])
+        .abs()
+        .max((pred[1] - clipped[1]).abs())
+        .max((pred[2] - clipped[2]).abs());
+    (d / ramp).min(1.0)
+}
+
+/// How many times a failed box test counts where the pixel's speed changed: `1 +
+/// min(1, |v - v_prev| / speed_jump)`, `v` this frame's speed (px/frame, of the dilated
+/// motion) and `v_prev` the speed stored with the history it fetched; 1 with
+/// `speed_jump = 0`. Where the speed jumps, the history is of another surface (a thin
+/// spoke that moved on leaves a still background whose history is the spoke), and a miss
+/// there clips at once (it counts 2 >= `clip_after`); where it does not (still content a
+/// jitter phase missed), it waits. Continuous in both speeds, as [`miss`]. SMAA's
+/// temporal resolve weighs its history down by the same difference of speeds (Jimenez et
+/// al. 2012, `SMAAResolvePS`, which keeps each pixel's speed in the colour's alpha). The
+/// fused kernel computes it in `f32x8` with the same operations.
+#[inline(always)]
+pub(crate) fn jump(v: f32, v_prev: f32, speed_jump: f32) -> f32 {
+    if speed_jump == 0.0 {
+        return 1.0;
+    }
+    1.0 + ((v - v_prev).abs() / speed_jump).min(1.0)
+}
+
+/// The confidence a failure that does not clip leaves a model: `fail_keep` for a whole
+/// miss or more (`hit >= 1`, [`miss`] times [`jump`]), 1 for none, linear in between
+/// (`1 - min(hit, 1) (1 - fail_keep)`), so that the relax too is continuous at the box's
+/// edge.
+#[inline(always)]
+pub(crate) fn fail_relax(hit: f32, fail_keep: f32) -> f32 {
+    1.0 - hit.min(1.0) * (1.0 - fail_keep)
 }
 
 /// Forgetting factor of pixels moving [`Params::lambda_speed`] (1 px/frame) or faster: 0.8
@@ -308,8 +393,8 @@ pub(crate) fn forgetting(v: f32, p: &Params) -> f32 {
 }
 
 /// Number of state planes: beta (12), R = P^-1 (10), z (3), the count of failed box
-/// tests (1, [`strikes`]).
-pub const STATE_PLANES: usize = 3 * D + P_LEN + 3 + 1;
+/// tests (1, [`strikes`]) and the pixel's speed when it was last updated (1, [`jump`]).
+pub const STATE_PLANES: usize = 3 * D + P_LEN + 3 + 2;
 /// First plane of beta (row-major: channel c, feature j at `BETA + c * D + j`).
 pub(crate) const BETA: usize = 0;
 /// First plane of the information matrix R = P^-1 (packed upper triangle).
@@ -318,6 +403,8 @@ pub(crate) const R: usize = 3 * D;
 pub(crate) const Z: usize = R + P_LEN;
 /// The plane of the count of failed box tests ([`strikes`]).
 pub(crate) const S: usize = Z + 3;
+/// The plane of the pixel's speed (px/frame) in the frame that last updated it ([`jump`]).
+pub(crate) const V: usize = S + 1;
 
 /// One pixel's model state.
 #[derive(Clone, Copy, Debug)]
@@ -640,7 +727,11 @@ mod tests {
             &["lambda_moving=0.6", "lambda_speed=0.5"],
             &["lambda_moving=0"],
             &["clip_after=1"],
-            &["clip_after=1.5", "fail_keep=0"],
+            &["clip_after=1", "fail_ramp=0"],
+            &["clip_after=1.5", "fail_keep=0", "fail_ramp=0.3"],
+            &["fail_ramp=1", "fail_keep=0.6"],
+            &["speed_jump=0"],
+            &["speed_jump=0.2", "fail_ramp=0.05", "model_fetch=nearest"],
             &["clip_after=2", "fail_keep=1", "model_fetch=nearest"],
             &["clip_after=1.25", "fail_keep=0.7", "model_fetch=bilinear"],
         ];
@@ -675,9 +766,13 @@ mod tests {
             if !matches!(name, "still" | "random motion") {
                 continue;
             }
-            // Every failure clips (`clip_after = 1`), so frame 1 counts them.
+            // Every failure clips (`clip_after = 1`, `fail_ramp = 0`), so frame 1 counts them.
             let clipped = |set: &[&str]| {
-                let set: Vec<&str> = set.iter().copied().chain(["clip_after=1"]).collect();
+                let set: Vec<&str> = set
+                    .iter()
+                    .copied()
+                    .chain(["clip_after=1", "fail_ramp=0"])
+                    .collect();
                 run(&set, &frames)[1].record.model.as_ref().unwrap().reset_by_clip
             };
             let (minmax, variance) = (clipped(&[]), clipped(&["test_box=variance"]));
@@ -689,14 +784,14 @@ mod tests {
         }
     }
 
-    /// The count of failed box tests: halves each frame, +1 per failure; a failure clips
-    /// once the count reaches `clip_after`.
+    /// The count of failed box tests: halves each frame, + the miss per failure; a failure
+    /// clips once the count reaches `clip_after`.
     #[test]
     fn strikes_count_failures_in_a_row() {
         let mut s = 0.0;
         let mut clips = Vec::new();
         for failed in [true, true, true, false, true, true, true] {
-            let (next, clip) = strikes(s, failed, 1.75);
+            let (next, clip) = strikes(s, if failed { 1.0 } else { 0.0 }, 1.75);
             s = next;
             clips.push(clip);
         }
@@ -704,11 +799,112 @@ mod tests {
         // next run clips on its third failure again (1.44, 1.72, 1.86).
         let want = [false, false, true, false, false, false, true];
         assert_eq!(clips, want);
-        assert!((0..4).all(|k| strikes(k as f32 * 0.5, true, PAPER_CLIP_AFTER).1));
+        assert!((0..4).all(|k| strikes(k as f32 * 0.5, 1.0, PAPER_CLIP_AFTER).1));
         // The default waits for the third failure in a row.
-        let counts = [0.0, 1.0, 1.5].map(|s| strikes(s, true, DEFAULT_CLIP_AFTER).1);
+        let counts = [0.0, 1.0, 1.5].map(|s| strikes(s, 1.0, DEFAULT_CLIP_AFTER).1);
         assert_eq!(counts, [false, false, true]);
-        assert!(!strikes(1.99, true, 2.0).1 && !strikes(5.0, false, 0.0).1);
+        assert!(!strikes(1.99, 1.0, 2.0).1 && !strikes(5.0, 0.0, 0.0).1);
+        // Misses by half a ramp add half a strike: six of them do not reach 1.75 (they
+        // tend to 1), and a count built by whole misses does not clip on a miss of none.
+        let mut s = 0.0;
+        for _ in 0..6 {
+            let (next, clip) = strikes(s, 0.5, DEFAULT_CLIP_AFTER);
+            assert!(!clip);
+            s = next;
+        }
+        assert!(!strikes(4.0, 0.0, 1.0).1 && strikes(4.0, 1e-6, 1.0).1);
+        // The relax a miss leaves: fail_keep for a whole one or more, nothing for none.
+        assert_eq!(
+            [0.0, 0.5, 1.0, 1.5].map(|h| fail_relax(h, 0.25)),
+            [1.0, 0.625, 0.25, 0.25]
+        );
+    }
+
+    /// A miss counts the distance the clip moves the prediction (its largest channel) over
+    /// the ramp, at most 1; nothing inside the box; 1 with no ramp.
+    #[test]
+    fn a_miss_counts_its_distance_over_the_ramp() {
+        let pred = [0.5, 0.2, -0.1];
+        let tol = Tolerance::abs(1e-6);
+        let cases = [
+            ([0.5, 0.2, -0.1], true, 0.02, 0.0),
+            ([0.495, 0.2, -0.1], true, 0.02, 0.25),
+            ([0.5, 0.19, -0.09], true, 0.02, 0.5),
+            ([0.4, 0.2, -0.1], true, 0.02, 1.0),
+            ([0.4, 0.2, -0.1], false, 0.02, 0.0),
+            ([0.4999, 0.2, -0.1], true, 0.0, 1.0),
+        ];
+        for (clipped, moved, ramp, want) in cases {
+            let got = miss(pred, clipped, moved, ramp);
+            tol.check(&format!("miss to {clipped:?} ramp {ramp}"), got as f64, want)
+                .unwrap();
+        }
+    }
+
+    /// How many times a failure counts where the speed changed: 1 where it did not, 2 from
+    /// a change of `speed_jump` on, linear between; 1 with `speed_jump = 0`.
+    #[test]
+    fn a_failure_counts_twice_where_the_speed_jumps() {
+        let tol = Tolerance::abs(1e-6);
+        for (v, v_prev, jump_at, want) in [
+            (0.0, 0.0, 1.0, 1.0),
+            (2.0, 1.5, 1.0, 1.5),
+            (0.0, 3.0, 1.0, 2.0),
+            (0.2, 0.0, 0.5, 1.4),
+            (5.0, 0.0, 0.0, 1.0),
+        ] {
+            let got = jump(v, v_prev, jump_at) as f64;
+            tol.check(&format!("jump {v} from {v_prev} at {jump_at}"), got, want)
+                .unwrap();
+        }
+    }
+
+    /// A still image that changes at once to one moving 2 px/frame (a surface that was
+    /// not there): the speed jumps, so the first failed box test clips (its miss counts
+    /// twice) and the new colour shows from that frame; with `speed_jump = 0` the clip
+    /// waits for the third failure as on a still change.
+    #[test]
+    fn a_change_of_speed_clips_at_once() {
+        let frame = |v: f32, mx: f32| {
+            let mut f = Frame::new(std::array::from_fn(|_| Plane::from_fn(9, 7, |_, _| v))).unwrap();
+            f.set_f32(
+                ChannelKind::Motion,
+                vec![Plane::filled(9, 7, mx), Plane::filled(9, 7, 0.0)],
+            )
+            .unwrap();
+            f
+        };
+        let frames: Vec<Frame> = (0..12)
+            .map(|t| if t < 8 { frame(0.2, 0.0) } else { frame(0.8, -2.0) })
+            .collect();
+        for (set, first) in [(&[][..], 8), (&["speed_jump=0"], 10)] {
+            let out = run(set, &frames);
+            for t in 8..12 {
+                // The centre pixel: its history (2 px to the left) is on screen.
+                let err = (out[t].color[0].get(4, 3) - 0.8).abs();
+                assert_eq!(err == 0.0, t >= first, "{set:?} frame {t}: {err}");
+            }
+        }
+    }
+
+    /// A state of the earlier 26-float texel (before the speed was stored) is refused, naming
+    /// both layouts, and the filter keeps its own state.
+    #[test]
+    fn a_state_of_the_earlier_texel_is_refused() {
+        let frames = random_motion(3, 5);
+        let mut f = Phlm::new(Params::default());
+        for fr in &frames[..2] {
+            f.process(fr).unwrap();
+        }
+        let mut old = f.save_state().unwrap();
+        let (w, h) = old.size.unwrap();
+        old.components = vec![STATE_PLANES - 1];
+        old.planes = vec![Plane::from_fn((STATE_PLANES - 1) * w, h, |_, _| 0.5)];
+        let e = f.load_state(&old).unwrap_err().to_string();
+        assert!(e.contains("[26]") && e.contains("[27]"), "{e}");
+        let untouched = run(&[], &frames);
+        let next = f.process(&frames[2]).unwrap();
+        assert!((0..3).all(|c| next.color[c].data() == untouched[2].color[c].data()));
     }
 
     /// A still image that changes at once (a flat 0.2 to a flat 0.8, so the box is the
@@ -795,12 +991,19 @@ mod tests {
             .1
     }
 
-    /// `variant = paper` runs exactly the seven settings it names, whatever they were set to.
+    /// `variant = paper` runs exactly the nine settings it names, whatever they were set to.
     #[test]
     fn the_paper_variant_is_the_papers_settings() {
         let frames = random_motion(5, 9);
         let paper = run(
-            &["variant=paper", "p0=3", "clip_keep=0.9", "clip_after=2"],
+            &[
+                "variant=paper",
+                "p0=3",
+                "clip_keep=0.9",
+                "clip_after=2",
+                "fail_ramp=0.5",
+                "speed_jump=3",
+            ],
             &frames,
         );
         let explicit = run(
@@ -812,6 +1015,8 @@ mod tests {
                 "clip_p=1000",
                 "clip_keep=0",
                 "clip_after=1",
+                "fail_ramp=0",
+                "speed_jump=0",
             ],
             &frames,
         );
@@ -827,7 +1032,7 @@ mod tests {
         let frames = random_motion(6, 8);
         // The knobs of what a clip does, against a filter that clips at every failure
         // (six frames hold few failures three in a row).
-        let paper_clip = ["clip_after=1"];
+        let paper_clip = ["clip_after=1", "fail_ramp=0"];
         for (set, on) in [
             (&["test_box=variance"][..], &[][..]),
             (&["test_box=variance", "test_gamma=2"], &[]),
@@ -840,6 +1045,10 @@ mod tests {
             (&["p0=1000"], &[]),
             (&["clip_after=1"], &[]),
             (&["fail_keep=1"], &[]),
+            (&["fail_ramp=0"], &[]),
+            (&["fail_ramp=0.5"], &[]),
+            (&["speed_jump=0"], &[]),
+            (&["feature_alpha_min=0.03"], &[]),
             (&["variant=paper"], &[]),
         ] {
             let base = run(on, &frames);

@@ -9,8 +9,8 @@ use super::super::passes::{
 };
 use super::rls::{self, D, P_LEN};
 use super::{
-    convert_state, feature, fetch, fetch_model, strikes, Counts, From, Model, Params, Phlm, TestBox, BETA, R,
-    S, STATE_PLANES, Z,
+    convert_state, fail_relax, feature, fetch, fetch_model, jump, miss, strikes, Counts, From, Model, Params,
+    Phlm, TestBox, BETA, R, S, STATE_PLANES, V, Z,
 };
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
@@ -102,8 +102,9 @@ impl ReferencePhlm {
         };
         let src_z: [&[f32]; 3] = std::array::from_fn(|k| src[Z + k]);
         let src_model: [&[f32]; Z] = std::array::from_fn(|k| src[k]);
-        // The count of failed box tests, read as R is (bilinear unless `nearest`).
-        let src_strikes: [&[f32]; 1] = [src[S]];
+        // The count of failed box tests and the speed, read as R is (bilinear unless
+        // `nearest`).
+        let src_strikes: [&[f32]; 2] = [src[S], src[V]];
 
         // Feature (sec. 5.1): written into next's z planes.
         {
@@ -151,15 +152,17 @@ impl ReferencePhlm {
         let prior = 1.0 / p.p0;
         let counts: Counts = rec.run("model", || {
             let (model_next, z_next) = next.split_at_mut(Z);
-            let (z_next, s_next) = z_next.split_at_mut(3);
+            let (z_next, sv_next) = z_next.split_at_mut(3);
+            let (s_next, v_next) = sv_next.split_at_mut(1);
             let zs: [&[f32]; 3] = std::array::from_fn(|k| z_next[k].data());
             let [o0, o1, o2] = slices_mut(&mut out);
             let mut it = model_next.iter_mut();
             let mrows: [&mut [f32]; Z] = std::array::from_fn(|_| it.next().expect("model planes").data_mut());
             let mut all: Vec<&mut [f32]> = mrows.into_iter().collect();
-            all.extend([o0, o1, o2, s_next[0].data_mut()]);
-            // Rows Z..Z + 3 of this pass are the output planes, row Z + 3 the count.
-            let rows: [&mut [f32]; Z + 4] = all.try_into().expect("Z + 4 planes");
+            all.extend([o0, o1, o2, s_next[0].data_mut(), v_next[0].data_mut()]);
+            // Rows Z..Z + 3 of this pass are the output planes, rows Z + 3 and Z + 4 the
+            // count and the speed.
+            let rows: [&mut [f32]; Z + 5] = all.try_into().expect("Z + 5 planes");
             par_rows(rows, w, |y, mut r| {
                 let mut c = Counts::default();
                 for_each_row_stats(cur, w, h, y, |x, stats| {
@@ -178,8 +181,9 @@ impl ReferencePhlm {
                         _ => Model::from_state(&fetch_model(src_model, w, h, f, p.model_fetch), z),
                     };
                     let x_feat = m.x();
-                    let [s_prev] = fetch(src_strikes, w, h, f, p.model_fetch);
-                    let mut s = strikes(s_prev, false, p.clip_after).0;
+                    let [s_prev, v_prev] = fetch(src_strikes, w, h, f, p.model_fetch);
+                    let v = motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
+                    let mut s = strikes(s_prev, 0.0, p.clip_after).0;
                     if !inp.is_invalid(i) {
                         // Lines 12-19: predict; outside the 3x3 box -> clip toward y and reset.
                         let pred = rls::predict(&m.beta, &x_feat);
@@ -187,21 +191,27 @@ impl ReferencePhlm {
                             TestBox::Minmax => (stats.min, stats.max),
                             TestBox::Variance => variance_box(stats, p.test_gamma),
                         };
+                        let pred_ycocg = rgb_to_ycocg(pred);
                         let (clipped, moved) =
-                            clip_toward_point(rgb_to_ycocg(pred), [cur[0][i], cur[1][i], cur[2][i]], lo, hi);
-                        // A failure clips once it persists (`clip_after`, [`strikes`]).
-                        let (count, clip) = strikes(s_prev, moved, p.clip_after);
+                            clip_toward_point(pred_ycocg, [cur[0][i], cur[1][i], cur[2][i]], lo, hi);
+                        // A failure clips once it persists (`clip_after`, [`strikes`]); how
+                        // much of one it is, [`miss`] and [`jump`].
+                        let hit =
+                            miss(pred_ycocg, clipped, moved, p.fail_ramp) * jump(v, v_prev, p.speed_jump);
+                        let (count, clip) = strikes(s_prev, hit, p.clip_after);
                         s = count;
                         if clip {
                             c.pixels.history_clipped += 1;
                             m.clip(pred, ycocg_to_rgb(clipped), &p);
-                        } else if moved && p.fail_keep != 1.0 {
-                            m.relax(p.fail_keep, p.clip_p);
+                        } else if hit > 0.0 {
+                            let keep = fail_relax(hit, p.fail_keep);
+                            if keep != 1.0 {
+                                m.relax(keep, p.clip_p);
+                            }
                         }
                         // Lines 19-21: error of the (possibly reset) model, RLS update.
                         let pred = rls::predict(&m.beta, &x_feat);
                         let e = [0, 1, 2].map(|k| input[k] - pred[k]);
-                        let v = motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
                         let lambda = super::forgetting(v, &p);
                         match rls::update_information(&mut m.beta, &mut m.r, &x_feat, e, lambda, prior) {
                             Some(trace) => c.max_trace = c.max_trace.max(trace),
@@ -229,6 +239,7 @@ impl ReferencePhlm {
                         r[Z + ch][x] = o[ch].clamp(0.0, hi);
                     }
                     r[Z + 3][x] = s;
+                    r[Z + 4][x] = v;
                 });
                 c
             })
