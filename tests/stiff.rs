@@ -243,8 +243,8 @@ fn hdr_extremes_and_a_firefly_decay() {
     // model whose slope on z survives the clip keeps predicting part of it until z forgets
     // it at `feature_alpha_min` a frame (0.08: the excess is 23% at 20 frames, 5% at 40,
     // 1% at 109; the pixel is 1e-2.5, so 1% is 3e-5). How long it lingers is chaotic in
-    // that floor: 9 frames at 0.06, 78 at 0.07, 11 at 0.075; 30 with 0.03 and a clip at
-    // every whole failure (docs/phlm-ablations.md, table 13).
+    // that floor: 9 frames at 0.06, 78 at 0.07, 11 at 0.075; 30 with table 12's defaults
+    // (0.03, a clip after three whole failures in a row; docs/phlm-ablations.md, table 13).
     for (name, within) in [("phlm", 120), ("taa", 70), ("traa", 64)] {
         let mut f = filter(name, &[]);
         let mut before = 0.0f32;

@@ -69,7 +69,7 @@ pub struct BatchArgs {
     summary: Option<PathBuf>,
     /// Frames between checkpoints of a shot's filter state (0: none, a killed shot starts
     /// over). A checkpoint holds the filter's history (half its `state` in `afterimage
-    /// filters`): 16 bytes a pixel for taa, 104 for phlm, 33 MB and 216 MB at 1920x1080.
+    /// filters`): 16 bytes a pixel for taa, 108 for phlm, 33 MB and 224 MB at 1920x1080.
     /// Fewer frames between them redo less after a kill and write more.
     #[arg(long, default_value_t = 16, value_name = "N")]
     checkpoint_every: usize,

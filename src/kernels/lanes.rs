@@ -472,6 +472,7 @@ mod tests {
         case::<9>(&mut rng);
         case::<25>(&mut rng);
         case::<26>(&mut rng);
+        case::<27>(&mut rng);
     }
 
     #[test]

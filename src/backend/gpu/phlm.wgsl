@@ -12,7 +12,7 @@
 // State: 27 planes (beta 12, R = P^-1 packed 10, z 3, the count of failed box tests 1,
 // the speed 1;
 // the CPU filter's texel order, one plane each so neighbouring invocations read
-// neighbouring words), in three buffers (beta, R, z with the count), double-buffered.
+// neighbouring words), in three buffers (beta, R, z with the count and the speed), double-buffered.
 
 struct Params {
     width: u32,
@@ -47,7 +47,7 @@ struct Params {
 @group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
 // The previous models and the next, each in three parts (beta, R, z with the count of failed
-// box tests), so that no buffer is past the 128 MiB a shader's buffer may have on many
+// box tests and the speed), so that no buffer is past the 128 MiB a shader's buffer may have on many
 // devices at 1080p.
 @group(0) @binding(2) var<storage, read> beta: array<f32>;
 @group(0) @binding(3) var<storage, read> info: array<f32>;

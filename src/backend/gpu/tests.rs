@@ -304,8 +304,10 @@ fn compare_adversarial(name: &str, variants: &[&[&str]]) {
 /// the f32 and f64 solves apart on `hdr` (0.0053 at frame 42, over the 0.005 bound; two
 /// samples past 1e-4 in a 7x1 frame), and `fail_ramp=0` (whole misses: a prediction on
 /// the box's edge that fails on one backend only starts a relax and a count there, one
-/// pixel of `camera-cut` 0.058 apart with f16 colour; `phlm::miss`). The default runs the
-/// count of failed box tests with its ramp and speed jump and the relax of `fail_keep`;
+/// pixel of `camera-cut` 0.058 apart with f16 colour; `phlm::miss`), and `fail_ramp=0.01
+/// speed_jump=0.5` (one pixel of `flyover` 0.027 apart at frame 39 with f16 colour, not
+/// traced further; a clip itself stays a step). The default runs the count of failed box
+/// tests with its ramp and speed jump and the relax of `fail_keep`;
 /// `variant=paper` a clip at every failure.
 const PHLM_VARIANTS: &[&[&str]] = &[
     &[],

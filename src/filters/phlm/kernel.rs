@@ -104,7 +104,7 @@ struct Band {
     /// This row's fetched state, block by block.
     fetched: Vec<Fetched>,
     /// One block's fetched texels, before they are taken into lanes (kept across blocks:
-    /// zeroing 832 bytes per block was a `memset` call).
+    /// zeroing 864 bytes per block was a `memset` call).
     texels: [[f32; TEXEL]; LANES],
     /// This row's new feature, block by block.
     z: Vec<[Lanes; 3]>,
@@ -113,13 +113,14 @@ struct Band {
 /// What stage `reproject` hands the feature and the model for one block of pixels.
 #[derive(Clone, Copy, Default)]
 struct Fetched {
-    /// The previous state (beta, R, z, the count; [`TEXEL`] floats), one lane per pixel;
-    /// zero where there is none.
+    /// The previous state (beta, R, z, the count, the speed; [`TEXEL`] floats), one lane
+    /// per pixel; zero where there is none.
     state: [Lanes; TEXEL],
     /// Pixels without history (first frame, reset, off screen, padding), as bits (lane `l`
     /// is bit `l`).
     none: u32,
-    /// Motion length.
+    /// Motion length (of the dilated motion where dilation runs): this frame's speed,
+    /// stored in the state's plane `V` for [`super::jump`].
     speed: Lanes,
 }
 

@@ -162,7 +162,7 @@ filter_params! {
             "feature convergence, motion term (paper: b = 0.25): faster catch-up for moving pixels";
         feature_alpha_min: f32 = feature::DEFAULT_ALPHA_MIN,
             ParamKind::Float { min: 0.001, max: 1.0 },
-            "smallest weight of the current low-pass sample in the feature (our choice, 0.03 = a 33-frame memory): lower gives a smoother feature that lags more";
+            "smallest weight of the current low-pass sample in the feature (our choice, 0.08 = a 12-frame memory): lower gives a smoother feature that lags more (a change of shading with no motion shows later)";
         model_fetch: ModelFetch = ModelFetch::CatmullRom,
             ParamKind::Choice { options: &["catmull_rom", "bilinear", "nearest"], },
             "reprojected model read: catmull_rom (beta by Catmull-Rom, R and the feature bilinear: sharp under motion, 12 taps), bilinear (paper's texture fetch, smooth, blurs moving detail) or nearest (4x fewer reads, blocky)";
@@ -217,6 +217,8 @@ impl Params {
                 clip_keep: 0.0,
                 clip_after: PAPER_CLIP_AFTER,
                 fail_ramp: 0.0,
+                // No effect on the output once every whole failure clips; set so that the
+                // count in the state is the paper's too.
                 speed_jump: 0.0,
                 ..self.clone()
             },
@@ -631,7 +633,7 @@ pub fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
 }
 
 impl Phlm {
-    /// The filter's state, empty: one texel of the 26 state floats per pixel (a fetch reads
+    /// The filter's state, empty: one texel of the 27 state floats per pixel (a fetch reads
     /// a pixel's model at once), converted between linear and tonemapped working space by
     /// [`convert_state`]. The GPU backend saves and loads this same format.
     pub fn history() -> TemporalState {
@@ -884,6 +886,18 @@ mod tests {
                 let err = (out[t].color[0].get(4, 3) - 0.8).abs();
                 assert_eq!(err == 0.0, t >= first, "{set:?} frame {t}: {err}");
             }
+        }
+        // The state keeps each pixel's speed of the frame that wrote it.
+        let mut f = Phlm::new(Params::default());
+        for (t, fr) in frames[..9].iter().enumerate() {
+            f.process(fr).unwrap();
+            let st = f.save_state().unwrap();
+            let at = (3 * 9 + 4) * STATE_PLANES + V;
+            assert_eq!(
+                st.planes[0].data()[at],
+                if t < 8 { 0.0 } else { 2.0 },
+                "frame {t}"
+            );
         }
     }
 
