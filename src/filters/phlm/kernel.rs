@@ -41,7 +41,7 @@ const UNTONEMAP: usize = 5;
 const ALL: u32 = (1 << LANES) - 1;
 
 /// Floats of one pixel's state texel: beta (12), R (10), z (3), the count of failed box
-/// tests (1).
+/// tests (1), the speed (1).
 pub(super) const TEXEL: usize = STATE_PLANES;
 
 // The Catmull-Rom fetch writes beta's span and the bilinear R, z and count side by side:
@@ -669,14 +669,15 @@ fn model_row(
             * jump_lanes(&f.speed, &f.state[V], p.speed_jump);
         let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + hit;
         let zero = f32x8::splat(0.0);
-        let clip = (hit.simd_gt(zero) & count_v.simd_ge(f32x8::splat(p.clip_after))).to_bitmask() & moved;
+        // `hit > 0` only where the prediction moved (`miss` is 0 elsewhere).
+        let clip = (hit.simd_gt(zero) & count_v.simd_ge(f32x8::splat(p.clip_after))).to_bitmask();
         let count: Lanes = count_v.to_array();
         clip_where(clip, &mut beta, &mut r, &pred, &lanes::ycocg_to_rgb(&clipped), p);
         // [`super::fail_relax`]: `1 - min(hit, 1) (1 - fail_keep)`; lanes kept whole are
         // left as they are (the reference skips them).
         let one = f32x8::splat(1.0);
         let keep = one - lanes::min_of(hit, one) * f32x8::splat(1.0 - p.fail_keep);
-        let relaxing = moved & !clip & keep.simd_ne(f32x8::splat(1.0)).to_bitmask();
+        let relaxing = !clip & keep.simd_ne(f32x8::splat(1.0)).to_bitmask();
         relax_lanes(relaxing, &mut r, keep, p.clip_p);
         // Lines 19-21: error of the (possibly reset) model, RLS update.
         let pred = rls::predict_lanes(&beta, &x);

@@ -20,9 +20,8 @@
 //! 6. `feature`: the temporal feature (sec. 5.1), fetched at the previous position.
 //! 7. `model`: Algorithm 1 lines 11-22: fetch beta and P, predict, test against the 3x3 box,
 //!    clip toward the input and reset on a failure that persists ([`strikes`], [`miss`],
-//!    [`jump`]), RLS update
-//!    (eq. 5-7 with regularized forgetting in information form, bounded forever: see
-//!    [`rls`]), output `beta^T x`.
+//!    [`jump`]), RLS update (eq. 5-7 with regularized forgetting in information form,
+//!    bounded forever: see [`rls`]), output `beta^T x`.
 //! 8. `untonemap` (HDR input only).
 //!
 //! State: beta (12), the information matrix R = P^-1 (10, packed symmetric), z (3), the
