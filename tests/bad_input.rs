@@ -172,8 +172,8 @@ fn nan_filled_colour_is_read_and_counted() {
 mod fuzz {
     use afterimage::frame::{ChannelKind, ChannelSet, Frame};
     use afterimage::io::{
-        read_exr_frame_bytes_limited, write_exr_bytes, Compression, ExrLimits, Precision, ReadOptions,
-        WriteOptions,
+        encode_filtered, frame_and_input, read_raw_exr_bytes_limited, write_exr_bytes, Compression,
+        ExrLimits, FilteredFrame, OutputOptions, Precision, ReadOptions, WriteOptions,
     };
     use afterimage::report::synthetic_frame;
     use afterimage::rng::SplitMix64;
@@ -430,10 +430,11 @@ mod fuzz {
     fn fuzz_exr(n: u64, seed: u64) {
         let (w, h) = (24, 16);
         let limits = ExrLimits {
-            width: w,
-            height: h,
+            size: Some((w, h)),
+            max_pixels: (w * h) as u64,
             max_channels: 64,
             max_parts: 16,
+            rewritable: true,
         };
         // The decoded planes of the largest allowed file, and the decoders' own buffers.
         let bound = 4 * w * h * limits.max_channels * 4 + (4 << 20);
@@ -455,13 +456,25 @@ mod fuzz {
                 mutate(&mut rng, &mut data, EXR_TOKENS);
             }
             let (r, alloc) = measured(|| {
-                read_exr_frame_bytes_limited(
-                    &data,
-                    std::path::Path::new("fuzz"),
-                    &ReadOptions::default(),
-                    &limits,
-                )
-                .map(|f| f.width())
+                let label = std::path::Path::new("fuzz");
+                let raw = read_raw_exr_bytes_limited(&data, label, &limits)?;
+                // What the server does next: the frame, then its reply (the input file
+                // with its colour replaced). A file the reader takes must be writable back,
+                // or the server would filter it and then fail.
+                let (frame, input) = frame_and_input(raw, &ReadOptions::default(), None)?;
+                let reply = FilteredFrame {
+                    color: frame.color(),
+                    meta: &frame.meta,
+                    record: None,
+                    input: Some(&input),
+                };
+                encode_filtered(&reply, &OutputOptions::default()).unwrap_or_else(|e| {
+                    panic!(
+                        "case {case} (seed {seed}) was read but its reply could not be written: {e}; input: {}",
+                        data.iter().map(|b| format!("{b:02x}")).collect::<String>()
+                    )
+                });
+                Ok::<_, afterimage::io::IoError>(frame.width())
             });
             let r = r.unwrap_or_else(|| {
                 panic!(
@@ -485,6 +498,144 @@ mod fuzz {
         let s = t.elapsed().as_secs_f64();
         eprintln!(
             "EXR reader: {n} cases in {s:.1} s ({:.0} cases/s), {ok} still readable, largest allocation {peak} bytes (bound {bound})",
+            n as f64 / s
+        );
+    }
+
+    /// The CLI's EXR reader (`filter`, `batch`, `report` read files with it) on mutated
+    /// files: never a panic, and no allocation past what the shared header check allows
+    /// a file of that size (`ExrLimits::FILES`: at most 4096 times its bytes, 64 MiB for
+    /// small files).
+    fn fuzz_exr_files(n: u64, seed: u64) {
+        let (w, h) = (24, 16);
+        let bound = (64 << 20) + (4 << 20);
+        let mut seeds = exr_seeds(w, h);
+        seeds.push(std::fs::read(super::common::fixture("blender-motion/frame_0001.exr")).unwrap());
+        seeds.push(super::common::lying_exr(4, 4));
+        let mut rng = SplitMix64::new(seed);
+        let (mut ok, mut peak) = (0u64, 0usize);
+        let t = Instant::now();
+        for case in 0..n {
+            let mut data = seeds[below(&mut rng, seeds.len())].clone();
+            if rng.next_u64().is_multiple_of(2) {
+                mutate_size_attribute(&mut rng, &mut data);
+            }
+            if rng.next_u64().is_multiple_of(2) {
+                mutate(&mut rng, &mut data, EXR_TOKENS);
+            }
+            let (r, alloc) = measured(|| {
+                afterimage::io::read_raw_exr_bytes(&data, std::path::Path::new("fuzz")).map(|r| r.width)
+            });
+            let r = r.unwrap_or_else(|| {
+                panic!(
+                    "case {case} (seed {seed}) panicked; input: {}",
+                    data.iter().map(|b| format!("{b:02x}")).collect::<String>()
+                )
+            });
+            assert!(
+                alloc <= bound,
+                "case {case} (seed {seed}) allocated {alloc} bytes at once from a {}-byte file",
+                data.len()
+            );
+            peak = peak.max(alloc);
+            if r.is_ok() {
+                ok += 1;
+                if seeds.len() < 64 {
+                    seeds.push(data);
+                }
+            }
+        }
+        let s = t.elapsed().as_secs_f64();
+        eprintln!(
+            "EXR file reader: {n} cases in {s:.1} s ({:.0} cases/s), {ok} still readable, largest allocation {peak} bytes (bound {bound})",
+            n as f64 / s
+        );
+    }
+
+    /// Session state import on mutated state files, half of them with a recomputed
+    /// SHA-256 (as a forger writes them): never a panic, no allocation past the session's
+    /// size, and a state a filter accepts never makes it emit a non-finite sample.
+    fn fuzz_state(n: u64, seed: u64) {
+        use afterimage::pipeline::FilterState;
+        use sha2::Digest;
+        let (w, h) = (12, 8);
+        let filters = ["taa", "traa", "phlm", "upsample", "fxaa", "passthrough"];
+        let input = |i: u64| {
+            let mut f = synthetic_frame(w, h, i);
+            f.meta.index = i;
+            f
+        };
+        let seeds: Vec<(&str, Vec<u8>)> = filters
+            .iter()
+            .map(|&name| {
+                let mut f = afterimage::filters::create(name, &Default::default()).unwrap();
+                for i in 0..3 {
+                    f.push(&input(i)).unwrap();
+                }
+                (name, f.save_state().unwrap().encode())
+            })
+            .collect();
+        let state_tokens: &[&[u8]] = &[
+            b"AFTSTATE",
+            br#""size":"#,
+            br#""components":"#,
+            br#""tonemapped":"#,
+            b"null",
+            b"true",
+            b"false",
+            b"[99999,99999]",
+            b"\x00\x00\xc0\x7f",
+            b"\x00\x00\x80\x7f",
+            b"\x00\x00\x80\xbf",
+            b"\xff\xff\x7f\x7f",
+        ];
+        // The planes of a 12x8 state and a 1 MiB header.
+        let bound = w * h * 64 * 4 * 2 + (2 << 20);
+        let mut rng = SplitMix64::new(seed);
+        let (mut loaded, mut peak) = (0u64, 0usize);
+        let t = Instant::now();
+        for case in 0..n {
+            let (name, seed_bytes) = &seeds[below(&mut rng, seeds.len())];
+            let mut data = seed_bytes.clone();
+            mutate(&mut rng, &mut data, state_tokens);
+            if rng.next_u64().is_multiple_of(2) && data.len() > 32 {
+                let body = data.len() - 32;
+                let sum = sha2::Sha256::digest(&data[..body]);
+                data[body..].copy_from_slice(&sum);
+            }
+            let (r, alloc) = measured(|| {
+                let st = FilterState::decode(&data, (w * h) as u64).ok()?;
+                let mut f = afterimage::filters::create(name, &Default::default()).unwrap();
+                f.load_state(&st).ok()?;
+                f.push(&input(3)).ok()
+            });
+            let r = r.unwrap_or_else(|| {
+                panic!(
+                    "case {case} (seed {seed}, {name}) panicked; input: {}",
+                    data.iter().map(|b| format!("{b:02x}")).collect::<String>()
+                )
+            });
+            assert!(
+                alloc <= bound,
+                "case {case} ({name}) allocated {alloc} bytes at once"
+            );
+            peak = peak.max(alloc);
+            if let Some(outs) = r {
+                loaded += 1;
+                for o in outs {
+                    for p in &o.color {
+                        assert!(
+                            p.data().iter().all(|v| v.is_finite()),
+                            "case {case} ({name}): an accepted state made the filter emit a non-finite sample; input: {}",
+                            data.iter().map(|b| format!("{b:02x}")).collect::<String>()
+                        );
+                    }
+                }
+            }
+        }
+        let s = t.elapsed().as_secs_f64();
+        eprintln!(
+            "state import: {n} cases in {s:.1} s ({:.0} cases/s), {loaded} loaded and filtered, largest allocation {peak} bytes (bound {bound})",
             n as f64 / s
         );
     }
@@ -859,6 +1010,16 @@ mod fuzz {
     }
 
     #[test]
+    fn exr_file_reader_survives_mutated_files() {
+        fuzz_exr_files(cases(4000), 5);
+    }
+
+    #[test]
+    fn state_import_survives_mutated_and_forged_states() {
+        fuzz_state(cases(3000), 6);
+    }
+
+    #[test]
     fn wire_decoder_survives_mutated_frames() {
         fuzz_wire(cases(20_000), 2);
     }
@@ -877,6 +1038,8 @@ mod fuzz {
     #[ignore = "the long campaign: cargo test --release --test bad_input -- --ignored --nocapture"]
     fn long_fuzz_campaign() {
         fuzz_exr(cases(500_000), 101);
+        fuzz_exr_files(cases(500_000), 105);
+        fuzz_state(cases(500_000), 106);
         fuzz_wire(cases(2_000_000), 102);
         fuzz_json(cases(100_000), 103);
         fuzz_sessions(cases(3000), 104);

@@ -1080,44 +1080,11 @@ async fn head_only(addr: std::net::SocketAddr, head: &str, secs: u64) -> Option<
     Some((text.get(9..12)?.parse().ok()?, text))
 }
 
-/// A valid 4x4 EXR, uncompressed, in one 4x4 tile, whose data window, display window and
-/// tile size are then rewritten to `w x h` (395 bytes that declare a `w x h` image).
-fn lying_exr(w: i32, h: i32) -> Vec<u8> {
-    use exr::prelude::*;
-    let channels = AnyChannels::sort(
-        ["B", "G", "R"]
-            .iter()
-            .map(|n| AnyChannel::new(*n, FlatSamples::F32(vec![0.5; 16])))
-            .collect(),
-    );
-    let encoding = Encoding {
-        compression: exr::compression::Compression::Uncompressed,
-        blocks: Blocks::Tiles(Vec2(4, 4)),
-        line_order: LineOrder::Increasing,
-    };
-    let layer = Layer::new((4, 4), LayerAttributes::default(), encoding, channels);
-    let mut exr = Vec::new();
-    Image::from_layer(layer)
-        .write()
-        .to_buffered(std::io::Cursor::new(&mut exr))
-        .unwrap();
-    let patch = |exr: &mut Vec<u8>, name: &[u8], values: &[i32]| {
-        let at = exr.windows(name.len()).position(|x| x == name).unwrap() + name.len() + 4;
-        for (k, v) in values.iter().enumerate() {
-            exr[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
-        }
-    };
-    patch(&mut exr, b"dataWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
-    patch(&mut exr, b"displayWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
-    patch(&mut exr, b"tiles\0tiledesc\0", &[w, h]);
-    exr
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_exr_header_declaring_a_huge_image_is_refused_before_allocation() {
     let r = server(|_| {}).await;
     let id = http_session(r.http_addr, r#"{"filter":"taa","width":64,"height":36}"#).await;
-    let exr = lying_exr(100_000, 100_000);
+    let exr = common::lying_exr(100_000, 100_000);
     assert!(exr.len() < 1000, "{} bytes", exr.len());
     let (st, _, body) = http(
         r.http_addr,
@@ -2457,5 +2424,483 @@ async fn an_exported_session_continues_in_another() {
     // The session refused a state goes on from its own.
     let (index, _) = post(b.clone(), write_exr_bytes(&fr[5], &full).unwrap()).await;
     assert_eq!(index, fr[5].meta.index);
+    r.shutdown().await.unwrap();
+}
+
+// Hardening, round 2: attacks that a client without any key, or a client that leaves, can
+// make; each failed before its fix.
+
+/// An HTTP/2 client that opens the connection (preface and settings), then only answers
+/// the server's pings and settings until the server closes it; returns how long that took.
+async fn ping_answerer(addr: std::net::SocketAddr) -> Option<std::time::Duration> {
+    let t = std::time::Instant::now();
+    let mut s = tokio::net::TcpStream::connect(addr).await.ok()?;
+    s.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\0\0\0\x04\0\0\0\0\0")
+        .await
+        .ok()?;
+    let mut head = [0u8; 9];
+    loop {
+        if s.read_exact(&mut head).await.is_err() {
+            return Some(t.elapsed());
+        }
+        let len = u32::from_be_bytes([0, head[0], head[1], head[2]]) as usize;
+        let mut payload = vec![0u8; len];
+        if s.read_exact(&mut payload).await.is_err() {
+            return Some(t.elapsed());
+        }
+        let (kind, flags) = (head[3], head[4]);
+        let answer: Vec<u8> = match (kind, flags & 1) {
+            // PING: the same payload back, flagged ACK.
+            (6, 0) => [&[0, 0, 8, 6, 1, 0, 0, 0, 0][..], &payload].concat(),
+            // SETTINGS: acknowledged.
+            (4, 0) => vec![0, 0, 0, 4, 1, 0, 0, 0, 0],
+            _ => continue,
+        };
+        if s.write_all(&answer).await.is_err() {
+            return Some(t.elapsed());
+        }
+    }
+}
+
+/// `GET /healthz` from another client address (127.0.0.2), with its answer time.
+async fn healthz_from_elsewhere(addr: std::net::SocketAddr) -> (u16, std::time::Duration) {
+    let t = std::time::Instant::now();
+    let sock = tokio::net::TcpSocket::new_v4().unwrap();
+    sock.bind("127.0.0.2:0".parse().unwrap()).unwrap();
+    let mut s = sock.connect(addr).await.expect("a slot for another client");
+    s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .await
+        .unwrap();
+    let mut buf = Vec::new();
+    let _ = s.read_to_end(&mut buf).await;
+    let text = String::from_utf8_lossy(&buf);
+    (
+        text.get(9..12).and_then(|c| c.parse().ok()).unwrap_or(0),
+        t.elapsed(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_http2_connections_that_answer_pings_lock_nobody_out() {
+    let r = server(|c| {
+        c.keepalive_interval_s = 1;
+        c.header_timeout_s = 3;
+    })
+    .await;
+    // 300 connections from one address that never make a request but answer every ping.
+    let mut attackers = Vec::new();
+    for _ in 0..300 {
+        attackers.push(tokio::spawn(ping_answerer(r.http_addr)));
+    }
+    tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
+    // Another client is answered at once, on both ports.
+    let (st, took) = healthz_from_elsewhere(r.http_addr).await;
+    assert_eq!(st, 200);
+    assert!(took < std::time::Duration::from_secs(1), "/healthz took {took:?}");
+    let t = std::time::Instant::now();
+    let channel = tonic::transport::Endpoint::from_shared(format!("http://{}", r.grpc_addr))
+        .unwrap()
+        .local_address(Some("127.0.0.2".parse().unwrap()))
+        .connect()
+        .await
+        .expect("a gRPC connection from another client");
+    let mut c = pb::afterimage_client::AfterimageClient::new(channel);
+    let s = c.create_session(session_req("taa")).await.unwrap().into_inner();
+    assert!(
+        t.elapsed() < std::time::Duration::from_secs(1),
+        "{:?}",
+        t.elapsed()
+    );
+    c.close_session(pb::CloseSessionRequest { id: s.id })
+        .await
+        .unwrap();
+    // The attackers' connections are closed for making no request, pings or not: most at
+    // accept (over the per-client cap), the rest at the first-request deadline.
+    let closed = tokio::time::timeout(std::time::Duration::from_secs(15), async {
+        let mut longest = std::time::Duration::ZERO;
+        for a in attackers {
+            longest = longest.max(a.await.unwrap().unwrap_or_default());
+        }
+        longest
+    })
+    .await
+    .expect("every ping-answering connection is closed");
+    assert!(
+        closed >= std::time::Duration::from_secs(3),
+        "the admitted ones lived until the deadline: {closed:?}"
+    );
+    let m = r.service.metrics.render(r.service.sessions.totals());
+    assert!(
+        m.contains("afterimage_errors_total{reason=\"too_many_connections_per_client\"}"),
+        "{m}"
+    );
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unread_replies_stay_in_the_memory_budget() {
+    // phlm at 640x360 holds 50 MB of state, and its export (25 MB) is more than loopback's
+    // socket buffers take: a client that does not read it leaves most of it with us.
+    let budget: u64 = 192 << 20;
+    let r = server(|c| c.memory_budget_mib = budget >> 20).await;
+    let (w, h) = (640, 360);
+    let id = http_session(
+        r.http_addr,
+        &format!(r#"{{"filter":"phlm","width":{w},"height":{h}}}"#),
+    )
+    .await;
+    let f = {
+        let s = Settings {
+            width: w,
+            height: h,
+            frames: 1,
+            spp: 1,
+            jitter: Jitter::None,
+            noise: false,
+            seed: 1,
+            shading: 1,
+        };
+        Scene::new("fence", s).unwrap().frame(0)
+    };
+    let (st, _, _) = post_frame(r.http_addr, &id, &plain_exr(&f)).await;
+    assert_eq!(st, 200);
+    let used = || r.service.sessions.totals().budget_used;
+    let idle = used();
+    // Exports nobody reads: each holds its reply in the budget until it is read, so once
+    // the budget is full the next is refused (429) instead of growing memory past it.
+    let head = format!("GET /v1/sessions/{id}/state HTTP/1.1\r\nHost: x\r\n\r\n");
+    let mut unread = Vec::new();
+    let mut refused = 0;
+    for _ in 0..24 {
+        let mut s = tokio::net::TcpStream::connect(r.http_addr).await.unwrap();
+        s.write_all(head.as_bytes()).await.unwrap();
+        // Only the start of the answer: a 429 fits, a 200's state does not.
+        let mut buf = vec![0u8; 512];
+        let n = s.read(&mut buf).await.unwrap();
+        let text = String::from_utf8_lossy(&buf[..n]).to_string();
+        if text.starts_with("HTTP/1.1 429") {
+            refused += 1;
+        } else {
+            assert!(text.starts_with("HTTP/1.1 200"), "{text}");
+        }
+        unread.push(s);
+        assert!(used() <= budget, "budget over its limit: {}", used());
+    }
+    assert!((1..24).contains(&refused), "{refused} of 24 exports refused");
+    assert!(
+        used() > idle,
+        "the unread replies are counted ({} vs {idle})",
+        used()
+    );
+    drop(unread);
+    let back = tokio::time::timeout(std::time::Duration::from_secs(5), async {
+        while used() > idle {
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(
+        back.is_ok(),
+        "the replies' reservations came back: {} vs {idle}",
+        used()
+    );
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn forged_state_is_refused_plane_by_plane_and_unsigned_state_with_a_key() {
+    use afterimage::pipeline::state::{FilterState, StateKey};
+    let secret = "replica-secret-0123";
+    let r = server(|c| c.state_key = StateKey::new(secret.as_bytes())).await;
+    let addr = r.http_addr;
+    let id = http_session(addr, r#"{"filter":"phlm","width":64,"height":36}"#).await;
+    for f in &frames("flyover", 2, 1) {
+        let (st, _, _) = post_frame(addr, &id, &plain_exr(f)).await;
+        assert_eq!(st, 200);
+    }
+    let (st, _, state) = http(
+        addr,
+        "GET",
+        &format!("/v1/sessions/{id}/state"),
+        b"",
+        "text/plain",
+    )
+    .await;
+    assert_eq!(st, 200);
+    let path = format!("/v1/sessions/{id}/state");
+    let put = |body: Vec<u8>| {
+        let path = path.clone();
+        async move {
+            let (st, _, reply) = http(addr, "PUT", &path, &body, STATE_TYPE).await;
+            (st, String::from_utf8_lossy(&reply).into_owned())
+        }
+    };
+    // Its own export goes back in.
+    let (st, text) = put(state.clone()).await;
+    assert_eq!(st, 200, "{text}");
+    let key = StateKey::new(secret.as_bytes()).unwrap();
+    let st0 = FilterState::decode_with(&state, 64 * 36, Some(&key)).unwrap();
+    // A history with a NaN, or a negative colour, signed with the server's own key (a
+    // stolen key, or a bug): refused plane by plane, naming what and where.
+    let mut nan = st0.clone();
+    nan.planes[0].data_mut()[27 * 5 + 23] = f32::NAN;
+    let (st, text) = put(nan.encode_with(Some(&key))).await;
+    assert_eq!(st, 400, "{text}");
+    assert!(
+        text.contains("plane 0") && text.contains("pixel (5, 0)") && text.contains("NaN"),
+        "{text}"
+    );
+    let mut negative = st0.clone();
+    negative.planes[0].data_mut()[27 * 70 + 22] = -1.0;
+    let (st, text) = put(negative.encode_with(Some(&key))).await;
+    assert_eq!(st, 400, "{text}");
+    assert!(
+        text.contains("pixel (6, 1)") && text.contains("z") && text.contains("-1"),
+        "{text}"
+    );
+    // A well-formed state with a recomputed SHA-256, as anyone can write: not signed.
+    let (st, text) = put(st0.encode()).await;
+    assert_eq!(st, 400, "{text}");
+    assert!(text.contains("not signed"), "{text}");
+    // The session goes on from its own state.
+    let (st, _, _) = post_frame(addr, &id, &plain_exr(&frames("flyover", 3, 1)[2])).await;
+    assert_eq!(st, 200);
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frame_trickled_a_byte_at_a_time_meets_its_whole_frame_deadline() {
+    let r = server(|c| c.request_timeout_s = 2).await;
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let f = &frames("fence", 1, 3)[0];
+    let parts = frame_parts(f, &s.id, &[afterimage::frame::ChannelKind::Color]);
+    let frame_chunk::Part::Data(first) = &parts[1] else {
+        panic!("a data chunk after the header")
+    };
+    // The header, then one byte every 0.5 s: each chunk well within the timeout.
+    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    tx.send(pb::FrameChunk {
+        part: Some(parts[0].clone()),
+    })
+    .await
+    .unwrap();
+    let data = first.data.clone();
+    let trickle = tokio::spawn(async move {
+        for k in 0..40 {
+            let d = pb::DataChunk {
+                data: data[k..k + 1].to_vec().into(),
+            };
+            if tx
+                .send(pb::FrameChunk {
+                    part: Some(frame_chunk::Part::Data(d)),
+                })
+                .await
+                .is_err()
+            {
+                return;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+        }
+    });
+    let t = std::time::Instant::now();
+    let mut replies = c
+        .inner
+        .stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap()
+        .into_inner();
+    let e = loop {
+        match replies.message().await {
+            Err(s) => break s,
+            Ok(Some(_)) => continue,
+            Ok(None) => panic!("the stream ended without an error"),
+        }
+    };
+    let took = t.elapsed();
+    trickle.abort();
+    assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
+    assert!(
+        e.message()
+            .contains("still missing after the request timeout of 2 s"),
+        "{e:?}"
+    );
+    assert!(took < std::time::Duration::from_secs(4), "{took:?}");
+    still_serving(&r).await;
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_window_stream_drops_its_window() {
+    let r = server(|_| {}).await;
+    let mut c = client(&r).await;
+    let mut req = session_req("pixel_trace");
+    req.params.insert("window".into(), "8".into());
+    let s = c.inner.create_session(req).await.unwrap().into_inner();
+    assert_eq!(s.lookahead, 4);
+    // Three frames into the window, then the client goes away without ending its side.
+    let fr = frames("fence", 3, 5);
+    let (tx, rx) = tokio::sync::mpsc::channel(64);
+    for f in &fr {
+        for p in frame_parts(
+            f,
+            &s.id,
+            &[
+                afterimage::frame::ChannelKind::Color,
+                afterimage::frame::ChannelKind::Motion,
+            ],
+        ) {
+            tx.send(pb::FrameChunk { part: Some(p) }).await.unwrap();
+        }
+    }
+    let call = c
+        .inner
+        .stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap();
+    // Let the server take the frames in, then cancel the call.
+    let frames_in = tokio::time::timeout(std::time::Duration::from_secs(10), async {
+        loop {
+            let info = r
+                .service
+                .sessions
+                .get(&afterimage::session::Caller::ANONYMOUS, &s.id)
+                .unwrap();
+            if info.frames == 3 {
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+    assert!(frames_in.is_ok(), "the server filtered the three frames");
+    drop(call);
+    drop(tx);
+    // Nobody will take the window's outputs: a flush on a new stream finds none (before,
+    // the three frames waited in the session for whoever flushed it next).
+    tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+    let flushed = flush_all(r.http_addr, &s.id).await;
+    assert!(
+        flushed.is_empty(),
+        "{} outputs of a cancelled stream",
+        flushed.len()
+    );
+    let m = r.service.metrics.render(r.service.sessions.totals());
+    assert!(m.contains("afterimage_errors_total{reason=\"cancelled\"}"), "{m}");
+    r.shutdown().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_key_without_quotas_gets_a_share_not_the_whole_server() {
+    let (r, _dir) = keyed_server(|c| c.max_sessions = 4).await;
+    let mut b = keyed_client(&r, Some(KEY_B)).await;
+    // Key b sets no quota: half the server's 4 sessions.
+    for _ in 0..2 {
+        open(&mut b, "taa").await;
+    }
+    let e = b.inner.create_session(session_req("taa")).await.unwrap_err();
+    assert_eq!(e.code(), Code::ResourceExhausted, "{e:?}");
+    assert!(
+        e.message().contains("key b has 2 sessions open, its quota is 2"),
+        "{e:?}"
+    );
+    // The other key still gets its sessions.
+    let mut a = keyed_client(&r, Some(KEY_A)).await;
+    open(&mut a, "taa").await;
+    r.shutdown().await.unwrap();
+}
+
+/// Round trips of one 64x36 taa frame at a time on a fresh session, milliseconds.
+async fn victim_round_trips(r: &Running, n: usize) -> Vec<f64> {
+    let mut c = client(r).await;
+    let s = open(&mut c, "taa").await;
+    let fr = frames("fence", 1, 9);
+    let mut ms = Vec::with_capacity(n);
+    for _ in 0..n {
+        let t = std::time::Instant::now();
+        stream_all(&mut c, &s, &fr, F32).await.unwrap();
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    ms
+}
+
+fn p99(mut ms: Vec<f64>) -> f64 {
+    ms.sort_by(f64::total_cmp);
+    ms[((ms.len() as f64 * 0.99).ceil() as usize).clamp(1, ms.len()) - 1]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "a load run: cargo test --release --test server cancelled_window_streams -- --ignored --nocapture"]
+async fn cancelled_window_streams_leave_other_clients_their_latency() {
+    // Two pixel_trace streams at 512x512 with a window of WINDOW frames end their side
+    // (every frame of the window is then flushed) and are cancelled at once; meanwhile a
+    // small client's round trips are measured against its unloaded figure.
+    let window: u32 = std::env::var("AFTERIMAGE_WINDOW")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(64);
+    let r = server(|c| c.memory_budget_mib = 16 << 10).await;
+    let quiet = p99(victim_round_trips(&r, 100).await);
+    let big = {
+        let s = Settings {
+            width: 512,
+            height: 512,
+            frames: window as u64 + 1,
+            spp: 1,
+            jitter: Jitter::None,
+            noise: false,
+            seed: 2,
+            shading: 1,
+        };
+        let sc = Scene::new("fence", s).unwrap();
+        (0..=window as u64).map(|i| sc.frame(i)).collect::<Vec<_>>()
+    };
+    let mut attackers = Vec::new();
+    for _ in 0..2 {
+        let mut c = client(&r).await;
+        let mut req = session_req("pixel_trace");
+        (req.width, req.height) = (512, 512);
+        req.params.insert("window".into(), window.to_string());
+        let s = c.inner.create_session(req).await.unwrap().into_inner();
+        let big = big.clone();
+        attackers.push(tokio::spawn(async move {
+            let (tx, rx) = tokio::sync::mpsc::channel(8);
+            let call = c
+                .inner
+                .stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+                .await
+                .unwrap();
+            for f in &big {
+                for p in frame_parts(
+                    f,
+                    &s.id,
+                    &[
+                        afterimage::frame::ChannelKind::Color,
+                        afterimage::frame::ChannelKind::Motion,
+                    ],
+                ) {
+                    tx.send(pb::FrameChunk { part: Some(p) }).await.unwrap();
+                }
+            }
+            // The end of the sequence (the server starts the flush), and gone.
+            drop(tx);
+            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            drop(call);
+        }));
+    }
+    for a in attackers {
+        a.await.unwrap();
+    }
+    let t = std::time::Instant::now();
+    let loaded = p99(victim_round_trips(&r, 100).await);
+    eprintln!(
+        "victim p99: {quiet:.2} ms unloaded, {loaded:.2} ms after two cancelled {window}-frame window streams at 512x512 (measured over {:.1} s)",
+        t.elapsed().as_secs_f64()
+    );
+    assert!(
+        loaded < 2.0 * quiet.max(1.0),
+        "p99 {loaded:.2} ms against {quiet:.2} ms unloaded"
+    );
     r.shutdown().await.unwrap();
 }

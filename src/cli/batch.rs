@@ -73,6 +73,10 @@ pub struct BatchArgs {
     /// Fewer frames between them redo less after a kill and write more.
     #[arg(long, default_value_t = 16, value_name = "N")]
     checkpoint_every: usize,
+    /// Let a manifest's shots write outside the manifest's directory (by default a local
+    /// output must lie under it, so a manifest cannot overwrite files elsewhere).
+    #[arg(long)]
+    allow_outside: bool,
     /// S3 endpoint for `s3://` paths (an S3-compatible store: MinIO, Ceph, moto); default:
     /// AWS_ENDPOINT_URL, else AWS's own.
     #[arg(long, value_name = "URL")]
@@ -186,6 +190,43 @@ fn assign(frames: &[(String, usize)], count: usize) -> Vec<usize> {
     owner
 }
 
+/// `path` made absolute against the working directory, with `.` and `..` resolved by
+/// name (symbolic links are not followed: the check is on what the manifest says).
+fn lexical_absolute(path: &Path) -> anyhow::Result<PathBuf> {
+    use std::path::Component;
+    let joined = std::env::current_dir()
+        .context("the working directory")?
+        .join(path);
+    let mut out = PathBuf::new();
+    for c in joined.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => out.push(other),
+        }
+    }
+    Ok(out)
+}
+
+/// Refuses a manifest shot whose local output lies outside `root`, the manifest's
+/// directory (object-store outputs are bounded by their credentials instead).
+fn confine(spec: &ShotSpec, root: &Path) -> anyhow::Result<()> {
+    if spec.output.contains("://") {
+        return Ok(());
+    }
+    let out = lexical_absolute(Path::new(&spec.output))?;
+    anyhow::ensure!(
+        out.starts_with(root),
+        "shot {}: output {} is outside the manifest's directory {}; pass --allow-outside to write there",
+        spec.name,
+        spec.output,
+        root.display()
+    );
+    Ok(())
+}
+
 fn read_manifest(path: &Path) -> anyhow::Result<Manifest> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
@@ -204,6 +245,12 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
         None => Manifest::default(),
     };
     let mut specs = manifest.shot.clone();
+    if let (Some(path), false) = (&args.manifest, args.allow_outside) {
+        let root = lexical_absolute(path.parent().unwrap_or(Path::new("")))?;
+        for spec in &specs {
+            confine(spec, &root)?;
+        }
+    }
     if !args.inputs.is_empty() {
         let root = args
             .output

@@ -21,6 +21,7 @@ use afterimage::io::{
     ReadOptions, Sequence, Storage,
 };
 use afterimage::metrics::{Evaluator, FrameMetrics, MetricSpace, SpaceChoice};
+use afterimage::pipeline::state::StateKey;
 use afterimage::pipeline::{params::parse_assignments, Filter, FilterState, FrameRecord, Output};
 use anyhow::Context;
 use indicatif::ProgressBar;
@@ -260,7 +261,13 @@ fn resume(
                 .get(&path)?
                 .with_context(|| format!("{} is missing", path.display()))?;
             files.push(path);
-            Ok(FilterState::decode(&bytes, MAX_CHECKPOINT_PIXELS)?)
+            // Checkpoints may sit on shared storage: signed and checked when a key is set.
+            let key = StateKey::from_env();
+            Ok(FilterState::decode_with(
+                &bytes,
+                MAX_CHECKPOINT_PIXELS,
+                key.as_ref(),
+            )?)
         };
         match &p.state {
             Some(name) => filter.load_state(&read_state(name)?)?,
@@ -625,7 +632,8 @@ impl Emitter<'_> {
                 .push(p.number, &out.color, r, p.meta.reset)
                 .with_context(|| format!("measuring frame {} against its reference", p.number))?;
         }
-        let record = serde_json::to_string(&out.record)?;
+        // Timings stay in the records file: the output's bytes depend on its input alone.
+        let record = serde_json::to_string(&out.record.without_timings())?;
         self.records.push(out.record);
         send(Job::Frame(Box::new(FrameJob {
             path: self.naming.path(&p.path, p.number),
@@ -650,10 +658,11 @@ impl Emitter<'_> {
     /// it (queued already) is written.
     fn checkpoint(&mut self, c: &Checkpoints, next: usize, filter: &dyn Filter) -> anyhow::Result<Job> {
         let mut files = Vec::new();
+        let key = StateKey::from_env();
         let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
         let state = if filter.lookahead() == 0 {
             let path = c.state_path(next, "filter");
-            files.push((path.clone(), filter.save_state()?.encode()));
+            files.push((path.clone(), filter.save_state()?.encode_with(key.as_ref())));
             name(&path)
         } else {
             None
@@ -661,7 +670,7 @@ impl Emitter<'_> {
         let metrics_state = match self.eval.last_pair() {
             Some(pair) => {
                 let path = c.state_path(next, "metrics");
-                files.push((path.clone(), pair_state(pair).encode()));
+                files.push((path.clone(), pair_state(pair).encode_with(key.as_ref())));
                 name(&path)
             }
             None => None,

@@ -248,7 +248,14 @@ pub struct TemporalState {
     tonemapped: bool,
     /// How the history moves between linear and tonemapped space.
     conversion: Conversion,
+    /// The filter's own check of loaded planes (values in range), after every sample was
+    /// found finite.
+    check: Option<PlaneCheck>,
 }
+
+/// A filter's check of history planes loaded from a state file: `Err` names what is out
+/// of range and where. Given the planes and whether their colour is tonemapped.
+pub type PlaneCheck = fn(&[Plane<f32>], bool) -> Result<(), StateError>;
 
 /// How a filter's history is converted between linear and tonemapped working space when a
 /// stream switches between LDR and HDR frames.
@@ -282,7 +289,14 @@ impl TemporalState {
             scratch: Scratch::default(),
             tonemapped: false,
             conversion,
+            check: None,
         }
+    }
+
+    /// This history, with `check` run on planes loaded from a state file.
+    pub fn checked_by(mut self, check: PlaneCheck) -> Self {
+        self.check = Some(check);
+        self
     }
 
     /// Sizes the history for `frame` and stores its colour in this frame's working space
@@ -323,6 +337,12 @@ impl TemporalState {
     ) -> Result<(), StateError> {
         st.check_for(filter, params)?;
         let tonemapped = st.flag("tonemapped", filter)?;
+        // Untrusted planes (a client's upload, a checkpoint on shared storage): a filter
+        // would spread a NaN or an out-of-range value into every frame after.
+        st.check_finite()?;
+        if let Some(check) = self.check {
+            check(&st.planes, tonemapped)?;
+        }
         if st.components != self.buffer.components() {
             return Err(StateError::Mismatch {
                 what: st.filter.clone(),

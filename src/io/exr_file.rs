@@ -164,8 +164,9 @@ pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
     read_raw_exr_bytes(&bytes, path)
 }
 
-/// Reads an EXR held in memory; `label` names it in errors.
+/// Reads an EXR held in memory within [`ExrLimits::FILES`]; `label` names it in errors.
 pub fn read_raw_exr_bytes(bytes: &[u8], label: &Path) -> Result<RawImage, IoError> {
+    check_exr_header(bytes, label, &ExrLimits::FILES)?;
     decode_exr(bytes, label, true)
 }
 
@@ -185,19 +186,44 @@ fn decode_exr(bytes: &[u8], label: &Path, parallel: bool) -> Result<RawImage, Io
     raw_from_exr(image, label)
 }
 
-/// What an EXR from an untrusted source (an HTTP body) may declare. Its header is checked
-/// against these before a single pixel is decoded, so what decoding allocates is bounded
-/// by `width x height x max_channels` samples whatever the header claims.
+/// What an EXR may declare. Every EXR the product reads (an HTTP body, a file of `filter`,
+/// `batch` or `report`) has its header checked against these before a single pixel is
+/// decoded, so what decoding allocates is bounded whatever the header claims.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ExrLimits {
-    /// The data window every part must have: width.
-    pub width: usize,
-    /// The data window every part must have: height.
-    pub height: usize,
+    /// The data window every part must have (width, height); `None`: any, within
+    /// `max_pixels`.
+    pub size: Option<(usize, usize)>,
+    /// Pixels one part may have.
+    pub max_pixels: u64,
     /// Channels over all parts.
     pub max_channels: usize,
     /// Parts (layers).
     pub max_parts: usize,
+    /// The header must be one the EXR writer accepts (its strict validation), because the
+    /// file is written back (the server's reply is the input with its colour replaced): a
+    /// file read but not writable would be filtered, then fail.
+    pub rewritable: bool,
+}
+
+/// The most an EXR's samples may outgrow its file: DEFLATE (ZIP, ZIPS, PXR24) cannot
+/// exceed about 1032:1, RLE 64:1 and PIZ's Huffman code with runs a few thousand to one;
+/// past this a header declares more than its bytes can hold (a decompression bomb).
+pub const MAX_EXR_EXPANSION: u64 = 4096;
+
+/// Declared samples under this many bytes are never refused for their expansion.
+const SMALL_DECODE_BYTES: u64 = 64 << 20;
+
+impl ExrLimits {
+    /// Limits for frames read from files (`filter`, `batch`, `report`, `info`): any size up
+    /// to 16384x16384 pixels a part (16K), 16 parts and 256 channels.
+    pub const FILES: ExrLimits = ExrLimits {
+        size: None,
+        max_pixels: 16384 * 16384,
+        max_channels: 256,
+        max_parts: 16,
+        rewritable: false,
+    };
 }
 
 /// What [`check_exr_header`] read from a header: enough to size the decode.
@@ -227,6 +253,7 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
         )));
     }
     let mut channels = 0usize;
+    let mut declared = 0u64;
     for (i, h) in meta.headers.iter().enumerate() {
         let part = h
             .own_attributes
@@ -239,11 +266,19 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
             return Err(refuse(format!("{part} holds deep data, which is not supported")));
         }
         let (w, hh) = (h.layer_size.0, h.layer_size.1);
-        if (w, hh) != (limits.width, limits.height) {
-            return Err(refuse(format!(
-                "{part} declares a {w}x{hh} data window, frames here are {}x{}",
-                limits.width, limits.height
-            )));
+        match limits.size {
+            Some((lw, lh)) if (w, hh) != (lw, lh) => {
+                return Err(refuse(format!(
+                    "{part} declares a {w}x{hh} data window, frames here are {lw}x{lh}"
+                )));
+            }
+            None if (w as u64).saturating_mul(hh as u64) > limits.max_pixels => {
+                return Err(refuse(format!(
+                    "{part} declares a {w}x{hh} data window, more than the {} pixels a part may have",
+                    limits.max_pixels
+                )));
+            }
+            _ => {}
         }
         if let Some(ch) = h.channels.list.iter().find(|c| c.sampling != x::Vec2(1, 1)) {
             return Err(refuse(format!(
@@ -252,11 +287,39 @@ pub fn check_exr_header(bytes: &[u8], label: &Path, limits: &ExrLimits) -> Resul
             )));
         }
         channels += h.channels.list.len();
+        let pixels = (w as u64).saturating_mul(hh as u64);
+        let bytes_per_pixel: u64 = h
+            .channels
+            .list
+            .iter()
+            .map(|c| {
+                if c.sample_type == exr::meta::attribute::SampleType::F16 {
+                    2
+                } else {
+                    4
+                }
+            })
+            .sum();
+        declared = declared.saturating_add(pixels.saturating_mul(bytes_per_pixel));
     }
     if channels > limits.max_channels {
         return Err(refuse(format!(
             "{channels} channels, at most {}",
             limits.max_channels
+        )));
+    }
+    if limits.rewritable {
+        exr::meta::MetaData::validate(&meta.headers, true).map_err(|e| {
+            refuse(format!(
+                "its header is one the EXR writer refuses ({e}), so no reply could be written"
+            ))
+        })?;
+    }
+    let holds = (bytes.len() as u64).saturating_mul(MAX_EXR_EXPANSION);
+    if declared > SMALL_DECODE_BYTES.max(holds) {
+        return Err(refuse(format!(
+            "its header declares {declared} bytes of samples in a file of {} bytes, more than {MAX_EXR_EXPANSION} times its size (a decompression bomb)",
+            bytes.len()
         )));
     }
     Ok(ExrShape {

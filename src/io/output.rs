@@ -202,12 +202,30 @@ pub fn write_filtered(path: &Path, frame: &FilteredFrame, opts: &OutputOptions) 
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
     }
-    let partial = partial_path(path);
+    let (file, partial) = create_partial(path)?;
     image
         .write()
-        .to_file(&partial)
+        .to_buffered(std::io::BufWriter::new(file))
         .map_err(|e| super::exr_file::exr_error(&partial, e))?;
     std::fs::rename(&partial, path).map_err(|e| IoError::os(path, e))
+}
+
+/// Creates the hidden file `path` is written under ([`partial_path`]), new: whatever was
+/// at that name is removed first (a symbolic link itself, never its target), and the file
+/// is created exclusively, so a link planted in between fails the write instead of
+/// redirecting it.
+pub fn create_partial(path: &Path) -> Result<(std::fs::File, std::path::PathBuf), IoError> {
+    let partial = partial_path(path);
+    match std::fs::remove_file(&partial) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(IoError::os(&partial, e)),
+        _ => {}
+    }
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&partial)
+        .map_err(|e| IoError::os(&partial, e))?;
+    Ok((file, partial))
 }
 
 /// The hidden name a file is written under before it is renamed to `path` (`.NAME.partial`

@@ -46,8 +46,9 @@ impl Storage for LocalFiles {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
         }
-        let tmp = super::partial_path(path);
-        std::fs::write(&tmp, bytes).map_err(|e| IoError::os(&tmp, e))?;
+        let (mut file, tmp) = super::output::create_partial(path)?;
+        std::io::Write::write_all(&mut file, bytes).map_err(|e| IoError::os(&tmp, e))?;
+        drop(file);
         std::fs::rename(&tmp, path).map_err(|e| IoError::os(path, e))
     }
 
@@ -111,5 +112,19 @@ mod tests {
         s.delete(&p).unwrap();
         s.delete(&p).unwrap();
         assert_eq!(s.get(&p).unwrap(), None);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn a_planted_link_at_the_partial_name_is_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = dir.path().join("victim.txt");
+        std::fs::write(&victim, b"precious").unwrap();
+        let p = dir.path().join("out.bin");
+        std::os::unix::fs::symlink(&victim, super::super::partial_path(&p)).unwrap();
+        LocalFiles.put(&p, b"new").unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(std::fs::read(&p).unwrap(), b"new");
+        assert!(!super::super::partial_path(&p).exists());
     }
 }

@@ -1,8 +1,10 @@
 //! Execution on the crate's own rayon pool, split by rows.
 
 use rayon::prelude::*;
+use std::cell::RefCell;
 use std::ops::AddAssign;
-use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 /// The first `n` entries of a per-task scratch buffer, grown (never shrunk) to hold them:
 /// band kernels keep one such buffer per row kind across bands and frames.
@@ -54,6 +56,27 @@ pub fn pool() -> &'static rayon::ThreadPool {
             .build()
             .expect("a rayon pool with default settings builds")
     })
+}
+
+thread_local! {
+    /// The cancel flag of the job this thread runs (see [`with_cancel`]).
+    static CANCEL: RefCell<Option<Arc<AtomicBool>>> = const { RefCell::new(None) };
+}
+
+/// Runs `job` with `flag` as its cancel flag: long work inside it (a windowed filter's
+/// flush, frame by frame) asks [`cancelled`] between steps and stops early once the flag is
+/// set, because whoever wanted the result has gone.
+pub fn with_cancel<T>(flag: Arc<AtomicBool>, job: impl FnOnce() -> T) -> T {
+    let before = CANCEL.with(|c| c.replace(Some(flag)));
+    let out = job();
+    CANCEL.with(|c| *c.borrow_mut() = before);
+    out
+}
+
+/// Whether the job running on this thread has been cancelled (never outside
+/// [`with_cancel`]).
+pub fn cancelled() -> bool {
+    CANCEL.with(|c| c.borrow().as_ref().is_some_and(|f| f.load(Ordering::SeqCst)))
 }
 
 /// The message of a caught panic's payload (`panic!("...")` gives a `&str` or a `String`).

@@ -244,6 +244,22 @@ impl FrameRecord {
     pub fn ran(&self, name: &str) -> bool {
         self.stage(name).is_some_and(|s| s.skipped.is_none())
     }
+
+    /// The record with every time set to 0: what goes into an output file, so that the
+    /// same input gives the same bytes on every run (the times are in the records file).
+    pub fn without_timings(&self) -> FrameRecord {
+        let mut r = self.clone();
+        r.total_ms = 0.0;
+        for s in &mut r.stages {
+            s.ms = s.ms.map(|_| 0.0);
+        }
+        if let Some(d) = &mut r.device {
+            d.upload_ms = 0.0;
+            d.readback_ms = 0.0;
+            d.shaders_ms = d.shaders_ms.map(|_| 0.0);
+        }
+        r
+    }
 }
 
 /// Builds a [`FrameRecord`] while a filter runs: times stages and notes those left out.

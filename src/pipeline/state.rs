@@ -12,7 +12,12 @@
 //! | 4 | header length `H` (at most [`MAX_HEADER_BYTES`]) |
 //! | `H` | header, JSON: filter, params, size, plane components, flags, caller's notes |
 //! | ... | each plane's samples as f32, rows in order |
-//! | 32 | SHA-256 of every byte before it |
+//! | 32 | SHA-256 of every byte before it, or with a [`StateKey`] their HMAC-SHA-256 |
+//!
+//! The plain SHA-256 catches damage, not forgery: anyone can recompute it. A server or a
+//! batch given a state key signs what it writes and refuses state it did not sign, so a
+//! client or a neighbour on shared storage cannot plant a history. Whatever the trailer,
+//! the filters check every plane they load (finite, in range).
 //!
 //! Reading is written for untrusted bytes (a client uploading a session): the checksum is
 //! checked first, the header is bounded, the size is checked against a pixel limit and the
@@ -34,6 +39,66 @@ pub const STATE_VERSION: u32 = 1;
 pub const MAX_HEADER_BYTES: usize = 1 << 20;
 const CHECKSUM_BYTES: usize = 32;
 const PREAMBLE_BYTES: usize = 16;
+
+/// The environment variable holding the secret that signs state files: the server's
+/// session exports and `afterimage batch`'s checkpoints.
+pub const STATE_KEY_ENV: &str = "AFTERIMAGE_STATE_KEY";
+
+/// A secret that signs state files (HMAC-SHA-256, RFC 2104): see the module.
+#[derive(Clone, PartialEq, Eq)]
+pub struct StateKey(Vec<u8>);
+
+impl std::fmt::Debug for StateKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("StateKey(..)")
+    }
+}
+
+impl StateKey {
+    /// A key of the bytes of `secret`; None when it is empty.
+    pub fn new(secret: &[u8]) -> Option<StateKey> {
+        (!secret.is_empty()).then(|| StateKey(secret.to_vec()))
+    }
+
+    /// The key in [`STATE_KEY_ENV`], if set and not empty.
+    pub fn from_env() -> Option<StateKey> {
+        StateKey::new(std::env::var(STATE_KEY_ENV).unwrap_or_default().as_bytes())
+    }
+
+    /// HMAC-SHA-256 of `data` (RFC 2104, with SHA-256's 64-byte block).
+    pub fn sign(&self, data: &[u8]) -> [u8; 32] {
+        const BLOCK: usize = 64;
+        let mut k = [0u8; BLOCK];
+        if self.0.len() > BLOCK {
+            k[..32].copy_from_slice(&Sha256::digest(&self.0));
+        } else {
+            k[..self.0.len()].copy_from_slice(&self.0);
+        }
+        let pad = |b: u8| k.map(|x| x ^ b);
+        let inner = Sha256::new()
+            .chain_update(pad(0x36))
+            .chain_update(data)
+            .finalize();
+        Sha256::new()
+            .chain_update(pad(0x5c))
+            .chain_update(inner)
+            .finalize()
+            .into()
+    }
+}
+
+/// The trailer of `body`: its HMAC with `key`, else its SHA-256.
+fn trailer(body: &[u8], key: Option<&StateKey>) -> [u8; 32] {
+    match key {
+        Some(k) => k.sign(body),
+        None => Sha256::digest(body).into(),
+    }
+}
+
+/// Equal in time that does not depend on where they differ.
+fn same_bytes(a: &[u8], b: &[u8]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
 
 /// Why a state file was refused. All are the sender's: the bytes, or a state that does not
 /// fit the filter it is loaded into.
@@ -61,8 +126,21 @@ pub enum StateError {
         got: u64,
     },
     /// The bytes do not match their checksum.
-    #[error("state file corrupted: its SHA-256 checksum does not match its contents")]
+    #[error("state file corrupted: its SHA-256 checksum does not match its contents (or it is signed with a state key this reader was not given)")]
     Checksum,
+    /// Not signed with the reader's state key.
+    #[error(
+        "state file not signed with this server's state key: refused (a state exported elsewhere, or forged)"
+    )]
+    Unsigned,
+    /// A plane holds a value the filter never writes there.
+    #[error("state file plane {plane}: {message}")]
+    Plane {
+        /// Which plane (its index in the file).
+        plane: usize,
+        /// What is wrong, where.
+        message: String,
+    },
     /// The header is not what this version writes.
     #[error("state file header: {0}")]
     Header(String),
@@ -172,8 +250,13 @@ impl FilterState {
         .expect("a state header is plain JSON")
     }
 
-    /// The state as a file (see the module for the layout).
+    /// The state as a file (see the module for the layout), with a SHA-256 trailer.
     pub fn encode(&self) -> Vec<u8> {
+        self.encode_with(None)
+    }
+
+    /// The state as a file, signed with `key` when given.
+    pub fn encode_with(&self, key: Option<&StateKey>) -> Vec<u8> {
         let header = self.header_json();
         let mut out = Vec::with_capacity(self.encoded_len());
         out.extend_from_slice(STATE_MAGIC);
@@ -185,7 +268,7 @@ impl FilterState {
                 out.extend_from_slice(&v.to_le_bytes());
             }
         }
-        let sum = Sha256::digest(&out);
+        let sum = trailer(&out, key);
         out.extend_from_slice(&sum);
         out
     }
@@ -193,6 +276,15 @@ impl FilterState {
     /// Reads a state file from untrusted bytes, refusing a history larger than
     /// `max_pixels` (see the module for what is checked, and in what order).
     pub fn decode(bytes: &[u8], max_pixels: u64) -> Result<FilterState, StateError> {
+        Self::decode_with(bytes, max_pixels, None)
+    }
+
+    /// [`Self::decode`], refusing a file not signed with `key` when one is given.
+    pub fn decode_with(
+        bytes: &[u8],
+        max_pixels: u64,
+        key: Option<&StateKey>,
+    ) -> Result<FilterState, StateError> {
         let truncated = |what, expected: usize| StateError::Truncated {
             what,
             expected: expected as u64,
@@ -216,8 +308,12 @@ impl FilterState {
             });
         }
         let (body, sum) = bytes.split_at(bytes.len() - CHECKSUM_BYTES);
-        if Sha256::digest(body).as_slice() != sum {
-            return Err(StateError::Checksum);
+        if !same_bytes(&trailer(body, key), sum) {
+            return Err(if key.is_some() {
+                StateError::Unsigned
+            } else {
+                StateError::Checksum
+            });
         }
         let header_len = u32_at(12) as usize;
         if header_len > MAX_HEADER_BYTES {
@@ -336,6 +432,28 @@ impl FilterState {
         Ok(())
     }
 
+    /// Checks that every sample of every plane is finite: no filter writes NaN or an
+    /// infinity into its history (its input is repaired first), so a state holding one was
+    /// not written by a filter.
+    pub fn check_finite(&self) -> Result<(), StateError> {
+        for (k, p) in self.planes.iter().enumerate() {
+            if let Some(i) = p.data().iter().position(|v| !v.is_finite()) {
+                let (w, c) = (p.width(), self.components.get(k).copied().unwrap_or(1));
+                return Err(StateError::Plane {
+                    plane: k,
+                    message: format!(
+                        "sample {} of pixel ({}, {}) is {}, but a filter's history is always finite",
+                        (i % w) % c,
+                        (i % w) / c,
+                        i / w,
+                        p.data()[i]
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// A boolean flag, or an error naming it.
     pub fn flag(&self, name: &str, filter: &'static str) -> Result<bool, StateError> {
         self.flags
@@ -374,6 +492,63 @@ mod tests {
             .iter()
             .map(|p| p.data().iter().map(|v| v.to_bits()).collect())
             .collect()
+    }
+
+    #[test]
+    fn hmac_matches_rfc_4231() {
+        let hex = |b: &[u8]| b.iter().map(|x| format!("{x:02x}")).collect::<String>();
+        // RFC 4231, test cases 2 (a short key) and 6 (a key longer than the block).
+        let k = StateKey::new(b"Jefe").unwrap();
+        assert_eq!(
+            hex(&k.sign(b"what do ya want for nothing?")),
+            "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843"
+        );
+        let k = StateKey::new(&[0xaa; 131]).unwrap();
+        assert_eq!(
+            hex(&k.sign(b"Test Using Larger Than Block-Size Key - Hash Key First")),
+            "60e431591ee0b67f0d8a26aacbf5b77f8e0bc6213728c5140546040f0ee37f54"
+        );
+        assert!(StateKey::new(b"").is_none());
+    }
+
+    #[test]
+    fn a_signed_state_reads_only_with_its_key() {
+        let mut st = sample();
+        st.planes[1].data_mut().fill(0.25);
+        let key = StateKey::new(b"server secret").unwrap();
+        let signed = st.encode_with(Some(&key));
+        assert_eq!(
+            FilterState::decode_with(&signed, 1 << 20, Some(&key)).unwrap(),
+            st
+        );
+        // A plain file (anyone can write one) and one signed with another key are refused.
+        let plain = st.encode();
+        assert_eq!(
+            FilterState::decode_with(&plain, 1 << 20, Some(&key)),
+            Err(StateError::Unsigned)
+        );
+        let other = st.encode_with(StateKey::new(b"other").as_ref());
+        assert_eq!(
+            FilterState::decode_with(&other, 1 << 20, Some(&key)),
+            Err(StateError::Unsigned)
+        );
+        // Without a key, a signed file is not mistaken for a plain one.
+        assert_eq!(FilterState::decode(&signed, 1 << 20), Err(StateError::Checksum));
+    }
+
+    #[test]
+    fn a_non_finite_plane_is_named() {
+        let mut st = sample();
+        st.planes[1].data_mut().fill(0.25);
+        assert_eq!(st.check_finite(), Ok(()));
+        let w = st.planes[1].width();
+        // Row 1, the second channel of pixel 3.
+        st.planes[1].data_mut()[w + 10] = f32::INFINITY;
+        let e = st.check_finite().unwrap_err().to_string();
+        assert!(
+            e.contains("plane 1") && e.contains("sample 1 of pixel (3, 1) is inf"),
+            "{e}"
+        );
     }
 
     #[test]

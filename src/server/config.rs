@@ -3,6 +3,7 @@
 //! once at start with messages that name the field, the source and the expected value.
 //! API keys come from `api_keys_file` and the `AFTERIMAGE_API_KEYS` variable.
 
+use crate::pipeline::state::{StateKey, STATE_KEY_ENV};
 use crate::session::access::{KeyError, KEYS_ENV};
 use crate::session::{Keyring, Limits, Quotas};
 use serde::{Deserialize, Serialize};
@@ -46,6 +47,10 @@ pub struct Config {
     /// TOML file of API keys (`[[key]]` with `name`, `sha256`, optional `max_sessions` and
     /// `memory_mib`; `afterimage keygen` writes entries). Empty: none from a file.
     pub api_keys_file: String,
+    /// Share of the server (sessions and memory) a key gets when its entry sets no quota
+    /// of its own: one key cannot take every session slot and the whole budget from the
+    /// others by default. 1 gives each key the whole server.
+    pub key_default_share: f64,
     /// Serve a non-loopback address without API keys (refused unless set).
     pub allow_unauthenticated: bool,
     /// `/metrics` needs an API key too (when the server has keys).
@@ -64,6 +69,10 @@ pub struct Config {
     pub request_timeout_s: u64,
     /// Connections open at once over both ports; more are closed at accept.
     pub max_connections: usize,
+    /// Connections open at once from one client address over both ports (0: as many as
+    /// `max_connections`); more are closed at accept. Behind a proxy every client has the
+    /// proxy's address: raise it there.
+    pub max_connections_per_client: usize,
     /// Seconds between HTTP/2 keepalive pings on an idle connection (gRPC and h2).
     pub keepalive_interval_s: u64,
     /// Seconds to wait for a ping's answer before closing the connection.
@@ -84,6 +93,11 @@ pub struct Config {
     /// Plain API keys from the environment (`AFTERIMAGE_API_KEYS`); never printed.
     #[serde(skip)]
     pub api_keys_plain: Option<String>,
+    /// The secret that signs exported session state (`AFTERIMAGE_STATE_KEY`, environment
+    /// only; never printed): with one, an import of state this server (or a replica with
+    /// the same secret) did not export is refused.
+    #[serde(skip)]
+    pub state_key: Option<crate::pipeline::state::StateKey>,
 }
 
 impl Default for Config {
@@ -102,6 +116,7 @@ impl Default for Config {
             queue_depth: 4,
             shutdown_deadline_s: 10,
             api_keys_file: String::new(),
+            key_default_share: 0.5,
             allow_unauthenticated: false,
             metrics_require_key: false,
             tls_cert: String::new(),
@@ -110,6 +125,7 @@ impl Default for Config {
             idle_connection_timeout_s: 120,
             request_timeout_s: 60,
             max_connections: 256,
+            max_connections_per_client: 64,
             keepalive_interval_s: 30,
             keepalive_timeout_s: 10,
             max_concurrent_streams: 16,
@@ -118,6 +134,7 @@ impl Default for Config {
             replica: String::new(),
             default_backend: crate::backend::BackendChoice::Cpu,
             api_keys_plain: None,
+            state_key: None,
         }
     }
 }
@@ -185,9 +202,14 @@ impl Config {
             }
         }
         let mut api_keys_plain = None;
+        let mut state_key = None;
         for (name, value) in env {
             if name == KEYS_ENV {
                 api_keys_plain = Some(value);
+                continue;
+            }
+            if name == STATE_KEY_ENV {
+                state_key = StateKey::new(value.as_bytes());
                 continue;
             }
             let Some(field) = name.strip_prefix(ENV_PREFIX).map(str::to_ascii_lowercase) else {
@@ -241,16 +263,18 @@ impl Config {
                 message: e.to_string(),
             })?;
         config.api_keys_plain = api_keys_plain;
+        config.state_key = state_key;
         config.validate()?;
         Ok(config)
     }
 
     /// The API keys: the keys file's, then `AFTERIMAGE_API_KEYS`'; each key's quotas
-    /// default to the server's limits.
+    /// default to [`Self::key_default_share`] of the server's limits.
     pub fn keyring(&self) -> Result<Keyring, ConfigError> {
+        let share = self.key_default_share;
         let defaults = Quotas {
-            max_sessions: self.max_sessions,
-            memory_bytes: self.memory_budget_mib << 20,
+            max_sessions: ((self.max_sessions as f64 * share).ceil() as usize).max(1),
+            memory_bytes: ((self.memory_budget_mib << 20) as f64 * share) as u64,
         };
         let mut ring = Keyring::default();
         if !self.api_keys_file.is_empty() {
@@ -331,6 +355,13 @@ impl Config {
                 got: self.default_backend.to_string(),
             });
         }
+        if !(self.key_default_share > 0.0 && self.key_default_share <= 1.0) {
+            return Err(ConfigError::Invalid {
+                field: "key_default_share",
+                expected: "a share in (0, 1]".into(),
+                got: self.key_default_share.to_string(),
+            });
+        }
         if !(0.0..=1.0).contains(&self.max_non_finite_fraction) {
             return Err(ConfigError::Invalid {
                 field: "max_non_finite_fraction",
@@ -339,6 +370,15 @@ impl Config {
             });
         }
         Ok(())
+    }
+
+    /// Connections one client address may hold open ([`Self::max_connections_per_client`],
+    /// 0 meaning `max_connections`).
+    pub fn connections_per_client(&self) -> usize {
+        match self.max_connections_per_client {
+            0 => self.max_connections,
+            n => n.min(self.max_connections),
+        }
     }
 
     /// The session limits this config sets.
@@ -353,6 +393,7 @@ impl Config {
             max_non_finite_fraction: self.max_non_finite_fraction,
             replica: self.replica_name(),
             default_backend: self.default_backend,
+            state_key: self.state_key.clone(),
         }
     }
 

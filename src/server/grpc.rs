@@ -225,6 +225,8 @@ async fn send_replies(
 /// the requests in flight.
 struct Receiving {
     assembly: Assembly,
+    /// When its header came: the whole frame must arrive within the request timeout.
+    started: Instant,
     _hold: Reservation,
     _in_flight: InFlight,
 }
@@ -266,6 +268,7 @@ fn start_frame(
         .reserve(caller, bytes, &format!("frame {}", h.index))?;
     Ok(Receiving {
         assembly: Assembly::start(h, plan),
+        started: Instant::now(),
         _hold: hold,
         _in_flight: svc.begin(),
     })
@@ -294,6 +297,7 @@ fn replies_of<R>(
 /// Decodes, filters and answers one complete frame on the pool.
 async fn filter_frame(
     svc: &Service,
+    caller: &Caller,
     claim: &StreamClaim,
     frame: Receiving,
     max_chunk: usize,
@@ -302,7 +306,7 @@ async fn filter_frame(
     let shape = claim.shape();
     let req = frame.assembly.header.clone();
     let job = svc.clone();
-    svc.on_pool(move |_| {
+    svc.on_pool_as(svc.share(caller, claim.id(), shape), move |_| {
         let t = Instant::now();
         let mut co = co;
         let decoded = wire::decode(&frame.assembly, shape)?;
@@ -318,13 +322,14 @@ async fn filter_frame(
 /// like the last frame's.
 async fn flush_stream(
     svc: &Service,
+    caller: &Caller,
     claim: &StreamClaim,
     req: pb::FrameHeader,
     max_chunk: usize,
 ) -> Result<Vec<Vec<pb::FilteredChunk>>, SessionError> {
     let co = svc.count(claim.checkout())?;
     let job = svc.clone();
-    svc.on_pool(move |_| {
+    svc.on_pool_as(svc.share(caller, claim.id(), claim.shape()), move |_| {
         let t = Instant::now();
         let mut co = co;
         let outs = co.flush()?;
@@ -343,6 +348,7 @@ async fn handle_stream(
 ) {
     let max_chunk = svc.config.max_chunk_bytes;
     let frame_timeout = Duration::from_secs(svc.config.request_timeout_s);
+    let idle = Duration::from_secs(svc.config.idle_connection_timeout_s);
     let mut draining = svc.draining();
     let mut claim: Option<StreamClaim> = None;
     let mut current: Option<Receiving> = None;
@@ -355,26 +361,40 @@ async fn handle_stream(
     };
     loop {
         let next = match &current {
-            Some(r) => match tokio::time::timeout(frame_timeout, inbound.next()).await {
-                Ok(m) => m,
-                Err(_) => {
-                    let e = SessionError::invalid(
-                        "data",
-                        format!(
-                            "frame {}: {} bytes still missing after the request timeout of {} s",
-                            r.assembly.header.index,
-                            r.assembly.missing(),
-                            frame_timeout.as_secs()
-                        ),
-                    );
-                    let _ = tx.send(fail(e)).await;
-                    return;
+            // The whole frame within the request timeout, however it is chunked.
+            Some(r) => {
+                match tokio::time::timeout_at((r.started + frame_timeout).into(), inbound.next()).await {
+                    Ok(m) => m,
+                    Err(_) => {
+                        let e = SessionError::invalid(
+                            "data",
+                            format!(
+                                "frame {}: {} bytes still missing after the request timeout of {} s",
+                                r.assembly.header.index,
+                                r.assembly.missing(),
+                                frame_timeout.as_secs()
+                            ),
+                        );
+                        let _ = tx.send(fail(e)).await;
+                        return;
+                    }
                 }
-            },
+            }
             None => tokio::select! {
                 m = inbound.next() => m,
                 _ = until_true(&mut draining) => {
                     let _ = tx.send(Err(status(&SessionError::ShuttingDown))).await;
+                    return;
+                }
+                _ = tokio::time::sleep(idle) => {
+                    let e = SessionError::invalid(
+                        "stream",
+                        format!(
+                            "no frame for idle_connection_timeout_s = {} s; open a new stream to go on",
+                            idle.as_secs()
+                        ),
+                    );
+                    let _ = tx.send(fail(e)).await;
                     return;
                 }
             },
@@ -395,7 +415,9 @@ async fn handle_stream(
                 return;
             }
             Some(Err(s)) => {
+                // Cancelled or reset: nobody takes the window's outputs, so they go now.
                 tracing::debug!(status = %s, "client stream ended with an error");
+                abandon(&svc, claim.as_ref());
                 return;
             }
         };
@@ -432,7 +454,14 @@ async fn handle_stream(
             let frame = current.take().expect("checked");
             let claimed = claim.as_ref().expect("claimed with the header");
             last_header = Some(frame.assembly.header.clone());
-            if !send_replies(&tx, filter_frame(&svc, claimed, frame, max_chunk).await).await {
+            let replies = tokio::select! {
+                r = filter_frame(&svc, &caller, claimed, frame, max_chunk) => r,
+                _ = tx.closed() => {
+                    abandon(&svc, claim.as_ref());
+                    return;
+                }
+            };
+            if !send_replies(&tx, replies).await {
                 return;
             }
         }
@@ -451,7 +480,27 @@ async fn handle_stream(
     }
     // The client closed its side: a windowed filter's last frames come out now.
     if let (Some(claimed), Some(req)) = (&claim, last_header) {
-        send_replies(&tx, flush_stream(&svc, claimed, req, max_chunk).await).await;
+        // A client that resets the call now (it left) stops the flush between frames.
+        tokio::select! {
+            r = flush_stream(&svc, &caller, claimed, req, max_chunk) => {
+                send_replies(&tx, r).await;
+            }
+            _ = tx.closed() => {
+                svc.metrics.error(SessionError::Cancelled.reason());
+            }
+        }
+    }
+}
+
+/// Drops the frames a windowed filter holds for a client that left mid-sequence (see
+/// [`Checkout::abandon`]): their outputs would wait for nobody. A causal filter's history
+/// stays, so a client that reconnects goes on where it was.
+fn abandon(svc: &Service, claim: Option<&StreamClaim>) {
+    svc.metrics.error(SessionError::Cancelled.reason());
+    if let Some(mut co) = claim.and_then(|c| c.checkout().ok()) {
+        if co.lookahead() > 0 {
+            let _ = co.abandon();
+        }
     }
 }
 

@@ -7,6 +7,7 @@
 //! at once. The body is then read within the request timeout and a memory reservation,
 //! and decoded, filtered and encoded on the rayon pool.
 
+use super::activity::Held;
 use super::service::Service;
 use crate::filters;
 use crate::io::{
@@ -14,8 +15,8 @@ use crate::io::{
     FilteredFrame, Keep, OutputOptions, Precision, ReadOptions,
 };
 use crate::session::{
-    params_from_json, Caller, Checkout, ErrorKind, Filtered, KeptInput, MotionInput, SessionError,
-    SessionRequest,
+    params_from_json, Caller, Checkout, ErrorKind, Filtered, KeptInput, MotionInput, Reservation,
+    SessionError, SessionRequest,
 };
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::QueryRejection;
@@ -202,8 +203,7 @@ async fn get_state(
             co.export_state()
         })
         .await?;
-    drop(hold);
-    Ok(([(header::CONTENT_TYPE, STATE_MEDIA_TYPE)], bytes).into_response())
+    Ok(([(header::CONTENT_TYPE, STATE_MEDIA_TYPE)], held_body(bytes, hold)).into_response())
 }
 
 /// `PUT /v1/sessions/{id}/state`: continue the session from a state file (a body of at
@@ -310,6 +310,53 @@ async fn discard(mut body: Body) {
     while let Some(Ok(_)) = body.frame().await {}
 }
 
+/// Bytes a reply body hands to the connection at a time: a client that stops reading holds
+/// at most a window of them in the server's buffers, and the rest stays counted.
+pub const REPLY_CHUNK_BYTES: usize = 256 << 10;
+
+/// A reply body that keeps its memory reservation until the client has taken it: sent in
+/// chunks of [`REPLY_CHUNK_BYTES`], so the last chunk is handed over (and the reservation
+/// given back) only once the client has read the rest. A client that never reads is closed
+/// by the connection's idle timeout, which frees it.
+fn held_body(bytes: Vec<u8>, hold: Reservation) -> Body {
+    Body::new(Held::new(
+        Chunked {
+            bytes: Bytes::from(bytes),
+        },
+        hold,
+    ))
+}
+
+/// A body of `bytes` in chunks of [`REPLY_CHUNK_BYTES`].
+struct Chunked {
+    bytes: Bytes,
+}
+
+impl http_body::Body for Chunked {
+    type Data = Bytes;
+    type Error = std::convert::Infallible;
+
+    fn poll_frame(
+        mut self: std::pin::Pin<&mut Self>,
+        _: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, Self::Error>>> {
+        if self.bytes.is_empty() {
+            return std::task::Poll::Ready(None);
+        }
+        let n = self.bytes.len().min(REPLY_CHUNK_BYTES);
+        let chunk = self.bytes.split_to(n);
+        std::task::Poll::Ready(Some(Ok(http_body::Frame::data(chunk))))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.bytes.is_empty()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        http_body::SizeHint::with_exact(self.bytes.len() as u64)
+    }
+}
+
 /// What a frame or flush request answers.
 enum Reply {
     /// A filtered frame: EXR bytes, its record as JSON, outputs still queued.
@@ -324,11 +371,16 @@ enum Reply {
     Empty,
 }
 
-impl IntoResponse for Reply {
-    fn into_response(self) -> Response {
+impl Reply {
+    /// The response, keeping `hold` (grown to the reply's size when it is larger) until an
+    /// EXR reply has been read.
+    fn holding(self, mut hold: Reservation) -> Response {
         match self {
             Reply::Exr { exr, record, left } => {
-                let mut resp = (StatusCode::OK, exr).into_response();
+                let more = (exr.len() as u64).saturating_sub(hold.bytes());
+                // The reply exists already: counted whether it fits or not.
+                hold.force_grow(more);
+                let mut resp = (StatusCode::OK, held_body(exr, hold)).into_response();
                 let h = resp.headers_mut();
                 h.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/x-exr"));
                 if let Ok(v) = HeaderValue::from_str(&record) {
@@ -522,8 +574,9 @@ async fn post_frame(
         read_body(body, max, Duration::from_secs(svc.config.request_timeout_s)).await,
     )?;
     let job = svc.clone();
+    let share = svc.share(&caller, &id, shape);
     let reply = svc
-        .on_pool(move |sessions| {
+        .on_pool_as(share, move |sessions| {
             let mut co = co;
             let label = std::path::Path::new("request body");
             let body_err = |e: crate::io::IoError| SessionError::invalid("body", e.to_string());
@@ -555,8 +608,7 @@ async fn post_frame(
             hand_over(&job, &mut co, outs, Reply::Accepted { index, lookahead }, &output)
         })
         .await?;
-    drop(body_hold);
-    Ok(reply.into_response())
+    Ok(reply.holding(body_hold))
 }
 
 /// Ends the sequence of a session whose filter looks ahead: each call returns the oldest
@@ -574,15 +626,15 @@ async fn post_flush(
     let held = shape.output_bytes() * (2 * co.lookahead() as u64 + 2);
     let hold = counted(&svc, svc.sessions.reserve(&caller, held, "a flush"))?;
     let job = svc.clone();
+    let share = svc.share(&caller, &id, shape);
     let reply = svc
-        .on_pool(move |_| {
+        .on_pool_as(share, move |_| {
             let mut co = co;
             let outs = co.flush()?;
             hand_over(&job, &mut co, outs, Reply::Empty, &output)
         })
         .await?;
-    drop(hold);
-    Ok(reply.into_response())
+    Ok(reply.holding(hold))
 }
 
 /// The output options of a frame or flush request's query string.

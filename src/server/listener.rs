@@ -1,19 +1,23 @@
 //! Accepting connections for both ports: a cap on connections open at once (over both),
-//! TCP keepalive, an optional TLS handshake (rustls) with a deadline, and connections that
-//! close themselves when they go quiet: no first byte within the header timeout, or no byte
-//! read or written for the idle timeout. Ready connections go to the HTTP server
+//! and a smaller one per client address, TCP keepalive, an optional TLS handshake (rustls)
+//! with a deadline, and connections that close themselves when they do nothing: no request
+//! within the header timeout of being accepted, or none in flight for the idle timeout
+//! ([`Activity`]: HTTP/2 pings and their answers are not requests), or a reply the client
+//! has not read for the idle timeout. Ready connections go to the HTTP server
 //! ([`serve_http`]) or to tonic (as a stream of [`Conn`]).
 
+use super::activity::{Activity, ActivityLayer};
 use super::metrics::Metrics;
 use axum::Router;
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto;
 use hyper_util::service::TowerToHyperService;
+use std::collections::HashMap;
 use std::future::Future;
 use std::io;
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
@@ -34,9 +38,12 @@ pub async fn until_true(rx: &mut watch::Receiver<bool>) {
 pub struct ConnSettings {
     /// Permits for connections open at once, shared by both ports.
     pub slots: Arc<Semaphore>,
-    /// Time to finish the TLS handshake and send the first byte.
+    /// Connections open at once per client address, shared by both ports.
+    pub per_ip: Arc<PerIp>,
+    /// Time to finish the TLS handshake and start the first request.
     pub first_byte: Duration,
-    /// Time without a byte either way before a connection is closed.
+    /// Time without a request in flight, or with a reply the client does not read,
+    /// before a connection is closed.
     pub idle: Duration,
     /// TLS, when configured.
     pub tls: Option<TlsAcceptor>,
@@ -64,70 +71,137 @@ pub fn tls_acceptor(cert: &str, key: &str, alpn: &[&[u8]]) -> Result<TlsAcceptor
     Ok(TlsAcceptor::from(Arc::new(config)))
 }
 
+/// Connections open per client address: one client cannot take every slot.
+#[derive(Debug)]
+pub struct PerIp {
+    max: usize,
+    open: Mutex<HashMap<IpAddr, usize>>,
+}
+
+impl PerIp {
+    /// At most `max` connections from one address.
+    pub fn new(max: usize) -> Arc<PerIp> {
+        Arc::new(PerIp {
+            max,
+            open: Mutex::new(HashMap::new()),
+        })
+    }
+
+    /// A slot for a connection from `ip`, or None when it has `max` open.
+    fn take(self: &Arc<Self>, ip: IpAddr) -> Option<IpSlot> {
+        // A short critical section with no await and no other lock inside.
+        let mut open = self.open.lock().unwrap_or_else(|p| p.into_inner());
+        let n = open.entry(ip).or_insert(0);
+        if *n >= self.max {
+            return None;
+        }
+        *n += 1;
+        Some(IpSlot(self.clone(), ip))
+    }
+}
+
+/// A connection counted against its address until dropped.
+struct IpSlot(Arc<PerIp>, IpAddr);
+
+impl Drop for IpSlot {
+    fn drop(&mut self) {
+        let mut open = self.0.open.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(n) = open.get_mut(&self.1) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.1);
+            }
+        }
+    }
+}
+
 enum Io {
     Plain(TcpStream),
     Tls(Box<tokio_rustls::server::TlsStream<TcpStream>>),
 }
 
-/// An accepted connection: counts against the cap until dropped, and fails its reads and
-/// writes with `TimedOut` once it has been quiet too long: no byte from the client within
-/// the first-byte deadline (whatever the server wrote, such as HTTP/2 settings), then no
-/// byte either way for the idle timeout.
+/// An accepted connection: counts against the caps until dropped, and fails its reads and
+/// writes with `TimedOut` once it does nothing: no request within the first-request
+/// deadline, none in flight for the idle timeout (see [`Activity`]), or a reply the
+/// client has not taken a byte of for the idle timeout.
 pub struct Conn {
     io: Io,
     remote: SocketAddr,
+    activity: Arc<Activity>,
     deadline: Pin<Box<Sleep>>,
+    first: Duration,
     idle: Duration,
-    /// The client has sent a byte.
-    heard: bool,
+    /// Since when a write has been waiting for the client to read.
+    stalled_since: Option<Instant>,
     _slot: OwnedSemaphorePermit,
+    _ip: IpSlot,
 }
 
-/// What tonic is told about a connection.
+/// What tonic is told about a connection (and puts in each request's extensions).
 #[derive(Clone, Debug)]
 pub struct ConnInfo {
     /// The peer.
     pub remote: SocketAddr,
+    /// The connection's requests.
+    pub activity: Arc<Activity>,
 }
 
 impl tonic::transport::server::Connected for Conn {
     type ConnectInfo = ConnInfo;
     fn connect_info(&self) -> ConnInfo {
-        ConnInfo { remote: self.remote }
+        ConnInfo {
+            remote: self.remote,
+            activity: self.activity.clone(),
+        }
     }
 }
 
 impl Conn {
-    fn active(&mut self) {
-        let next = Instant::now() + self.idle;
-        self.deadline.as_mut().reset(next);
+    /// The connection's requests (see [`ActivityLayer`]).
+    pub fn activity(&self) -> Arc<Activity> {
+        self.activity.clone()
     }
 
-    /// A write's result: bytes written count as activity once the client has spoken; a
-    /// write that cannot go on is subject to the deadline (a client that stops reading).
+    /// A write's result: a write that cannot go on starts (or continues) a stall, which
+    /// is subject to the deadline (a client that stops reading).
     fn after_write(&mut self, cx: &mut Context<'_>, r: Poll<io::Result<usize>>) -> Poll<io::Result<usize>> {
         match r {
             Poll::Ready(Ok(n)) => {
-                if n > 0 && self.heard {
-                    self.active();
+                if n > 0 {
+                    self.stalled_since = None;
                 }
                 Poll::Ready(Ok(n))
             }
-            Poll::Pending => self.quiet_too_long(cx),
+            Poll::Pending => {
+                self.stalled_since.get_or_insert_with(Instant::now);
+                self.quiet_too_long(cx)
+            }
             other => other,
         }
     }
 
-    /// After a pending read or write: a timeout error once the deadline has passed (the
-    /// timer wakes the task when it does).
+    /// After a pending read or write: a timeout error once the connection is due (the
+    /// timer wakes the task at the earliest time it can be, and is set again from there
+    /// while it is not).
     fn quiet_too_long<T>(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<T>> {
-        match self.deadline.as_mut().poll(cx) {
-            Poll::Ready(()) => Poll::Ready(Err(io::Error::new(
-                io::ErrorKind::TimedOut,
-                "connection idle for too long",
-            ))),
-            Poll::Pending => Poll::Pending,
+        while self.deadline.as_mut().poll(cx).is_ready() {
+            let now = Instant::now();
+            let mut due = self
+                .activity
+                .due(self.first, self.idle)
+                .unwrap_or(now + self.idle);
+            if let Some(since) = self.stalled_since {
+                due = due.min(since + self.idle);
+            }
+            if due <= now {
+                return Poll::Ready(Err(io::Error::new(
+                    io::ErrorKind::TimedOut,
+                    "connection idle for too long",
+                )));
+            }
+            self.deadline.as_mut().reset(due);
         }
+        Poll::Pending
     }
 }
 
@@ -137,19 +211,11 @@ impl AsyncRead for Conn {
         cx: &mut Context<'_>,
         buf: &mut ReadBuf<'_>,
     ) -> Poll<io::Result<()>> {
-        let before = buf.filled().len();
         let r = match &mut self.io {
             Io::Plain(s) => Pin::new(s).poll_read(cx, buf),
             Io::Tls(s) => Pin::new(s.as_mut()).poll_read(cx, buf),
         };
         match r {
-            Poll::Ready(Ok(())) => {
-                if buf.filled().len() > before {
-                    self.heard = true;
-                    self.active();
-                }
-                Poll::Ready(Ok(()))
-            }
             Poll::Pending => self.quiet_too_long(cx),
             other => other,
         }
@@ -199,8 +265,9 @@ impl AsyncWrite for Conn {
     }
 }
 
-/// Accepts on `listener` until `stop` turns true; every connection that gets a slot and
-/// finishes its TLS handshake in time comes out of the returned channel. `what` names the
+/// Accepts on `listener` until `stop` turns true; every connection that gets a slot (of
+/// the server's and of its address's) and finishes its TLS handshake in time comes out of
+/// the returned channel. `what` names the
 /// port in logs. The task ends, and the listener is closed, when `stop` turns true:
 /// await the returned handle to know the port no longer accepts.
 pub fn accept(
@@ -231,6 +298,12 @@ pub fn accept(
                 drop(tcp);
                 continue;
             };
+            let Some(ip_slot) = settings.per_ip.take(remote.ip()) else {
+                metrics.error("too_many_connections_per_client");
+                tracing::warn!(port = what, %remote, "connection refused: max_connections_per_client are open from this address");
+                drop(tcp);
+                continue;
+            };
             let (settings, tx) = (settings.clone(), tx.clone());
             tokio::spawn(async move {
                 let _ = tcp.set_nodelay(true);
@@ -254,13 +327,17 @@ pub fn accept(
                         }
                     }
                 };
+                let activity = Activity::new();
                 let conn = Conn {
                     io,
                     remote,
                     deadline: Box::pin(tokio::time::sleep(settings.first_byte)),
+                    first: settings.first_byte,
                     idle: settings.idle,
-                    heard: false,
+                    activity,
+                    stalled_since: None,
                     _slot: slot,
+                    _ip: ip_slot,
                 };
                 let _ = tx.send(conn).await;
             });
@@ -313,7 +390,11 @@ pub async fn serve_http(
             },
             _ = until_true(&mut stop) => break,
         };
-        let service = TowerToHyperService::new(router.clone());
+        let service = TowerToHyperService::new(
+            tower::ServiceBuilder::new()
+                .layer(ActivityLayer::for_conn(conn.activity()))
+                .service(router.clone()),
+        );
         let served = builder.serve_connection(TokioIo::new(conn), service).into_owned();
         let watched = graceful.watch(served);
         tokio::spawn(async move {

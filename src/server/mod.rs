@@ -1,6 +1,7 @@
 //! The service: gRPC (tonic) and HTTP (axum) as thin layers over [`crate::session`], plus
 //! the wire format, config, metrics and the client used by `afterimage stream`.
 
+pub mod activity;
 pub mod client;
 pub mod config;
 pub mod grpc;
@@ -9,6 +10,7 @@ pub mod listener;
 pub mod metrics;
 pub mod proto;
 pub mod run;
+pub mod schedule;
 pub mod service;
 pub mod wire;
 

@@ -3,10 +3,11 @@
 //! new work (`/readyz` turns 503), let frames in flight finish, then close the listeners,
 //! all within the deadline.
 
+use super::activity::ActivityLayer;
 use super::config::Config;
 use super::grpc::Grpc;
 use super::http::router;
-use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings};
+use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings, PerIp};
 use super::service::Service;
 use std::future::Future;
 use std::net::SocketAddr;
@@ -106,6 +107,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
     let deadline = Duration::from_secs(config.shutdown_deadline_s);
     let conn = ConnSettings {
         slots: Arc::new(Semaphore::new(config.max_connections)),
+        per_ip: PerIp::new(config.connections_per_client()),
         first_byte: Duration::from_secs(config.header_timeout_s),
         idle: Duration::from_secs(config.idle_connection_timeout_s),
         tls: None,
@@ -122,7 +124,8 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         .http2_keepalive_interval(Some(Duration::from_secs(config.keepalive_interval_s)))
         .http2_keepalive_timeout(Some(Duration::from_secs(config.keepalive_timeout_s)))
         .max_concurrent_streams(config.max_concurrent_streams)
-        .http2_max_header_list_size(64 << 10);
+        .http2_max_header_list_size(64 << 10)
+        .layer(ActivityLayer::default());
     let service = Service::new(config, keys);
     let (stop, stopped) = watch::channel(false);
     // Closing the listeners comes after the drain, so it has a signal of its own.

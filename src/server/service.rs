@@ -4,11 +4,12 @@
 
 use super::config::Config;
 use super::metrics::Metrics;
+use super::schedule::{Scheduler, Share};
 use crate::io::ExrLimits;
-use crate::pipeline::exec::{panic_text, pool};
+use crate::pipeline::exec::{panic_text, pool, with_cancel};
 use crate::session::{Caller, FrameShape, Keyring, SessionError, Sessions};
 use std::panic::{catch_unwind, AssertUnwindSafe};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use tokio::sync::watch;
 
@@ -27,6 +28,19 @@ pub struct Service {
     in_flight: Arc<AtomicUsize>,
     /// Turns true when the server starts draining (streams end between frames).
     draining: Arc<watch::Sender<bool>>,
+    /// Fair shares of the pool between keys and sessions.
+    scheduler: Scheduler,
+}
+
+/// Cancels a pool job when dropped (see [`Service::on_pool`]).
+struct CancelOnDrop(Option<Arc<AtomicBool>>);
+
+impl Drop for CancelOnDrop {
+    fn drop(&mut self) {
+        if let Some(flag) = &self.0 {
+            flag.store(true, Ordering::SeqCst);
+        }
+    }
 }
 
 /// One request in flight; counted until dropped.
@@ -48,6 +62,7 @@ impl Service {
             keys: Arc::new(keys),
             in_flight: Arc::default(),
             draining: Arc::new(watch::channel(false).0),
+            scheduler: Scheduler::new(pool().current_num_threads(), |job| pool().spawn(job)),
         }
     }
 
@@ -96,31 +111,59 @@ impl Service {
         &self,
         job: impl FnOnce(&Sessions) -> Result<T, SessionError> + Send + 'static,
     ) -> Result<T, SessionError> {
+        self.on_pool_as(Share::default(), job).await
+    }
+
+    /// [`Self::on_pool`] for `share`: the job waits for its turn among the keys' and
+    /// sessions' fair shares ([`Scheduler`]).
+    pub async fn on_pool_as<T: Send + 'static>(
+        &self,
+        share: Share,
+        job: impl FnOnce(&Sessions) -> Result<T, SessionError> + Send + 'static,
+    ) -> Result<T, SessionError> {
         let sessions = self.sessions.clone();
         let guard = self.begin();
         let (tx, rx) = tokio::sync::oneshot::channel();
-        pool().spawn(move || {
-            let r = catch_unwind(AssertUnwindSafe(|| job(&sessions))).unwrap_or_else(|panic| {
-                let cause = panic_text(panic.as_ref());
-                tracing::error!(%cause, "a request panicked; it fails, the server goes on");
-                Err(SessionError::Internal(format!("the request failed: {cause}")))
-            });
+        // Set when this future is dropped before the job ends (the client went away): the
+        // session's steps ask `exec::cancelled` (a queued frame is then dropped, a flush stops
+        // between frames and drops its window), so the job always runs to tidy up.
+        let flag = Arc::new(AtomicBool::new(false));
+        let mut cancel = CancelOnDrop(Some(flag.clone()));
+        self.scheduler.submit(share, move || {
+            let r = with_cancel(flag, || catch_unwind(AssertUnwindSafe(|| job(&sessions)))).unwrap_or_else(
+                |panic| {
+                    let cause = panic_text(panic.as_ref());
+                    tracing::error!(%cause, "a request panicked; it fails, the server goes on");
+                    Err(SessionError::Internal(format!("the request failed: {cause}")))
+                },
+            );
             drop(guard);
             let _ = tx.send(r);
         });
         let r = rx
             .await
             .unwrap_or_else(|_| Err(SessionError::Internal("the worker dropped the request".into())));
+        cancel.0 = None; // finished: nothing to cancel
         self.count(r)
+    }
+
+    /// The share a frame of `shape` for session `id` of `caller` takes of the pool.
+    pub fn share(&self, caller: &Caller, id: &str, shape: FrameShape) -> Share {
+        Share {
+            key: caller.name().unwrap_or_default().to_string(),
+            session: id.to_string(),
+            pixels: shape.pixels(),
+        }
     }
 
     /// What an EXR body for a session of `shape` may declare (checked from its header).
     pub fn exr_limits(&self, shape: FrameShape) -> ExrLimits {
         ExrLimits {
-            width: shape.width as usize,
-            height: shape.height as usize,
+            size: Some((shape.width as usize, shape.height as usize)),
+            max_pixels: shape.pixels(),
             max_channels: self.config.max_exr_channels,
             max_parts: self.config.max_exr_parts,
+            rewritable: true,
         }
     }
 

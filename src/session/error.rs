@@ -77,6 +77,9 @@ pub enum SessionError {
     /// The server is shutting down.
     #[error("the server is shutting down")]
     ShuttingDown,
+    /// The client went away before its request finished; the work was stopped.
+    #[error("cancelled: the client went away before the request finished")]
+    Cancelled,
 }
 
 /// The class of a [`SessionError`], for status codes.
@@ -111,7 +114,7 @@ impl SessionError {
             SessionError::Busy(_) | SessionError::Failed { .. } => ErrorKind::FailedPrecondition,
             SessionError::Unauthenticated(_) => ErrorKind::Unauthenticated,
             SessionError::Internal(_) => ErrorKind::Internal,
-            SessionError::ShuttingDown => ErrorKind::Unavailable,
+            SessionError::ShuttingDown | SessionError::Cancelled => ErrorKind::Unavailable,
         }
     }
 
@@ -127,6 +130,7 @@ impl SessionError {
             SessionError::Unauthenticated(_) => "unauthenticated",
             SessionError::Internal(_) => "internal",
             SessionError::ShuttingDown => "shutting_down",
+            SessionError::Cancelled => "cancelled",
         }
     }
 

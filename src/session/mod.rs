@@ -61,6 +61,10 @@ pub struct Limits {
     pub replica: String,
     /// The backend of sessions that do not name one.
     pub default_backend: crate::backend::BackendChoice,
+    /// Signs exported state, and imports must carry its signature (see
+    /// [`crate::pipeline::state`]); a secret, never shown.
+    #[serde(skip)]
+    pub state_key: Option<crate::pipeline::state::StateKey>,
 }
 
 impl Default for Limits {
@@ -75,6 +79,7 @@ impl Default for Limits {
             max_non_finite_fraction: 0.5,
             replica: "local".into(),
             default_backend: crate::backend::BackendChoice::Cpu,
+            state_key: None,
         }
     }
 }
@@ -272,6 +277,8 @@ struct Session {
     motion: MotionConvention,
     /// Largest share of non-finite colour samples in a frame.
     non_finite_limit: f64,
+    /// Signs its exports and checks its imports.
+    state_key: Option<crate::pipeline::state::StateKey>,
     last_used: Mutex<Instant>,
     frames: AtomicU64,
     slot: Mutex<Slot>,
@@ -538,6 +545,7 @@ impl Sessions {
             needs,
             motion,
             non_finite_limit: l.max_non_finite_fraction,
+            state_key: l.state_key.clone(),
             last_used: Mutex::new(Instant::now()),
             frames: AtomicU64::new(0),
             slot: Mutex::new(Slot::Idle(Box::new(Inner {
@@ -793,6 +801,10 @@ impl Checkout {
         motion: MotionInput,
         input: Option<KeptInput>,
     ) -> Result<Vec<Filtered>, SessionError> {
+        if crate::pipeline::exec::cancelled() {
+            // Queued for a client that has gone: dropped, the session as it was.
+            return Err(SessionError::Cancelled);
+        }
         let s = self.session.clone();
         *lock(&s.slot) = Slot::Busy(Some(frame.meta.index));
         let (w, h) = (s.info.width as usize, s.info.height as usize);
@@ -865,6 +877,11 @@ impl Checkout {
     pub fn flush(&mut self) -> Result<Vec<Filtered>, SessionError> {
         self.inner()?;
         let outs = self.guarded("the flush", |f| f.finish())?;
+        if crate::pipeline::exec::cancelled() {
+            // The flush stopped early for a client that left: what it held goes too.
+            self.abandon()?;
+            return Err(SessionError::Cancelled);
+        }
         let inner = self
             .inner
             .as_mut()
@@ -873,6 +890,19 @@ impl Checkout {
             outs.into_iter().map(|o| measured(inner, o)).collect();
         inner.pending.clear();
         outs
+    }
+
+    /// Drops what the filter holds for the sequence in progress (a windowed filter's frames,
+    /// a causal filter's history) and every output not handed over: for a client that went
+    /// away mid-sequence, whose outputs nobody will take. The session stays open; its next
+    /// frame starts a new sequence.
+    pub fn abandon(&mut self) -> Result<(), SessionError> {
+        let inner = self.inner()?;
+        inner.filter.reset();
+        inner.pending.clear();
+        inner.ready.clear();
+        inner.jitter_prev = None;
+        Ok(())
     }
 
     /// The session's state as a state file ([`crate::pipeline::state`]): the filter's
@@ -905,7 +935,7 @@ impl Checkout {
             NOTE_METRIC_SPACE.into(),
             serde_json::to_value(inner.space).unwrap_or_default(),
         );
-        Ok(st.encode())
+        Ok(st.encode_with(self.session.state_key.as_ref()))
     }
 
     /// Continues from a state file [`Checkout::export_state`] gave (untrusted bytes: checked
@@ -917,7 +947,8 @@ impl Checkout {
             self.session.info.height as usize,
         );
         let bad = |message: String| SessionError::invalid("state", message);
-        let st = FilterState::decode(bytes, (w * h) as u64).map_err(|e| bad(e.to_string()))?;
+        let key = self.session.state_key.as_ref();
+        let st = FilterState::decode_with(bytes, (w * h) as u64, key).map_err(|e| bad(e.to_string()))?;
         if let Some((sw, sh)) = st.size.filter(|&s| s != (w, h)) {
             return Err(bad(format!("the state is {sw}x{sh}, the session {w}x{h}")));
         }

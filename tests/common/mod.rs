@@ -226,3 +226,36 @@ pub fn assert_replaces(input: &Path, output: &Path, expect: Expect) {
     }
     assert_eq!(records, 1, "one part carries afterimage.record: {what}");
 }
+
+/// A valid 4x4 EXR, uncompressed, in one 4x4 tile, whose data window, display window and
+/// tile size are then rewritten to `w x h` (395 bytes that declare a `w x h` image).
+pub fn lying_exr(w: i32, h: i32) -> Vec<u8> {
+    use exr::prelude::*;
+    let channels = AnyChannels::sort(
+        ["B", "G", "R"]
+            .iter()
+            .map(|n| AnyChannel::new(*n, FlatSamples::F32(vec![0.5; 16])))
+            .collect(),
+    );
+    let encoding = Encoding {
+        compression: exr::compression::Compression::Uncompressed,
+        blocks: Blocks::Tiles(Vec2(4, 4)),
+        line_order: LineOrder::Increasing,
+    };
+    let layer = Layer::new((4, 4), LayerAttributes::default(), encoding, channels);
+    let mut exr = Vec::new();
+    Image::from_layer(layer)
+        .write()
+        .to_buffered(std::io::Cursor::new(&mut exr))
+        .unwrap();
+    let patch = |exr: &mut Vec<u8>, name: &[u8], values: &[i32]| {
+        let at = exr.windows(name.len()).position(|x| x == name).unwrap() + name.len() + 4;
+        for (k, v) in values.iter().enumerate() {
+            exr[at + 4 * k..at + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+    };
+    patch(&mut exr, b"dataWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
+    patch(&mut exr, b"displayWindow\0box2i\0", &[0, 0, w - 1, h - 1]);
+    patch(&mut exr, b"tiles\0tiledesc\0", &[w, h]);
+    exr
+}

@@ -608,6 +608,45 @@ pub fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     });
 }
 
+/// Checks loaded state texels: what the filter writes is a non-negative colour z (below
+/// 1 when tonemapped), an information matrix with a positive diagonal (it is positive
+/// definite), and a non-negative strike count and speed.
+fn check_state_texels(planes: &[Plane<f32>], tonemapped: bool) -> Result<(), StateError> {
+    let Some(texels) = planes.first() else {
+        return Ok(());
+    };
+    let w = texels.width() / STATE_PLANES;
+    for (i, t) in texels.data().chunks_exact(STATE_PLANES).enumerate() {
+        let bad = |what: &str, v: f32| {
+            Err(StateError::Plane {
+                plane: 0,
+                message: format!(
+                    "pixel ({}, {}): {what} is {v}, which the filter never writes",
+                    i % w.max(1),
+                    i / w.max(1)
+                ),
+            })
+        };
+        let top = if tonemapped { 1.0 } else { f32::MAX };
+        if let Some(&z) = t[Z..Z + 3].iter().find(|&&z| !(0.0..=top).contains(&z)) {
+            return bad("a history colour (z)", z);
+        }
+        for k in rls::DIAG {
+            let d = t[R + k];
+            if d <= 0.0 {
+                return bad("a diagonal entry of the information matrix", d);
+            }
+        }
+        if t[S] < 0.0 {
+            return bad("the count of failed box tests", t[S]);
+        }
+        if t[V] < 0.0 {
+            return bad("the speed", t[V]);
+        }
+    }
+    Ok(())
+}
+
 /// [`convert_state`] for state kept as texels of [`STATE_PLANES`] floats.
 fn convert_state_texels(planes: &mut [Plane<f32>], to_tonemapped: bool) {
     let mut rows = from_texels(&planes[0]);
@@ -637,6 +676,7 @@ impl Phlm {
     /// [`convert_state`]. The GPU backend saves and loads this same format.
     pub fn history() -> TemporalState {
         TemporalState::with_components(&[STATE_PLANES], Conversion::Custom(convert_state_texels))
+            .checked_by(check_state_texels)
     }
 
     /// Every pixel's information matrix `R = P^-1` (packed upper triangle, see

@@ -249,6 +249,10 @@ impl PixelTrace {
         let mut out = Vec::new();
         let held_until = self.base + self.frames.len();
         while self.emitted < held_until && (end_of_shot || self.emitted + half < held_until) {
+            // Nobody waits for the rest (a cancelled stream's flush): stop between frames.
+            if crate::pipeline::exec::cancelled() {
+                break;
+            }
             out.push(self.output(self.emitted, held_until - 1 - self.emitted));
             self.emitted += 1;
         }
