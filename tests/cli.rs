@@ -1478,6 +1478,23 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
     );
 }
 
+/// Renders `frames` frames of the fence scene at 24x16 into `dir`.
+fn fence_shot(dir: &std::path::Path, frames: u32) {
+    let (ok, _, err) = run(&[
+        "scene",
+        "fence",
+        "--frames",
+        &frames.to_string(),
+        "--size",
+        "24x16",
+        "--spp",
+        "1",
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+}
+
 #[test]
 fn a_decompression_bomb_fails_its_shot_and_the_batch_goes_on() {
     let dir = tempfile::tempdir().unwrap();
@@ -1501,19 +1518,7 @@ fn a_decompression_bomb_fails_its_shot_and_the_batch_goes_on() {
         "{err}"
     );
     let good = d.join("in/good");
-    let (ok, _, err) = run(&[
-        "scene",
-        "fence",
-        "--frames",
-        "3",
-        "--size",
-        "24x16",
-        "--spp",
-        "1",
-        "-o",
-        good.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    fence_shot(&good, 3);
     let summary = d.join("sum.json");
     let (ok, out, err) = run(&[
         "batch",
@@ -1549,19 +1554,7 @@ fn a_manifest_writes_only_under_its_directory_unless_allowed() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let input = d.join("jobs/in");
-    let (ok, _, err) = run(&[
-        "scene",
-        "fence",
-        "--frames",
-        "2",
-        "--size",
-        "24x16",
-        "--spp",
-        "1",
-        "-o",
-        input.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    fence_shot(&input, 2);
     let manifest = d.join("jobs/batch.toml");
     let outside = d.join("jobs/../elsewhere/x.####.exr");
     std::fs::write(
@@ -1606,19 +1599,7 @@ fn the_same_input_gives_the_same_output_files() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let input = d.join("in");
-    let (ok, _, err) = run(&[
-        "scene",
-        "fence",
-        "--frames",
-        "3",
-        "--size",
-        "24x16",
-        "--spp",
-        "1",
-        "-o",
-        input.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    fence_shot(&input, 3);
     let mut outs = Vec::new();
     for k in 0..2 {
         let out = d.join(format!("out{k}"));

@@ -162,6 +162,25 @@ mod tests {
         (Scheduler::new(1, |job| job()), Arc::default())
     }
 
+    /// Starts a job of `key` that holds the only slot until the sender is used; the thread
+    /// it runs on then runs the jobs queued meanwhile.
+    fn hold_the_slot(s: &Scheduler, key: &str) -> (mpsc::Sender<()>, std::thread::JoinHandle<()>) {
+        let (tx, rx) = mpsc::channel::<()>();
+        let gate = Mutex::new(rx);
+        let runner = {
+            let (s, key) = (s.clone(), key.to_string());
+            std::thread::spawn(move || {
+                s.submit(share(&key, "blocker", 1), move || {
+                    gate.lock().unwrap().recv().unwrap();
+                })
+            })
+        };
+        while s.lock().running == 0 {
+            std::thread::yield_now();
+        }
+        (tx, runner)
+    }
+
     fn share(key: &str, session: &str, pixels: u64) -> Share {
         Share {
             key: key.into(),
@@ -174,19 +193,7 @@ mod tests {
     fn a_small_session_is_not_stuck_behind_a_large_ones_queue() {
         let (s, log) = inline();
         // A running job holds the only slot while the others queue.
-        let (tx, rx) = mpsc::channel::<()>();
-        let gate = Mutex::new(rx);
-        let runner = {
-            let s = s.clone();
-            std::thread::spawn(move || {
-                s.submit(share("k", "blocker", 1), move || {
-                    gate.lock().unwrap().recv().unwrap();
-                })
-            })
-        };
-        while s.lock().running == 0 {
-            std::thread::yield_now();
-        }
+        let (release, runner) = hold_the_slot(&s, "k");
         for i in 0..5 {
             let log = log.clone();
             s.submit(share("k", "4k", 3840 * 2160), move || {
@@ -198,7 +205,7 @@ mod tests {
             l.lock().unwrap().push("720p".into())
         });
         assert_eq!(s.waiting(), 6);
-        tx.send(()).unwrap();
+        release.send(()).unwrap();
         runner.join().unwrap();
         let order = log.lock().unwrap().clone();
         // Both start level; 4K's first frame is charged 9x what 720p's is, so 720p goes
@@ -209,19 +216,7 @@ mod tests {
     #[test]
     fn keys_share_before_their_sessions_do() {
         let (s, log) = inline();
-        let (tx, rx) = mpsc::channel::<()>();
-        let gate = Mutex::new(rx);
-        let runner = {
-            let s = s.clone();
-            std::thread::spawn(move || {
-                s.submit(share("a", "x", 1), move || {
-                    gate.lock().unwrap().recv().unwrap();
-                })
-            })
-        };
-        while s.lock().running == 0 {
-            std::thread::yield_now();
-        }
+        let (release, runner) = hold_the_slot(&s, "a");
         // Key a has four sessions with two frames each, key b one session with two.
         for round in 0..2 {
             for session in ["a1", "a2", "a3", "a4"] {
@@ -237,7 +232,7 @@ mod tests {
                 l.lock().unwrap().push(format!("b1.{round}"))
             });
         }
-        tx.send(()).unwrap();
+        release.send(()).unwrap();
         runner.join().unwrap();
         let order = log.lock().unwrap().clone();
         // Key b gets every other job until its queue is empty, though key a has four
