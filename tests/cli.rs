@@ -1477,3 +1477,125 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
         "{out}"
     );
 }
+
+/// A scene's frames under `root/<name>` (`scene flyover`, 32x18, 1 spp).
+fn scene_frames(root: &Path, name: &str, frames: usize) -> std::path::PathBuf {
+    let dir = root.join(name);
+    let n = frames.to_string();
+    let (ok, _, err) = run(&[
+        "scene",
+        "flyover",
+        "--frames",
+        &n,
+        "--size",
+        "32x18",
+        "--spp",
+        "1",
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    dir
+}
+
+/// A temporal filter over frames without motion says so on every frame, the first one
+/// included (not "no history"), in the printed summary and in the records; `--require`
+/// makes a missing channel an error and lets complete frames through.
+#[test]
+fn missing_motion_is_said_per_frame_and_require_refuses_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = scene_frames(dir.path(), "full", 3);
+    let bare = dir.path().join("bare");
+    for e in Sequence::open(full.to_str().unwrap()).unwrap().entries {
+        let mut f = read_frame(&e.path, &ReadOptions::default()).unwrap();
+        assert!(f.motion().is_some() && f.depth().is_some());
+        f.remove(ChannelKind::Motion);
+        write_exr(
+            &bare.join(e.path.file_name().unwrap()),
+            &f,
+            &WriteOptions::default(),
+        )
+        .unwrap();
+    }
+    let out = dir.path().join("out");
+    let (ok, stdout, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        bare.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let reproject = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("reproject"))
+        .unwrap();
+    assert!(reproject.contains("left out: no motion channel (3x)"), "{stdout}");
+    assert!(!reproject.contains("no history"), "{stdout}");
+    assert!(
+        stdout.contains("missing channels: motion on 3 of 3 frames"),
+        "{stdout}"
+    );
+    let records: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("records.json")).unwrap()).unwrap();
+    for f in records["frames"].as_array().unwrap() {
+        let stage = f["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == "reproject")
+            .unwrap();
+        assert_eq!(
+            stage["skipped"],
+            serde_json::json!({"why": "missing_channel", "channel": "motion"}),
+            "{f}"
+        );
+    }
+    // --require: an error naming the file, the channel and what the frame has.
+    let out2 = dir.path().join("out2");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        bare.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "motion,depth",
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("frame_0000.exr: no motion channel, which --require motion,depth asks for"),
+        "{err}"
+    );
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        full.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "motion,depth",
+    ]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        full.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "velocity",
+    ]);
+    assert!(
+        !ok && err.contains("--require \"velocity\": not a channel"),
+        "{err}"
+    );
+}

@@ -6,7 +6,7 @@ use super::shot::run_shot;
 use afterimage::filters;
 use afterimage::io::Sequence;
 use afterimage::metrics::Timing;
-use afterimage::pipeline::{summarize_stages, ParamKind};
+use afterimage::pipeline::{missing_channels, summarize_stages, ParamKind};
 use afterimage::scene::halton_jitter;
 use anyhow::Context;
 use clap::Args;
@@ -60,6 +60,11 @@ pub struct FilterArgs {
     /// `{"1001": [x, y], ...}` by frame number) or CSV lines `frame,x,y`.
     #[arg(long, value_name = "halton:N|FILE")]
     pub(super) jitter_from: Option<String>,
+    /// Channels every frame must have, comma-separated (--require motion,depth): a frame
+    /// without one is an error, where otherwise the stages that read it are left out (and
+    /// the summary and records say so).
+    #[arg(long, value_delimiter = ',', value_name = "CHANNEL")]
+    pub(super) require: Vec<String>,
     #[command(flatten)]
     pub(super) read: ReadArgs,
     #[command(flatten)]
@@ -145,14 +150,31 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         Timing::of(&totals).median_ms
     );
     for s in summarize_stages(records) {
+        let why: Vec<String> = s.skips.iter().map(|(w, n)| format!("{w} ({n}x)")).collect();
         match s.timing {
-            Some(t) => outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
-            None => outln!(
-                "  {:<16} left out: {}",
+            Some(t) if why.is_empty() => {
+                outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms)
+            }
+            Some(t) => outln!(
+                "  {:<16} ran {:>3}x, median {:.3} ms; left out: {}",
                 s.name,
-                s.first_skip.as_deref().unwrap_or("-")
+                s.ran,
+                t.median_ms,
+                why.join(", ")
             ),
+            None => outln!("  {:<16} left out: {}", s.name, why.join(", ")),
         }
+    }
+    let missing = missing_channels(records);
+    if !missing.is_empty() {
+        let what: Vec<String> = missing
+            .iter()
+            .map(|(c, n)| format!("{c} on {n} of {} frames", records.len()))
+            .collect();
+        outln!(
+            "  missing channels: {} (--require makes that an error)",
+            what.join(", ")
+        );
     }
     let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
     let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();

@@ -15,7 +15,7 @@
 
 use super::filter::{jitter_table, FilterArgs};
 use super::store::storage_for;
-use afterimage::frame::{Frame, FrameMeta, Rgb};
+use afterimage::frame::{ChannelKind, Frame, FrameMeta, Rgb};
 use afterimage::io::{
     encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, OutputNaming, PresetChoice,
     ReadOptions, Sequence, Storage,
@@ -344,6 +344,7 @@ pub fn run_shot(
         Some(spec) => Some(jitter_table(spec, &input)?),
         None => None,
     };
+    let required = required_channels(&args.require)?;
     let naming = OutputNaming::parse(&args.output)?;
     let mut write = args.write.options()?;
     if args.f16 {
@@ -511,6 +512,14 @@ pub fn run_shot(
                 }
                 let entry = &input.entries[position];
                 let (mut frame, mut kept) = read?;
+                if let Some(k) = required.iter().find(|k| !frame.channels().contains(**k)) {
+                    anyhow::bail!(
+                        "{}: no {k} channel, which --require {} asks for (the frame has {})",
+                        entry.path.display(),
+                        args.require.join(","),
+                        frame.channels()
+                    );
+                }
                 kept.trim_to(write.keep);
                 if args.cuts.contains(&entry.number) {
                     frame.meta.reset = true;
@@ -704,6 +713,22 @@ fn build_id() -> String {
         })
         .unwrap_or_default();
     format!("{} {stamp}", env!("CARGO_PKG_VERSION"))
+}
+
+/// The channels `--require` names.
+fn required_channels(names: &[String]) -> anyhow::Result<Vec<ChannelKind>> {
+    names
+        .iter()
+        .map(|n| {
+            ChannelKind::from_name(n.trim()).with_context(|| {
+                let known: Vec<&str> = ChannelKind::ALL.iter().map(|k| k.name()).collect();
+                format!(
+                    "--require {n:?}: not a channel; expected one of {}",
+                    known.join(", ")
+                )
+            })
+        })
+        .collect()
 }
 
 fn frame_is_hdr(f: &Frame) -> bool {
