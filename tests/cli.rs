@@ -1599,3 +1599,146 @@ fn missing_motion_is_said_per_frame_and_require_refuses_it() {
         "{err}"
     );
 }
+
+/// The files in `dir`, by name.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// `-o`'s extension picks the format (PNG and JPEG hold the filtered colour, an unknown
+/// extension or TIFF is refused before anything runs); one input file may go to one file;
+/// `--frames A-B[:STEP]` picks frames; `--missing` says what a gap does.
+#[test]
+fn output_formats_frame_ranges_and_missing_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = scene_frames(dir.path(), "in", 12);
+    let i = input.to_str().unwrap();
+    let filter = |extra: &[&str]| -> (bool, String, String) {
+        let mut args = vec!["filter", "--filter", "taa", "-i"];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    // PNG and JPEG, and the EXR's colour they encode.
+    let png = dir.path().join("png");
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        &format!("{}/a.####.png", png.display()),
+        "--frames",
+        "3-10",
+    ]);
+    assert!(ok, "{err}");
+    let written: Vec<String> = names_in(&png)
+        .into_iter()
+        .filter(|n| n.ends_with(".png"))
+        .collect();
+    let wanted: Vec<String> = (3..=10).map(|n| format!("a.{n:04}.png")).collect();
+    assert_eq!(written, wanted);
+    let bytes = std::fs::read(png.join("a.0003.png")).unwrap();
+    assert_eq!(&bytes[..4], b"\x89PNG");
+    let exr = dir.path().join("exr");
+    let (ok, _, err) = filter(&[i, "-o", exr.to_str().unwrap(), "--frames", "3-10:3"]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        names_in(&exr),
+        [
+            "frame_0003.exr",
+            "frame_0006.exr",
+            "frame_0009.exr",
+            "records.json"
+        ]
+    );
+    let from_exr = read_frame(&exr.join("frame_0003.exr"), &ReadOptions::default()).unwrap();
+    let from_png = read_frame(&png.join("a.0003.png"), &ReadOptions::default()).unwrap();
+    // 8-bit sRGB holds the clamped colour within half a code value.
+    for (a, b) in from_exr.color().iter().zip(from_png.color()) {
+        let clamped: Vec<f32> = a.data().iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let srgb = |v: &[f32]| -> Vec<f32> { v.iter().map(|&x| afterimage::io::linear_to_srgb(x)).collect() };
+        Tolerance::abs(0.5 / 255.0 + 1e-6)
+            .check_slices("png vs exr (sRGB)", &srgb(&clamped), &srgb(b.data()))
+            .unwrap();
+    }
+    let jpg = dir.path().join("one.jpg");
+    let one = input.join("frame_0005.exr");
+    let (ok, _, err) = filter(&[one.to_str().unwrap(), "-o", jpg.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert_eq!(&std::fs::read(&jpg).unwrap()[..2], b"\xff\xd8");
+    // One file in, one EXR out (an existing one replaced).
+    let single = dir.path().join("single/out.exr");
+    for _ in 0..2 {
+        let (ok, _, err) = filter(&[one.to_str().unwrap(), "-o", single.to_str().unwrap()]);
+        assert!(ok, "{err}");
+    }
+    assert_eq!(
+        read_frame(&single, &ReadOptions::default()).unwrap().meta.index,
+        5
+    );
+    for (out, says) in [
+        ("a.####.bmp", "unknown output format .bmp"),
+        ("a.####.tif", "TIFF output is not built in"),
+    ] {
+        let (ok, _, err) = filter(&[i, "-o", &format!("{}/{out}", dir.path().display())]);
+        assert!(!ok && err.contains(says), "{err}");
+    }
+    let many = dir.path().join("many.exr");
+    let (ok, _, err) = filter(&[i, "-o", many.to_str().unwrap()]);
+    assert!(!ok && err.contains("one file cannot hold a sequence"), "{err}");
+    // A gap: an error by default naming the option; skip leaves it out; hold fills it.
+    std::fs::remove_file(input.join("frame_0004.exr")).unwrap();
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        dir.path().join("gap").to_str().unwrap(),
+        "--frames",
+        "2-6",
+    ]);
+    assert!(
+        !ok && err.contains("frame 4 is missing") && err.contains("--missing"),
+        "{err}"
+    );
+    let outputs = |missing: &str| -> (Vec<String>, Vec<u64>) {
+        let out = dir.path().join(missing);
+        let (ok, _, err) = filter(&[
+            i,
+            "-o",
+            out.to_str().unwrap(),
+            "--frames",
+            "2-6",
+            "--missing",
+            missing,
+        ]);
+        assert!(ok, "{err}");
+        let records: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("records.json")).unwrap()).unwrap();
+        let resets = records["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["pixels"]["history_reset"].as_u64().unwrap())
+            .collect();
+        (names_in(&out), resets)
+    };
+    let (names, resets) = outputs("skip");
+    assert_eq!(
+        names,
+        [
+            "frame_0002.exr",
+            "frame_0003.exr",
+            "frame_0005.exr",
+            "frame_0006.exr",
+            "records.json"
+        ]
+    );
+    assert_eq!(resets[2], 32 * 18, "history restarts after the gap: {resets:?}");
+    let (names, resets) = outputs("hold");
+    assert_eq!(names.len(), 6, "{names:?}");
+    assert!(names.contains(&"frame_0004.exr".to_string()), "{names:?}");
+    assert!(resets[2] < 32 * 18, "a held frame keeps history: {resets:?}");
+    let held = read_frame(&dir.path().join("hold/frame_0004.exr"), &ReadOptions::default()).unwrap();
+    assert_eq!(held.meta.index, 4);
+}

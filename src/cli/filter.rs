@@ -32,6 +32,15 @@ pub struct FilterArgs {
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]
     pub(super) input: String,
+    /// Frame numbers to filter: FIRST-LAST or FIRST-LAST:STEP (--frames 1001-1100:2), or
+    /// one frame (default: every frame of the input).
+    #[arg(long, value_name = "A-B[:STEP]")]
+    pub(super) frames: Option<afterimage::io::FrameRange>,
+    /// A frame number missing from the input (or the --frames range): error (refuse the
+    /// sequence), skip (leave it out; history restarts after the gap), hold (filter the
+    /// nearest earlier frame again, motion zero, written under the missing number).
+    #[arg(long, default_value = "error", value_name = "skip|error|hold")]
+    pub(super) missing: afterimage::io::Missing,
     /// Where to write: a directory (each output keeps its input's file name) or a pattern
     /// with the frame number as `####`, `%04d`, `$F4` or `@@@@` (out/shot_aa.####.exr).
     /// records.json goes into the directory.

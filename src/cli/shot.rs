@@ -18,7 +18,7 @@ use super::store::storage_for;
 use afterimage::frame::{ChannelKind, Frame, FrameMeta, Rgb};
 use afterimage::io::{
     encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, OutputNaming, PresetChoice,
-    ReadOptions, Sequence, Storage,
+    ReadOptions, Selection, Sequence, Storage,
 };
 use afterimage::metrics::{Evaluator, FrameMetrics, MetricSpace, SpaceChoice};
 use afterimage::pipeline::{params::parse_assignments, Filter, FilterState, FrameRecord, Output};
@@ -50,6 +50,14 @@ pub struct ShotReport {
     pub resumed_at: usize,
     /// Quality against the reference, when there was one (over the whole shot).
     pub summary: Option<afterimage::metrics::Summary>,
+}
+
+/// The frames `args` selects (`--frames`, `--missing`).
+fn selection(args: &FilterArgs) -> Selection {
+    Selection {
+        range: args.frames,
+        missing: args.missing,
+    }
 }
 
 /// Where and how often a shot is checkpointed (see the module).
@@ -310,11 +318,12 @@ pub fn run_shot(
     let in_opts = args.read.options()?;
     let in_store = storage_for(&args.input)?;
     let out_store = storage_for(&args.output)?;
-    let input = Sequence::open_in(&args.input, &*in_store)?;
+    let selection = selection(args);
+    let input = Sequence::open_in_selected(&args.input, &*in_store, &selection)?;
     let reference = match &args.reference {
         Some(spec) => {
             let store = storage_for(spec)?;
-            let seq = Sequence::open_in(spec, &*store)?;
+            let seq = Sequence::open_in_selected(spec, &*store, &selection)?;
             if seq.len() != input.len() {
                 anyhow::bail!(
                     "{} has {} frames but the reference {} has {}",
@@ -345,7 +354,7 @@ pub fn run_shot(
         None => None,
     };
     let required = required_channels(&args.require)?;
-    let naming = OutputNaming::parse(&args.output)?;
+    let naming = OutputNaming::parse_for(&args.output, input.len())?;
     let mut write = args.write.options()?;
     if args.f16 {
         write.precision = Some(afterimage::io::Precision::F16);
@@ -369,7 +378,7 @@ pub fn run_shot(
                 .map(|e| naming.preview_path(&e.path, e.number)),
         );
     }
-    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.path.clone()).collect();
+    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.source().to_path_buf()).collect();
     refuse_overwrite(&outputs, &inputs)?;
     if out_store.is_local() {
         let dir = naming.dir();

@@ -20,14 +20,14 @@ pub use exr_file::{
     ExrShape, PixelWindow, Precision, WriteOptions,
 };
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
-pub use naming::{refuse_overwrite, FramePattern, OutputNaming};
+pub use naming::{refuse_overwrite, FramePattern, OutputFormat, OutputNaming};
 pub use output::{
     encode_filtered, encode_filtered_for, partial_path, write_filtered, FilteredFrame, InputImage, Keep,
     OutputOptions, RECORD_ATTRIBUTE,
 };
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
-pub use sequence::{Sequence, SequenceEntry};
+pub use sequence::{frame_number, FrameRange, Missing, Selection, Sequence, SequenceEntry};
 pub use storage::{read_raw_in, LocalFiles, Storage};
 
 use crate::frame::{ChannelKind, Frame, FrameError};
