@@ -1742,3 +1742,113 @@ fn output_formats_frame_ranges_and_missing_frames() {
     let held = read_frame(&dir.path().join("hold/frame_0004.exr"), &ReadOptions::default()).unwrap();
     assert_eq!(held.meta.index, 4);
 }
+
+/// A finished shot is skipped only while what made it is unchanged: another filter or a
+/// rewritten input frame filters it again. `-i NAME=DIR` names shots (two `input`
+/// directories clash otherwise). Off a terminal the log has plain progress lines (frames/s,
+/// ETA) and no ANSI codes, or one JSON object a line with `--log-format json`.
+#[test]
+fn batch_refilters_changed_shots_names_them_and_logs_plainly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let a = scene_frames(&d.join("a"), "input", 3);
+    let b = scene_frames(&d.join("b"), "input", 2);
+    let root = d.join("out");
+    let summary = d.join("summary.json");
+    let (fence, jitter) = (
+        format!("fence={}", a.display()),
+        format!("jitter={}", b.display()),
+    );
+    let batch = |inputs: [&str; 2], extra: &[&str], env: &[(&str, &str)]| -> (bool, String, String) {
+        let mut cmd = common::bin();
+        cmd.args([
+            "batch",
+            "-i",
+            inputs[0],
+            "-i",
+            inputs[1],
+            "-o",
+            root.to_str().unwrap(),
+        ])
+        .args(["--summary", summary.to_str().unwrap()])
+        .args(extra)
+        .env_remove("AFTERIMAGE_LOG")
+        .env_remove("NO_COLOR");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, _, err) = batch(
+        [a.to_str().unwrap(), b.to_str().unwrap()],
+        &["--filter", "taa"],
+        &[],
+    );
+    assert!(
+        !ok && err.contains("two shots are named \"input\"") && err.contains("-i NAME=DIR"),
+        "{err}"
+    );
+    assert!(!summary.exists(), "a refused batch writes no summary");
+    let (ok, out, err) = batch(
+        [&fence, &jitter],
+        &["--filter", "taa"],
+        &[("AFTERIMAGE_LOG", "info")],
+    );
+    assert!(ok && out.contains("2 done, 0 skipped"), "{out} {err}");
+    assert_eq!(
+        names_in(&root.join("fence"))
+            .iter()
+            .filter(|n| n.ends_with(".exr"))
+            .count(),
+        3
+    );
+    assert_eq!(
+        names_in(&root.join("jitter"))
+            .iter()
+            .filter(|n| n.ends_with(".exr"))
+            .count(),
+        2
+    );
+    let progress: Vec<&str> = err.lines().filter(|l| l.contains("frames/s")).collect();
+    assert!(
+        progress
+            .iter()
+            .any(|l| l.contains("shot fence 3/3 frames") && l.contains("ETA")),
+        "{err}"
+    );
+    assert!(!err.contains('\u{1b}'), "ANSI codes off a terminal: {err:?}");
+    // Unchanged: skipped. Another filter: filtered again, then skipped.
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "taa"], &[]);
+    assert!(ok && out.contains("0 done, 2 skipped"), "{out} {err}");
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("2 done, 0 skipped"), "{out} {err}");
+    assert!(err.contains("changed since"), "{err}");
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("0 done, 2 skipped"), "{out} {err}");
+    // A rewritten input frame: that shot again.
+    std::fs::copy(a.join("frame_0000.exr"), a.join("frame_0002.exr")).unwrap();
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("1 done, 1 skipped"), "{out} {err}");
+    // JSON log lines.
+    let (ok, _, err) = batch(
+        [&fence, &jitter],
+        &["--filter", "phlm", "--force"],
+        &[("AFTERIMAGE_LOG_FORMAT", "json")],
+    );
+    assert!(ok, "{err}");
+    let lines: Vec<serde_json::Value> = err
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(
+        lines.iter().any(|v| v["target"] == "afterimage::progress"
+            && v["fields"]["message"].as_str().unwrap_or("").contains("frames/s")),
+        "{err}"
+    );
+}

@@ -27,7 +27,7 @@ use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, sync_channel, SyncSender};
 
@@ -50,6 +50,8 @@ pub struct ShotReport {
     pub resumed_at: usize,
     /// Quality against the reference, when there was one (over the whole shot).
     pub summary: Option<afterimage::metrics::Summary>,
+    /// What the outputs depend on, hashed ([`fingerprint`]).
+    pub fingerprint: String,
 }
 
 /// The frames `args` selects (`--frames`, `--missing`).
@@ -58,6 +60,50 @@ fn selection(args: &FilterArgs) -> Selection {
         range: args.frames,
         missing: args.missing,
     }
+}
+
+/// What a shot's outputs depend on, hashed: the build ([`build_id`]), the command's
+/// arguments, the filter's parameters (defaults included) and each input file's frame
+/// number, name and stamp (size and modification time, see [`Storage::stamps`]). A
+/// checkpoint or a done marker of another fingerprint is not continued or trusted.
+fn fingerprint_of(
+    args: &FilterArgs,
+    params: &Value,
+    input: &Sequence,
+    store: &dyn Storage,
+) -> anyhow::Result<String> {
+    let mut hash = Sha256::new();
+    hash.update(format!("{} {args:?} {params}", build_id()));
+    // Each directory's stamps, by file name (a bare pattern's frames are `name`, the
+    // listing of the current directory `./name`).
+    let mut dirs: HashMap<PathBuf, HashMap<std::ffi::OsString, String>> = HashMap::new();
+    for e in &input.entries {
+        let file = e.source();
+        let dir = file.parent().unwrap_or(Path::new(""));
+        if !dirs.contains_key(dir) {
+            let stamps = store
+                .stamps(dir)?
+                .into_iter()
+                .filter_map(|(p, stamp)| Some((p.file_name()?.to_os_string(), stamp)))
+                .collect();
+            dirs.insert(dir.to_path_buf(), stamps);
+        }
+        let stamp = file
+            .file_name()
+            .and_then(|n| dirs[dir].get(n))
+            .with_context(|| format!("{}: the input frame is gone", file.display()))?;
+        hash.update(format!("\n{} {} {stamp}", e.number, file.display()));
+    }
+    Ok(format!("{:x}", hash.finalize()))
+}
+
+/// The fingerprint (see [`fingerprint_of`]) of the shot `args` describes, without filtering
+/// it: what `batch` compares with a finished shot's done marker.
+pub fn fingerprint(args: &FilterArgs) -> anyhow::Result<String> {
+    let params = afterimage::filters::create(&args.filter, &parse_assignments(&args.set)?)?.params();
+    let store = storage_for(&args.input)?;
+    let input = Sequence::open_in_selected(&args.input, &*store, &selection(args))?;
+    fingerprint_of(args, &params, &input, &*store)
 }
 
 /// Where and how often a shot is checkpointed (see the module).
@@ -384,10 +430,7 @@ pub fn run_shot(
         let dir = naming.dir();
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let fingerprint = format!(
-        "{:x}",
-        Sha256::digest(format!("{} {args:?} {}", build_id(), filter.params()))
-    );
+    let fingerprint = fingerprint_of(args, &filter.params(), &input, &*in_store)?;
     let start = match checkpoints {
         Some(c) => resume(c, &*out_store, &fingerprint, filter.as_mut(), input.len())?,
         None => None,
@@ -597,6 +640,7 @@ pub fn run_shot(
         records: shot.records,
         resumed_at,
         summary,
+        fingerprint,
     })
 }
 

@@ -163,6 +163,18 @@ impl Storage for ObjectStorage {
     }
 
     fn list(&self, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+        Ok(self.stamps(dir)?.into_iter().map(|(p, _)| p).collect())
+    }
+
+    fn delete(&self, path: &Path) -> Result<(), IoError> {
+        let (store, key) = self.locate(path)?;
+        match self.runtime.block_on(store.delete(&key)) {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(refused(path, e)),
+        }
+    }
+
+    fn stamps(&self, dir: &Path) -> Result<Vec<(PathBuf, String)>, IoError> {
         let (store, key) = self.locate(dir)?;
         let prefix = (!key.as_ref().is_empty()).then_some(&key);
         let listed = self
@@ -173,16 +185,19 @@ impl Storage for ObjectStorage {
         Ok(listed
             .objects
             .into_iter()
-            .map(|o| PathBuf::from(format!("{scheme}://{bucket}/{}", o.location)))
+            .map(|o| {
+                let stamp = format!(
+                    "{} bytes, modified {}, etag {}",
+                    o.size,
+                    o.last_modified.to_rfc3339(),
+                    o.e_tag.as_deref().unwrap_or("-")
+                );
+                (
+                    PathBuf::from(format!("{scheme}://{bucket}/{}", o.location)),
+                    stamp,
+                )
+            })
             .collect())
-    }
-
-    fn delete(&self, path: &Path) -> Result<(), IoError> {
-        let (store, key) = self.locate(path)?;
-        match self.runtime.block_on(store.delete(&key)) {
-            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
-            Err(e) => Err(refused(path, e)),
-        }
     }
 }
 
