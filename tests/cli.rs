@@ -59,6 +59,46 @@ fn help_on_every_command() {
     }
     let (ok, out, _) = run(&["eval", "--help"]);
     assert!(ok && out.contains("--reference") && out.contains("--preset"));
+    // Commands a help text points to exist.
+    let (ok, out, _) = run(&["filter", "--help"]);
+    assert!(ok && out.contains("afterimage info --backends"), "{out}");
+    for named in out.split("`afterimage ").skip(1) {
+        let c = named.split([' ', '`']).next().unwrap();
+        assert!(
+            commands.iter().any(|k| k == c),
+            "filter --help names `afterimage {c}`: {out}"
+        );
+    }
+}
+
+/// `info` numbers a file as a sequence read does: by the number in its name, else by the
+/// index it declares.
+#[test]
+fn info_numbers_frames_as_offline_runs_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut f = Frame::new(common::random_rgb(4, 3, 1, 0.0, 1.0)).unwrap();
+    f.meta.index = 7;
+    let numbered = dir.path().join("frame_0005.exr");
+    let bare = dir.path().join("beauty.exr");
+    for p in [&numbered, &bare] {
+        write_exr(p, &f, &WriteOptions::default()).unwrap();
+    }
+    let index = |p: &Path| -> u64 {
+        let (ok, out, err) = run(&["info", "--json", p.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        v["meta"]["index"].as_u64().unwrap()
+    };
+    let read = |p: &Path| -> u64 {
+        let seq = Sequence::open(p.to_str().unwrap()).unwrap();
+        let opts = ReadOptions::default();
+        let first = seq.frames(&opts).next().unwrap().unwrap();
+        first.meta.index
+    };
+    assert_eq!((index(&numbered), read(&numbered)), (5, 5));
+    assert_eq!((index(&bare), read(&bare)), (7, 7));
+    let (ok, out, _) = run(&["info", numbered.to_str().unwrap()]);
+    assert!(ok && out.contains("index 5,"), "{out}");
 }
 
 #[test]
@@ -1741,6 +1781,28 @@ fn output_formats_frame_ranges_and_missing_frames() {
     assert!(resets[2] < 32 * 18, "a held frame keeps history: {resets:?}");
     let held = read_frame(&dir.path().join("hold/frame_0004.exr"), &ReadOptions::default()).unwrap();
     assert_eq!(held.meta.index, 4);
+}
+
+/// `serve --grpc-addr/--http-addr` set the addresses over the config and environment, and
+/// a bad one is refused naming the field.
+#[test]
+fn serve_takes_its_addresses_as_flags() {
+    let (ok, out, err) = run(&[
+        "serve",
+        "--print-config",
+        "--grpc-addr",
+        "0.0.0.0:50099",
+        "--http-addr",
+        "127.0.0.1:8099",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("grpc_addr = \"0.0.0.0:50099\""), "{out}");
+    assert!(out.contains("http_addr = \"127.0.0.1:8099\""), "{out}");
+    let (ok, _, err) = run(&["serve", "--print-config", "--http-addr", "localhost"]);
+    assert!(
+        !ok && err.contains("http_addr") && err.contains("localhost"),
+        "{err}"
+    );
 }
 
 /// A finished shot is skipped only while what made it is unchanged: another filter or a

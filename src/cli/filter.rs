@@ -24,7 +24,7 @@ pub struct FilterArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub(super) set: Vec<String>,
     /// Where the filter runs: cpu, gpu (an error where the build, the machine or the filter
-    /// has none; see `afterimage backends`), or auto (the GPU where it can, else the CPU);
+    /// has none; see `afterimage info --backends`), or auto (the GPU where it can, else the CPU);
     /// gpu-f16 and auto-f16 upload the colour to the GPU as f16 (half the bytes, 11
     /// significant bits, clamped to +-65504; see the README's GPU backend section).
     #[arg(long, default_value = "cpu", value_name = "cpu|gpu|auto|gpu-f16|auto-f16")]
