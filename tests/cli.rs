@@ -1516,6 +1516,17 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
         !ok && out.contains("2 skipped") && out.contains("1 failed"),
         "{out}"
     );
+    // A bucket that is not there is called so.
+    let (ok, _, err) = moto.run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        "s3://no-such-bucket/shots/a/",
+        "-o",
+        d.join("nb").to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("no bucket s3://no-such-bucket"), "{err}");
 }
 
 /// A scene's frames under `root/<name>` (`scene flyover`, 32x18, 1 spp).
