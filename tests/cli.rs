@@ -1692,6 +1692,18 @@ fn output_formats_frame_ranges_and_missing_frames() {
     assert_eq!(written, wanted);
     let bytes = std::fs::read(png.join("a.0003.png")).unwrap();
     assert_eq!(&bytes[..4], b"\x89PNG");
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        &format!("{}/b.####.png", png.display()),
+        "--frames",
+        "3",
+        "--half",
+    ]);
+    assert!(
+        ok && err.contains("--half/--float applies to EXR outputs only"),
+        "{err}"
+    );
     let exr = dir.path().join("exr");
     let (ok, _, err) = filter(&[i, "-o", exr.to_str().unwrap(), "--frames", "3-10:3"]);
     assert!(ok, "{err}");

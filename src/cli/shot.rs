@@ -405,6 +405,18 @@ pub fn run_shot(
     if args.f16 {
         write.precision = Some(afterimage::io::Precision::F16);
     }
+    let first = &input.entries[0];
+    let format = afterimage::io::OutputFormat::of(&naming.path(&first.path, first.number))?;
+    if format != afterimage::io::OutputFormat::Exr {
+        let exr_only = [
+            (write.compression.is_some(), "--compression"),
+            (write.precision.is_some(), "--half/--float"),
+            (write.keep != afterimage::io::Keep::default(), "--keep"),
+        ];
+        for (_, flag) in exr_only.iter().filter(|(given, _)| *given) {
+            tracing::warn!("{flag} applies to EXR outputs only; {naming} is {format:?}: ignored");
+        }
+    }
     if args.png && !out_store.is_local() {
         anyhow::bail!(
             "--png writes previews to local files only; the output {} is in an object store",

@@ -315,6 +315,12 @@ impl OutputFormat {
     /// The extensions written, for messages.
     const WRITTEN: &'static str = ".exr, .png, .jpg or .jpeg";
 
+    /// Image formats that are not written, which `-o` refuses rather than take for a
+    /// directory's name.
+    const IMAGE_EXTENSIONS: [&'static str; 10] = [
+        "tif", "tiff", "bmp", "tga", "dpx", "cin", "hdr", "webp", "gif", "sgi",
+    ];
+
     /// The format `path` names: `.exr` (or no extension, or one of digits only, as in
     /// `shot.1001`), `.png`, `.jpg`/`.jpeg` (any case). TIFF and any other extension are
     /// refused with [`IoError::Argument`] saying what is written.
@@ -397,6 +403,11 @@ impl OutputNaming {
                  input names) or a pattern with a frame-number token such as {} ({FORMS})",
                 example()
             )));
+        }
+        // An image format's name is no directory name: say it is not written.
+        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if ext.is_some_and(|e| OutputFormat::IMAGE_EXTENSIONS.contains(&e.as_str())) {
+            OutputFormat::of(path)?;
         }
         Ok(OutputNaming::Dir(path.to_path_buf()))
     }
@@ -799,6 +810,11 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("one file cannot hold a sequence"), "{e}");
+        // An image format that is not written is no directory either.
+        for spec in ["out/beauty.tif", "out/beauty.DPX"] {
+            let e = OutputNaming::parse_for(spec, 2).unwrap_err().to_string();
+            assert!(e.contains(".exr, .png, .jpg or .jpeg"), "{spec}: {e}");
+        }
         assert_eq!(
             OutputNaming::parse_for("out/v1.2", 1).unwrap(),
             OutputNaming::Dir(PathBuf::from("out/v1.2"))
