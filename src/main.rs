@@ -20,13 +20,8 @@ fn check_cpu() {
 
 fn main() {
     check_cpu();
-    let filter = tracing_subscriber::EnvFilter::try_from_env("AFTERIMAGE_LOG")
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .init();
     let args = cli::Cli::parse();
+    cli::init_logging(args.log_format);
     if let Err(e) = cli::run(args) {
         eprintln!("error: {e:#}");
         std::process::exit(1);

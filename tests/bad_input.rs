@@ -74,7 +74,7 @@ fn missing_channel_names_what_was_asked_and_what_is_there() {
         let e = ChannelSpec::parse_mapping(bad).unwrap_err();
         assert!(e.to_string().contains(bad), "{e}");
     }
-    assert!("nuke"
+    assert!("houdini"
         .parse::<afterimage::io::PresetChoice>()
         .unwrap_err()
         .to_string()

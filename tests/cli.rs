@@ -59,6 +59,46 @@ fn help_on_every_command() {
     }
     let (ok, out, _) = run(&["eval", "--help"]);
     assert!(ok && out.contains("--reference") && out.contains("--preset"));
+    // Commands a help text points to exist.
+    let (ok, out, _) = run(&["filter", "--help"]);
+    assert!(ok && out.contains("afterimage info --backends"), "{out}");
+    for named in out.split("`afterimage ").skip(1) {
+        let c = named.split([' ', '`']).next().unwrap();
+        assert!(
+            commands.iter().any(|k| k == c),
+            "filter --help names `afterimage {c}`: {out}"
+        );
+    }
+}
+
+/// `info` numbers a file as a sequence read does: by the number in its name, else by the
+/// index it declares.
+#[test]
+fn info_numbers_frames_as_offline_runs_do() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut f = Frame::new(common::random_rgb(4, 3, 1, 0.0, 1.0)).unwrap();
+    f.meta.index = 7;
+    let numbered = dir.path().join("frame_0005.exr");
+    let bare = dir.path().join("beauty.exr");
+    for p in [&numbered, &bare] {
+        write_exr(p, &f, &WriteOptions::default()).unwrap();
+    }
+    let index = |p: &Path| -> u64 {
+        let (ok, out, err) = run(&["info", "--json", p.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+        v["meta"]["index"].as_u64().unwrap()
+    };
+    let read = |p: &Path| -> u64 {
+        let seq = Sequence::open(p.to_str().unwrap()).unwrap();
+        let opts = ReadOptions::default();
+        let first = seq.frames(&opts).next().unwrap().unwrap();
+        first.meta.index
+    };
+    assert_eq!((index(&numbered), read(&numbered)), (5, 5));
+    assert_eq!((index(&bare), read(&bare)), (7, 7));
+    let (ok, out, _) = run(&["info", numbered.to_str().unwrap()]);
+    assert!(ok && out.contains("index 5,"), "{out}");
 }
 
 #[test]
@@ -1475,6 +1515,426 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
     assert!(
         !ok && out.contains("2 skipped") && out.contains("1 failed"),
         "{out}"
+    );
+    // A bucket that is not there is called so.
+    let (ok, _, err) = moto.run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        "s3://no-such-bucket/shots/a/",
+        "-o",
+        d.join("nb").to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("no bucket s3://no-such-bucket"), "{err}");
+}
+
+/// A scene's frames under `root/<name>` (`scene flyover`, 32x18, 1 spp).
+fn scene_frames(root: &Path, name: &str, frames: usize) -> std::path::PathBuf {
+    let dir = root.join(name);
+    let n = frames.to_string();
+    let (ok, _, err) = run(&[
+        "scene",
+        "flyover",
+        "--frames",
+        &n,
+        "--size",
+        "32x18",
+        "--spp",
+        "1",
+        "-o",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    dir
+}
+
+/// A temporal filter over frames without motion says so on every frame, the first one
+/// included (not "no history"), in the printed summary and in the records; `--require`
+/// makes a missing channel an error and lets complete frames through.
+#[test]
+fn missing_motion_is_said_per_frame_and_require_refuses_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let full = scene_frames(dir.path(), "full", 3);
+    let bare = dir.path().join("bare");
+    for e in Sequence::open(full.to_str().unwrap()).unwrap().entries {
+        let mut f = read_frame(&e.path, &ReadOptions::default()).unwrap();
+        assert!(f.motion().is_some() && f.depth().is_some());
+        f.remove(ChannelKind::Motion);
+        write_exr(
+            &bare.join(e.path.file_name().unwrap()),
+            &f,
+            &WriteOptions::default(),
+        )
+        .unwrap();
+    }
+    let out = dir.path().join("out");
+    let (ok, stdout, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        bare.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let reproject = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("reproject"))
+        .unwrap();
+    assert!(reproject.contains("left out: no motion channel (3x)"), "{stdout}");
+    assert!(!reproject.contains("no history"), "{stdout}");
+    assert!(
+        stdout.contains("missing channels: motion on 3 of 3 frames"),
+        "{stdout}"
+    );
+    let records: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("records.json")).unwrap()).unwrap();
+    for f in records["frames"].as_array().unwrap() {
+        let stage = f["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == "reproject")
+            .unwrap();
+        assert_eq!(
+            stage["skipped"],
+            serde_json::json!({"why": "missing_channel", "channel": "motion"}),
+            "{f}"
+        );
+    }
+    // --require: an error naming the file, the channel and what the frame has.
+    let out2 = dir.path().join("out2");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        bare.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "motion,depth",
+    ]);
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("frame_0000.exr: no motion channel, which --require motion,depth asks for"),
+        "{err}"
+    );
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        full.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "motion,depth",
+    ]);
+    assert!(ok, "{err}");
+    let (ok, _, err) = run(&[
+        "filter",
+        "--filter",
+        "taa",
+        "-i",
+        full.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--require",
+        "velocity",
+    ]);
+    assert!(
+        !ok && err.contains("--require \"velocity\": not a channel"),
+        "{err}"
+    );
+}
+
+/// The files in `dir`, by name.
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+/// `-o`'s extension picks the format (PNG and JPEG hold the filtered colour, an unknown
+/// extension or TIFF is refused before anything runs); one input file may go to one file;
+/// `--frames A-B[:STEP]` picks frames; `--missing` says what a gap does.
+#[test]
+fn output_formats_frame_ranges_and_missing_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = scene_frames(dir.path(), "in", 12);
+    let i = input.to_str().unwrap();
+    let filter = |extra: &[&str]| -> (bool, String, String) {
+        let mut args = vec!["filter", "--filter", "taa", "-i"];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    // PNG and JPEG, and the EXR's colour they encode.
+    let png = dir.path().join("png");
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        &format!("{}/a.####.png", png.display()),
+        "--frames",
+        "3-10",
+    ]);
+    assert!(ok, "{err}");
+    let written: Vec<String> = names_in(&png)
+        .into_iter()
+        .filter(|n| n.ends_with(".png"))
+        .collect();
+    let wanted: Vec<String> = (3..=10).map(|n| format!("a.{n:04}.png")).collect();
+    assert_eq!(written, wanted);
+    let bytes = std::fs::read(png.join("a.0003.png")).unwrap();
+    assert_eq!(&bytes[..4], b"\x89PNG");
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        &format!("{}/b.####.png", png.display()),
+        "--frames",
+        "3",
+        "--half",
+    ]);
+    assert!(
+        ok && err.contains("--half/--float applies to EXR outputs only"),
+        "{err}"
+    );
+    let exr = dir.path().join("exr");
+    let (ok, _, err) = filter(&[i, "-o", exr.to_str().unwrap(), "--frames", "3-10:3"]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        names_in(&exr),
+        [
+            "frame_0003.exr",
+            "frame_0006.exr",
+            "frame_0009.exr",
+            "records.json"
+        ]
+    );
+    let from_exr = read_frame(&exr.join("frame_0003.exr"), &ReadOptions::default()).unwrap();
+    let from_png = read_frame(&png.join("a.0003.png"), &ReadOptions::default()).unwrap();
+    // 8-bit sRGB holds the clamped colour within half a code value.
+    for (a, b) in from_exr.color().iter().zip(from_png.color()) {
+        let clamped: Vec<f32> = a.data().iter().map(|v| v.clamp(0.0, 1.0)).collect();
+        let srgb = |v: &[f32]| -> Vec<f32> { v.iter().map(|&x| afterimage::io::linear_to_srgb(x)).collect() };
+        Tolerance::abs(0.5 / 255.0 + 1e-6)
+            .check_slices("png vs exr (sRGB)", &srgb(&clamped), &srgb(b.data()))
+            .unwrap();
+    }
+    let jpg = dir.path().join("one.jpg");
+    let one = input.join("frame_0005.exr");
+    let (ok, _, err) = filter(&[one.to_str().unwrap(), "-o", jpg.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert_eq!(&std::fs::read(&jpg).unwrap()[..2], b"\xff\xd8");
+    // One file in, one EXR out (an existing one replaced).
+    let single = dir.path().join("single/out.exr");
+    for _ in 0..2 {
+        let (ok, _, err) = filter(&[one.to_str().unwrap(), "-o", single.to_str().unwrap()]);
+        assert!(ok, "{err}");
+    }
+    assert_eq!(
+        read_frame(&single, &ReadOptions::default()).unwrap().meta.index,
+        5
+    );
+    for (out, says) in [
+        ("a.####.bmp", "unknown output format .bmp"),
+        ("a.####.tif", "TIFF output is not built in"),
+    ] {
+        let (ok, _, err) = filter(&[i, "-o", &format!("{}/{out}", dir.path().display())]);
+        assert!(!ok && err.contains(says), "{err}");
+    }
+    let many = dir.path().join("many.exr");
+    let (ok, _, err) = filter(&[i, "-o", many.to_str().unwrap()]);
+    assert!(!ok && err.contains("one file cannot hold a sequence"), "{err}");
+    // A gap: an error by default naming the option; skip leaves it out; hold fills it.
+    std::fs::remove_file(input.join("frame_0004.exr")).unwrap();
+    let (ok, _, err) = filter(&[
+        i,
+        "-o",
+        dir.path().join("gap").to_str().unwrap(),
+        "--frames",
+        "2-6",
+    ]);
+    assert!(
+        !ok && err.contains("frame 4 is missing") && err.contains("--missing"),
+        "{err}"
+    );
+    let outputs = |missing: &str| -> (Vec<String>, Vec<u64>) {
+        let out = dir.path().join(missing);
+        let (ok, _, err) = filter(&[
+            i,
+            "-o",
+            out.to_str().unwrap(),
+            "--frames",
+            "2-6",
+            "--missing",
+            missing,
+        ]);
+        assert!(ok, "{err}");
+        let records: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("records.json")).unwrap()).unwrap();
+        let resets = records["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["pixels"]["history_reset"].as_u64().unwrap())
+            .collect();
+        (names_in(&out), resets)
+    };
+    let (names, resets) = outputs("skip");
+    assert_eq!(
+        names,
+        [
+            "frame_0002.exr",
+            "frame_0003.exr",
+            "frame_0005.exr",
+            "frame_0006.exr",
+            "records.json"
+        ]
+    );
+    assert_eq!(resets[2], 32 * 18, "history restarts after the gap: {resets:?}");
+    let (names, resets) = outputs("hold");
+    assert_eq!(names.len(), 6, "{names:?}");
+    assert!(names.contains(&"frame_0004.exr".to_string()), "{names:?}");
+    assert!(resets[2] < 32 * 18, "a held frame keeps history: {resets:?}");
+    let held = read_frame(&dir.path().join("hold/frame_0004.exr"), &ReadOptions::default()).unwrap();
+    assert_eq!(held.meta.index, 4);
+}
+
+/// `serve --grpc-addr/--http-addr` set the addresses over the config and environment, and
+/// a bad one is refused naming the field.
+#[test]
+fn serve_takes_its_addresses_as_flags() {
+    let (ok, out, err) = run(&[
+        "serve",
+        "--print-config",
+        "--grpc-addr",
+        "0.0.0.0:50099",
+        "--http-addr",
+        "127.0.0.1:8099",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("grpc_addr = \"0.0.0.0:50099\""), "{out}");
+    assert!(out.contains("http_addr = \"127.0.0.1:8099\""), "{out}");
+    let (ok, _, err) = run(&["serve", "--print-config", "--http-addr", "localhost"]);
+    assert!(
+        !ok && err.contains("http_addr") && err.contains("localhost"),
+        "{err}"
+    );
+}
+
+/// A finished shot is skipped only while what made it is unchanged: another filter or a
+/// rewritten input frame filters it again. `-i NAME=DIR` names shots (two `input`
+/// directories clash otherwise). Off a terminal the log has plain progress lines (frames/s,
+/// ETA) and no ANSI codes, or one JSON object a line with `--log-format json`.
+#[test]
+fn batch_refilters_changed_shots_names_them_and_logs_plainly() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let a = scene_frames(&d.join("a"), "input", 3);
+    let b = scene_frames(&d.join("b"), "input", 2);
+    let root = d.join("out");
+    let summary = d.join("summary.json");
+    let (fence, jitter) = (
+        format!("fence={}", a.display()),
+        format!("jitter={}", b.display()),
+    );
+    let batch = |inputs: [&str; 2], extra: &[&str], env: &[(&str, &str)]| -> (bool, String, String) {
+        let mut cmd = common::bin();
+        cmd.args([
+            "batch",
+            "-i",
+            inputs[0],
+            "-i",
+            inputs[1],
+            "-o",
+            root.to_str().unwrap(),
+        ])
+        .args(["--summary", summary.to_str().unwrap()])
+        .args(extra)
+        .env_remove("AFTERIMAGE_LOG")
+        .env_remove("NO_COLOR");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, _, err) = batch(
+        [a.to_str().unwrap(), b.to_str().unwrap()],
+        &["--filter", "taa"],
+        &[],
+    );
+    assert!(
+        !ok && err.contains("two shots are named \"input\"") && err.contains("-i NAME=DIR"),
+        "{err}"
+    );
+    assert!(!summary.exists(), "a refused batch writes no summary");
+    let (ok, out, err) = batch(
+        [&fence, &jitter],
+        &["--filter", "taa"],
+        &[("AFTERIMAGE_LOG", "info")],
+    );
+    assert!(ok && out.contains("2 done, 0 skipped"), "{out} {err}");
+    assert_eq!(
+        names_in(&root.join("fence"))
+            .iter()
+            .filter(|n| n.ends_with(".exr"))
+            .count(),
+        3
+    );
+    assert_eq!(
+        names_in(&root.join("jitter"))
+            .iter()
+            .filter(|n| n.ends_with(".exr"))
+            .count(),
+        2
+    );
+    let progress: Vec<&str> = err.lines().filter(|l| l.contains("frames/s")).collect();
+    assert!(
+        progress
+            .iter()
+            .any(|l| l.contains("shot fence 3/3 frames") && l.contains("ETA")),
+        "{err}"
+    );
+    assert!(!err.contains('\u{1b}'), "ANSI codes off a terminal: {err:?}");
+    // Unchanged: skipped. Another filter: filtered again, then skipped.
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "taa"], &[]);
+    assert!(ok && out.contains("0 done, 2 skipped"), "{out} {err}");
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("2 done, 0 skipped"), "{out} {err}");
+    assert!(err.contains("changed since"), "{err}");
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("0 done, 2 skipped"), "{out} {err}");
+    // A rewritten input frame: that shot again.
+    std::fs::copy(a.join("frame_0000.exr"), a.join("frame_0002.exr")).unwrap();
+    let (ok, out, err) = batch([&fence, &jitter], &["--filter", "phlm"], &[]);
+    assert!(ok && out.contains("1 done, 1 skipped"), "{out} {err}");
+    // JSON log lines.
+    let (ok, _, err) = batch(
+        [&fence, &jitter],
+        &["--filter", "phlm", "--force"],
+        &[("AFTERIMAGE_LOG_FORMAT", "json")],
+    );
+    assert!(ok, "{err}");
+    let lines: Vec<serde_json::Value> = err
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(
+        lines.iter().any(|v| v["target"] == "afterimage::progress"
+            && v["fields"]["message"].as_str().unwrap_or("").contains("frames/s")),
+        "{err}"
     );
 }
 

@@ -223,6 +223,28 @@ fn the_planner_leaves_out_what_a_frame_does_not_need() {
             channel: ChannelKind::Motion
         })
     );
+    // On a first frame too: what the input lacks is named before the history it has not.
+    for name in ["taa", "traa", "phlm"] {
+        let mut f = create(name, &Default::default()).unwrap();
+        let r = f.process(&no_motion).unwrap().record;
+        assert_eq!(
+            r.stage("reproject").unwrap().skipped,
+            Some(Skip::MissingChannel {
+                channel: ChannelKind::Motion
+            }),
+            "{name}"
+        );
+    }
+    let set = parse_assignments(&["depth_rejection=0.05"]).unwrap();
+    let mut no_depth = frames[0].clone();
+    no_depth.remove(ChannelKind::Depth);
+    let r = create("taa", &set).unwrap().process(&no_depth).unwrap().record;
+    assert_eq!(
+        r.stage("depth_reject").unwrap().skipped,
+        Some(Skip::MissingChannel {
+            channel: ChannelKind::Depth
+        })
+    );
     // Every stage a filter lists appears in its record, in order.
     for info in list() {
         let mut f = create(info.name, &Default::default()).unwrap();

@@ -3,8 +3,8 @@
 
 mod common;
 
-use afterimage::frame::{ChannelKind, ChannelSet, Frame};
-use afterimage::io::{read_frame, PresetChoice, ReadOptions, Sequence};
+use afterimage::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, SampleKind};
+use afterimage::io::{read_frame, ChannelSpec, PresetChoice, ReadOptions, Sequence};
 use afterimage::kernels::bilinear;
 use afterimage::tolerance::Tolerance;
 
@@ -356,4 +356,152 @@ fn fence_sphere_motion_matches_its_rigid_motion() {
     println!("sphere: {checked} pixels, max error {max_err:.2e} px");
     assert!(checked > 100, "{checked}");
     assert!(max_err < 2e-3, "sphere motion off by {max_err} px");
+}
+
+/// `blender-motion` rewritten as parts by `part_of` (see `common::into_parts`), under
+/// `root/<name>/frame_000N.exr`.
+fn write_parts(
+    root: &std::path::Path,
+    name: &str,
+    part_of: impl Fn(&str) -> Option<(String, String)>,
+) -> std::path::PathBuf {
+    let dir = root.join(name);
+    std::fs::create_dir_all(&dir).unwrap();
+    for n in 1..=3 {
+        let file = format!("frame_{n:04}.exr");
+        let image = common::read_exr_all(&common::fixture("blender-motion").join(&file));
+        use exr::prelude::WritableImage;
+        common::into_parts(&image, &part_of)
+            .write()
+            .to_file(dir.join(&file))
+            .unwrap();
+    }
+    dir
+}
+
+fn load_with(dir: &std::path::Path, opts: &ReadOptions) -> Vec<Frame> {
+    let seq = Sequence::open(dir.to_str().unwrap()).unwrap();
+    seq.frames(opts).collect::<Result<_, _>>().unwrap()
+}
+
+/// taa's colour over `frames`.
+fn taa(frames: &[Frame]) -> Vec<afterimage::frame::Rgb> {
+    let mut f = afterimage::filters::create("taa", &Default::default()).unwrap();
+    afterimage::pipeline::run_sequence(f.as_mut(), frames)
+        .unwrap()
+        .into_iter()
+        .map(|o| o.color)
+        .collect()
+}
+
+/// `frame` with only the channels in `keep`.
+fn only_channels(frame: &Frame, keep: ChannelSet) -> Frame {
+    let mut f = frame.clone();
+    for kind in frame.channels().iter().filter(|k| !keep.contains(*k)) {
+        f.remove(kind);
+    }
+    f
+}
+
+fn assert_same_frames(what: &str, a: &[Frame], b: &[Frame]) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    for (i, (fa, fb)) in a.iter().zip(b).enumerate() {
+        assert_eq!(fa.channels(), fb.channels(), "{what}: frame {i}'s channels");
+        for kind in fa
+            .channels()
+            .iter()
+            .filter(|k| k.sample_kind() == SampleKind::F32)
+        {
+            for (pa, pb) in fa.planes(kind).unwrap().iter().zip(fb.planes(kind).unwrap()) {
+                Tolerance::EXACT
+                    .check_slices(&format!("{what}: frame {i} {kind}"), pa.data(), pb.data())
+                    .unwrap();
+            }
+        }
+    }
+    for (i, (ca, cb)) in taa(a).iter().zip(&taa(b)).enumerate() {
+        for (pa, pb) in ca.iter().zip(cb) {
+            Tolerance::EXACT
+                .check_slices(&format!("{what}: taa's frame {i}"), pa.data(), pb.data())
+                .unwrap();
+        }
+    }
+}
+
+/// Parts as compositors write them: full channel names inside each part (`ViewLayer.Combined`
+/// holding `ViewLayer.Combined.R`, `ViewLayer.aovs` holding `ViewLayer.Vector.X`, ...) read
+/// as the one-part file, motion and all, and filter to the same colour; Nuke's parts `rgba`,
+/// `depth` and `motion` with bare names (`R`, `Z`, `X`) are found by the presets; a layout
+/// no preset knows needs nothing but `--channel color=...`.
+#[test]
+fn parts_read_as_the_one_part_file() {
+    let root = tempfile::tempdir().unwrap();
+    let one_part = load_with(&common::fixture("blender-motion"), &ReadOptions::default());
+    assert!(one_part[0].motion().is_some());
+
+    let two = write_parts(root.path(), "two", |n| {
+        let part = if n.contains(".Combined.") {
+            "ViewLayer.Combined"
+        } else {
+            "ViewLayer.aovs"
+        };
+        Some((part.into(), n.into()))
+    });
+    assert_same_frames("two parts", &one_part, &load_with(&two, &ReadOptions::default()));
+
+    // Nuke: colour, depth and motion, bare names in parts named after their layer.
+    let nuke_name = |n: &str| -> Option<(String, String)> {
+        let (part, ch) = match n.strip_prefix("ViewLayer.")?.split_once('.')? {
+            ("Combined", c @ ("R" | "G" | "B" | "A")) => ("rgba", c),
+            ("Depth", "Z") => ("depth", "Z"),
+            ("Vector", c @ ("X" | "Y")) => ("motion", c),
+            _ => return None,
+        };
+        Some((part.into(), ch.into()))
+    };
+    let nuke = write_parts(root.path(), "nuke", nuke_name);
+    let blender_motion = ReadOptions {
+        motion_convention: Some(MotionConvention::BLENDER),
+        ..ReadOptions::default()
+    };
+    let only = ChannelSet::of(&[ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion]);
+    let wanted: Vec<Frame> = one_part.iter().map(|f| only_channels(f, only)).collect();
+    assert_same_frames("nuke parts", &wanted, &load_with(&nuke, &blender_motion));
+
+    // A part name no preset knows: `--channel color=beauty` alone reads it.
+    let beauty = write_parts(root.path(), "beauty", |n| {
+        let c = n.strip_prefix("ViewLayer.Combined.")?;
+        Some(("beauty".into(), c.into()))
+    });
+    let e = Sequence::open(beauty.to_str().unwrap())
+        .unwrap()
+        .frames(&ReadOptions::default())
+        .next()
+        .unwrap()
+        .unwrap_err();
+    assert!(e.to_string().contains("beauty.R"), "{e}");
+    let mapped = ReadOptions {
+        mapping: vec![ChannelSpec::parse_mapping("color=beauty").unwrap()],
+        ..ReadOptions::default()
+    };
+    let color = ChannelSet::of(&[ChannelKind::Color]);
+    let wanted: Vec<Frame> = one_part.iter().map(|f| only_channels(f, color)).collect();
+    assert_same_frames("--channel color=beauty", &wanted, &load_with(&beauty, &mapped));
+}
+
+/// One channel name in two parts is refused, naming both parts.
+#[test]
+fn a_channel_in_two_parts_is_refused() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = write_parts(root.path(), "twice", |n| match n {
+        "ViewLayer.DiffCol.R" => Some(("b".into(), "ViewLayer.Combined.R".into())),
+        _ if n.contains(".Combined.") => Some(("a".into(), n.into())),
+        _ => Some(("b".into(), n.into())),
+    });
+    let e = read_frame(&dir.join("frame_0001.exr"), &ReadOptions::default()).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("channel ViewLayer.Combined.R is in part a and again in part"),
+        "{e}"
+    );
 }

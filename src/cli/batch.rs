@@ -3,14 +3,17 @@
 //! processes of a cluster job.
 //!
 //! - **Shots** come from a manifest (TOML or JSON: defaults, then `[[shot]]` tables with
-//!   `name`, `input`, `output` and extra `filter` arguments) or from `-i DIR` repeated, each
-//!   directory a shot named after it, written under `-o ROOT/<name>/`.
+//!   `name`, `input`, `output` and extra `filter` arguments) or from `-i [NAME=]DIR`
+//!   repeated, each directory a shot named NAME (default: after the directory), written
+//!   under `-o ROOT/<name>/`.
 //! - **Storage**: inputs and outputs are local paths or object store URLs (`s3://`, `gs://`,
 //!   `az://`; see [`super::store`]), read ahead and written behind the filter
 //!   ([`super::shot`]).
 //! - **Resumable**: every output frame appears whole or not at all (a local file is written
 //!   under a hidden temporary name, then renamed; an object is one put), and a finished shot
-//!   leaves `.afterimage-done/<name>.json` beside its outputs; a rerun skips finished shots.
+//!   leaves `.afterimage-done/<name>.json` beside its outputs, with the shot's fingerprint
+//!   (build, arguments, filter parameters, inputs' names, sizes and modification times); a
+//!   rerun skips a finished shot whose fingerprint is unchanged and filters it again otherwise.
 //!   An unfinished shot continues from its last checkpoint (`--checkpoint-every N` frames:
 //!   the filter's state, saved beside the outputs in `.afterimage-progress/`), redoing at
 //!   most N frames, and its outputs are those of an uninterrupted run.
@@ -20,7 +23,8 @@
 //!   the fewest frames so far: deterministic, even by frame count, and no two shards ever
 //!   write the same file (each process counts the frames when it starts, so the inputs
 //!   must be complete by then). A shot whose input does not open is failed by its shard.
-//! - **Results**: a bar per shot and one overall (frames/s, ETA); a summary in JSON and
+//! - **Results**: a bar per shot and one overall (frames/s, ETA) on a terminal, else plain
+//!   progress lines in the log (`--progress-every`); a summary in JSON and
 //!   markdown (per shot: frames, ms/frame, PSNR/tRMSE with a reference, failures); a
 //!   failed shot is retried `--retries` times; the exit status is non-zero when any failed.
 
@@ -33,6 +37,7 @@ use anyhow::Context;
 use clap::{Args, Parser};
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 use serde::{Deserialize, Serialize};
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -41,10 +46,10 @@ use std::time::Instant;
 pub struct BatchArgs {
     /// The manifest (TOML or JSON; see `afterimage batch --help` and the README).
     manifest: Option<PathBuf>,
-    /// A shot directory (repeatable), instead of or besides a manifest: named after the
-    /// directory, written to `-o ROOT/<name>/`.
-    #[arg(short = 'i', long = "input", value_name = "DIR")]
-    inputs: Vec<PathBuf>,
+    /// A shot directory (repeatable), instead of or besides a manifest, as NAME=DIR or DIR
+    /// (named after the directory), written to `-o ROOT/<name>/`.
+    #[arg(short = 'i', long = "input", value_name = "[NAME=]DIR")]
+    inputs: Vec<String>,
     /// Output root for `-i` shots.
     #[arg(short = 'o', long, value_name = "ROOT")]
     output: Option<PathBuf>,
@@ -81,6 +86,10 @@ pub struct BatchArgs {
     /// AWS_ENDPOINT_URL, else AWS's own.
     #[arg(long, value_name = "URL")]
     endpoint: Option<String>,
+    /// Seconds between plain progress lines (frames/s, ETA) in the log when stderr is not a
+    /// terminal (a Kubernetes Job's log); one is also written as each shot ends.
+    #[arg(long, default_value_t = 30.0, value_name = "SECONDS")]
+    progress_every: f64,
 }
 
 /// A manifest: defaults for every shot, then the shots.
@@ -137,6 +146,10 @@ struct ShotResult {
     mean_psnr: Option<f64>,
     trmse: Option<f64>,
     error: Option<String>,
+    /// What the outputs depend on (see `shot::fingerprint`); absent in markers of older
+    /// builds, which are therefore filtered again.
+    #[serde(default)]
+    fingerprint: Option<String>,
 }
 
 #[derive(Parser)]
@@ -256,11 +269,8 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
             .output
             .as_ref()
             .context("-i shots need -o ROOT: each is written to ROOT/<name>/")?;
-        for dir in &args.inputs {
-            let name = dir
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .with_context(|| format!("{}: a shot directory needs a name", dir.display()))?;
+        for spec in &args.inputs {
+            let (name, dir) = named_input(spec)?;
             specs.push(ShotSpec {
                 output: root.join(&name).display().to_string(),
                 name,
@@ -275,8 +285,13 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
     }
     let mut out = Vec::new();
     for spec in specs {
-        if out.iter().any(|s: &Shot| s.spec.name == spec.name) {
-            anyhow::bail!("two shots are named {:?}: shot names must be unique", spec.name);
+        if let Some(other) = out.iter().find(|s: &&Shot| s.spec.name == spec.name) {
+            anyhow::bail!(
+                "two shots are named {:?} ({} and {}): shot names must be unique; name -i shots with -i NAME=DIR",
+                spec.name,
+                other.spec.input,
+                spec.input
+            );
         }
         if spec.name.is_empty() || spec.name.contains(['/', '\\']) || spec.name.starts_with('.') {
             anyhow::bail!(
@@ -324,6 +339,36 @@ fn shots(args: &BatchArgs) -> anyhow::Result<Vec<Shot>> {
     Ok(out)
 }
 
+/// A `-i` shot: `NAME=DIR` (when no file `NAME=DIR` exists), else `DIR` named after its
+/// last component.
+fn named_input(spec: &str) -> anyhow::Result<(String, PathBuf)> {
+    if let Some((name, dir)) = spec.split_once('=') {
+        if !Path::new(spec).exists() && !name.contains(['/', '\\']) {
+            return Ok((name.to_string(), PathBuf::from(dir)));
+        }
+    }
+    let dir = PathBuf::from(spec);
+    let name = dir
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .with_context(|| format!("{spec}: a shot directory needs a name (or give -i NAME={spec})"))?;
+    Ok((name, dir))
+}
+
+/// The fingerprint of a shot as it would run now (see `shot::fingerprint`).
+fn shot_fingerprint(shot: &Shot) -> anyhow::Result<String> {
+    if let Some(e) = &shot.open_error {
+        anyhow::bail!("{e}");
+    }
+    super::shot::fingerprint(&shot_args(shot)?.filter)
+}
+
+/// The shot's `filter` arguments, parsed.
+fn shot_args(shot: &Shot) -> anyhow::Result<ShotArgs> {
+    ShotArgs::try_parse_from(&shot.argv)
+        .map_err(|e| anyhow::anyhow!("shot {}: its filter arguments: {}", shot.spec.name, e.render()))
+}
+
 /// Where a finished shot leaves its marker: `.afterimage-done/<name>.json` in its output
 /// directory.
 fn done_marker(spec: &ShotSpec) -> anyhow::Result<PathBuf> {
@@ -355,8 +400,7 @@ fn run_one(shot: &Shot, bar: &ProgressBar, checkpoint_every: usize) -> anyhow::R
     if let Some(e) = &shot.open_error {
         anyhow::bail!("{e}");
     }
-    let args = ShotArgs::try_parse_from(&shot.argv)
-        .map_err(|e| anyhow::anyhow!("shot {}: its filter arguments: {}", shot.spec.name, e.render()))?;
+    let args = shot_args(shot)?;
     let report = run_shot(
         &args.filter,
         bar,
@@ -382,7 +426,54 @@ fn run_one(shot: &Shot, bar: &ProgressBar, checkpoint_every: usize) -> anyhow::R
         mean_psnr: report.summary.as_ref().map(|s| s.mean_psnr),
         trmse: report.summary.as_ref().and_then(|s| s.trmse),
         error: None,
+        fingerprint: Some(report.fingerprint),
     })
+}
+
+/// Progress as plain log lines (target `afterimage::progress`) where stderr is no terminal
+/// and the bars are hidden: a line every `every`, and one as each shot ends.
+struct PlainProgress {
+    /// The shard's frames: done or skipped before the current shot, and in all.
+    overall: ProgressBar,
+    /// The shot being filtered, by name.
+    current: std::sync::Mutex<Option<(String, ProgressBar)>>,
+    /// Frames filtered by this process (skipped shots not counted), for the rate.
+    filtered: std::sync::atomic::AtomicU64,
+    started: Instant,
+}
+
+impl PlainProgress {
+    /// Logs where the shard stands: the current shot's frames, the shard's, the rate of
+    /// this run's filtering and the time the rest takes at that rate.
+    fn line(&self) {
+        use std::sync::atomic::Ordering;
+        let current = self.current.lock().unwrap_or_else(|p| p.into_inner());
+        let (shot, in_shot) = match &*current {
+            Some((name, bar)) => (
+                format!(
+                    "shot {name} {}/{} frames; ",
+                    bar.position(),
+                    bar.length().unwrap_or(0)
+                ),
+                bar.position(),
+            ),
+            None => (String::new(), 0),
+        };
+        let filtered = self.filtered.load(Ordering::Relaxed) + in_shot;
+        let done = self.overall.position() + in_shot;
+        let total = self.overall.length().unwrap_or(0);
+        let secs = self.started.elapsed().as_secs_f64();
+        let rate = if secs > 0.0 { filtered as f64 / secs } else { 0.0 };
+        let eta = if rate > 0.0 {
+            format!("{:.0} s", total.saturating_sub(done) as f64 / rate)
+        } else {
+            "-".into()
+        };
+        tracing::info!(
+            target: "afterimage::progress",
+            "{shot}shard {done}/{total} frames, {rate:.2} frames/s, ETA {eta}"
+        );
+    }
 }
 
 pub fn run(args: BatchArgs) -> anyhow::Result<()> {
@@ -411,8 +502,44 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
     );
     overall.set_message(format!("shard {index}/{count}"));
     let started = Instant::now();
+    let plain = (!std::io::stderr().is_terminal()).then(|| PlainProgress {
+        overall: overall.clone(),
+        current: Default::default(),
+        filtered: Default::default(),
+        started,
+    });
+    let every = std::time::Duration::try_from_secs_f64(args.progress_every)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .with_context(|| format!("--progress-every {}: expected seconds > 0", args.progress_every))?;
+    let (stop, stopped) = std::sync::mpsc::channel::<()>();
+    let results = std::thread::scope(|s| {
+        if let Some(p) = &plain {
+            s.spawn(move || {
+                while let Err(std::sync::mpsc::RecvTimeoutError::Timeout) = stopped.recv_timeout(every) {
+                    p.line();
+                }
+            });
+        }
+        let results = run_shots(&args, &mine, &multi, &overall, plain.as_ref());
+        drop(stop);
+        results
+    })?;
+    overall.finish_and_clear();
+    finish(&args, (index, count), total_frames, results, started)
+}
+
+/// Filters (or skips) this shard's shots in order; the results, as the summary lists them.
+fn run_shots(
+    args: &BatchArgs,
+    mine: &[&Shot],
+    multi: &MultiProgress,
+    overall: &ProgressBar,
+    plain: Option<&PlainProgress>,
+) -> anyhow::Result<Vec<ShotResult>> {
     let mut results = Vec::new();
-    for shot in &mine {
+    for shot in mine {
+        let shot: &Shot = shot;
         let marker = done_marker(&shot.spec)?;
         let store = storage_for(&shot.spec.output)?;
         let done = match args.force {
@@ -426,22 +553,44 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
                     marker.display()
                 )
             })?;
-            r.status = "skipped".into();
-            overall.inc(shot.frames as u64);
-            results.push(r);
-            continue;
+            match shot_fingerprint(shot) {
+                Ok(now) if r.fingerprint.as_deref() == Some(now.as_str()) => {
+                    r.status = "skipped".into();
+                    overall.inc(shot.frames as u64);
+                    results.push(r);
+                    continue;
+                }
+                Ok(_) => multi.suspend(|| {
+                    tracing::warn!(
+                        "shot {}: finished before, but its filter, parameters, inputs or build changed since ({}); filtering it again",
+                        shot.spec.name,
+                        marker.display()
+                    )
+                }),
+                Err(e) => multi.suspend(|| {
+                    tracing::warn!(
+                        "shot {}: cannot tell whether it changed since it finished ({e:#}); filtering it again",
+                        shot.spec.name
+                    )
+                }),
+            }
+            store.delete(&marker)?;
         }
         if args.force {
             checkpoints(&shot.spec, args.checkpoint_every)?.clear(&*store)?;
         }
         let bar = multi.insert_before(
-            &overall,
+            overall,
             ProgressBar::new(shot.frames as u64).with_style(
                 ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} frames, {eta} left")?
                     .progress_chars("=> "),
             ),
         );
         bar.set_message(shot.spec.name.clone());
+        if let Some(p) = plain {
+            *p.current.lock().unwrap_or_else(|p| p.into_inner()) =
+                Some((shot.spec.name.clone(), bar.clone()));
+        }
         let mut attempt = 0;
         let result = loop {
             attempt += 1;
@@ -473,16 +622,34 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
                         mean_psnr: None,
                         trmse: None,
                         error: Some(format!("{e:#}")),
+                        fingerprint: None,
                     }
                 }
             }
         };
+        if let Some(p) = plain {
+            p.line();
+            p.filtered
+                .fetch_add(bar.position(), std::sync::atomic::Ordering::Relaxed);
+            *p.current.lock().unwrap_or_else(|p| p.into_inner()) = None;
+        }
         bar.finish_and_clear();
         multi.remove(&bar);
         overall.inc(shot.frames as u64);
         results.push(result);
     }
-    overall.finish_and_clear();
+    Ok(results)
+}
+
+/// Writes the summary (JSON and markdown) of `results` and prints its totals; an error when
+/// a shot failed.
+fn finish(
+    args: &BatchArgs,
+    (index, count): (usize, usize),
+    total_frames: usize,
+    results: Vec<ShotResult>,
+    started: Instant,
+) -> anyhow::Result<()> {
     let failed = results.iter().filter(|r| r.status == "failed").count();
     let summary_path = args.summary.clone().unwrap_or_else(|| {
         PathBuf::from(if count == 1 {

@@ -6,7 +6,7 @@ use super::shot::run_shot;
 use afterimage::filters;
 use afterimage::io::Sequence;
 use afterimage::metrics::Timing;
-use afterimage::pipeline::{summarize_stages, ParamKind};
+use afterimage::pipeline::{missing_channels, summarize_stages, ParamKind};
 use afterimage::scene::halton_jitter;
 use anyhow::Context;
 use clap::Args;
@@ -24,7 +24,7 @@ pub struct FilterArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub(super) set: Vec<String>,
     /// Where the filter runs: cpu, gpu (an error where the build, the machine or the filter
-    /// has none; see `afterimage backends`), or auto (the GPU where it can, else the CPU);
+    /// has none; see `afterimage info --backends`), or auto (the GPU where it can, else the CPU);
     /// gpu-f16 and auto-f16 upload the colour to the GPU as f16 (half the bytes, 11
     /// significant bits, clamped to +-65504; see the README's GPU backend section).
     #[arg(long, default_value = "cpu", value_name = "cpu|gpu|auto|gpu-f16|auto-f16")]
@@ -32,6 +32,15 @@ pub struct FilterArgs {
     /// Frames to filter: a directory, a pattern (frame_%04d.exr), a glob or a file.
     #[arg(short = 'i', long)]
     pub(super) input: String,
+    /// Frame numbers to filter: FIRST-LAST or FIRST-LAST:STEP (--frames 1001-1100:2), or
+    /// one frame (default: every frame of the input).
+    #[arg(long, value_name = "A-B[:STEP]")]
+    pub(super) frames: Option<afterimage::io::FrameRange>,
+    /// A frame number missing from the input (or the --frames range): error (refuse the
+    /// sequence), skip (leave it out; history restarts after the gap), hold (filter the
+    /// nearest earlier frame again, motion zero, written under the missing number).
+    #[arg(long, default_value = "error", value_name = "skip|error|hold")]
+    pub(super) missing: afterimage::io::Missing,
     /// Where to write: a directory (each output keeps its input's file name) or a pattern
     /// with the frame number as `####`, `%04d`, `$F4` or `@@@@` (out/shot_aa.####.exr).
     /// records.json goes into the directory.
@@ -60,6 +69,11 @@ pub struct FilterArgs {
     /// `{"1001": [x, y], ...}` by frame number) or CSV lines `frame,x,y`.
     #[arg(long, value_name = "halton:N|FILE")]
     pub(super) jitter_from: Option<String>,
+    /// Channels every frame must have, comma-separated (--require motion,depth): a frame
+    /// without one is an error, where otherwise the stages that read it are left out (and
+    /// the summary and records say so).
+    #[arg(long, value_delimiter = ',', value_name = "CHANNEL")]
+    pub(super) require: Vec<String>,
     #[command(flatten)]
     pub(super) read: ReadArgs,
     #[command(flatten)]
@@ -145,14 +159,31 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
         Timing::of(&totals).median_ms
     );
     for s in summarize_stages(records) {
+        let why: Vec<String> = s.skips.iter().map(|(w, n)| format!("{w} ({n}x)")).collect();
         match s.timing {
-            Some(t) => outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms),
-            None => outln!(
-                "  {:<16} left out: {}",
+            Some(t) if why.is_empty() => {
+                outln!("  {:<16} ran {:>3}x, median {:.3} ms", s.name, s.ran, t.median_ms)
+            }
+            Some(t) => outln!(
+                "  {:<16} ran {:>3}x, median {:.3} ms; left out: {}",
                 s.name,
-                s.first_skip.as_deref().unwrap_or("-")
+                s.ran,
+                t.median_ms,
+                why.join(", ")
             ),
+            None => outln!("  {:<16} left out: {}", s.name, why.join(", ")),
         }
+    }
+    let missing = missing_channels(records);
+    if !missing.is_empty() {
+        let what: Vec<String> = missing
+            .iter()
+            .map(|(c, n)| format!("{c} on {n} of {} frames", records.len()))
+            .collect();
+        outln!(
+            "  missing channels: {} (--require makes that an error)",
+            what.join(", ")
+        );
     }
     let reset: u64 = records.iter().map(|r| r.pixels.history_reset).sum();
     let clipped: u64 = records.iter().map(|r| r.pixels.history_clipped).sum();

@@ -2,7 +2,10 @@
 
 use super::outln;
 use super::read_args::ReadArgs;
-use afterimage::io::{read_exr_parts, read_raw, ChannelStats, ExrPart, PixelWindow, ReadOptions, Sequence};
+use afterimage::frame::FrameMeta;
+use afterimage::io::{
+    frame_number, read_exr_parts, read_raw, ChannelStats, ExrPart, PixelWindow, ReadOptions, Sequence,
+};
 use clap::Args;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -164,7 +167,10 @@ fn describe(file: &Path, opts: &ReadOptions) -> anyhow::Result<Info> {
         mapping_error,
         non_finite_total: channels.iter().map(|c| c.stats.nan + c.stats.inf).sum(),
         channels,
-        meta: raw.meta.clone(),
+        meta: FrameMeta {
+            index: frame_number(file).unwrap_or(raw.meta.index),
+            ..raw.meta.clone()
+        },
         shading: raw.shading,
         parts: if file.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")) {
             read_exr_parts(file)?

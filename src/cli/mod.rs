@@ -25,6 +25,44 @@ pub struct Cli {
     /// Filter threads (default: `AFTERIMAGE_THREADS`, else one per core).
     #[arg(short = 'j', long, global = true, value_name = "N")]
     threads: Option<usize>,
+    /// Log lines on stderr: text (coloured only on a terminal, and never with NO_COLOR set)
+    /// or json (one object a line, for log collectors). AFTERIMAGE_LOG sets the level.
+    #[arg(
+        long,
+        global = true,
+        default_value = "text",
+        env = "AFTERIMAGE_LOG_FORMAT",
+        value_name = "text|json"
+    )]
+    pub log_format: LogFormat,
+}
+
+/// How log lines are written (`--log-format`).
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LogFormat {
+    /// One line of text per event.
+    Text,
+    /// One JSON object per event.
+    Json,
+}
+
+/// Starts logging to stderr at the levels `AFTERIMAGE_LOG` gives (default: warnings, and
+/// `batch`'s progress lines, target `afterimage::progress`), in `format`, with ANSI colour
+/// only where stderr is a terminal and `NO_COLOR` is unset.
+pub fn init_logging(format: LogFormat) {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_env("AFTERIMAGE_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn,afterimage::progress=info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    match format {
+        LogFormat::Json => builder.json().init(),
+        LogFormat::Text => {
+            let colour = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none();
+            builder.with_ansi(colour).init()
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]

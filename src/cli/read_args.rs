@@ -10,7 +10,7 @@ use clap::Args;
 /// How to map file channels onto frame channels.
 #[derive(Args, Debug, Clone)]
 pub struct ReadArgs {
-    /// Channel-name preset of the files: auto (detect), afterimage, blender, plain.
+    /// Channel-name preset of the files: auto (detect), afterimage, blender, nuke, plain.
     #[arg(long, default_value = "auto", value_name = "PRESET")]
     pub preset: String,
     /// Map a frame channel to file channels, overriding the preset: KIND=PREFIX

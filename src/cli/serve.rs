@@ -15,10 +15,25 @@ pub struct ServeArgs {
     /// Print the effective config as TOML and exit.
     #[arg(long)]
     print_config: bool,
+    /// The gRPC address to listen on (over the config file and AFTERIMAGE_GRPC_ADDR), e.g.
+    /// 0.0.0.0:50051.
+    #[arg(long, value_name = "ADDR")]
+    grpc_addr: Option<String>,
+    /// The HTTP address to listen on (over the config file and AFTERIMAGE_HTTP_ADDR), e.g.
+    /// 0.0.0.0:8080.
+    #[arg(long, value_name = "ADDR")]
+    http_addr: Option<String>,
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    let config = Config::load(args.config.as_deref(), std::env::vars())?;
+    let mut config = Config::load(args.config.as_deref(), std::env::vars())?;
+    if let Some(addr) = args.grpc_addr {
+        config.grpc_addr = addr;
+    }
+    if let Some(addr) = args.http_addr {
+        config.http_addr = addr;
+    }
+    config.validate().context("serve --grpc-addr/--http-addr")?;
     if args.print_config {
         super::print_stdout(&toml::to_string(&config)?)?;
         return Ok(());

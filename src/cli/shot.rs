@@ -15,10 +15,10 @@
 
 use super::filter::{jitter_table, FilterArgs};
 use super::store::storage_for;
-use afterimage::frame::{Frame, FrameMeta, Rgb};
+use afterimage::frame::{ChannelKind, Frame, FrameMeta, Rgb};
 use afterimage::io::{
     encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, OutputNaming, PresetChoice,
-    ReadOptions, Sequence, Storage,
+    ReadOptions, Selection, Sequence, Storage,
 };
 use afterimage::metrics::{Evaluator, FrameMetrics, MetricSpace, SpaceChoice};
 use afterimage::pipeline::state::StateKey;
@@ -28,7 +28,7 @@ use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{channel, sync_channel, SyncSender};
 
@@ -51,6 +51,60 @@ pub struct ShotReport {
     pub resumed_at: usize,
     /// Quality against the reference, when there was one (over the whole shot).
     pub summary: Option<afterimage::metrics::Summary>,
+    /// What the outputs depend on, hashed ([`fingerprint`]).
+    pub fingerprint: String,
+}
+
+/// The frames `args` selects (`--frames`, `--missing`).
+fn selection(args: &FilterArgs) -> Selection {
+    Selection {
+        range: args.frames,
+        missing: args.missing,
+    }
+}
+
+/// What a shot's outputs depend on, hashed: the build ([`build_id`]), the command's
+/// arguments, the filter's parameters (defaults included) and each input file's frame
+/// number, name and stamp (size and modification time, see [`Storage::stamps`]). A
+/// checkpoint or a done marker of another fingerprint is not continued or trusted.
+fn fingerprint_of(
+    args: &FilterArgs,
+    params: &Value,
+    input: &Sequence,
+    store: &dyn Storage,
+) -> anyhow::Result<String> {
+    let mut hash = Sha256::new();
+    hash.update(format!("{} {args:?} {params}", build_id()));
+    // Each directory's stamps, by file name (a bare pattern's frames are `name`, the
+    // listing of the current directory `./name`).
+    let mut dirs: HashMap<PathBuf, HashMap<std::ffi::OsString, String>> = HashMap::new();
+    for e in &input.entries {
+        let file = e.source();
+        let dir = file.parent().unwrap_or(Path::new(""));
+        if !dirs.contains_key(dir) {
+            let stamps = store
+                .stamps(dir)?
+                .into_iter()
+                .filter_map(|(p, stamp)| Some((p.file_name()?.to_os_string(), stamp)))
+                .collect();
+            dirs.insert(dir.to_path_buf(), stamps);
+        }
+        let stamp = file
+            .file_name()
+            .and_then(|n| dirs[dir].get(n))
+            .with_context(|| format!("{}: the input frame is gone", file.display()))?;
+        hash.update(format!("\n{} {} {stamp}", e.number, file.display()));
+    }
+    Ok(format!("{:x}", hash.finalize()))
+}
+
+/// The fingerprint (see [`fingerprint_of`]) of the shot `args` describes, without filtering
+/// it: what `batch` compares with a finished shot's done marker.
+pub fn fingerprint(args: &FilterArgs) -> anyhow::Result<String> {
+    let params = afterimage::filters::create(&args.filter, &parse_assignments(&args.set)?)?.params();
+    let store = storage_for(&args.input)?;
+    let input = Sequence::open_in_selected(&args.input, &*store, &selection(args))?;
+    fingerprint_of(args, &params, &input, &*store)
 }
 
 /// Where and how often a shot is checkpointed (see the module).
@@ -317,11 +371,12 @@ pub fn run_shot(
     let in_opts = args.read.options()?;
     let in_store = storage_for(&args.input)?;
     let out_store = storage_for(&args.output)?;
-    let input = Sequence::open_in(&args.input, &*in_store)?;
+    let selection = selection(args);
+    let input = Sequence::open_in_selected(&args.input, &*in_store, &selection)?;
     let reference = match &args.reference {
         Some(spec) => {
             let store = storage_for(spec)?;
-            let seq = Sequence::open_in(spec, &*store)?;
+            let seq = Sequence::open_in_selected(spec, &*store, &selection)?;
             if seq.len() != input.len() {
                 anyhow::bail!(
                     "{} has {} frames but the reference {} has {}",
@@ -351,10 +406,23 @@ pub fn run_shot(
         Some(spec) => Some(jitter_table(spec, &input)?),
         None => None,
     };
-    let naming = OutputNaming::parse(&args.output)?;
+    let required = required_channels(&args.require)?;
+    let naming = OutputNaming::parse_for(&args.output, input.len())?;
     let mut write = args.write.options()?;
     if args.f16 {
         write.precision = Some(afterimage::io::Precision::F16);
+    }
+    let first = &input.entries[0];
+    let format = afterimage::io::OutputFormat::of(&naming.path(&first.path, first.number))?;
+    if format != afterimage::io::OutputFormat::Exr {
+        let exr_only = [
+            (write.compression.is_some(), "--compression"),
+            (write.precision.is_some(), "--half/--float"),
+            (write.keep != afterimage::io::Keep::default(), "--keep"),
+        ];
+        for (_, flag) in exr_only.iter().filter(|(given, _)| *given) {
+            tracing::warn!("{flag} applies to EXR outputs only; {naming} is {format:?}: ignored");
+        }
     }
     if args.png && !out_store.is_local() {
         anyhow::bail!(
@@ -375,16 +443,13 @@ pub fn run_shot(
                 .map(|e| naming.preview_path(&e.path, e.number)),
         );
     }
-    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.path.clone()).collect();
+    let inputs: Vec<PathBuf> = input.entries.iter().map(|e| e.source().to_path_buf()).collect();
     refuse_overwrite(&outputs, &inputs)?;
     if out_store.is_local() {
         let dir = naming.dir();
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let fingerprint = format!(
-        "{:x}",
-        Sha256::digest(format!("{} {args:?} {}", build_id(), filter.params()))
-    );
+    let fingerprint = fingerprint_of(args, &filter.params(), &input, &*in_store)?;
     let start = match checkpoints {
         Some(c) => resume(c, &*out_store, &fingerprint, filter.as_mut(), input.len())?,
         None => None,
@@ -518,6 +583,14 @@ pub fn run_shot(
                 }
                 let entry = &input.entries[position];
                 let (mut frame, mut kept) = read?;
+                if let Some(k) = required.iter().find(|k| !frame.channels().contains(**k)) {
+                    anyhow::bail!(
+                        "{}: no {k} channel, which --require {} asks for (the frame has {})",
+                        entry.path.display(),
+                        args.require.join(","),
+                        frame.channels()
+                    );
+                }
                 kept.trim_to(write.keep);
                 if args.cuts.contains(&entry.number) {
                     frame.meta.reset = true;
@@ -586,6 +659,7 @@ pub fn run_shot(
         records: shot.records,
         resumed_at,
         summary,
+        fingerprint,
     })
 }
 
@@ -713,6 +787,22 @@ fn build_id() -> String {
         })
         .unwrap_or_default();
     format!("{} {stamp}", env!("CARGO_PKG_VERSION"))
+}
+
+/// The channels `--require` names.
+fn required_channels(names: &[String]) -> anyhow::Result<Vec<ChannelKind>> {
+    names
+        .iter()
+        .map(|n| {
+            ChannelKind::from_name(n.trim()).with_context(|| {
+                let known: Vec<&str> = ChannelKind::ALL.iter().map(|k| k.name()).collect();
+                format!(
+                    "--require {n:?}: not a channel; expected one of {}",
+                    known.join(", ")
+                )
+            })
+        })
+        .collect()
 }
 
 fn frame_is_hdr(f: &Frame) -> bool {

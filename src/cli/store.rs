@@ -89,9 +89,57 @@ pub fn storage_for(spec: &str) -> anyhow::Result<Arc<dyn Storage>> {
     }
 }
 
-/// An object store refusal as an [`IoError`] naming the object.
+/// An object store refusal as an [`IoError`] naming the object, led by what it means where
+/// it is one of the usual setup mistakes ([`meaning`]).
 fn refused(path: &Path, e: impl std::fmt::Display) -> IoError {
-    IoError::os(path, std::io::Error::other(e.to_string()))
+    let text = e.to_string();
+    let text = match split(path).and_then(|(scheme, bucket, _)| meaning(scheme, &bucket, &text)) {
+        Some(m) => format!("{m} ({text})"),
+        None => text,
+    };
+    IoError::os(path, std::io::Error::other(text))
+}
+
+/// What an object store's error text means when it is no credentials (the provider's
+/// chain ended at the instance metadata service, 169.254.169.254, which refused or did not
+/// answer), no such bucket, or access denied; `None` for anything else.
+fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<String> {
+    let t = text.to_ascii_lowercase();
+    let has = |words: &[&str]| words.iter().any(|w| t.contains(w));
+    if has(&[
+        "169.254.169.254",
+        "error getting credentials",
+        "no credentials",
+        "missing credentials",
+    ]) {
+        let how = match scheme {
+            "s3" => "set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY (or AWS_PROFILE, or a web identity), or run where an instance role gives them",
+            "gs" => "set GOOGLE_APPLICATION_CREDENTIALS or GOOGLE_SERVICE_ACCOUNT",
+            _ => "set AZURE_STORAGE_ACCOUNT_NAME with AZURE_STORAGE_ACCOUNT_KEY (or a SAS token or managed identity)",
+        };
+        return Some(format!("no credentials for {scheme}://{bucket}: {how}"));
+    }
+    if has(&[
+        "nosuchbucket",
+        "bucket does not exist",
+        "containernotfound",
+        "container does not exist",
+    ]) {
+        return Some(format!("no bucket {scheme}://{bucket}"));
+    }
+    if has(&[
+        "accessdenied",
+        "access denied",
+        "forbidden",
+        "authorizationfailure",
+        "status 403",
+        "403 forbidden",
+    ]) {
+        return Some(format!(
+            "access denied to {scheme}://{bucket}: the credentials found are not allowed this"
+        ));
+    }
+    None
 }
 
 impl ObjectStorage {
@@ -163,6 +211,18 @@ impl Storage for ObjectStorage {
     }
 
     fn list(&self, dir: &Path) -> Result<Vec<PathBuf>, IoError> {
+        Ok(self.stamps(dir)?.into_iter().map(|(p, _)| p).collect())
+    }
+
+    fn delete(&self, path: &Path) -> Result<(), IoError> {
+        let (store, key) = self.locate(path)?;
+        match self.runtime.block_on(store.delete(&key)) {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(refused(path, e)),
+        }
+    }
+
+    fn stamps(&self, dir: &Path) -> Result<Vec<(PathBuf, String)>, IoError> {
         let (store, key) = self.locate(dir)?;
         let prefix = (!key.as_ref().is_empty()).then_some(&key);
         let listed = self
@@ -173,16 +233,19 @@ impl Storage for ObjectStorage {
         Ok(listed
             .objects
             .into_iter()
-            .map(|o| PathBuf::from(format!("{scheme}://{bucket}/{}", o.location)))
+            .map(|o| {
+                let stamp = format!(
+                    "{} bytes, modified {}, etag {}",
+                    o.size,
+                    o.last_modified.to_rfc3339(),
+                    o.e_tag.as_deref().unwrap_or("-")
+                );
+                (
+                    PathBuf::from(format!("{scheme}://{bucket}/{}", o.location)),
+                    stamp,
+                )
+            })
             .collect())
-    }
-
-    fn delete(&self, path: &Path) -> Result<(), IoError> {
-        let (store, key) = self.locate(path)?;
-        match self.runtime.block_on(store.delete(&key)) {
-            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
-            Err(e) => Err(refused(path, e)),
-        }
     }
 }
 
@@ -207,5 +270,37 @@ mod tests {
         let p = Path::new("s3://bkt/out").join("f.0001.exr");
         assert_eq!(p, Path::new("s3://bkt/out/f.0001.exr"));
         assert_eq!(p.parent(), Some(Path::new("s3://bkt/out")));
+    }
+
+    /// The usual setup mistakes are named first, the store's own text kept after them.
+    #[test]
+    fn refusals_say_what_they_mean() {
+        let p = Path::new("s3://shots/sh010/beauty.0001.exr");
+        for (text, says) in [
+            (
+                "Generic S3 error: Error getting credentials from provider: HTTP status client error (403 Forbidden) for url (http://169.254.169.254/latest/api/token)",
+                "no credentials for s3://shots: set AWS_ACCESS_KEY_ID",
+            ),
+            (
+                "Generic S3 error: Client error with status 404 Not Found: <Error><Code>NoSuchBucket</Code><Message>The specified bucket does not exist</Message></Error>",
+                "no bucket s3://shots",
+            ),
+            (
+                "Generic S3 error: Client error with status 403 Forbidden: <Error><Code>AccessDenied</Code></Error>",
+                "access denied to s3://shots",
+            ),
+        ] {
+            let e = refused(p, text).to_string();
+            assert!(e.starts_with(&format!("{}: {says}", p.display())), "{e}");
+            assert!(e.contains(text), "the store's text is kept: {e}");
+        }
+        let other = refused(p, "Generic S3 error: connection reset").to_string();
+        assert_eq!(
+            other,
+            format!("{}: Generic S3 error: connection reset", p.display())
+        );
+        assert!(refused(Path::new("gs://b/x"), "no credentials found")
+            .to_string()
+            .contains("GOOGLE_APPLICATION_CREDENTIALS"));
     }
 }

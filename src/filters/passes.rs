@@ -514,12 +514,12 @@ pub struct Reprojection {
     pub dilated: Option<[Plane<f32>; 2]>,
 }
 
-/// Why reprojection is left out of a frame (None: it runs): it needs history, motion and
-/// some motion in the frame.
+/// Why reprojection is left out of a frame (None: it runs): it needs motion, history and
+/// some motion in the frame. A missing channel is named first, on every frame it is
+/// missing from (the first one included), so records and summaries say what the input lacks.
 pub fn reproject_skip(inp: &Inputs, has_history: bool) -> Option<Skip> {
-    (!has_history)
-        .then_some(Skip::NoHistory)
-        .or_else(|| inp.require(ChannelKind::Motion))
+    inp.require(ChannelKind::Motion)
+        .or_else(|| (!has_history).then_some(Skip::NoHistory))
         .or_else(|| inp.facts.reprojection())
 }
 

@@ -150,9 +150,8 @@ pub(crate) fn exr_error(path: &Path, e: exr::error::Error) -> IoError {
     }
 }
 
-/// Reads every channel of every layer (part) of an EXR file. Channel names of named
-/// layers get the layer name as prefix (`layer.channel`), as in single-part multilayer
-/// files; all layers must have the same size.
+/// Reads every channel of every layer (part) of an EXR file; all layers must have the same
+/// size. Channel names are as [`full_channel_name`] gives them.
 pub fn read_raw_exr(path: &Path) -> Result<RawImage, IoError> {
     if !path.exists() {
         return Err(IoError::os(
@@ -477,12 +476,25 @@ impl ExrHeaders {
     }
 }
 
+/// The name a channel of part `part` gets in a [`RawImage`]. A name that already carries
+/// its layer (it has a `.`, as compositors and Blender write full names such as
+/// `ViewLayer.Vector.X` into any part) is used as written; a bare one (`R`) gets the part's
+/// name as prefix (`rgba.R`), as in single-part multilayer files. Unnamed parts add nothing.
+pub fn full_channel_name(part: Option<&str>, channel: &str) -> String {
+    match part {
+        Some(p) if !p.is_empty() && !channel.contains('.') => format!("{p}.{channel}"),
+        _ => channel.to_string(),
+    }
+}
+
 fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
     let mut first: Option<(x::Vec2<usize>, x::Vec2<i32>, Option<String>)> = None;
     let mut channels = Vec::new();
     let mut parts = Vec::new();
     let mut meta = FrameMeta::default();
     let mut shading = Sampling::FULL;
+    // Full channel name -> the part it came from, to refuse a name given twice.
+    let mut seen = std::collections::HashMap::new();
     for layer in image.layer_data {
         let lname = layer.attributes.layer_name.as_ref().map(|t| t.to_string());
         let position = layer.attributes.layer_position;
@@ -532,10 +544,16 @@ fn raw_from_exr(image: AnyImage, path: &Path) -> Result<RawImage, IoError> {
                     reason: format!("channel {} is subsampled, which is not supported", ch.name),
                 });
             }
-            let name = match &lname {
-                Some(l) if !l.is_empty() => format!("{l}.{}", ch.name),
-                _ => ch.name.to_string(),
-            };
+            let name = full_channel_name(lname.as_deref(), &ch.name.to_string());
+            let part = lname.as_deref().unwrap_or("(unnamed)");
+            if let Some(earlier) = seen.insert(name.clone(), part.to_string()) {
+                return Err(IoError::Inconsistent {
+                    path: path.to_path_buf(),
+                    reason: format!(
+                        "channel {name} is in part {earlier} and again in part {part}; each channel once expected"
+                    ),
+                });
+            }
             let (file_type, sample_type, data) = match ch.sample_data {
                 x::FlatSamples::F16(v) => (
                     "f16",

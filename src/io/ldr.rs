@@ -1,6 +1,6 @@
 //! PNG and JPEG: sRGB-encoded LDR input and previews, through the `image` crate.
 
-use super::IoError;
+use super::{IoError, OutputFormat};
 use crate::frame::{Frame, Plane, Rgb};
 use std::path::Path;
 
@@ -88,6 +88,30 @@ pub fn rgb_to_srgb8(rgb: &Rgb, tonemap: bool) -> Vec<u8> {
         }
     }
     bytes
+}
+
+/// Linear RGB as an 8-bit sRGB PNG or JPEG (quality 95) in memory, clamped to [0, 1] (see
+/// [`rgb_to_srgb8`]); `label` names it in errors. [`OutputFormat::Exr`] is not an 8-bit
+/// format and is refused.
+pub fn encode_ldr(rgb: &Rgb, format: OutputFormat, label: &Path) -> Result<Vec<u8>, IoError> {
+    let (w, h) = rgb[0].size();
+    let buf = image::RgbImage::from_raw(w as u32, h as u32, rgb_to_srgb8(rgb, false))
+        .expect("rgb_to_srgb8 gives 3 bytes a pixel");
+    let mut out = std::io::Cursor::new(Vec::new());
+    let written = match format {
+        OutputFormat::Png => buf.write_to(&mut out, image::ImageFormat::Png),
+        OutputFormat::Jpeg => {
+            buf.write_with_encoder(image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 95))
+        }
+        OutputFormat::Exr => {
+            return Err(IoError::Argument(format!(
+                "{}: EXR is not an 8-bit format",
+                label.display()
+            )))
+        }
+    };
+    written.map_err(|e| image_error(label, "PNG/JPEG", e))?;
+    Ok(out.into_inner())
 }
 
 /// Writes linear RGB as an 8-bit sRGB PNG preview (see [`rgb_to_srgb8`]).

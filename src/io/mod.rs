@@ -15,19 +15,19 @@ mod storage;
 
 pub use colormap::inferno;
 pub use exr_file::{
-    check_exr_header, read_exr_parts, read_raw_exr, read_raw_exr_bytes, read_raw_exr_bytes_limited,
-    write_exr, write_exr_bytes, Compression, ExrHeaders, ExrLimits, ExrPart, ExrShape, PixelWindow,
-    Precision, WriteOptions,
+    check_exr_header, full_channel_name, read_exr_parts, read_raw_exr, read_raw_exr_bytes,
+    read_raw_exr_bytes_limited, write_exr, write_exr_bytes, Compression, ExrHeaders, ExrLimits, ExrPart,
+    ExrShape, PixelWindow, Precision, WriteOptions,
 };
 pub use ldr::{linear_to_srgb, read_ldr, rgb_to_srgb8, srgb_to_linear, write_png, write_png_rgb8};
-pub use naming::{refuse_overwrite, FramePattern, OutputNaming};
+pub use naming::{refuse_overwrite, FramePattern, OutputFormat, OutputNaming};
 pub use output::{
     encode_filtered, encode_filtered_for, partial_path, write_filtered, FilteredFrame, InputImage, Keep,
     OutputOptions, RECORD_ATTRIBUTE,
 };
 pub use preset::{ChannelSpec, Preset, PresetChoice, ReadOptions};
 pub use raw::{ChannelStats, RawChannel, RawData, RawImage};
-pub use sequence::{Sequence, SequenceEntry};
+pub use sequence::{frame_number, FrameRange, Missing, Selection, Sequence, SequenceEntry};
 pub use storage::{read_raw_in, LocalFiles, Storage};
 
 use crate::frame::{ChannelKind, Frame, FrameError};
@@ -80,7 +80,7 @@ pub enum IoError {
         present: String,
     },
     /// No preset fits the file's channel names.
-    #[error("{path}: cannot tell the channel layout (no colour as `color.R`, `<layer>.Combined.R` or `R`); pass --preset or --channel color=...; the file has: {present}")]
+    #[error("{path}: cannot tell the channel layout (no colour as `color.R`, `<layer>.Combined.R`, `rgba.R` or `R`); pass --preset or --channel color=...; the file has: {present}")]
     UnknownLayout {
         /// The file.
         path: PathBuf,

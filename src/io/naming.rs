@@ -300,6 +300,53 @@ impl fmt::Display for FramePattern {
     }
 }
 
+/// The file format of a filtered output, from its name's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutputFormat {
+    /// OpenEXR: the input with its colour replaced (see `io::output`).
+    Exr,
+    /// 8-bit sRGB PNG of the filtered colour, clamped to [0, 1].
+    Png,
+    /// 8-bit sRGB JPEG (quality 95) of the filtered colour, clamped to [0, 1].
+    Jpeg,
+}
+
+impl OutputFormat {
+    /// The extensions written, for messages.
+    const WRITTEN: &'static str = ".exr, .png, .jpg or .jpeg";
+
+    /// Image formats that are not written, which `-o` refuses rather than take for a
+    /// directory's name.
+    const IMAGE_EXTENSIONS: [&'static str; 10] = [
+        "tif", "tiff", "bmp", "tga", "dpx", "cin", "hdr", "webp", "gif", "sgi",
+    ];
+
+    /// The format `path` names: `.exr` (or no extension, or one of digits only, as in
+    /// `shot.1001`), `.png`, `.jpg`/`.jpeg` (any case). TIFF and any other extension are
+    /// refused with [`IoError::Argument`] saying what is written.
+    pub fn of(path: &Path) -> Result<OutputFormat, IoError> {
+        let Some(ext) = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()) else {
+            return Ok(OutputFormat::Exr);
+        };
+        match ext.as_str() {
+            "exr" => Ok(OutputFormat::Exr),
+            "png" => Ok(OutputFormat::Png),
+            "jpg" | "jpeg" => Ok(OutputFormat::Jpeg),
+            _ if ext.bytes().all(|b| b.is_ascii_digit()) => Ok(OutputFormat::Exr),
+            "tif" | "tiff" => Err(IoError::Argument(format!(
+                "{}: TIFF output is not built in (the image codecs compiled in are PNG and JPEG);                  write {} and convert",
+                path.display(),
+                Self::WRITTEN
+            ))),
+            _ => Err(IoError::Argument(format!(
+                "{}: unknown output format .{ext}; the extension picks it: {}",
+                path.display(),
+                Self::WRITTEN
+            ))),
+        }
+    }
+}
+
 /// Where `filter -o` writes frame N of input file P.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum OutputNaming {
@@ -308,6 +355,8 @@ pub enum OutputNaming {
     Dir(PathBuf),
     /// Numbered by the pattern: frame N is `pattern.format(N)`.
     Pattern(FramePattern),
+    /// One frame, to this file (see [`OutputNaming::parse_for`]).
+    File(PathBuf),
 }
 
 impl OutputNaming {
@@ -329,6 +378,7 @@ impl OutputNaming {
             return Ok(OutputNaming::Dir(path.to_path_buf()));
         }
         if let Some(pattern) = FramePattern::parse(spec)? {
+            OutputFormat::of(&pattern.format(0))?;
             return Ok(OutputNaming::Pattern(pattern));
         }
         let example = || match (path.file_stem(), path.extension()) {
@@ -354,7 +404,35 @@ impl OutputNaming {
                 example()
             )));
         }
+        // An image format's name is no directory name: say it is not written.
+        let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if ext.is_some_and(|e| OutputFormat::IMAGE_EXTENSIONS.contains(&e.as_str())) {
+            OutputFormat::of(path)?;
+        }
         Ok(OutputNaming::Dir(path.to_path_buf()))
+    }
+
+    /// [`OutputNaming::parse`] for an input of `frames` frames: one frame may also go to one
+    /// file named with an image extension (`-o out.exr`, `-o out.png`; an existing file is
+    /// replaced).
+    pub fn parse_for(spec: &str, frames: usize) -> Result<OutputNaming, IoError> {
+        let path = Path::new(spec);
+        let names_a_file = !path.is_dir()
+            && !spec.ends_with(std::path::is_separator)
+            && path.extension().is_some()
+            && FramePattern::parse(spec)?.is_none();
+        if frames == 1 && names_a_file {
+            let ext = path
+                .extension()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .to_ascii_lowercase();
+            if FileType::of(path).is_some() || ext == "tif" || ext == "tiff" {
+                OutputFormat::of(path)?;
+                return Ok(OutputNaming::File(path.to_path_buf()));
+            }
+        }
+        Self::parse(spec)
     }
 
     /// Where frame `number`, read from `input`, is written: for a directory, the input's
@@ -374,6 +452,7 @@ impl OutputNaming {
                 dir.join(name)
             }
             OutputNaming::Pattern(pattern) => pattern.format(number),
+            OutputNaming::File(path) => path.clone(),
         }
     }
 
@@ -398,6 +477,10 @@ impl OutputNaming {
         match self {
             OutputNaming::Dir(dir) => dir,
             OutputNaming::Pattern(pattern) => pattern.dir(),
+            OutputNaming::File(path) => match path.parent() {
+                Some(dir) if !dir.as_os_str().is_empty() => dir,
+                _ => Path::new("."),
+            },
         }
     }
 }
@@ -408,6 +491,7 @@ impl fmt::Display for OutputNaming {
         match self {
             OutputNaming::Dir(dir) => write!(f, "{}", dir.display()),
             OutputNaming::Pattern(pattern) => write!(f, "{pattern}"),
+            OutputNaming::File(path) => write!(f, "{}", path.display()),
         }
     }
 }
@@ -692,6 +776,49 @@ mod tests {
         let out = OutputNaming::parse("ta.####").unwrap();
         assert_eq!(out.dir(), Path::new("."));
         assert_eq!(out.preview_path(Path::new("x"), 12), PathBuf::from("ta.0012.png"));
+    }
+
+    #[test]
+    fn output_format_comes_from_the_extension() {
+        let out = OutputNaming::parse("out/a.####.png").unwrap();
+        let f = |p: &Path| OutputFormat::of(p).unwrap();
+        assert_eq!(f(&out.path(Path::new("x"), 3)), OutputFormat::Png);
+        assert_eq!(f(Path::new("a.0001.JPG")), OutputFormat::Jpeg);
+        assert_eq!(f(Path::new("a.0001")), OutputFormat::Exr);
+        assert_eq!(f(Path::new("a.exr")), OutputFormat::Exr);
+        for (spec, says) in [
+            ("out/a.####.bmp", "unknown output format .bmp"),
+            ("out/a.####.tif", "TIFF output is not built in"),
+        ] {
+            let e = OutputNaming::parse(spec).unwrap_err().to_string();
+            assert!(e.contains(says) && e.contains(".exr, .png, .jpg or .jpeg"), "{e}");
+        }
+        // One frame may go to one file, of a format that is written.
+        let one = OutputNaming::parse_for("out/beauty.exr", 1).unwrap();
+        assert_eq!(one, OutputNaming::File(PathBuf::from("out/beauty.exr")));
+        assert_eq!(
+            one.path(Path::new("in/x.0005.exr"), 5),
+            PathBuf::from("out/beauty.exr")
+        );
+        assert_eq!(one.dir(), Path::new("out"));
+        assert_eq!(OutputNaming::parse_for("b.png", 1).unwrap().dir(), Path::new("."));
+        assert!(OutputNaming::parse_for("out/b.tiff", 1)
+            .unwrap_err()
+            .to_string()
+            .contains("TIFF"));
+        let e = OutputNaming::parse_for("out/beauty.exr", 2)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("one file cannot hold a sequence"), "{e}");
+        // An image format that is not written is no directory either.
+        for spec in ["out/beauty.tif", "out/beauty.DPX"] {
+            let e = OutputNaming::parse_for(spec, 2).unwrap_err().to_string();
+            assert!(e.contains(".exr, .png, .jpg or .jpeg"), "{spec}: {e}");
+        }
+        assert_eq!(
+            OutputNaming::parse_for("out/v1.2", 1).unwrap(),
+            OutputNaming::Dir(PathBuf::from("out/v1.2"))
+        );
     }
 
     #[test]

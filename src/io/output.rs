@@ -11,6 +11,9 @@
 //! `.reset`) and the frame's record as JSON (`afterimage.record`); a sparse-shading
 //! declaration (`afterimage.shading`) is dropped, since the output colour is dense.
 //!
+//! The output's extension picks its format ([`super::OutputFormat`]): OpenEXR as above, or
+//! PNG/JPEG holding the filtered colour alone as 8-bit sRGB, clamped to [0, 1].
+//!
 //! Alpha is passed through unchanged: filters work on colour alone. Where the input's
 //! colour is premultiplied by a coverage alpha (Blender's transparent film), the filtered
 //! colour of an edge pixel sits over the input's coverage of that pixel, which differs
@@ -198,11 +201,18 @@ type AnyImage = x::Image<x::Layers<x::AnyChannels<x::FlatSamples>>>;
 /// `path` (`.NAME.partial`) and renamed into place, so a reader, or a run that was killed
 /// and is resumed, never sees half a frame under the real name.
 pub fn write_filtered(path: &Path, frame: &FilteredFrame, opts: &OutputOptions) -> Result<(), IoError> {
-    let image = filtered_image(frame, opts, path)?;
+    let format = super::OutputFormat::of(path)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| IoError::os(dir, e))?;
     }
-    let (file, partial) = create_partial(path)?;
+    let (mut file, partial) = create_partial(path)?;
+    if format != super::OutputFormat::Exr {
+        let bytes = super::ldr::encode_ldr(frame.color, format, path)?;
+        std::io::Write::write_all(&mut file, &bytes).map_err(|e| IoError::os(&partial, e))?;
+        drop(file);
+        return std::fs::rename(&partial, path).map_err(|e| IoError::os(path, e));
+    }
+    let image = filtered_image(frame, opts, path)?;
     image
         .write()
         .to_buffered(std::io::BufWriter::new(file))
@@ -244,13 +254,17 @@ pub fn encode_filtered(frame: &FilteredFrame, opts: &OutputOptions) -> Result<Ve
 }
 
 /// Encodes a filtered frame bound for `path` (an object store, or a file written by a
-/// [`super::Storage`]) exactly as [`write_filtered`] writes it, blocks compressed on the pool.
+/// [`super::Storage`]) exactly as [`write_filtered`] writes it, in the format its extension
+/// names, EXR blocks compressed on the pool.
 pub fn encode_filtered_for(
     path: &Path,
     frame: &FilteredFrame,
     opts: &OutputOptions,
 ) -> Result<Vec<u8>, IoError> {
-    encode(frame, opts, path, true)
+    match super::OutputFormat::of(path)? {
+        super::OutputFormat::Exr => encode(frame, opts, path, true),
+        format => super::ldr::encode_ldr(frame.color, format, path),
+    }
 }
 
 fn encode(

@@ -23,6 +23,10 @@ pub enum Preset {
         /// The view layer name.
         layer: String,
     },
+    /// Nuke-style parts: colour in part `rgba` (`rgba.{R,G,B}`), every other channel under
+    /// the [`Preset::Afterimage`] names (parts `depth` with `Z`, `motion` with `X,Y`, ...),
+    /// motion in the internal convention unless `--motion-convention` says otherwise.
+    Nuke,
     /// A plain single-layer image: `R,G,B` is colour (and `Z` depth when present).
     Plain,
 }
@@ -59,6 +63,10 @@ impl Preset {
                     ChannelKind::Reference => None,
                 }
             }
+            Preset::Nuke => match kind {
+                ChannelKind::Color => Some(join("rgba.", &["R", "G", "B"])),
+                _ => Preset::Afterimage.names(kind),
+            },
             Preset::Plain => match kind {
                 ChannelKind::Color => Some(join("", &["R", "G", "B"])),
                 ChannelKind::Depth => Some(join("", &["Z"])),
@@ -71,7 +79,7 @@ impl Preset {
     pub fn motion_convention(&self) -> MotionConvention {
         match self {
             Preset::Blender { .. } => MotionConvention::BLENDER,
-            Preset::Afterimage | Preset::Plain => MotionConvention::INTERNAL,
+            Preset::Afterimage | Preset::Nuke | Preset::Plain => MotionConvention::INTERNAL,
         }
     }
 
@@ -80,7 +88,7 @@ impl Preset {
     pub fn motion_next_convention(&self) -> MotionConvention {
         match self {
             Preset::Blender { .. } => MotionConvention::BLENDER_NEXT,
-            Preset::Afterimage | Preset::Plain => MotionConvention::INTERNAL,
+            Preset::Afterimage | Preset::Nuke | Preset::Plain => MotionConvention::INTERNAL,
         }
     }
 
@@ -92,6 +100,9 @@ impl Preset {
         if let Some(c) = raw.channels.iter().find(|c| c.name.ends_with(".Combined.R")) {
             let layer = c.name.trim_end_matches(".Combined.R").to_string();
             return Some(Preset::Blender { layer });
+        }
+        if raw.channel("rgba.R").is_some() {
+            return Some(Preset::Nuke);
         }
         if raw.channel("R").is_some() {
             return Some(Preset::Plain);
@@ -106,6 +117,7 @@ impl fmt::Display for Preset {
             Preset::Afterimage => f.write_str("afterimage"),
             Preset::Blender { layer } if layer == "ViewLayer" => f.write_str("blender"),
             Preset::Blender { layer } => write!(f, "blender (layer {layer})"),
+            Preset::Nuke => f.write_str("nuke"),
             Preset::Plain => f.write_str("plain"),
         }
     }
@@ -121,22 +133,31 @@ pub enum PresetChoice {
     Afterimage,
     /// Force [`Preset::Blender`] (the layer name is still detected, `ViewLayer` if none).
     Blender,
+    /// Force [`Preset::Nuke`].
+    Nuke,
     /// Force [`Preset::Plain`].
     Plain,
 }
 
 impl PresetChoice {
     /// The names accepted by `FromStr`.
-    pub const NAMES: &'static str = "auto, afterimage, blender, plain";
+    pub const NAMES: &'static str = "auto, afterimage, blender, nuke, plain";
 
-    /// The preset for `raw`.
-    pub fn resolve(self, raw: &RawImage) -> Result<Preset, IoError> {
+    /// The preset for `raw`. `color_mapped` (an explicit `--channel color=...`) lets
+    /// detection fail: the other channels are then looked for under the
+    /// [`Preset::Afterimage`] names, so `--channel` alone reads any layout.
+    pub fn resolve(self, raw: &RawImage, color_mapped: bool) -> Result<Preset, IoError> {
         match self {
-            PresetChoice::Auto => Preset::detect(raw).ok_or_else(|| IoError::UnknownLayout {
-                path: raw.path.clone(),
-                present: raw.names(),
-            }),
+            PresetChoice::Auto => match Preset::detect(raw) {
+                Some(p) => Ok(p),
+                None if color_mapped => Ok(Preset::Afterimage),
+                None => Err(IoError::UnknownLayout {
+                    path: raw.path.clone(),
+                    present: raw.names(),
+                }),
+            },
             PresetChoice::Afterimage => Ok(Preset::Afterimage),
+            PresetChoice::Nuke => Ok(Preset::Nuke),
             PresetChoice::Plain => Ok(Preset::Plain),
             PresetChoice::Blender => Ok(match Preset::detect(raw) {
                 Some(p @ Preset::Blender { .. }) => p,
@@ -155,6 +176,7 @@ impl FromStr for PresetChoice {
             "auto" => Ok(PresetChoice::Auto),
             "afterimage" => Ok(PresetChoice::Afterimage),
             "blender" => Ok(PresetChoice::Blender),
+            "nuke" => Ok(PresetChoice::Nuke),
             "plain" => Ok(PresetChoice::Plain),
             _ => Err(IoError::Argument(format!(
                 "unknown preset {s:?}; expected one of {}",
@@ -226,7 +248,7 @@ impl ChannelSpec {
             ChannelSpec::Prefix(p) => {
                 let sets: &[&[&str]] = match kind.components() {
                     3 => &[&["R", "G", "B"], &["X", "Y", "Z"]],
-                    2 => &[&["X", "Y"], &["R", "G"], &["U", "V"]],
+                    2 => &[&["X", "Y"], &["R", "G"], &["U", "V"], &["u", "v"]],
                     _ => &[&["Z"], &["X"], &["R"], &["Y"], &["V"], &["id"]],
                 };
                 if kind.components() == 1 && raw.channel(p).is_some() {

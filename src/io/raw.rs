@@ -109,7 +109,8 @@ impl RawImage {
 
     /// The preset to use for this file under `opts` (detected when `auto`).
     pub fn preset(&self, opts: &ReadOptions) -> Result<Preset, IoError> {
-        opts.preset.resolve(self)
+        let color_mapped = opts.mapping.iter().any(|(k, _)| *k == ChannelKind::Color);
+        opts.preset.resolve(self, color_mapped)
     }
 
     /// The motion convention for this file under `opts`.

@@ -22,6 +22,10 @@ pub trait Storage: Send + Sync {
     fn list(&self, dir: &Path) -> Result<Vec<PathBuf>, IoError>;
     /// Removes `path`; no such file is not an error.
     fn delete(&self, path: &Path) -> Result<(), IoError>;
+    /// The files directly in `dir`, each with a stamp of its contents read without reading
+    /// them: size and modification time (and an object store's ETag). A file rewritten
+    /// gets another stamp.
+    fn stamps(&self, dir: &Path) -> Result<Vec<(PathBuf, String)>, IoError>;
 }
 
 /// The local file system: writes go to a hidden name beside the file
@@ -71,6 +75,22 @@ impl Storage for LocalFiles {
             _ => Ok(()),
         }
     }
+
+    fn stamps(&self, dir: &Path) -> Result<Vec<(PathBuf, String)>, IoError> {
+        self.list(dir)?
+            .into_iter()
+            .map(|p| {
+                // Through links, as the frames are read.
+                let m = std::fs::metadata(&p).map_err(|e| IoError::os(&p, e))?;
+                let modified = m
+                    .modified()
+                    .ok()
+                    .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                    .map_or(0, |d| d.as_nanos());
+                Ok((p, format!("{} bytes, modified {modified} ns", m.len())))
+            })
+            .collect()
+    }
 }
 
 /// Decodes the image at `path` in `storage`: any supported type from local files, OpenEXR
@@ -109,6 +129,12 @@ mod tests {
         assert_eq!(s.get(&p).unwrap().as_deref(), Some(&b"two"[..]));
         std::fs::create_dir(dir.path().join("a/sub")).unwrap();
         assert_eq!(s.list(&dir.path().join("a")).unwrap(), vec![p.clone()]);
+        let stamp = |s: &LocalFiles| s.stamps(&dir.path().join("a")).unwrap();
+        let before = stamp(&s);
+        assert_eq!(before.len(), 1);
+        assert!(before[0].1.starts_with("3 bytes"), "{before:?}");
+        s.put(&p, b"three").unwrap();
+        assert_ne!(stamp(&s), before, "a rewritten file is stamped anew");
         s.delete(&p).unwrap();
         s.delete(&p).unwrap();
         assert_eq!(s.get(&p).unwrap(), None);

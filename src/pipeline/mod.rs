@@ -20,8 +20,8 @@ pub use input::{prepare, Inputs};
 pub use params::{FilterParams, ParamKind, ParamSpec};
 pub use planner::FrameFacts;
 pub use record::{
-    summarize_stages, Backend, DeviceTimes, FrameRecord, InputCounts, ModelHealth, PixelCounts, Recorder,
-    Skip, StageRecord, StageSummary, UploadPrecision, WindowRecord,
+    missing_channels, summarize_stages, Backend, DeviceTimes, FrameRecord, InputCounts, ModelHealth,
+    PixelCounts, Recorder, Skip, StageRecord, StageSummary, UploadPrecision, WindowRecord,
 };
 pub use state::{FilterState, StateError};
 

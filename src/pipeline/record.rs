@@ -390,6 +390,32 @@ pub struct StageSummary {
     pub timing: Option<Timing>,
     /// Why it was left out the first time it was (None when it always ran).
     pub first_skip: Option<String>,
+    /// Every reason it was left out, with the frames it was left out for, in the order
+    /// each first appeared.
+    pub skips: Vec<(String, usize)>,
+}
+
+/// Frames on which some stage was left out for lack of each channel, in the order the
+/// channels first went missing: what the input lacked, counted per frame.
+pub fn missing_channels(records: &[FrameRecord]) -> Vec<(ChannelKind, usize)> {
+    let mut out: Vec<(ChannelKind, usize)> = Vec::new();
+    for r in records {
+        let mut this: Vec<ChannelKind> = Vec::new();
+        for s in &r.stages {
+            if let Some(Skip::MissingChannel { channel }) = s.skipped {
+                if !this.contains(&channel) {
+                    this.push(channel);
+                }
+            }
+        }
+        for channel in this {
+            match out.iter_mut().find(|(c, _)| *c == channel) {
+                Some((_, n)) => *n += 1,
+                None => out.push((channel, 1)),
+            }
+        }
+    }
+    out
 }
 
 /// Per-stage summaries of `records`, in the order the filter runs its stages.
@@ -407,6 +433,7 @@ pub fn summarize_stages(records: &[FrameRecord]) -> Vec<StageSummary> {
                             left_out: 0,
                             timing: None,
                             first_skip: None,
+                            skips: Vec::new(),
                         },
                         Vec::new(),
                     ));
@@ -421,8 +448,13 @@ pub fn summarize_stages(records: &[FrameRecord]) -> Vec<StageSummary> {
                 }
                 (None, why) => {
                     o.left_out += 1;
+                    let why = why.as_ref().map_or("-".into(), |w| w.to_string());
                     if o.first_skip.is_none() {
-                        o.first_skip = Some(why.as_ref().map_or("-".into(), |w| w.to_string()));
+                        o.first_skip = Some(why.clone());
+                    }
+                    match o.skips.iter_mut().find(|(w, _)| *w == why) {
+                        Some((_, n)) => *n += 1,
+                        None => o.skips.push((why, 1)),
                     }
                 }
             }
@@ -463,5 +495,45 @@ mod tests {
             Some("no history (first frame or reset)")
         );
         assert!(s[0].first_skip.is_none());
+        assert!(missing_channels(&records).is_empty());
+    }
+
+    /// Each reason a stage was left out is counted, and each missing channel once per frame
+    /// whatever the number of stages it left out.
+    #[test]
+    fn missing_channels_are_counted_per_frame() {
+        let motion = Skip::MissingChannel {
+            channel: ChannelKind::Motion,
+        };
+        let frame = |i: u64, depth: bool| {
+            let mut r = Recorder::new();
+            r.skip("reproject", motion.clone());
+            r.skip("dilate", motion.clone());
+            if depth {
+                r.skip(
+                    "depth_reject",
+                    Skip::MissingChannel {
+                        channel: ChannelKind::Depth,
+                    },
+                );
+            } else {
+                r.skip("depth_reject", Skip::NoHistory);
+            }
+            r.finish("t", i, PixelCounts::default(), InputCounts::default(), 0)
+        };
+        let records = [frame(1, false), frame(2, true), frame(3, true)];
+        assert_eq!(
+            missing_channels(&records),
+            [(ChannelKind::Motion, 3), (ChannelKind::Depth, 2)]
+        );
+        let s = summarize_stages(&records);
+        assert_eq!(s[0].skips, [("no motion channel".to_string(), 3)]);
+        assert_eq!(
+            s[2].skips,
+            [
+                ("no history (first frame or reset)".to_string(), 1),
+                ("no depth channel".to_string(), 2)
+            ]
+        );
     }
 }

@@ -79,32 +79,53 @@ pub fn passthrough_inputs(root: &Path) -> Vec<(&'static str, PathBuf)> {
 /// as `R`); the colour part in f16 with PIZ.
 fn split_into_parts(image: ExrImage) -> ExrImage {
     use exr::prelude::*;
+    let mut image = into_parts(&image, |full| {
+        let (prefix, last) = full.rsplit_once('.').unwrap();
+        Some((prefix.to_string(), last.to_string()))
+    });
+    for layer in &mut image.layer_data {
+        let name = layer.attributes.layer_name.as_ref().unwrap().to_string();
+        if name.ends_with("Combined") {
+            layer.encoding.compression = Compression::PIZ;
+            for ch in &mut layer.channel_data.list {
+                if let FlatSamples::F32(v) = &ch.sample_data {
+                    ch.sample_data = FlatSamples::F16(v.iter().map(|&x| f16::from_f32(x)).collect());
+                }
+            }
+        }
+    }
+    image
+}
+
+/// The one-part `image` rewritten as parts: `part_of(full channel name)` gives the part
+/// and the name the channel is written under in it, or None to leave the channel out.
+/// Parts come in the order their first channel does; each keeps the original part's
+/// attributes (named) and encoding.
+pub fn into_parts(image: &ExrImage, part_of: impl Fn(&str) -> Option<(String, String)>) -> ExrImage {
+    use exr::prelude::*;
     let layer = &image.layer_data[0];
     let mut groups: Vec<(String, Vec<AnyChannel<FlatSamples>>)> = Vec::new();
     for ch in &layer.channel_data.list {
-        let full = ch.name.to_string();
-        let (prefix, last) = full.rsplit_once('.').unwrap();
-        let color = prefix.ends_with("Combined");
-        let samples = match (&ch.sample_data, color) {
-            (FlatSamples::F32(v), true) => FlatSamples::F16(v.iter().map(|&x| f16::from_f32(x)).collect()),
-            (s, _) => s.clone(),
+        let Some((part, name)) = part_of(&ch.name.to_string()) else {
+            continue;
         };
-        let c = AnyChannel::new(last, samples);
-        match groups.iter_mut().find(|(p, _)| p == prefix) {
+        let c = AnyChannel::new(name.as_str(), ch.sample_data.clone());
+        match groups.iter_mut().find(|(p, _)| *p == part) {
             Some((_, list)) => list.push(c),
-            None => groups.push((prefix.to_string(), vec![c])),
+            None => groups.push((part, vec![c])),
         }
     }
     let layers: Vec<_> = groups
         .into_iter()
-        .map(|(prefix, list)| {
+        .map(|(part, list)| {
             let mut attributes = layer.attributes.clone();
-            attributes.layer_name = Some(Text::from(prefix.as_str()));
-            let mut encoding = layer.encoding;
-            if prefix.ends_with("Combined") {
-                encoding.compression = Compression::PIZ;
-            }
-            Layer::new(layer.size, attributes, encoding, AnyChannels::sort(list.into()))
+            attributes.layer_name = Some(Text::from(part.as_str()));
+            Layer::new(
+                layer.size,
+                attributes,
+                layer.encoding,
+                AnyChannels::sort(list.into()),
+            )
         })
         .collect();
     Image::from_layers(image.attributes.clone(), layers)

@@ -96,7 +96,7 @@ pub struct StagePlan {
     pub dilate: Option<Skip>,
     /// `reproject`: needs history, motion and some motion in the frame.
     pub reproject: Option<Skip>,
-    /// `depth_reject`: needs `depth_rejection > 0`, history and depth.
+    /// `depth_reject`: needs `depth_rejection > 0`, depth and history.
     pub depth_reject: Option<Skip>,
     /// `sharpen`: needs `sharpen > 0`.
     pub sharpen: Option<Skip>,
@@ -112,8 +112,8 @@ impl StagePlan {
             .then_some(Skip::Disabled {
                 param: "depth_rejection",
             })
-            .or_else(|| (!has_history).then_some(Skip::NoHistory))
-            .or_else(|| inp.require(ChannelKind::Depth));
+            .or_else(|| inp.require(ChannelKind::Depth))
+            .or_else(|| (!has_history).then_some(Skip::NoHistory));
         StagePlan {
             tonemap: inp.facts.tonemap(),
             dilate,

@@ -111,8 +111,8 @@ impl ReferenceTaa {
                 .then_some(Skip::Disabled {
                     param: "depth_rejection",
                 })
-                .or_else(|| no_history.clone())
-                .or_else(|| inp.require(ChannelKind::Depth)),
+                .or_else(|| inp.require(ChannelKind::Depth))
+                .or_else(|| no_history.clone()),
             || {
                 let d = inp.depth.as_deref().expect("required").data();
                 let prev = hist[DEPTH];
