@@ -319,3 +319,120 @@ fn report_is_deterministic_apart_from_timings() {
         }
     }
 }
+
+/// `tests/fixtures/corpus/<scene>/<part>` as a string.
+fn corpus(scene: &str, part: &str) -> String {
+    common::fixture(&format!("corpus/{scene}/{part}"))
+        .to_str()
+        .unwrap()
+        .to_string()
+}
+
+/// `report --input NAME=DIR --reference DIR` on Blender frames: one scene per shot, named
+/// as asked (or after the `SCENE/input` directory), and each cell's figures are `afterimage
+/// eval` of what `afterimage filter` writes for the same frames.
+#[test]
+fn report_on_blender_frames_matches_filter_then_eval() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    let (ok, _, err) = run(&[
+        "report",
+        "--input",
+        &format!("first={}", corpus("fence", "input")),
+        "--reference",
+        &corpus("fence", "reference"),
+        "--input",
+        &corpus("movers", "input"),
+        "--reference",
+        &corpus("movers", "reference"),
+        "--filters",
+        "taa,phlm",
+        "--timing-size",
+        "none",
+        "--upsampling-scenes",
+        "none",
+        "-j",
+        "2",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let scenes = r["scenes"].as_array().unwrap();
+    let names: Vec<&str> = scenes.iter().map(|s| s["scene"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        ["first", "movers"],
+        "no catalogue scene when shots are given"
+    );
+    assert!(out.join("strip_first.png").is_file());
+    for (scene, name) in [("fence", "first"), ("movers", "movers")] {
+        let sc = scenes.iter().find(|s| s["scene"] == name).unwrap();
+        for (k, filter) in ["taa", "phlm"].iter().enumerate() {
+            let cell = &sc["cells"][k];
+            assert_eq!(cell["filter"], *filter);
+            assert_eq!(cell["psnr_per_frame"].as_array().unwrap().len(), 8);
+            let filtered = dir.path().join(format!("{scene}-{filter}"));
+            let (ok, _, err) = run(&[
+                "filter",
+                "--filter",
+                filter,
+                "-i",
+                &corpus(scene, "input"),
+                "-o",
+                filtered.to_str().unwrap(),
+                "--float",
+            ]);
+            assert!(ok, "{err}");
+            let (ok, text, err) = run(&[
+                "eval",
+                "--input",
+                filtered.to_str().unwrap(),
+                "--reference",
+                &corpus(scene, "reference"),
+                "--json",
+            ]);
+            assert!(ok, "{err}");
+            let eval: Value = serde_json::from_str(&text).unwrap();
+            for key in ["mean_psnr", "mean_ssim", "trmse"] {
+                Tolerance::rel(1e-12)
+                    .check(
+                        &format!("{scene} {filter} {key}"),
+                        finite(&cell[key], key),
+                        finite(&eval["summary"][key], key),
+                    )
+                    .unwrap();
+            }
+        }
+    }
+    // A reference per input, in order.
+    let (ok, _, err) = run(&[
+        "report",
+        "--input",
+        &corpus("fence", "input"),
+        "--reference",
+        &corpus("fence", "reference"),
+        "--input",
+        &corpus("gi", "input"),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("2 --input but 1 --reference"), "{err}");
+    // A reference of another length is refused with both lengths.
+    let (ok, _, err) = run(&[
+        "report",
+        "--input",
+        &corpus("fence", "input"),
+        "--reference",
+        &format!("{}/frame_000[1-4].exr", corpus("fence", "reference")),
+        "--filters",
+        "taa",
+        "--timing-size",
+        "none",
+        "--upsampling-scenes",
+        "none",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("8 frames") && err.contains("has 4"), "{err}");
+}

@@ -1,6 +1,6 @@
 //! `afterimage report`: error against run time for every filter on every scene.
 
-use afterimage::report::{self, Config, FilterSpec, TimingSize};
+use afterimage::report::{self, Config, FilterSpec, Shot, TimingSize};
 use anyhow::Context;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -9,9 +9,23 @@ use std::path::PathBuf;
 /// Arguments of `report`.
 #[derive(Args, Debug)]
 pub struct ReportArgs {
-    /// Scenes, comma-separated (default: the whole catalogue; see `afterimage scene --list`).
+    /// Scenes, comma-separated (default: the whole catalogue, or none when shots are given
+    /// with --input or --corpus; see `afterimage scene --list`).
     #[arg(long, value_delimiter = ',')]
     scenes: Vec<String>,
+    /// A shot rendered elsewhere, `[NAME=]DIR` (a directory, pattern or glob of frames, every
+    /// channel its preset maps, jitter from the headers), run as a scene against the
+    /// --reference at the same position. Named after the directory (its parent's name when
+    /// it is called `input`) unless NAME is given. Repeatable.
+    #[arg(long = "input", value_name = "[NAME=]DIR", requires = "references")]
+    inputs: Vec<String>,
+    /// The reference frames of the --input at the same position. Repeatable.
+    #[arg(long = "reference", value_name = "DIR")]
+    references: Vec<String>,
+    /// A corpus: every SCENE/input with its SCENE/reference under DIR (the layout
+    /// `corpus/render.sh` writes), run as shots.
+    #[arg(long, value_name = "DIR")]
+    corpus: Option<PathBuf>,
     /// Filters, comma-separated, each NAME or NAME:key=value[:key=value] (default: every
     /// registered filter at its defaults; see `afterimage filters`).
     #[arg(long, value_delimiter = ',')]
@@ -77,8 +91,26 @@ fn config(args: &ReportArgs) -> anyhow::Result<Config> {
     } else {
         Config::standard()
     };
+    if args.inputs.len() != args.references.len() {
+        anyhow::bail!(
+            "{} --input but {} --reference: give one reference per input, in the same order",
+            args.inputs.len(),
+            args.references.len()
+        );
+    }
+    if let Some(dir) = &args.corpus {
+        c.shots = Shot::corpus(dir)?;
+    }
+    c.shots.extend(
+        args.inputs
+            .iter()
+            .zip(&args.references)
+            .map(|(i, r)| Shot::parse(i, r)),
+    );
     if !args.scenes.is_empty() {
         c.scenes = args.scenes.iter().map(|s| s.trim().to_string()).collect();
+    } else if !c.shots.is_empty() {
+        c.scenes.clear();
     }
     if !args.filters.is_empty() {
         c.filters = args

@@ -26,14 +26,14 @@ pub use table::{csv, markdown};
 
 use crate::backend::BackendChoice;
 use crate::filters;
-use crate::frame::{ChannelSet, Frame, Rgb};
-use crate::io::IoError;
+use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
+use crate::io::{IoError, ReadOptions, Sequence};
 use crate::metrics::{Evaluator, MetricSpace, MetricsError, SpaceChoice, Timing};
 use crate::pipeline::{params::parse_assignments, summarize_stages, FilterError, FrameRecord, StageSummary};
 use crate::scene::{Jitter, Scene, SceneError, Settings, CATALOGUE};
 use serde::Serialize;
 use serde_json::{Map, Value};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 use thiserror::Error;
 
@@ -79,6 +79,15 @@ pub enum ReportError {
         /// What the filter said.
         #[source]
         source: Box<FilterError>,
+    },
+    /// A shot's frames cannot be paired with its reference (lengths or sizes differ), or
+    /// a corpus directory holds no shots.
+    #[error("shot {shot}: {message}")]
+    Shot {
+        /// The shot's name.
+        shot: String,
+        /// What is wrong.
+        message: String,
     },
     /// A setting out of range (empty lists, zero frames, a strip frame past the end).
     #[error("{0}")]
@@ -243,6 +252,127 @@ impl FilterSpec {
     }
 }
 
+/// A shot rendered elsewhere (a user's frames, the Blender corpus): input frames read
+/// from disk with every channel their preset maps and the jitter their headers carry,
+/// and a reference sequence of the same length and size. The report runs it as it runs a
+/// catalogue scene.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct Shot {
+    /// Its name in tables and plots.
+    pub name: String,
+    /// The input frames: a directory, pattern, glob or file (see [`Sequence::open`]).
+    pub input: String,
+    /// The reference frames, frame for frame (colour only is read).
+    pub reference: String,
+}
+
+impl Shot {
+    /// A shot from `--input [NAME=]DIR` and `--reference DIR`. Without a name, the input's
+    /// last path component names it, or its parent's when that component is `input` (the
+    /// corpus layout, `SCENE/input`).
+    pub fn parse(input: &str, reference: &str) -> Shot {
+        let (name, input) = match input.split_once('=') {
+            Some((name, dir))
+                if !name.is_empty() && !name.contains(['/', '\\']) && !Path::new(input).exists() =>
+            {
+                (name.to_string(), dir.to_string())
+            }
+            _ => {
+                let path = Path::new(input.trim_end_matches(['/', '\\']));
+                let last = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+                let name = match last(path) {
+                    Some(n) if n == "input" => path.parent().and_then(last).unwrap_or(n),
+                    Some(n) => n,
+                    None => input.to_string(),
+                };
+                (name, input.to_string())
+            }
+        };
+        Shot {
+            name,
+            input,
+            reference: reference.to_string(),
+        }
+    }
+
+    /// Every shot of a corpus directory: each subdirectory with an `input` and a
+    /// `reference` directory (the layout `corpus/render.sh` writes), sorted by name.
+    pub fn corpus(dir: &Path) -> Result<Vec<Shot>, ReportError> {
+        let mut shots: Vec<Shot> = std::fs::read_dir(dir)
+            .map_err(|e| IoError::os(dir, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.join("input").is_dir() && p.join("reference").is_dir())
+            .map(|p| Shot {
+                name: p
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+                input: p.join("input").to_string_lossy().into_owned(),
+                reference: p.join("reference").to_string_lossy().into_owned(),
+            })
+            .collect();
+        if shots.is_empty() {
+            return Err(ReportError::Shot {
+                shot: dir.display().to_string(),
+                message: "no SCENE/input and SCENE/reference directories in it".into(),
+            });
+        }
+        shots.sort_by(|a, b| a.name.cmp(&b.name));
+        Ok(shots)
+    }
+
+    /// Frames in the input (0 when it cannot be opened; running it says why).
+    fn len(&self) -> usize {
+        Sequence::open(&self.input).map_or(0, |s| s.len())
+    }
+
+    /// Reads the input frames (channels by the detected preset, jitter from the headers)
+    /// with their reference attached; `tick` after each frame.
+    fn load(&self, tick: &mut dyn FnMut(&str)) -> Result<(Vec<Frame>, Vec<f64>), ReportError> {
+        let err = |message: String| ReportError::Shot {
+            shot: self.name.clone(),
+            message,
+        };
+        let input = Sequence::open(&self.input)?;
+        let reference = Sequence::open(&self.reference)?;
+        if input.len() != reference.len() {
+            return Err(err(format!(
+                "{} has {} frames but the reference {} has {}",
+                self.input,
+                input.len(),
+                self.reference,
+                reference.len()
+            )));
+        }
+        let opts = ReadOptions::default();
+        let mut frames = Vec::with_capacity(input.len());
+        let mut read_ms = Vec::with_capacity(input.len());
+        // Each frame's time runs from the end of the previous one's, so it includes the
+        // reading the iterators do.
+        let mut t = Instant::now();
+        for (frame, r) in input.frames(&opts).zip(reference.frames(&opts)) {
+            let (mut frame, r) = (frame?, r?);
+            if r.width() != frame.width() || r.height() != frame.height() {
+                return Err(err(format!(
+                    "frame {} is {}x{} but its reference is {}x{}",
+                    frames.len(),
+                    frame.width(),
+                    frame.height(),
+                    r.width(),
+                    r.height()
+                )));
+            }
+            frame
+                .set_f32(ChannelKind::Reference, r.into_color().into())
+                .map_err(|e| err(e.to_string()))?;
+            read_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            frames.push(frame);
+            tick(&format!("{}: read", self.name));
+            t = Instant::now();
+        }
+        Ok((frames, read_ms))
+    }
+}
+
 /// Size and length of the timing section's synthetic sequence.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct TimingSize {
@@ -259,6 +389,8 @@ pub struct TimingSize {
 pub struct Config {
     /// Catalogue scenes, in order.
     pub scenes: Vec<String>,
+    /// Shots read from disk, run after the catalogue scenes in the same tables.
+    pub shots: Vec<Shot>,
     /// Filters, in order.
     pub filters: Vec<FilterSpec>,
     /// How every scene is rendered (size, frames, reference samples, jitter, seed).
@@ -318,6 +450,7 @@ impl Config {
     pub fn standard() -> Config {
         Config {
             scenes: CATALOGUE.iter().map(|e| e.name.to_string()).collect(),
+            shots: Vec::new(),
             filters: FilterSpec::every(),
             render: Settings::default(),
             strip_frame: None,
@@ -356,13 +489,16 @@ impl Config {
     }
 
     fn validate(&self) -> Result<(), ReportError> {
-        if self.scenes.is_empty() {
-            return Err(ReportError::Config("no scenes to run".into()));
+        if self.scenes.is_empty() && self.shots.is_empty() {
+            return Err(ReportError::Config("no scenes or shots to run".into()));
         }
         if self.filters.is_empty() {
             return Err(ReportError::Config("no filters to run".into()));
         }
-        if let Some(f) = self.strip_frame.filter(|&f| f >= self.render.frames) {
+        if let Some(f) = self
+            .strip_frame
+            .filter(|&f| f >= self.render.frames && !self.scenes.is_empty())
+        {
             return Err(ReportError::Config(format!(
                 "strip frame {f} is past the end: the scenes have {} frames (0..={})",
                 self.render.frames,
@@ -404,7 +540,12 @@ impl Config {
     pub fn steps(&self) -> u64 {
         let n = self.render.frames;
         let filters = self.filters.len() as u64;
-        let scenes = self.scenes.len() as u64 * (n + filters * n);
+        let scenes = self.scenes.len() as u64 * (n + filters * n)
+            + self
+                .shots
+                .iter()
+                .map(|s| s.len() as u64 * (1 + filters))
+                .sum::<u64>();
         let timing = self.timing.map_or(0, |t| filters * (t.frames as u64 + 1));
         let upsampling = self.upsampling.as_ref().map_or(0, |u| {
             let filters = u.filters.len() as u64;
@@ -598,13 +739,18 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
         });
     };
     let bandwidth = measure_copy_bandwidth(config.copy_reps);
-    let n = config.render.frames as usize;
-    let strip_index = config.strip_frame.map_or(n - 1, |f| f as usize);
+    let strip_frame = config.strip_frame.map(|f| f as usize);
+    let sources: Vec<Source> = config
+        .scenes
+        .iter()
+        .map(|s| Source::Catalogue(s))
+        .chain(config.shots.iter().map(Source::Shot))
+        .collect();
     let (scenes, summary, mut strips) = run_scenes(
-        &config.scenes,
+        &sources,
         config.render,
         &config.filters,
-        strip_index,
+        strip_frame,
         &bandwidth,
         &mut tick,
     )?;
@@ -618,11 +764,12 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
     let upsampling = match &config.upsampling {
         None => None,
         Some(u) => {
+            let sources: Vec<Source> = u.scenes.iter().map(|s| Source::Catalogue(s)).collect();
             let (scenes, summary, more) = run_scenes(
-                &u.scenes,
+                &sources,
                 u.render(config.render),
                 &u.filters,
-                strip_index,
+                strip_frame,
                 &bandwidth,
                 &mut tick,
             )?;
@@ -655,35 +802,66 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
 
 type ScenesRun = (Vec<SceneReport>, Vec<FilterSummary>, Vec<Strip>);
 
-/// Renders each scene and runs each filter over it; per scene a report and a strip, per
-/// filter a summary over the scenes.
+/// What a row of the report runs on.
+enum Source<'a> {
+    /// A catalogue scene, rendered with the run's settings.
+    Catalogue(&'a str),
+    /// Frames read from disk.
+    Shot(&'a Shot),
+}
+
+/// Renders (or reads) each scene and runs each filter over it; per scene a report and a
+/// strip (of frame `strip_frame`, default the last), per filter a summary over the
+/// scenes.
 fn run_scenes(
-    names: &[String],
+    sources: &[Source],
     render: Settings,
     filters: &[FilterSpec],
-    strip_index: usize,
+    strip_frame: Option<usize>,
     bandwidth: &Bandwidth,
     tick: &mut dyn FnMut(&str),
 ) -> Result<ScenesRun, ReportError> {
-    let n = render.frames as usize;
     let mut scenes = Vec::new();
     let mut strips = Vec::new();
     let mut wall_by_filter: Vec<Vec<f64>> = vec![Vec::new(); filters.len()];
-    for name in names {
-        let scene = Scene::new(name, render).map_err(|source| ReportError::Scene {
-            scene: name.clone(),
-            source,
-        })?;
-        let mut render_ms = Vec::with_capacity(n);
-        let frames: Vec<Frame> = (0..n as u64)
-            .map(|i| {
-                let t = Instant::now();
-                let f = scene.frame(i);
-                render_ms.push(t.elapsed().as_secs_f64() * 1e3);
-                tick(&format!("{name}: render"));
-                f
-            })
-            .collect();
+    for source in sources {
+        let (name, description, frames, render_ms) = match source {
+            Source::Catalogue(name) => {
+                let scene = Scene::new(name, render).map_err(|source| ReportError::Scene {
+                    scene: name.to_string(),
+                    source,
+                })?;
+                let mut render_ms = Vec::with_capacity(render.frames as usize);
+                let frames: Vec<Frame> = (0..render.frames)
+                    .map(|i| {
+                        let t = Instant::now();
+                        let f = scene.frame(i);
+                        render_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                        tick(&format!("{name}: render"));
+                        f
+                    })
+                    .collect();
+                (
+                    name.to_string(),
+                    scene.def.description.to_string(),
+                    frames,
+                    render_ms,
+                )
+            }
+            Source::Shot(shot) => {
+                let (frames, read_ms) = shot.load(tick)?;
+                let description = format!("frames {}, reference {}", shot.input, shot.reference);
+                (shot.name.clone(), description, frames, read_ms)
+            }
+        };
+        let name = &name;
+        let strip_index = strip_frame.unwrap_or(frames.len().saturating_sub(1));
+        if strip_index >= frames.len() {
+            return Err(ReportError::Config(format!(
+                "strip frame {strip_index} is past the end: {name} has {} frames",
+                frames.len()
+            )));
+        }
         let reference = |f: &Frame| -> Rgb { f.reference().expect("scenes render a reference").clone() };
         let sparse = render.shading > 1;
         let label = if sparse {
@@ -703,8 +881,8 @@ fn run_scenes(
         for (k, spec) in filters.iter().enumerate() {
             let mut filter = spec.create()?.filter;
             let mut eval = Evaluator::new(SpaceChoice::Auto);
-            let mut records = Vec::with_capacity(n);
-            let mut wall = Vec::with_capacity(n);
+            let mut records = Vec::with_capacity(frames.len());
+            let mut wall = Vec::with_capacity(frames.len());
             // A windowed filter gives frame i after frame i + lookahead: outputs are
             // matched to frames in order, and a call's time is shared by what it gave.
             let mut done = 0usize;
@@ -749,7 +927,7 @@ fn run_scenes(
         }
         scenes.push(SceneReport {
             scene: label,
-            description: scene.def.description.to_string(),
+            description,
             space: strip.space,
             render: Timing::of(&render_ms),
             cells,

@@ -61,26 +61,44 @@ pub fn markdown(r: &Report) -> String {
     let s = &c.render;
     let mut o = String::new();
     let _ = writeln!(o, "# afterimage report\n");
+    if !c.scenes.is_empty() {
+        let _ =
+            write!(
+            o,
+            "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, {}seed {}. ",
+            c.scenes.len(),
+            s.width,
+            s.height,
+            s.frames,
+            s.spp,
+            s.jitter,
+            if s.noise { "noisy input (one-sample soft shadows), " } else { "" },
+            s.seed,
+        );
+    }
     let _ = writeln!(
         o,
-        "{} scenes at {}x{}, {} frames each, {} reference samples per pixel, jitter {:?}, {}seed {}. \
-         Copy bandwidth {:.1} GB/s ({} threads, {} MiB buffers, median of {}). \
+        "Copy bandwidth {:.1} GB/s ({} threads, {} MiB buffers, median of {}). \
          ms/frame is the wall time of filtering one frame (one `push`; a windowed filter's gives the \
          frame T/2 back); the floor is the bytes a filter must move per frame over that bandwidth. PSNR and SSIM are means over frames against the \
          reference; tRMSE charges flicker and lag.\n",
-        r.scenes.len(),
-        s.width,
-        s.height,
-        s.frames,
-        s.spp,
-        s.jitter,
-        if s.noise { "noisy input (one-sample soft shadows), " } else { "" },
-        s.seed,
         r.bandwidth.bytes_per_s / 1e9,
         r.bandwidth.threads,
         r.bandwidth.copy_bytes >> 20,
         r.bandwidth.copy.count
     );
+    if !c.shots.is_empty() {
+        let _ = writeln!(
+            o,
+            "{} shots read from disk, each at its own size and length against its own reference: {}.\n",
+            c.shots.len(),
+            c.shots
+                .iter()
+                .map(|s| format!("`{}` ({} against {})", s.name, s.input, s.reference))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     let _ = writeln!(o, "## All scenes (mean over {} scenes)\n", r.scenes.len());
     summary_table(&mut o, &r.summary);
     if let Some(t) = c.timing {
