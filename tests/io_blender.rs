@@ -20,9 +20,9 @@ fn load(dir: &str) -> Vec<Frame> {
     seq.frames(&blender()).collect::<Result<_, _>>().unwrap()
 }
 
-#[test]
-fn fixtures_load_with_every_channel() {
-    let all = ChannelSet::of(&[
+/// Every channel the `blender` preset maps.
+fn blender_channels() -> ChannelSet {
+    ChannelSet::of(&[
         ChannelKind::Color,
         ChannelKind::Depth,
         ChannelKind::Motion,
@@ -30,7 +30,12 @@ fn fixtures_load_with_every_channel() {
         ChannelKind::Normal,
         ChannelKind::ObjectId,
         ChannelKind::Albedo,
-    ]);
+    ])
+}
+
+#[test]
+fn fixtures_load_with_every_channel() {
+    let all = blender_channels();
     for (dir, n, w, h) in [
         ("blender-motion", 3, 320, 180),
         ("blender-fence/input", 4, 160, 90),
@@ -516,15 +521,7 @@ const CORPUS: [&str; 3] = ["fence", "gi", "movers"];
 #[test]
 fn corpus_subset_reads_every_channel_and_the_jitter_per_frame() {
     use afterimage::scene::halton_jitter;
-    let all = ChannelSet::of(&[
-        ChannelKind::Color,
-        ChannelKind::Depth,
-        ChannelKind::Motion,
-        ChannelKind::MotionNext,
-        ChannelKind::Normal,
-        ChannelKind::ObjectId,
-        ChannelKind::Albedo,
-    ]);
+    let all = blender_channels();
     let tol = Tolerance::abs(1e-6);
     for scene in CORPUS {
         let dir = common::fixture(&format!("corpus/{scene}/input"));
