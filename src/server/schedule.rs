@@ -142,13 +142,23 @@ impl Scheduler {
                 st.running += 1;
                 job
             };
-            let me = self.clone();
+            let done = Done(self.clone());
             (self.run)(Box::new(move || {
                 job();
-                me.lock().running -= 1;
-                me.dispatch();
+                drop(done);
             }));
         }
+    }
+}
+
+/// Gives a job's slot back and starts the next when dropped: after the job, or while a
+/// panic unwinds out of it.
+struct Done(Scheduler);
+
+impl Drop for Done {
+    fn drop(&mut self) {
+        self.0.lock().running -= 1;
+        self.0.dispatch();
     }
 }
 
@@ -245,6 +255,19 @@ mod tests {
             .collect();
         assert!(b_at[1] <= 3, "{order:?}");
         assert_eq!(order.len(), 10);
+    }
+
+    #[test]
+    fn a_job_that_panics_gives_its_slot_back() {
+        let s = Scheduler::new(1, |job| {
+            let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(job));
+        });
+        s.submit(share("k", "a", 1), || panic!("a job that panics"));
+        let ran = Arc::new(Mutex::new(false));
+        let r = ran.clone();
+        s.submit(share("k", "b", 1), move || *r.lock().unwrap() = true);
+        assert!(*ran.lock().unwrap(), "the next job ran in the freed slot");
+        assert_eq!(s.lock().running, 0);
     }
 
     #[test]
