@@ -254,8 +254,9 @@ pub struct TemporalState {
 }
 
 /// A filter's check of history planes loaded from a state file: `Err` names what is out
-/// of range and where. Given the planes and whether their colour is tonemapped.
-pub type PlaneCheck = fn(&[Plane<f32>], bool) -> Result<(), StateError>;
+/// of range and where. Given the planes, their channels per pixel and whether their
+/// colour is tonemapped.
+pub type PlaneCheck = fn(&[Plane<f32>], &[usize], bool) -> Result<(), StateError>;
 
 /// How a filter's history is converted between linear and tonemapped working space when a
 /// stream switches between LDR and HDR frames.
@@ -341,7 +342,7 @@ impl TemporalState {
         // would spread a NaN or an out-of-range value into every frame after.
         st.check_finite()?;
         if let Some(check) = self.check {
-            check(&st.planes, tonemapped)?;
+            check(&st.planes, &st.components, tonemapped)?;
         }
         if st.components != self.buffer.components() {
             return Err(StateError::Mismatch {

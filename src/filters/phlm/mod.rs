@@ -611,7 +611,7 @@ pub fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
 /// Checks loaded state texels: what the filter writes is a non-negative colour z (below
 /// 1 when tonemapped), an information matrix with a positive diagonal (it is positive
 /// definite), and a non-negative strike count and speed.
-fn check_state_texels(planes: &[Plane<f32>], tonemapped: bool) -> Result<(), StateError> {
+fn check_state_texels(planes: &[Plane<f32>], _: &[usize], tonemapped: bool) -> Result<(), StateError> {
     let Some(texels) = planes.first() else {
         return Ok(());
     };

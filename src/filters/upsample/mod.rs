@@ -279,6 +279,42 @@ pub struct Upsample {
 /// Upsample's history is linear colour whatever the frame's range: nothing to convert.
 fn keep_history(_: &mut [Plane<f32>], _: bool) {}
 
+/// Largest accumulated sample weight a `spatiotemporal` history holds: each frame adds at
+/// most the kernel's weight and keeps `decay` < 1 of the rest, so it stays within a few
+/// thousand; far above it, products of weights overflow f32.
+const MAX_HISTORY_WEIGHT: f32 = 1e6;
+
+/// Checks loaded history texels: colour non-negative, the `spatiotemporal` weight within
+/// [0, [`MAX_HISTORY_WEIGHT`]] and the `taa` count within [0, [`TAA_MAX_COUNT`]].
+fn check_history(planes: &[Plane<f32>], components: &[usize], _: bool) -> Result<(), StateError> {
+    let (Some(texels), Some(&n)) = (planes.first(), components.first()) else {
+        return Ok(());
+    };
+    let w = (texels.width() / n.max(1)).max(1);
+    for (i, t) in texels.data().chunks_exact(n.max(1)).enumerate() {
+        let bad = |what: &str, v: f32| {
+            Err(StateError::Plane {
+                plane: 0,
+                message: format!(
+                    "pixel ({}, {}): {what} is {v}, which the filter never writes",
+                    i % w,
+                    i / w
+                ),
+            })
+        };
+        if let Some(&c) = t.iter().take(3).find(|&&c| c < 0.0) {
+            return bad("a history colour", c);
+        }
+        if n == Method::Spatiotemporal.planes() && !(0.0..=MAX_HISTORY_WEIGHT).contains(&t[W]) {
+            return bad("the accumulated weight", t[W]);
+        }
+        if n == Method::Taa.planes() && !(0.0..=TAA_MAX_COUNT).contains(&t[3]) {
+            return bad("the sample count", t[3]);
+        }
+    }
+    Ok(())
+}
+
 impl FilterKind for Upsample {
     const NAME: &'static str = "upsample";
     const SUMMARY: &'static str =
@@ -307,7 +343,8 @@ impl FilterKind for Upsample {
         let n = params.method.planes();
         let layout: &[usize] = if n > 0 { &[n] } else { &[] };
         Upsample {
-            hist: TemporalState::with_components(layout, Conversion::Custom(keep_history)),
+            hist: TemporalState::with_components(layout, Conversion::Custom(keep_history))
+                .checked_by(check_history),
             params,
         }
     }
@@ -383,6 +420,26 @@ mod tests {
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
+
+    #[test]
+    fn a_loaded_history_out_of_range_is_refused() {
+        let mut f = Upsample::new(Params::default());
+        for i in 0..2 {
+            let mut frame = crate::report::synthetic_frame(12, 8, i);
+            frame.meta.index = i;
+            f.push(&frame).unwrap();
+        }
+        let good = f.save_state().unwrap();
+        f.load_state(&good).unwrap();
+        // A weight no frame can accumulate (products of weights overflow f32), then a
+        // negative colour: each named, the filter's history as it was.
+        for (k, v, what) in [(W, 2.2e38, "accumulated weight"), (R + 1, -1.0, "history colour")] {
+            let mut bad = good.clone();
+            bad.planes[0].data_mut()[13 * 9 + k] = v;
+            let e = f.load_state(&bad).unwrap_err().to_string();
+            assert!(e.contains("pixel (9, 0)") && e.contains(what), "{e}");
+        }
+    }
 
     /// The fused kernels give the reference's output, bit for bit, for every method and
     /// option, on every kind of sparse sequence (2x2, 4x4 and full shading), at odd sizes.
