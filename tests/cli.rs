@@ -557,7 +557,7 @@ fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
     assert_eq!(records["frames"].as_array().unwrap().len(), 4);
     assert_eq!(records["params"]["variant"], "baseline");
     assert_eq!(records["params"]["sharpen"], false);
-    assert_eq!(records["frames"][0]["stages"][3]["name"], "reproject");
+    assert_eq!(records["frames"][0]["stages"][4]["name"], "reproject");
     // The written frames are what the library computes, and the printed PSNR is theirs.
     let mut f = afterimage::filters::create(
         "traa",

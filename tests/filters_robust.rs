@@ -135,7 +135,7 @@ fn parameters_are_validated_with_the_bound_in_the_message() {
     );
     assert_eq!(
         err("taa", &["alhpa=0.2"]),
-        "filter taa has no parameter \"alhpa\"; its parameters: alpha, gamma, history_filter, dilation, luminance_weighting, depth_rejection, sharpen"
+        "filter taa has no parameter \"alhpa\"; its parameters: alpha, gamma, history_filter, dilation, luminance_weighting, depth_rejection, sharpen, pixel_filter, filter_width"
     );
     assert_eq!(
         err("taa", &["dilation=3"]),

@@ -250,9 +250,9 @@ fn reference_frame(
 /// Runs both for `frames` frames; returns the max |f32 - f64| over all outputs, the number
 /// of pixel-frames where it exceeded 1e-3, and the max over the last frame.
 fn compare(frames: u64) -> (f64, u64, f64) {
-    // The defaults, with the fetch and the clip this reference states: bilinear models
+    // The defaults, with the fetch, the clip and the input this reference states: bilinear models
     // and a hard reset of P at every failed box test, however far out (the Catmull-Rom
-    // fetch of beta, `clip_keep`, `clip_after`, `fail_keep`, `fail_ramp` and `speed_jump`
+    // fetch of beta, `clip_keep`, `clip_after`, `fail_keep`, the ramps and `speed_jump`
     // are checked against the scalar reference bit for bit, `phlm::tests`; this test is
     // about f32 against f64). The scene has no depth, so no dilation.
     let params = Params {
@@ -260,7 +260,10 @@ fn compare(frames: u64) -> (f64, u64, f64) {
         clip_keep: 0.0,
         clip_after: 1.0,
         fail_ramp: 0.0,
+        fail_ramp_box: 0.0,
         speed_jump: 0.0,
+        // The reference regresses on each pixel's own sample.
+        pixel_filter: afterimage::filters::reconstruct::PixelFilter::Box,
         ..Params::default()
     };
     let mut f = Phlm::new(params.clone());

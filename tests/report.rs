@@ -371,7 +371,7 @@ fn report_on_blender_frames_matches_filter_then_eval() {
         for (k, filter) in ["taa", "phlm"].iter().enumerate() {
             let cell = &sc["cells"][k];
             assert_eq!(cell["filter"], *filter);
-            assert_eq!(cell["psnr_per_frame"].as_array().unwrap().len(), 8);
+            assert_eq!(cell["psnr_per_frame"].as_array().unwrap().len(), 16);
             let filtered = dir.path().join(format!("{scene}-{filter}"));
             let (ok, _, err) = run(&[
                 "filter",
@@ -434,5 +434,63 @@ fn report_on_blender_frames_matches_filter_then_eval() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    assert!(!ok && err.contains("8 frames") && err.contains("has 4"), "{err}");
+    assert!(!ok && err.contains("16 frames") && err.contains("has 4"), "{err}");
+}
+
+/// `report --input ... --jitter-unknown`: the shot runs with every frame's jitter taken as
+/// 0 (the description says so, and the reconstructing filters give other figures than with
+/// the header's jitter), and with shots and no `--upsampling-scenes` the upsampling section
+/// runs the shot itself, shaded one pixel in 2x2 from its dense frames.
+#[test]
+fn report_takes_the_jitter_as_unknown_and_upsamples_the_shots() {
+    let dir = tempfile::tempdir().unwrap();
+    let report = |extra: &[&str], out: &str| -> Value {
+        let out = dir.path().join(out);
+        let (input, reference) = (corpus("movers", "input"), corpus("movers", "reference"));
+        let mut args = vec![
+            "report",
+            "--input",
+            &input,
+            "--reference",
+            &reference,
+            "--filters",
+            "taa",
+            "--timing-size",
+            "none",
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = run(&args);
+        assert!(ok, "{err}");
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+    };
+    let known = report(&[], "known");
+    let unknown = report(&["--jitter-unknown", "--upsampling-scenes", "none"], "unknown");
+    let desc = |r: &Value| r["scenes"][0]["description"].as_str().unwrap().to_string();
+    assert!(
+        desc(&unknown).ends_with("jitter taken as unknown"),
+        "{}",
+        desc(&unknown)
+    );
+    assert!(!desc(&known).contains("unknown"));
+    let psnr = |r: &Value| r["scenes"][0]["cells"][0]["mean_psnr"].as_f64().unwrap();
+    assert!(
+        psnr(&known) > psnr(&unknown),
+        "{} {}",
+        psnr(&known),
+        psnr(&unknown)
+    );
+    assert!(unknown["upsampling"].is_null());
+    let u = &known["upsampling"];
+    assert_eq!(u["factor"], 2);
+    let sc = &u["scenes"].as_array().unwrap()[..];
+    assert_eq!(sc.len(), 1);
+    assert_eq!(sc[0]["scene"], "movers-shading-2x2");
+    let cells = sc[0]["cells"].as_array().unwrap();
+    assert_eq!(cells.len(), 4);
+    for c in cells {
+        assert_eq!(c["psnr_per_frame"].as_array().unwrap().len(), 16);
+        assert!(c["mean_psnr"].as_f64().unwrap() > 15.0, "{c}");
+    }
 }

@@ -26,6 +26,11 @@ pub struct ReportArgs {
     /// `corpus/render.sh` writes), run as shots.
     #[arg(long, value_name = "DIR")]
     corpus: Option<PathBuf>,
+    /// Run the shots (--input, --corpus) as if their jitter were unknown: every frame's
+    /// `afterimage.jitter` is taken as 0, so the filters weigh the current samples at the
+    /// pixel centres (the case of a renderer that does not say where it sampled).
+    #[arg(long)]
+    jitter_unknown: bool,
     /// Filters, comma-separated, each NAME or NAME:key=value[:key=value] (default: every
     /// registered filter at its defaults; see `afterimage filters`).
     #[arg(long, value_delimiter = ',')]
@@ -54,10 +59,17 @@ pub struct ReportArgs {
     /// Timed frames per filter in the timing section (default 10; 3 with --quick).
     #[arg(long)]
     timing_frames: Option<usize>,
-    /// Scenes of the upsampling section (sparse shading), comma-separated, or `none` to
-    /// leave it out (default: flyover, moving-sphere, dynamic-light).
+    /// Scenes of the upsampling section (sparse shading), comma-separated, `shots` for the
+    /// --input/--corpus shots shaded sparsely from their dense frames, or `none` to leave
+    /// it out (default: flyover, moving-sphere, dynamic-light; the shots when shots are
+    /// given).
     #[arg(long, value_delimiter = ',')]
     upsampling_scenes: Vec<String>,
+    /// Filters of the upsampling section, comma-separated, each NAME or
+    /// NAME:key=value[:key=value] of a filter that takes sparse shading (default: each
+    /// `method` of `upsample`).
+    #[arg(long, value_delimiter = ',')]
+    upsampling_filters: Vec<String>,
     /// Block size of the upsampling section's sparse shading: 2 or 4.
     #[arg(long)]
     shading: Option<u32>,
@@ -107,6 +119,9 @@ fn config(args: &ReportArgs) -> anyhow::Result<Config> {
             .zip(&args.references)
             .map(|(i, r)| Shot::parse(i, r)),
     );
+    for shot in &mut c.shots {
+        shot.jitter_unknown = args.jitter_unknown;
+    }
     if !args.scenes.is_empty() {
         c.scenes = args.scenes.iter().map(|s| s.trim().to_string()).collect();
     } else if !c.shots.is_empty() {
@@ -133,17 +148,36 @@ fn config(args: &ReportArgs) -> anyhow::Result<Config> {
     }
     c.render.noise |= args.noise;
     c.strip_frame = args.strip_frame;
+    let has_shots = !c.shots.is_empty();
     match args.upsampling_scenes.as_slice() {
-        [] => {}
+        [] => {
+            // With shots and no catalogue scenes asked for, the section runs on the shots.
+            if let (true, Some(u)) = (has_shots, c.upsampling.as_mut()) {
+                u.scenes.clear();
+                u.shots = true;
+            }
+        }
         [none] if none.trim() == "none" => c.upsampling = None,
         scenes => {
             if let Some(u) = c.upsampling.as_mut() {
-                u.scenes = scenes.iter().map(|s| s.trim().to_string()).collect();
+                u.shots = scenes.iter().any(|s| s.trim() == "shots");
+                u.scenes = scenes
+                    .iter()
+                    .map(|s| s.trim().to_string())
+                    .filter(|s| s != "shots")
+                    .collect();
             }
         }
     }
     if let (Some(f), Some(u)) = (args.shading, c.upsampling.as_mut()) {
         u.factor = f;
+    }
+    if let (false, Some(u)) = (args.upsampling_filters.is_empty(), c.upsampling.as_mut()) {
+        u.filters = args
+            .upsampling_filters
+            .iter()
+            .map(|s| FilterSpec::parse(s))
+            .collect::<Result<_, _>>()?;
     }
     let frames = args.timing_frames.or(c.timing.map(|t| t.frames)).unwrap_or(10);
     match args.timing_size {

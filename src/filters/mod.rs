@@ -18,6 +18,7 @@ pub mod passes;
 pub mod passthrough;
 pub mod phlm;
 pub mod pixel_trace;
+pub mod reconstruct;
 mod registry;
 pub mod taa;
 pub mod traa;

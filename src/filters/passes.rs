@@ -1,6 +1,7 @@
 //! Whole-plane passes shared by the temporal filters, built on [`crate::kernels`] and run
 //! on the crate's pool by rows.
 
+use super::reconstruct::Reconstruction;
 use crate::frame::{ChannelKind, ChannelSet};
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::lanes::{block, each, Lanes, IOTA, LANES};
@@ -421,15 +422,18 @@ pub struct FrameResult {
 impl TemporalState {
     /// The frame every temporal filter runs: check that the frame has the channels `needs`
     /// (and full-resolution colour unless `sparse`), repair and plan the channels it `uses`
-    /// (stage `repair`), size the history and move it to this frame's working space, run
-    /// `body` (the filter's own stages, from tonemap to untonemap), make what it wrote the
-    /// history, and finish the record.
+    /// (stage `repair`), reconstruct the colour with `recon` (stage `reconstruct`), size
+    /// the history and move it to this frame's working space, run `body` (the filter's own
+    /// stages, from tonemap to untonemap), make what it wrote the history, and finish the
+    /// record.
+    #[allow(clippy::too_many_arguments)] // each a fact of the filter, passed as the rest are
     pub fn run(
         &mut self,
         filter: &'static str,
         needs: ChannelSet,
         uses: ChannelSet,
         sparse: bool,
+        recon: Reconstruction,
         frame: &Frame,
         body: impl FnOnce(FrameContext<'_, '_>) -> Result<FrameResult, FilterError>,
     ) -> Result<Output, FilterError> {
@@ -439,7 +443,8 @@ impl TemporalState {
             check_needs(filter, needs, frame)?;
         }
         let mut rec = Recorder::new();
-        let inp = prepare(frame, uses, &mut rec)?;
+        let mut inp = prepare(frame, uses, &mut rec)?;
+        recon.stage(&mut rec, &mut inp, frame.meta.jitter, &mut self.scratch);
         let hdr = inp.facts.hdr;
         let counts = inp.counts;
         let has_history = self.begin(frame, hdr)?;

@@ -303,6 +303,24 @@ impl Frame {
         Ok(f)
     }
 
+    /// This fully shaded frame as if only the pixels of `sampling` had been shaded: the
+    /// colour gathered at them ([`Frame::gather`]), every other channel and the metadata
+    /// kept. How a dense render stands in for a renderer's sparse shading (the report
+    /// runs `upsample` on real renders this way). A frame already shaded sparsely, or
+    /// an invalid `sampling`, is an error.
+    pub fn shaded_sparsely(mut self, sampling: Sampling) -> Result<Frame, FrameError> {
+        if !self.sampling.is_full() {
+            return Err(FrameError::Sampling(format!(
+                "the frame is already shaded one pixel in {0}x{0}",
+                self.sampling.factor
+            )));
+        }
+        let sparse = Frame::gather(&self.color, sampling)?;
+        self.color = sparse;
+        self.sampling = sampling;
+        Ok(self)
+    }
+
     /// Where the colour samples lie on the full-resolution grid.
     pub fn sampling(&self) -> Sampling {
         self.sampling

@@ -10,6 +10,7 @@ pub mod clip;
 pub mod color;
 pub mod lanes;
 pub mod neighborhood;
+pub mod reconstruct;
 pub mod sample;
 pub mod sharpen;
 pub mod sobel;

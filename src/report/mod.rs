@@ -26,7 +26,7 @@ pub use table::{csv, markdown};
 
 use crate::backend::BackendChoice;
 use crate::filters;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
+use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb, Sampling};
 use crate::io::{IoError, ReadOptions, Sequence};
 use crate::metrics::{Evaluator, MetricSpace, MetricsError, SpaceChoice, Timing};
 use crate::pipeline::{params::parse_assignments, summarize_stages, FilterError, FrameRecord, StageSummary};
@@ -264,6 +264,9 @@ pub struct Shot {
     pub input: String,
     /// The reference frames, frame for frame (colour only is read).
     pub reference: String,
+    /// Run as if the renderer had not said where its samples fell: every frame's jitter
+    /// is set to 0 (the filters then weigh the 3x3 samples at the pixel centres).
+    pub jitter_unknown: bool,
 }
 
 impl Shot {
@@ -292,6 +295,7 @@ impl Shot {
             name,
             input,
             reference: reference.to_string(),
+            jitter_unknown: false,
         }
     }
 
@@ -308,6 +312,7 @@ impl Shot {
                     .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
                 input: p.join("input").to_string_lossy().into_owned(),
                 reference: p.join("reference").to_string_lossy().into_owned(),
+                jitter_unknown: false,
             })
             .collect();
         if shots.is_empty() {
@@ -360,6 +365,9 @@ impl Shot {
                     r.width(),
                     r.height()
                 )));
+            }
+            if self.jitter_unknown {
+                frame.meta.jitter = [0.0, 0.0];
             }
             frame
                 .set_f32(ChannelKind::Reference, r.into_color().into())
@@ -416,6 +424,9 @@ pub struct UpsamplingConfig {
     pub filters: Vec<FilterSpec>,
     /// Block size (2 or 4).
     pub factor: u32,
+    /// Also run the main section's shots (`--input`, `--corpus`), each frame shaded
+    /// sparsely in the rotating order from its dense render ([`Frame::shaded_sparsely`]).
+    pub shots: bool,
 }
 
 impl UpsamplingConfig {
@@ -429,6 +440,7 @@ impl UpsamplingConfig {
                 .to_vec(),
             filters: FilterSpec::sparse(),
             factor: 2,
+            shots: false,
         }
     }
 
@@ -549,7 +561,16 @@ impl Config {
         let timing = self.timing.map_or(0, |t| filters * (t.frames as u64 + 1));
         let upsampling = self.upsampling.as_ref().map_or(0, |u| {
             let filters = u.filters.len() as u64;
+            let shots = if u.shots {
+                self.shots
+                    .iter()
+                    .map(|s| s.len() as u64 * (1 + filters))
+                    .sum::<u64>()
+            } else {
+                0
+            };
             u.scenes.len() as u64 * (n + filters * n)
+                + shots
                 + self.timing.map_or(0, |t| filters * (t.frames as u64 + 1))
         });
         scenes + timing + upsampling
@@ -764,7 +785,10 @@ pub fn run(config: &Config, progress: &mut dyn FnMut(&Progress)) -> Result<Repor
     let upsampling = match &config.upsampling {
         None => None,
         Some(u) => {
-            let sources: Vec<Source> = u.scenes.iter().map(|s| Source::Catalogue(s)).collect();
+            let mut sources: Vec<Source> = u.scenes.iter().map(|s| Source::Catalogue(s)).collect();
+            if u.shots {
+                sources.extend(config.shots.iter().map(|s| Source::SparseShot(s, u.factor)));
+            }
             let (scenes, summary, more) = run_scenes(
                 &sources,
                 u.render(config.render),
@@ -808,6 +832,8 @@ enum Source<'a> {
     Catalogue(&'a str),
     /// Frames read from disk.
     Shot(&'a Shot),
+    /// Frames read from disk, shaded sparsely with this block size.
+    SparseShot(&'a Shot, u32),
 }
 
 /// Renders (or reads) each scene and runs each filter over it; per scene a report and a
@@ -848,9 +874,25 @@ fn run_scenes(
                     render_ms,
                 )
             }
-            Source::Shot(shot) => {
-                let (frames, read_ms) = shot.load(tick)?;
-                let description = format!("frames {}, reference {}", shot.input, shot.reference);
+            Source::Shot(shot) | Source::SparseShot(shot, _) => {
+                let (mut frames, read_ms) = shot.load(tick)?;
+                if let Source::SparseShot(_, factor) = source {
+                    frames = frames
+                        .into_iter()
+                        .enumerate()
+                        .map(|(i, f)| f.shaded_sparsely(Sampling::rotating(*factor, i as u64)))
+                        .collect::<Result<_, _>>()
+                        .map_err(|e| ReportError::Shot {
+                            shot: shot.name.clone(),
+                            message: e.to_string(),
+                        })?;
+                }
+                let unknown = if shot.jitter_unknown {
+                    ", jitter taken as unknown"
+                } else {
+                    ""
+                };
+                let description = format!("frames {}, reference {}{unknown}", shot.input, shot.reference);
                 (shot.name.clone(), description, frames, read_ms)
             }
         };

@@ -485,9 +485,9 @@ async fn handle_stream(
             r = flush_stream(&svc, &caller, claimed, req, max_chunk) => {
                 send_replies(&tx, r).await;
             }
-            _ = tx.closed() => {
-                svc.metrics.error(SessionError::Cancelled.reason());
-            }
+            // A reset that arrives as the end of the request stream: what the flush had
+            // not given yet waits for nobody either.
+            _ = tx.closed() => abandon(&svc, claim.as_ref()),
         }
     }
 }

@@ -17,8 +17,10 @@ use crate::filters::passes::{dilate_skip, reproject_skip};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
+use crate::filters::reconstruct::Reconstruction;
 use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
+use crate::pipeline::Scratch;
 use crate::pipeline::{
     check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, ModelHealth,
     Output, PixelCounts, Recorder, StateError, UploadPrecision,
@@ -65,9 +67,9 @@ const PARTS: [(&str, usize); 3] = [
 // The parts are the whole state, in its order.
 const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
 
-/// Words of the shader's `Params` (`phlm.wgsl`: 19 four-byte fields, in
+/// Words of the shader's `Params` (`phlm.wgsl`: 20 four-byte fields, in
 /// [`GpuPhlm::param_words`]'s order).
-const PARAM_WORDS: usize = 19;
+const PARAM_WORDS: usize = 20;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
@@ -223,6 +225,7 @@ impl GpuPhlm {
             p.fail_keep.to_bits(),
             p.fail_ramp.to_bits(),
             p.speed_jump.to_bits(),
+            p.fail_ramp_box.to_bits(),
         ]
     }
 
@@ -316,7 +319,15 @@ impl GpuPhlm {
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+        let eff = self.params.effective();
+        Reconstruction::new(eff.pixel_filter, eff.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut Scratch::default(),
+        );
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
         let hdr = inp.facts.hdr;

@@ -42,6 +42,8 @@ struct Params {
     fail_ramp: f32,
     // phlm::Params::speed_jump (phlm::jump).
     speed_jump: f32,
+    // phlm::Params::fail_ramp_box (phlm::ramp).
+    fail_ramp_box: f32,
 }
 
 @group(0) @binding(0) var<storage, read> P: Params;
@@ -300,18 +302,25 @@ fn strikes(prev: f32, hit: f32) -> f32 {
     return STRIKE_DECAY * prev + hit;
 }
 
+// phlm::ramp: the ramp of a miss for the test box lo..hi, max(fail_ramp, fail_ramp_box *
+// the largest channel of hi - lo).
+fn ramp(lo: vec3<f32>, hi: vec3<f32>) -> f32 {
+    let e = hi - lo;
+    return max(P.fail_ramp, P.fail_ramp_box * max(max(e.x, e.y), e.z));
+}
+
 // phlm::miss: how much of a failure a box test is, from the prediction q and where the
-// clip took it (w = 1 when it moved): min(1, d / fail_ramp), d the largest channel of
-// |q - c|; 1 with no ramp, 0 inside the box.
-fn miss(q: vec3<f32>, c: vec4<f32>) -> f32 {
+// clip took it (w = 1 when it moved): min(1, d / r), d the largest channel of |q - c|;
+// 1 with no ramp, 0 inside the box.
+fn miss(q: vec3<f32>, c: vec4<f32>, r: f32) -> f32 {
     if c.w == 0.0 {
         return 0.0;
     }
-    if P.fail_ramp == 0.0 {
+    if r == 0.0 {
         return 1.0;
     }
     let d = abs(q - c.xyz);
-    return min(max(max(d.x, d.y), d.z) / P.fail_ramp, 1.0);
+    return min(max(max(d.x, d.y), d.z) / r, 1.0);
 }
 
 // phlm::jump: how many times a failure counts where the speed changed (1 to 2).
@@ -570,7 +579,7 @@ fn phlm_pixel(x: u32, y: u32) {
         let clipped = clip_toward_point(q, cur, blo, bhi);
         // A failure clips once it persists (clip_after); before, it relaxes R (fail_keep).
         // Each counts, and relaxes, as much as it missed by (fail_ramp).
-        let hit = miss(q, clipped) * jump(speed, v_prev);
+        let hit = miss(q, clipped, ramp(blo, bhi)) * jump(speed, v_prev);
         s = strikes(s_prev, hit);
         if hit > 0.0 && s >= P.clip_after {
             atomicAdd(&wg_counts[C_CLIPPED], 1u);

@@ -9,9 +9,11 @@ use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::backend::BackendError;
+use crate::filters::reconstruct::Reconstruction;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::{Frame, Plane};
 use crate::pipeline::params::build;
+use crate::pipeline::Scratch;
 use crate::pipeline::{
     check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
     PixelCounts, Recorder, StateError, UploadPrecision,
@@ -329,7 +331,14 @@ impl GpuTaa {
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         check_needs(Taa::NAME, Taa::needs(), frame)?;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Taa::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Taa::uses(), &mut rec)?;
+        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut Scratch::default(),
+        );
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
         let hdr = inp.facts.hdr;

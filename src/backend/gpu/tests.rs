@@ -186,12 +186,12 @@ fn assert_agree_within(g: &Output, c: &Output, what: &str, bounds: Bounds) -> (f
         assert_eq!(d.shaders_ms.is_some(), timestamps && shaders, "{what}: {d:?}");
         assert!(d.upload_ms > 0.0 && d.readback_ms >= 0.0, "{what}: {d:?}");
         // The filter's stages share the passes' device time (or the round trip without
-        // timestamps); `repair` runs on the host before the upload.
+        // timestamps); `repair` and `reconstruct` run on the host before the upload.
         let staged: f64 = g
             .record
             .stages
             .iter()
-            .filter(|s| s.name != "repair")
+            .filter(|s| s.name != "repair" && s.name != crate::filters::reconstruct::STAGE)
             .filter_map(|s| s.ms)
             .sum();
         let whole = d.shaders_ms.unwrap_or(d.upload_ms + d.readback_ms);
@@ -694,6 +694,48 @@ fn f16_upload_halves_the_colour_bytes_in_the_records() {
     }
 }
 
+/// The `reconstruct` stage filter `name` runs with `set`, if it has one and it is not
+/// `box`.
+fn reconstruction_of(name: &str, set: &[&str]) -> Option<crate::filters::reconstruct::Reconstruction> {
+    use crate::filters::reconstruct::{PixelFilter, Reconstruction};
+    let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
+    let values = parse_assignments(&set).unwrap();
+    let recon = match name {
+        "taa" => {
+            let p: crate::filters::taa::Params = crate::pipeline::params::build("taa", &values).unwrap();
+            Reconstruction::new(p.pixel_filter, p.filter_width)
+        }
+        "phlm" => {
+            let p: crate::filters::phlm::Params = crate::pipeline::params::build("phlm", &values).unwrap();
+            let p = p.effective();
+            Reconstruction::new(p.pixel_filter, p.filter_width)
+        }
+        _ => return None,
+    };
+    (recon.filter != PixelFilter::Box).then_some(recon)
+}
+
+/// Each of `frames` (finite) with its colour repaired and reconstructed as the host does
+/// before the upload.
+fn reconstructed(frames: &[Frame], recon: crate::filters::reconstruct::Reconstruction) -> Vec<Frame> {
+    use crate::frame::{ChannelKind, ChannelSet};
+    frames
+        .iter()
+        .map(|f| {
+            let mut rec = crate::pipeline::Recorder::new();
+            let mut inp =
+                crate::pipeline::prepare(f, ChannelSet::of(&[ChannelKind::Color]), &mut rec).unwrap();
+            recon.stage(&mut rec, &mut inp, f.meta.jitter, &mut Default::default());
+            let color = inp.color.into_owned();
+            let mut out = f.clone();
+            for (dst, src) in out.color_mut().into_iter().zip(&color) {
+                dst.copy_from_slice(src.data());
+            }
+            out
+        })
+        .collect()
+}
+
 /// Each of `frames` with its colour rounded as the f16 upload rounds it.
 fn rounded_to_f16(frames: &[Frame]) -> Vec<Frame> {
     frames
@@ -751,7 +793,11 @@ const PHLM_ROUNDED_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-2);
 ///   with `on_clip=shift`; 4.8% with the defaults on `flyover`): a failed box test that
 ///   waits (`clip_after`) keeps its model, and how long the largest-trace model lives turns
 ///   on whether the rounded colour left the box. On the rounded colour itself the GPU's
-///   largest trace(P) is within 0.07% of the CPU's ([`TRACE_TOLERANCE`]).
+///   largest trace(P) is within 0.07% of the CPU's ([`TRACE_TOLERANCE`]). The `reconstruct`
+///   stage spreads the `hdr` sequences' fireflies of 1e4 over their 3x3 (a neighbour
+///   takes ~2e3, where one f16 step is 1 or 2), and a frame without a firefly of its own
+///   is compared in linear space: there the outliers are bounded relatively too, 2%
+///   (1.6% measured: 7x1 `hdr`, 74.75 against 73.59, `on_clip=shift`).
 fn f16_bounds(filter: &str) -> Bounds {
     let (tol, outliers, outlier, count_slack, trace) = match filter {
         "passthrough" => (
@@ -765,10 +811,11 @@ fn f16_bounds(filter: &str) -> Bounds {
         "taa" => (F16_TOLERANCE, 0.07, 0.1, 0.035, TRACE_TOLERANCE.rel),
         _ => (F16_TOLERANCE, 0.2, 0.6, 0.04, 0.12),
     };
+    let outlier_rel = if filter == "phlm" { 0.02 } else { 0.0 };
     Bounds {
         tol,
         outliers,
-        outlier_tol: Tolerance::abs(outlier),
+        outlier_tol: Tolerance::new(outlier, outlier_rel),
         count_slack,
         trace_tol: Tolerance::rel(trace),
         tonemapped: filter == "fxaa",
@@ -804,8 +851,15 @@ fn compare_f16(name: &str, set: &[&str], frames: &[Frame], what: &str) -> (Moved
     }
     let mut gpu = make(name, set, BackendChoice::GpuF16);
     let mut cpu = make(name, set, BackendChoice::Cpu);
-    let mut rounded_cpu = make(name, set, BackendChoice::Cpu);
-    let rounded = rounded_to_f16(frames);
+    // The upload rounds the colour after the host's `reconstruct` stage: the CPU filter
+    // on the rounded colour takes the reconstruction rounded, and does not reconstruct.
+    let recon = reconstruction_of(name, set);
+    let own: Vec<&str> = set.iter().copied().chain(["pixel_filter=box"]).collect();
+    let mut rounded_cpu = make(name, if recon.is_some() { &own } else { set }, BackendChoice::Cpu);
+    let rounded = rounded_to_f16(&match recon {
+        Some(r) => reconstructed(frames, r),
+        None => frames.to_vec(),
+    });
     // Where the colour has NaN or infinite samples the CPU repairs them from their
     // unrounded neighbours before the upload rounds them, which rounding first cannot
     // repeat: there the f16 filter is compared with the CPU filter alone.
@@ -815,11 +869,19 @@ fn compare_f16(name: &str, set: &[&str], frames: &[Frame], what: &str) -> (Moved
     let (mut g16, mut c16) = (Moved::default(), Moved::default());
     let mut samples = 0usize;
     for (i, (f, r)) in frames.iter().zip(&rounded).enumerate() {
-        let (g, c, rc) = (
+        let (g, c, mut rc) = (
             gpu.process(f).unwrap(),
             cpu.process(f).unwrap(),
             rounded_cpu.process(r).unwrap(),
         );
+        if recon.is_some() {
+            // The test ran the reconstruction itself, before the rounding.
+            let stage = crate::filters::reconstruct::STAGE;
+            let done = g.record.stage(stage).cloned().expect("reconstructed");
+            for st in rc.record.stages.iter_mut().filter(|st| st.name == stage) {
+                *st = done.clone();
+            }
+        }
         let what = format!("{name} {set:?} {what} frame {i}");
         if finite {
             let what = format!("{what}: f16 against the CPU on rounded colour");

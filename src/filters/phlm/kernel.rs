@@ -602,16 +602,23 @@ fn jump_lanes(v: &Lanes, v_prev: &Lanes, speed_jump: f32) -> f32x8 {
     one + lanes::min_of(d, one)
 }
 
+/// [`super::ramp`] in lanes.
+fn ramp_lanes(lo: &[Lanes; 3], hi: &[Lanes; 3], p: &Params) -> f32x8 {
+    let e = |c: usize| lanes::v(&hi[c]) - lanes::v(&lo[c]);
+    let extent = lanes::max_of(lanes::max_of(e(0), e(1)), e(2));
+    lanes::max_of(f32x8::splat(p.fail_ramp), f32x8::splat(p.fail_ramp_box) * extent)
+}
+
 /// [`super::miss`] in lanes: 0 where `moved` is clear, else `min(1, d / ramp)` with `d`
 /// the largest channel of `|pred - clipped|` (1 where `ramp` is 0).
-fn miss_lanes(pred: &[Lanes; 3], clipped: &[Lanes; 3], moved: u32, ramp: f32) -> f32x8 {
+fn miss_lanes(pred: &[Lanes; 3], clipped: &[Lanes; 3], moved: u32, ramp: f32x8) -> f32x8 {
     let m = lanes::mask_of_bits(moved);
-    if ramp == 0.0 {
-        return m.select(f32x8::splat(1.0), f32x8::splat(0.0));
-    }
     let d = |c: usize| (lanes::v(&pred[c]) - lanes::v(&clipped[c])).abs();
     let d = lanes::max_of(lanes::max_of(d(0), d(1)), d(2));
-    let share = lanes::min_of(d / f32x8::splat(ramp), f32x8::splat(1.0));
+    let one = f32x8::splat(1.0);
+    let share = ramp
+        .simd_eq(f32x8::splat(0.0))
+        .select(one, lanes::min_of(d / ramp, one));
     m.select(share, f32x8::splat(0.0))
 }
 
@@ -665,7 +672,7 @@ fn model_row(
         let moved = moved & active;
         // A failure clips once it persists (`clip_after`): [`miss`](super::miss) and
         // [`strikes`](super::strikes) in `f32x8`, the same operations in the same order.
-        let hit = miss_lanes(&pred_ycocg, &clipped, moved, p.fail_ramp)
+        let hit = miss_lanes(&pred_ycocg, &clipped, moved, ramp_lanes(&lo, &hi, p))
             * jump_lanes(&f.speed, &f.state[V], p.speed_jump);
         let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + hit;
         let zero = f32x8::splat(0.0);

@@ -74,6 +74,7 @@ pub mod reference;
 pub mod rls;
 
 use super::passes::{Conversion, TemporalState};
+use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{bilinear, catmull_rom, tonemap};
@@ -110,7 +111,8 @@ pub enum Variant {
     /// `lambda` for every pixel (`lambda_moving = 0`), no velocity dilation, bilinear model
     /// fetch, `p0 = clip_p = 1000`, and a hard reset on clip (`clip_keep = 0`) at every
     /// failed box test, however far out and whatever the pixel's speed did (`clip_after =
-    /// 1`, `fail_ramp = 0`, `speed_jump = 0`); these nine parameters are then overridden
+    /// 1`, `fail_ramp = fail_ramp_box = 0`, `speed_jump = 0`) on each pixel's own sample
+    /// (`pixel_filter = box`); these eleven parameters are then overridden
     /// ([`Params::effective`]).
     Paper,
 }
@@ -146,7 +148,7 @@ filter_params! {
             "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
         variant: Variant = Variant::Tuned,
             ParamKind::Choice { options: &["tuned", "paper"], },
-            "tuned (the parameters as given; defaults measured on the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = 0, speed_jump = 0)";
+            "tuned (the parameters as given; defaults measured on the Blender corpus and the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = fail_ramp_box = 0, speed_jump = 0, pixel_filter = box)";
         p0: f32 = DEFAULT_P0,
             ParamKind::Float { min: 1e-3, max: 1e6 },
             "diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
@@ -192,18 +194,27 @@ filter_params! {
         fail_ramp: f32 = DEFAULT_FAIL_RAMP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "how far outside its box (the largest YCoCg channel of the working space) a prediction must be to count as a whole failure: a miss by d adds h = min(1, d / fail_ramp) to the count of clip_after and relaxes R with 1 - h (1 - fail_keep) (default 0.002; 0: every miss counts whole, the paper). Higher: misses by a sliver hardly count (still detail keeps its model, and the GPU and CPU agree at the box's edge); a slow real change (a moving light) is followed later";
+        fail_ramp_box: f32 = DEFAULT_FAIL_RAMP_BOX,
+            ParamKind::Float { min: 0.0, max: 4.0 },
+            "the ramp of a miss grows with the box: a miss counts whole from max(fail_ramp, fail_ramp_box * the box's extent) on (the largest YCoCg channel of its max - min). Where the 3x3 is noisy (a path tracer's 1 spp) or jittered detail spans it, a converged model's misses are small against the box and hardly count; where it is flat, a small real change (a moving light) counts at once (0: the fixed fail_ramp alone)";
         speed_jump: f32 = DEFAULT_SPEED_JUMP,
             ParamKind::Float { min: 0.0, max: 1000.0 },
             "change of a pixel's speed (px/frame) at which a failed box test counts twice, so that it clips at once: a miss counts 1 + min(1, |v - v_prev| / speed_jump) times, v_prev the speed stored with the fetched history (default 1; 0: off). Lower: a surface that leaves a pixel (a spoke passing, a disocclusion) is cut sooner; higher: still content under a moving neighbour keeps its model";
         clip_keep: f32 = DEFAULT_CLIP_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
+        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
+            ParamKind::Choice { options: PIXEL_FILTERS },
+            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+        filter_width: f32 = DEFAULT_FILTER_WIDTH,
+            ParamKind::Float { min: 0.5, max: 4.0 },
+            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
     }
 }
 
 impl Params {
     /// The settings a frame runs with: these parameters, or with `variant = paper` the
-    /// paper's values of the nine it overrides ([`Variant::Paper`]).
+    /// paper's values of the eleven it overrides ([`Variant::Paper`]).
     pub fn effective(&self) -> Params {
         match self.variant {
             Variant::Tuned => self.clone(),
@@ -216,6 +227,9 @@ impl Params {
                 clip_keep: 0.0,
                 clip_after: PAPER_CLIP_AFTER,
                 fail_ramp: 0.0,
+                fail_ramp_box: 0.0,
+                // Algorithm 1 regresses on each pixel's own sample.
+                pixel_filter: PixelFilter::Box,
                 // No effect on the output once every whole failure clips; set so that the
                 // count in the state is the paper's too.
                 speed_jump: 0.0,
@@ -298,6 +312,21 @@ pub const PAPER_CLIP_AFTER: f32 = 1.0;
 /// 256x144: -0.04 / -0.07 / -0.10 / -0.20 dB against `taa`), and 0.0005 left a GPU
 /// variant's HDR pixel 0.02 from the CPU's (docs/phlm-ablations.md, table 13).
 pub const DEFAULT_FAIL_RAMP: f32 = 0.002;
+/// The share of the test box's extent from which a miss counts whole ([`ramp`]): 0.2
+/// (our choice, measured on the Blender corpus). A real render's jittered 1-spp samples
+/// make a converged prediction miss one frame's 3x3 box by a share of that box (a path
+/// tracer's noise, sub-pixel detail the frame's samples missed); counted whole, three
+/// such misses in a row clipped models that were right, most of what `phlm` lost to
+/// `taa` on the corpus' path-traced `gi` (-0.69 dB, jitter known). A fixed ramp large
+/// enough for that (0.03 to 0.05) let the catalogue's `dynamic-light`, a sun moving over a
+/// flat, noiseless box, lag (-0.21 to -0.61 dB against `taa`); a ramp that grows with the
+/// box counts such a change at once. On the corpus (jitter known / unknown, against
+/// `taa`; docs/corpus.md, "phlm's defaults") 0 / 0.1 / 0.15 / 0.2 give the mean +0.97 /
+/// +0.98 / +0.99 / +0.99 and +0.51 / +0.54 / +0.55 / +0.55 dB, the worst scene -0.69 /
+/// -0.44 / -0.34 / -0.25 (`gi`) and -0.38 / -0.19 / -0.12 / -0.12; on the catalogue
+/// (128x72, box references) +1.18 / +1.18 / +1.17 / +1.16 dB, no scene below `taa`, and
+/// its noisy variants +1.04 / +1.01 / +0.98 / +0.96.
+pub const DEFAULT_FAIL_RAMP_BOX: f32 = 0.2;
 /// The change of speed at which a failed box test clips at once ([`jump`]): 1 px/frame
 /// (our choice, measured on the catalogue's mean: `speed_jump` 0 (off) / 0.5 / 1 / 2
 /// give 30.72 / 30.85 / 30.86 / 30.82 dB at 128x72 and 32.92 / 33.23 / 33.23 / 33.18 at
@@ -341,6 +370,17 @@ pub(crate) fn miss(pred: [f32; 3], clipped: [f32; 3], moved: bool, ramp: f32) ->
         .max((pred[1] - clipped[1]).abs())
         .max((pred[2] - clipped[2]).abs());
     (d / ramp).min(1.0)
+}
+
+/// The ramp of [`miss`] for a test box `lo..hi` (YCoCg):
+/// `max(fail_ramp, fail_ramp_box * extent)`, the extent the largest channel of `hi - lo`. A converged model under a
+/// noisy or jittered 3x3 misses by a share of the box; under a flat one a real change of
+/// a few codes is all there is. The fused kernel and the GPU compute it with the same
+/// operations.
+#[inline(always)]
+pub(crate) fn ramp(lo: [f32; 3], hi: [f32; 3], p: &Params) -> f32 {
+    let extent = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(hi[2] - lo[2]);
+    p.fail_ramp.max(p.fail_ramp_box * extent)
 }
 
 /// How many times a failed box test counts where the pixel's speed changed: `1 +
@@ -548,6 +588,7 @@ impl FilterKind for Phlm {
         "Pixel History Linear Models (Iglesias-Guitian et al. 2016): per-pixel RLS linear models over a temporal feature, box-clipped, with bounded (regularized) forgetting";
     const STAGES: &'static [&'static str] = &[
         "repair",
+        "reconstruct",
         "tonemap",
         "ycocg",
         "dilate",
@@ -706,10 +747,15 @@ impl Filter for Phlm {
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         let p = self.params.effective();
-        self.hist
-            .run(Self::NAME, Self::needs(), Self::uses(), false, frame, |ctx| {
-                kernel::frame(&p, ctx)
-            })
+        self.hist.run(
+            Self::NAME,
+            Self::needs(),
+            Self::uses(),
+            false,
+            Reconstruction::new(p.pixel_filter, p.filter_width),
+            frame,
+            |ctx| kernel::frame(&p, ctx),
+        )
     }
 
     fn reset(&mut self) {
@@ -768,8 +814,9 @@ mod tests {
             &["lambda_moving=0.6", "lambda_speed=0.5"],
             &["lambda_moving=0"],
             &["clip_after=1"],
-            &["clip_after=1", "fail_ramp=0"],
+            &["clip_after=1", "fail_ramp=0", "fail_ramp_box=0"],
             &["clip_after=1.5", "fail_keep=0", "fail_ramp=0.3"],
+            &["fail_ramp_box=1", "fail_ramp=0"],
             &["fail_ramp=1", "fail_keep=0.6"],
             &["speed_jump=0"],
             &["speed_jump=0.2", "fail_ramp=0.05", "model_fetch=nearest"],
@@ -799,6 +846,13 @@ mod tests {
         frames.iter().map(|fr| f.process(fr).unwrap()).collect()
     }
 
+    /// [`run`] on each pixel's own sample (`pixel_filter=box`): the flat frames' colour
+    /// comes out exactly, where the reconstruction's normalised weights round it by an ulp.
+    fn run_own_samples(set: &[&str], frames: &[Frame]) -> Vec<Output> {
+        let set: Vec<&str> = set.iter().copied().chain(["pixel_filter=box"]).collect();
+        run(&set, frames)
+    }
+
     /// The variance box lies inside the min/max box: from the same models (frame 1 follows
     /// the same first frame) it clips more predictions.
     #[test]
@@ -807,12 +861,12 @@ mod tests {
             if !matches!(name, "still" | "random motion") {
                 continue;
             }
-            // Every failure clips (`clip_after = 1`, `fail_ramp = 0`), so frame 1 counts them.
+            // Every failure clips (`clip_after = 1`, whole misses), so frame 1 counts them.
             let clipped = |set: &[&str]| {
                 let set: Vec<&str> = set
                     .iter()
                     .copied()
-                    .chain(["clip_after=1", "fail_ramp=0"])
+                    .chain(["clip_after=1", "fail_ramp=0", "fail_ramp_box=0"])
                     .collect();
                 run(&set, &frames)[1].record.model.as_ref().unwrap().reset_by_clip
             };
@@ -919,7 +973,7 @@ mod tests {
             .map(|t| if t < 8 { frame(0.2, 0.0) } else { frame(0.8, -2.0) })
             .collect();
         for (set, first) in [(&[][..], 8), (&["speed_jump=0"], 10)] {
-            let out = run(set, &frames);
+            let out = run_own_samples(set, &frames);
             for t in 8..12 {
                 // The centre pixel: its history (2 px to the left) is on screen.
                 let err = (out[t].color[0].get(4, 3) - 0.8).abs();
@@ -976,7 +1030,7 @@ mod tests {
             (&["clip_after=1.875"], 11),
             (&["clip_after=1"], 8),
         ] {
-            let out = run(set, &frames);
+            let out = run_own_samples(set, &frames);
             for t in 8..13 {
                 assert_eq!(
                     clipped(&out, t),
@@ -1044,7 +1098,7 @@ mod tests {
             .1
     }
 
-    /// `variant = paper` runs exactly the nine settings it names, whatever they were set to.
+    /// `variant = paper` runs exactly the eleven settings it names, whatever they were set to.
     #[test]
     fn the_paper_variant_is_the_papers_settings() {
         let frames = random_motion(5, 9);
@@ -1055,7 +1109,9 @@ mod tests {
                 "clip_keep=0.9",
                 "clip_after=2",
                 "fail_ramp=0.5",
+                "fail_ramp_box=1",
                 "speed_jump=3",
+                "pixel_filter=gaussian",
             ],
             &frames,
         );
@@ -1069,7 +1125,9 @@ mod tests {
                 "clip_keep=0",
                 "clip_after=1",
                 "fail_ramp=0",
+                "fail_ramp_box=0",
                 "speed_jump=0",
+                "pixel_filter=box",
             ],
             &frames,
         );
@@ -1085,7 +1143,7 @@ mod tests {
         let frames = random_motion(6, 8);
         // The knobs of what a clip does, against a filter that clips at every failure
         // (six frames hold few failures three in a row).
-        let paper_clip = ["clip_after=1", "fail_ramp=0"];
+        let paper_clip = ["clip_after=1", "fail_ramp=0", "fail_ramp_box=0"];
         for (set, on) in [
             (&["test_box=variance"][..], &[][..]),
             (&["test_box=variance", "test_gamma=2"], &[]),
@@ -1098,8 +1156,9 @@ mod tests {
             (&["p0=1000"], &[]),
             (&["clip_after=1"], &[]),
             (&["fail_keep=1"], &[]),
-            (&["fail_ramp=0"], &[]),
+            (&["fail_ramp=0", "fail_ramp_box=0"], &[]),
             (&["fail_ramp=0.5"], &[]),
+            (&["fail_ramp_box=0"], &[]),
             (&["speed_jump=0"], &[]),
             (&["feature_alpha_min=0.03"], &[]),
             (&["variant=paper"], &[]),

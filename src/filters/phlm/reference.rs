@@ -7,10 +7,11 @@ use super::super::passes::{
     dilate_motion, dilate_skip, from_working, on_screen, reproject_skip, slices_mut, to_working, to_ycocg,
     Conversion, TemporalState,
 };
+use super::super::reconstruct::Reconstruction;
 use super::rls::{self, D, P_LEN};
 use super::{
-    convert_state, fail_relax, feature, fetch, fetch_model, jump, miss, strikes, Counts, From, Model, Params,
-    Phlm, TestBox, BETA, R, S, STATE_PLANES, V, Z,
+    convert_state, fail_relax, feature, fetch, fetch_model, jump, miss, ramp, strikes, Counts, From, Model,
+    Params, Phlm, TestBox, BETA, R, S, STATE_PLANES, V, Z,
 };
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
@@ -38,7 +39,13 @@ impl ReferencePhlm {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
         let p = self.params.effective();
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        Reconstruction::new(p.pixel_filter, p.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.hist.scratch,
+        );
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
@@ -196,8 +203,8 @@ impl ReferencePhlm {
                             clip_toward_point(pred_ycocg, [cur[0][i], cur[1][i], cur[2][i]], lo, hi);
                         // A failure clips once it persists (`clip_after`, [`strikes`]); how
                         // much of one it is, [`miss`] and [`jump`].
-                        let hit =
-                            miss(pred_ycocg, clipped, moved, p.fail_ramp) * jump(v, v_prev, p.speed_jump);
+                        let hit = miss(pred_ycocg, clipped, moved, ramp(lo, hi, &p))
+                            * jump(v, v_prev, p.speed_jump);
                         let (count, clip) = strikes(s_prev, hit, p.clip_after);
                         s = count;
                         if clip {

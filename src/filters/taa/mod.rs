@@ -23,6 +23,7 @@ mod kernel;
 pub mod reference;
 
 use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
+use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
 use crate::pipeline::{
@@ -65,6 +66,12 @@ filter_params! {
         sharpen: f32 = 0.0,
             ParamKind::Float { min: 0.0, max: 4.0 },
             "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
+        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
+            ParamKind::Choice { options: PIXEL_FILTERS },
+            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+        filter_width: f32 = DEFAULT_FILTER_WIDTH,
+            ParamKind::Float { min: 0.5, max: 4.0 },
+            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
     }
 }
 
@@ -137,6 +144,7 @@ impl FilterKind for Taa {
         "industry TAA: velocity dilation, Catmull-Rom history, YCoCg variance clipping, luminance-weighted blend";
     const STAGES: &'static [&'static str] = &[
         "repair",
+        "reconstruct",
         "tonemap",
         "ycocg",
         "dilate",
@@ -194,10 +202,15 @@ impl Filter for Taa {
 
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         let p = &self.params;
-        self.hist
-            .run(Self::NAME, Self::needs(), Self::uses(), false, frame, |ctx| {
-                kernel::frame(p, ctx)
-            })
+        self.hist.run(
+            Self::NAME,
+            Self::needs(),
+            Self::uses(),
+            false,
+            Reconstruction::new(p.pixel_filter, p.filter_width),
+            frame,
+            |ctx| kernel::frame(p, ctx),
+        )
     }
 
     fn reset(&mut self) {

@@ -6,6 +6,7 @@
 use super::super::passes::{
     from_working, on_screen, sharpen, slices_mut, to_working, to_ycocg, Reprojection, TemporalState,
 };
+use super::super::reconstruct::Reconstruction;
 use super::{HistoryFilter, Params, Taa, CG, CO, COUNT, DEPTH, MAX_COUNT, Y};
 use crate::frame::{ChannelKind, Frame, Plane, Rgb};
 use crate::kernels::{
@@ -35,7 +36,13 @@ impl ReferenceTaa {
         check_needs(Taa::NAME, Taa::needs(), frame)?;
         let p = self.params.clone();
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Taa::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Taa::uses(), &mut rec)?;
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.hist.scratch,
+        );
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;

@@ -49,6 +49,7 @@ mod kernel;
 pub mod reference;
 
 use super::passes::{Conversion, TemporalState};
+use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
 use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
 use crate::kernels::{lanes, tonemap, tonemap_inverse};
@@ -92,6 +93,12 @@ filter_params! {
         sharpen: bool = true,
             ParamKind::Bool,
             "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved";
+        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
+            ParamKind::Choice { options: PIXEL_FILTERS },
+            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+        filter_width: f32 = DEFAULT_FILTER_WIDTH,
+            ParamKind::Float { min: 0.5, max: 4.0 },
+            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
     }
 }
 
@@ -148,6 +155,7 @@ impl FilterKind for Traa {
         "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
     const STAGES: &'static [&'static str] = &[
         "repair",
+        "reconstruct",
         "tonemap",
         "dilate",
         "reproject",
@@ -248,10 +256,15 @@ impl Filter for Traa {
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         let p = &self.params;
         let near_far = frame.meta.near_far;
-        self.hist
-            .run(Self::NAME, Self::needs(), Self::uses(), false, frame, |ctx| {
-                kernel::frame(p, near_far, ctx)
-            })
+        self.hist.run(
+            Self::NAME,
+            Self::needs(),
+            Self::uses(),
+            false,
+            Reconstruction::new(p.pixel_filter, p.filter_width),
+            frame,
+            |ctx| kernel::frame(p, near_far, ctx),
+        )
     }
 
     fn reset(&mut self) {

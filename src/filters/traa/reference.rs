@@ -6,6 +6,7 @@
 use super::super::passes::{
     from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState,
 };
+use super::super::reconstruct::Reconstruction;
 use super::{
     feedback, mix, Params, Traa, Variant, DEPTH01, DEPTH_DISTANCE_MIN, SHARPEN_BASELINE, SHARPEN_IMPROVED,
     SOBEL, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
@@ -40,7 +41,13 @@ impl ReferenceTraa {
         let p = self.params.clone();
         let improved = p.variant == Variant::Improved;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Traa::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Traa::uses(), &mut rec)?;
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.hist.scratch,
+        );
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;

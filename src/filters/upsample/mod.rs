@@ -73,6 +73,7 @@ pub mod reference;
 mod spatial;
 mod temporal;
 
+use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
@@ -188,6 +189,12 @@ filter_params! {
         taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA,
             ParamKind::Float { min: 0.01, max: 1.0 },
             "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)";
+        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
+            ParamKind::Choice { options: PIXEL_FILTERS },
+            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+        filter_width: f32 = DEFAULT_FILTER_WIDTH,
+            ParamKind::Float { min: 0.5, max: 4.0 },
+            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
     }
 }
 
@@ -319,7 +326,14 @@ impl FilterKind for Upsample {
     const NAME: &'static str = "upsample";
     const SUMMARY: &'static str =
         "spatio-temporal upsampling of sparse shading (Herzog et al. 2010), with spatial, temporal and TAA-style baselines";
-    const STAGES: &'static [&'static str] = &["repair", "geometry", "reproject", "gradient", "blend"];
+    const STAGES: &'static [&'static str] = &[
+        "repair",
+        "reconstruct",
+        "geometry",
+        "reproject",
+        "gradient",
+        "blend",
+    ];
     type Params = Params;
     const SPARSE_INPUT: bool = true;
     fn needs() -> ChannelSet {
@@ -385,10 +399,15 @@ impl Filter for Upsample {
         let p = &self.params;
         let decay = decay_for(p, frame.sampling());
         let (sampling, near_far) = (frame.sampling(), frame.meta.near_far);
-        self.hist
-            .run(Self::NAME, Self::needs(), Self::uses(), true, frame, |ctx| {
-                kernel::frame(p, decay, sampling, near_far, ctx)
-            })
+        self.hist.run(
+            Self::NAME,
+            Self::needs(),
+            Self::uses(),
+            true,
+            Reconstruction::new(p.pixel_filter, p.filter_width),
+            frame,
+            |ctx| kernel::frame(p, decay, sampling, near_far, ctx),
+        )
     }
 
     fn reset(&mut self) {

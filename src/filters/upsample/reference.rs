@@ -3,6 +3,7 @@
 //! output (the tests compare them frame by frame); this stays the readable statement of
 //! what the filter computes.
 
+use super::super::reconstruct::Reconstruction;
 use super::spatial::{self, depth_range, Geometry, Sparse};
 use super::temporal::{cancelled, confidence, filter_gradients, reproject, signed_gradient, Validity};
 use super::{
@@ -41,7 +42,13 @@ impl ReferenceUpsample {
         let p = self.params.clone();
         let method = p.method;
         let mut rec = Recorder::new();
-        let inp = prepare(frame, Upsample::uses(), &mut rec)?;
+        let mut inp = prepare(frame, Upsample::uses(), &mut rec)?;
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.scratch,
+        );
         let (w, h) = (inp.width, inp.height);
         let sampling = frame.sampling();
         let stateful = method != Method::Spatial;

@@ -1,0 +1,183 @@
+//! The `reconstruct` stage of the temporal filters: the current frame's colour replaced by
+//! its reconstruction with the pixel filter the output is meant to converge to, at the
+//! samples' true (jittered) positions ([`crate::kernels::reconstruct`]).
+//!
+//! With the jitter known (the file's `afterimage.jitter`, `--jitter-from`, or the
+//! session's per-frame field) the 3x3 samples are weighted where they fell; with it
+//! unknown (0) they are weighted at the pixel centres, a fixed blur of the same width.
+//! `box` leaves the colour as it is: each pixel's own sample, which converges to the box
+//! integral over the pixel (what our procedural references are).
+
+use crate::frame::Rgb;
+use crate::kernels::reconstruct::{blackman_harris, edge_taps, gaussian, reconstruct_row, taps};
+use crate::pipeline::exec::for_rows;
+use crate::pipeline::{Inputs, Recorder, Scratch, Skip};
+use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
+
+/// The stage's name in every filter's records.
+pub const STAGE: &str = "reconstruct";
+
+/// The pixel filter of the image a temporal filter converges to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelFilter {
+    /// Each pixel's own sample: the box integral over the pixel (no reconstruction).
+    Box,
+    /// Cycles' default, Blackman-Harris over `+-filter_width` pixels.
+    BlackmanHarris,
+    /// Cycles' Gaussian, standard deviation `filter_width / 4`.
+    Gaussian,
+}
+
+/// The options a `pixel_filter` parameter offers, in [`PixelFilter`]'s order.
+pub const PIXEL_FILTERS: &[&str] = &["box", "blackman_harris", "gaussian"];
+
+/// Cycles' default pixel filter width, 1.5 px (Blender's Film panel; Blackman-Harris then
+/// reaches 1.5 px from the sample).
+pub const DEFAULT_FILTER_WIDTH: f32 = 1.5;
+
+/// How a frame is reconstructed: a filter and its width.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reconstruction {
+    /// The pixel filter.
+    pub filter: PixelFilter,
+    /// Its width in pixels (Cycles' convention).
+    pub width: f32,
+}
+
+impl Reconstruction {
+    /// No reconstruction (each pixel's own sample).
+    pub const NONE: Reconstruction = Reconstruction {
+        filter: PixelFilter::Box,
+        width: DEFAULT_FILTER_WIDTH,
+    };
+
+    /// A filter and its width (a filter's `pixel_filter` and `filter_width` parameters).
+    pub const fn new(filter: PixelFilter, width: f32) -> Reconstruction {
+        Reconstruction { filter, width }
+    }
+
+    /// The weight of a sample `v` pixels from the pixel centre along one axis.
+    fn weight(&self, v: f32) -> f32 {
+        match self.filter {
+            PixelFilter::Box => (v.abs() < 0.5) as u8 as f32,
+            PixelFilter::BlackmanHarris => blackman_harris(v, self.width),
+            PixelFilter::Gaussian => gaussian(v, self.width),
+        }
+    }
+
+    /// Why the stage is left out of a frame with inputs `inp`, if it is.
+    pub fn skip(&self, inp: &Inputs) -> Option<Skip> {
+        if self.filter == PixelFilter::Box {
+            Some(Skip::Disabled {
+                param: "pixel_filter",
+            })
+        } else if inp.color[0].size() != (inp.width, inp.height) {
+            Some(Skip::SparseInput)
+        } else {
+            None
+        }
+    }
+
+    /// `rgb`, jittered by `jitter` (pixels, x right, y down), reconstructed with this
+    /// filter into planes from `scratch`.
+    pub fn apply(&self, rgb: &Rgb, jitter: [f32; 2], scratch: &mut Scratch) -> Rgb {
+        let (w, h) = rgb[0].size();
+        let wx = taps(jitter[0], |v| self.weight(v));
+        let wy = taps(jitter[1], |v| self.weight(v));
+        let mut out: Rgb = scratch.planes(w, h);
+        let src = rgb.each_ref().map(|p| p.data());
+        // One pass over the three planes, a row of each per task.
+        for_rows(out.each_mut().map(|p| p.data_mut()), w, |y, rows| {
+            let (up, down) = (y.saturating_sub(1), (y + 1).min(h - 1));
+            let wy = edge_taps(wy, y, h);
+            let mut tmp = vec![0.0; w];
+            for (src, row) in src.iter().zip(rows) {
+                let line = |k: usize| &src[k * w..(k + 1) * w];
+                reconstruct_row([line(up), line(y), line(down)], wy, wx, &mut tmp, row);
+            }
+        });
+        out
+    }
+
+    /// The `reconstruct` stage: replaces `inp.color` by its reconstruction (or records why
+    /// it is left out). Every temporal filter runs it right after `repair`, the CPU's
+    /// reference and fused kernels and the GPU backend alike, so they see the same colour.
+    pub fn stage(&self, rec: &mut Recorder, inp: &mut Inputs, jitter: [f32; 2], scratch: &mut Scratch) {
+        if let Some(rgb) = rec.stage(STAGE, self.skip(inp), || self.apply(&inp.color, jitter, scratch)) {
+            if let Cow::Owned(old) = std::mem::replace(&mut inp.color, Cow::Owned(rgb)) {
+                scratch.recycle(old);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::{ChannelKind, ChannelSet};
+    use crate::frame::{Frame, Plane};
+    use crate::pipeline::prepare;
+    use crate::tolerance::Tolerance;
+
+    fn frame(w: usize, h: usize) -> Frame {
+        let rgb: Rgb = std::array::from_fn(|c| {
+            Plane::from_vec(
+                w,
+                h,
+                (0..w * h).map(|i| ((i * 7 + c * 3) % 11) as f32 / 10.0).collect(),
+            )
+            .unwrap()
+        });
+        Frame::new(rgb).unwrap()
+    }
+
+    #[test]
+    fn box_leaves_the_colour_alone_and_says_so() {
+        let f = frame(9, 5);
+        let mut rec = Recorder::new();
+        let mut inp = prepare(&f, ChannelSet::of(&[ChannelKind::Color]), &mut rec).unwrap();
+        Reconstruction::NONE.stage(&mut rec, &mut inp, [0.3, 0.1], &mut Scratch::default());
+        assert!(matches!(inp.color, Cow::Borrowed(_)));
+        let r = rec.finish("test", 0, Default::default(), Default::default(), 0);
+        assert_eq!(
+            r.stage(STAGE).unwrap().skipped,
+            Some(Skip::Disabled {
+                param: "pixel_filter"
+            })
+        );
+    }
+
+    #[test]
+    fn blackman_harris_moves_each_pixel_toward_its_neighbours_by_the_jitter() {
+        let f = frame(9, 5);
+        let bh = Reconstruction {
+            filter: PixelFilter::BlackmanHarris,
+            width: DEFAULT_FILTER_WIDTH,
+        };
+        let mut rec = Recorder::new();
+        let mut inp = prepare(&f, ChannelSet::of(&[ChannelKind::Color]), &mut rec).unwrap();
+        bh.stage(&mut rec, &mut inp, [0.5, 0.0], &mut Scratch::default());
+        assert!(matches!(inp.color, Cow::Owned(_)));
+        // Jitter +0.5 in x: the left neighbour's sample sits as far away as the pixel's own
+        // (0.5 px each way), so with a uniform column the two weigh the same.
+        let (l, c, r) = (
+            f.color()[0].data()[9 + 3],
+            f.color()[0].data()[9 + 4],
+            f.color()[0].data()[9 + 5],
+        );
+        let wx = taps(0.5, |v| blackman_harris(v, 1.5));
+        assert!(Tolerance::abs(1e-6).eq(wx[0] as f64, wx[1] as f64));
+        let wy = taps(0.0, |v| blackman_harris(v, 1.5));
+        let col = |x: usize| {
+            let d = f.color()[0].data();
+            (wy[0] * d[x] + wy[1] * d[9 + x] + wy[2] * d[18 + x]) as f64
+        };
+        let want = wx[0] as f64 * col(3) + wx[1] as f64 * col(4) + wx[2] as f64 * col(5);
+        assert!(
+            Tolerance::abs(1e-6).eq(inp.color[0].data()[9 + 4] as f64, want),
+            "{l} {c} {r}"
+        );
+    }
+}
