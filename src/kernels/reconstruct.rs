@@ -68,8 +68,10 @@ pub fn edge_taps(t: [f32; 3], i: usize, n: usize) -> [f32; 3] {
 /// width for the vertical pass, `wx` the horizontal taps (renormalised here at both ends).
 pub fn reconstruct_row(rows: [&[f32]; 3], wy: [f32; 3], wx: [f32; 3], tmp: &mut [f32], out: &mut [f32]) {
     let n = out.len();
-    for (x, t) in tmp.iter_mut().enumerate().take(n) {
-        *t = wy[0] * rows[0][x] + wy[1] * rows[1][x] + wy[2] * rows[2][x];
+    let tmp = &mut tmp[..n];
+    // Zipped slices, so that the loops carry no bounds checks and vectorise.
+    for (((t, a), b), c) in tmp.iter_mut().zip(rows[0]).zip(rows[1]).zip(rows[2]) {
+        *t = wy[0] * a + wy[1] * b + wy[2] * c;
     }
     if n == 1 {
         out[0] = tmp[0];
@@ -77,8 +79,8 @@ pub fn reconstruct_row(rows: [&[f32]; 3], wy: [f32; 3], wx: [f32; 3], tmp: &mut 
     }
     let [a, b, c] = edge_taps(wx, 0, n);
     out[0] = a * tmp[0] + b * tmp[0] + c * tmp[1];
-    for x in 1..n - 1 {
-        out[x] = wx[0] * tmp[x - 1] + wx[1] * tmp[x] + wx[2] * tmp[x + 1];
+    for (o, t) in out[1..n - 1].iter_mut().zip(tmp.windows(3)) {
+        *o = wx[0] * t[0] + wx[1] * t[1] + wx[2] * t[2];
     }
     let [a, b, c] = edge_taps(wx, n - 1, n);
     out[n - 1] = a * tmp[n - 2] + b * tmp[n - 1] + c * tmp[n - 1];
