@@ -250,14 +250,11 @@ fn still_scene(f: &mut dyn Filter, frames: u64) {
 /// number of frames.
 #[test]
 fn hdr_extremes_and_a_firefly_decay() {
-    let (w, h) = (12, 12);
-    let base = |x: usize, y: usize, c: usize| {
-        10f32.powf(-6.0 + 12.0 * ((y * w + x) as f32 / (w * h - 1) as f32)) * (1.0 + 0.1 * c as f32)
-    };
     // Frames until the firefly pixel is back within 1% (stated per filter).
     // Measured: phlm 7, taa 63, traa 58 (phlm 109 before `fail_ramp_box`, which changes
     // how the firefly's misses count; the bound keeps room for that chaos, below).
-    // taa/traa clip the firefly into the box the next frame, then forget the clipped excess at their feedback rate. In phlm the firefly
+    // taa/traa clip the firefly into the box the next frame, then forget the clipped
+    // excess at their feedback rate. In phlm the firefly
     // also enters the feature z of its 3x3 neighbourhood (the feature's low-pass), and a
     // model whose slope on z survives the clip keeps predicting part of it until z forgets
     // it at `feature_alpha_min` a frame (0.08: the excess is 23% at 20 frames, 5% at 40,
@@ -265,31 +262,45 @@ fn hdr_extremes_and_a_firefly_decay() {
     // that floor: 9 frames at 0.06, 78 at 0.07, 11 at 0.075; 30 with table 12's defaults
     // (0.03, a clip after three whole failures in a row; docs/phlm-ablations.md, table 13).
     for (name, within) in [("phlm", 120), ("taa", 70), ("traa", 64)] {
-        let mut f = filter(name, &[]);
-        let mut before = 0.0f32;
-        let mut back_at = None;
-        for t in 0..300u64 {
-            let fr = frame(w, h, t, |x, y, c| {
-                if t == 20 && (x, y) == (6, 3) {
-                    1e5
-                } else {
-                    base(x, y, c)
-                }
-            });
-            let out = f.process(&fr).unwrap();
-            assert!(max_abs(&out.color).is_finite(), "{name} frame {t}");
-            let v = out.color[1].get(6, 3);
-            if t == 19 {
-                before = v;
-            }
-            if t > 20 && back_at.is_none() && Tolerance::rel(0.01).eq(v as f64, before as f64) {
-                back_at = Some(t - 20);
-            }
-        }
-        let n = back_at.unwrap_or_else(|| panic!("{name}: the firefly never decayed"));
+        let n = firefly_decay(filter(name, &[]).as_mut(), name, |_, _| {});
         println!("{name}: firefly gone after {n} frames");
         assert!(n <= within, "{name}: firefly took {n} frames (> {within})");
     }
+}
+
+/// HDR from 1e-6 to 1e6 across a 12x12 image and a one-frame firefly of 1e5 at frame 20,
+/// each frame passed through `edit` (frame, index) before `f` filters it: asserts every
+/// output finite and non-negative; returns the frames until the firefly's pixel is back
+/// within 1% of its value before.
+fn firefly_decay(f: &mut dyn Filter, name: &str, edit: impl Fn(&mut Frame, u64)) -> u64 {
+    let (w, h) = (12, 12);
+    let base = |x: usize, y: usize, c: usize| {
+        10f32.powf(-6.0 + 12.0 * ((y * w + x) as f32 / (w * h - 1) as f32)) * (1.0 + 0.1 * c as f32)
+    };
+    let (mut before, mut back_at) = (0.0f32, None);
+    for t in 0..300u64 {
+        let mut fr = frame(w, h, t, |x, y, c| {
+            if t == 20 && (x, y) == (6, 3) {
+                1e5
+            } else {
+                base(x, y, c)
+            }
+        });
+        edit(&mut fr, t);
+        let out = f.process(&fr).unwrap();
+        assert!(
+            max_abs(&out.color).is_finite() && out.color.iter().all(|p| p.data().iter().all(|&v| v >= 0.0)),
+            "{name} frame {t}"
+        );
+        let v = out.color[1].get(6, 3);
+        if t == 19 {
+            before = v;
+        }
+        if t > 20 && back_at.is_none() && Tolerance::rel(0.01).eq(v as f64, before as f64) {
+            back_at = Some(t - 20);
+        }
+    }
+    back_at.unwrap_or_else(|| panic!("{name}: the firefly never decayed"))
 }
 
 /// NaN, +-Inf and negative colour: never in state (the output afterwards matches a run that
@@ -339,22 +350,10 @@ fn non_finite_and_negative_input_never_enter_state() {
 /// 3x3, is gone from the pixel within the stated number of frames.
 #[test]
 fn the_reconstruction_keeps_extremes_finite() {
-    let (w, h) = (12, 12);
-    let base = |x: usize, y: usize, c: usize| {
-        10f32.powf(-6.0 + 12.0 * ((y * w + x) as f32 / (w * h - 1) as f32)) * (1.0 + 0.1 * c as f32)
-    };
     // Measured: phlm 14, taa 55, traa 1 frames.
     for (name, within) in [("phlm", 40), ("taa", 80), ("traa", 80)] {
         let mut f = filter(name, &["pixel_filter=blackman_harris"]);
-        let (mut before, mut back_at) = (0.0f32, None);
-        for t in 0..300u64 {
-            let mut fr = frame(w, h, t, |x, y, c| {
-                if t == 20 && (x, y) == (6, 3) {
-                    1e5
-                } else {
-                    base(x, y, c)
-                }
-            });
+        let n = firefly_decay(f.as_mut(), name, |fr, t| {
             fr.meta.jitter = afterimage::scene::halton_jitter(t, 8);
             if t % 7 == 3 {
                 let [r, g, b] = fr.color_mut();
@@ -362,21 +361,7 @@ fn the_reconstruction_keeps_extremes_finite() {
                 g[40] = f32::INFINITY;
                 b[41] = -3.0;
             }
-            let out = f.process(&fr).unwrap();
-            assert!(
-                max_abs(&out.color).is_finite()
-                    && out.color.iter().all(|p| p.data().iter().all(|&v| v >= 0.0)),
-                "{name} frame {t}"
-            );
-            let v = out.color[1].get(6, 3);
-            if t == 19 {
-                before = v;
-            }
-            if t > 20 && back_at.is_none() && Tolerance::rel(0.01).eq(v as f64, before as f64) {
-                back_at = Some(t - 20);
-            }
-        }
-        let n = back_at.unwrap_or_else(|| panic!("{name}: the firefly never decayed"));
+        });
         println!("{name} with the reconstruction: firefly gone after {n} frames");
         assert!(n <= within, "{name}: firefly took {n} frames (> {within})");
     }
