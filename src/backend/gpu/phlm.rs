@@ -26,6 +26,7 @@ use crate::pipeline::{
     Output, PixelCounts, Recorder, StateError, UploadPrecision,
 };
 use serde_json::{Map, Value};
+use std::borrow::Cow;
 use std::sync::Arc;
 
 const SOURCE: &str = include_str!("phlm.wgsl");
@@ -166,6 +167,8 @@ pub struct GpuPhlm {
     tonemapped: bool,
     /// Readback staging, reused.
     words: Vec<f32>,
+    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
+    scratch: Scratch,
 }
 
 impl GpuPhlm {
@@ -187,6 +190,7 @@ impl GpuPhlm {
             valid: false,
             tonemapped: false,
             words: Vec::new(),
+            scratch: Scratch::default(),
         })
     }
 
@@ -326,7 +330,7 @@ impl GpuPhlm {
             &mut rec,
             &mut inp,
             frame.meta.jitter,
-            &mut Scratch::default(),
+            &mut self.scratch,
         );
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
@@ -375,6 +379,9 @@ impl GpuPhlm {
         let mut bytes = write_words(&gpu, &b.params, &words);
         // The colour (as f32 or f16), then motion, depth and the invalid mask as f32.
         bytes += b.upload.write(&gpu, &b.input, &inp.color);
+        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
+            self.scratch.recycle(rgb);
+        }
         let b = &*b;
         if let Some(m) = inp.motion.as_deref() {
             for (k, plane) in m.iter().enumerate() {

@@ -19,6 +19,7 @@ use crate::pipeline::{
     PixelCounts, Recorder, StateError, UploadPrecision,
 };
 use serde_json::{Map, Value};
+use std::borrow::Cow;
 use std::sync::Arc;
 
 const SHARED: &str = include_str!("taa.wgsl");
@@ -188,6 +189,8 @@ pub struct GpuTaa {
     tonemapped: bool,
     /// Readback staging, reused.
     words: Vec<f32>,
+    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
+    scratch: Scratch,
 }
 
 impl GpuTaa {
@@ -209,6 +212,7 @@ impl GpuTaa {
             valid: false,
             tonemapped: false,
             words: Vec::new(),
+            scratch: Scratch::default(),
         })
     }
 
@@ -337,7 +341,7 @@ impl GpuTaa {
             &mut rec,
             &mut inp,
             frame.meta.jitter,
-            &mut Scratch::default(),
+            &mut self.scratch,
         );
         let (w, h) = (inp.width, inp.height);
         let n = w * h;
@@ -380,6 +384,9 @@ impl GpuTaa {
         // the invalid mask as f32.
         let b = self.buffers.as_mut().expect("sized");
         let mut bytes = b.upload.write(&gpu, &b.input, &inp.color);
+        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
+            self.scratch.recycle(rgb);
+        }
         let b = &*b;
         if plan.reproject.is_none() {
             let m = inp.motion.as_deref().expect("reprojection needs motion");
