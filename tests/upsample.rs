@@ -27,9 +27,48 @@ fn render(scene: &str, s: Settings) -> Vec<Frame> {
     (0..s.frames).map(|i| sc.frame(i)).collect()
 }
 
+/// `upsample` with `set` over `frames`. The catalogue's references are box integrals over
+/// each pixel, so these runs use `pixel_filter=box` unless `set` says otherwise (the
+/// default filters the output with a renderer's Blackman-Harris; docs/corpus.md).
 fn run(set: &[&str], frames: &[Frame]) -> Vec<Output> {
-    let mut f = create("upsample", &parse_assignments(set).unwrap()).unwrap();
+    let mut set = set.to_vec();
+    if !set.iter().any(|s| s.starts_with("pixel_filter=")) {
+        set.push("pixel_filter=box");
+    }
+    let mut f = create("upsample", &parse_assignments(&set).unwrap()).unwrap();
     run_sequence(f.as_mut(), frames).unwrap()
+}
+
+/// The `reconstruct` stage on sparse shading runs on the output: with the default pixel
+/// filter each output frame is the `box` output filtered by Blackman-Harris at the pixel
+/// centres, the history is untouched (every later frame still matches), and a still scene
+/// still converges (its last frames barely change).
+#[test]
+fn sparse_shading_is_reconstructed_on_the_output() {
+    use afterimage::filters::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, STAGE};
+    use afterimage::pipeline::Scratch;
+    for (scene, n) in [("static", 24u64), ("moving-sphere", 12)] {
+        let frames = render(scene, settings(64, 36, n, 1, 2));
+        let own = run(&[], &frames);
+        let filtered = run(&["pixel_filter=blackman_harris"], &frames);
+        let bh = Reconstruction::new(PixelFilter::BlackmanHarris, DEFAULT_FILTER_WIDTH);
+        for (t, (a, b)) in own.iter().zip(&filtered).enumerate() {
+            let want = bh.apply(&a.color, [0.0, 0.0], &mut Scratch::default());
+            for (c, (got, want)) in b.color.iter().zip(&want).enumerate() {
+                assert_eq!(got.data(), want.data(), "{scene} frame {t} channel {c}");
+            }
+            assert!(b.record.ran(STAGE), "{scene} frame {t}");
+            assert!(
+                !a.record.ran(STAGE) && a.record.stage(STAGE).is_some(),
+                "{scene} frame {t}"
+            );
+        }
+        if scene == "static" {
+            let last = n as usize - 1;
+            let step = rms(&filtered[last].color, &filtered[last - 1].color);
+            assert!(step < 2e-4, "{scene}: step {step}");
+        }
+    }
 }
 
 fn rms(a: &Rgb, b: &Rgb) -> f64 {

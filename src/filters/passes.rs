@@ -449,7 +449,7 @@ impl TemporalState {
         let counts = inp.counts;
         let has_history = self.begin(frame, hdr)?;
         let (read, next) = self.buffer.split();
-        let result = body(FrameContext {
+        let mut result = body(FrameContext {
             inp,
             rec: &mut rec,
             has_history,
@@ -457,6 +457,8 @@ impl TemporalState {
             next,
             scratch: &mut self.scratch,
         })?;
+        let sparse_colour = !frame.sampling().is_full();
+        recon.sparse_output(&mut rec, &mut result.color, sparse_colour, &mut self.scratch);
         let bytes = self.finish(hdr);
         let mut record = rec.finish(filter, frame.meta.index, result.pixels, counts, bytes);
         record.model = result.model;

@@ -7,6 +7,10 @@
 //! unknown (0) they are weighted at the pixel centres, a fixed blur of the same width.
 //! `box` leaves the colour as it is: each pixel's own sample, which converges to the box
 //! integral over the pixel (what our procedural references are).
+//!
+//! Sparse shading (`upsample`) has no 3x3 of samples to weigh: there the stage runs on the
+//! filter's full-resolution output instead, at the pixel centres ([`Reconstruction::sparse_output`]),
+//! and the history keeps the unfiltered values, so a still image still converges.
 
 use crate::frame::Rgb;
 use crate::kernels::reconstruct::{blackman_harris, edge_taps, gaussian, reconstruct_row, taps};
@@ -67,17 +71,11 @@ impl Reconstruction {
         }
     }
 
-    /// Why the stage is left out of a frame with inputs `inp`, if it is.
-    pub fn skip(&self, inp: &Inputs) -> Option<Skip> {
-        if self.filter == PixelFilter::Box {
-            Some(Skip::Disabled {
-                param: "pixel_filter",
-            })
-        } else if inp.color[0].size() != (inp.width, inp.height) {
-            Some(Skip::SparseInput)
-        } else {
-            None
-        }
+    /// Why the stage is left out, if it is.
+    fn skip(&self) -> Option<Skip> {
+        (self.filter == PixelFilter::Box).then_some(Skip::Disabled {
+            param: "pixel_filter",
+        })
     }
 
     /// `rgb`, jittered by `jitter` (pixels, x right, y down), reconstructed with this
@@ -105,10 +103,30 @@ impl Reconstruction {
     /// it is left out). Every temporal filter runs it right after `repair`, the CPU's
     /// reference and fused kernels and the GPU backend alike, so they see the same colour.
     pub fn stage(&self, rec: &mut Recorder, inp: &mut Inputs, jitter: [f32; 2], scratch: &mut Scratch) {
-        if let Some(rgb) = rec.stage(STAGE, self.skip(inp), || self.apply(&inp.color, jitter, scratch)) {
+        if inp.color[0].size() != (inp.width, inp.height) {
+            // Sparse shading: the stage runs on the output ([`Self::sparse_output`]).
+            return;
+        }
+        if let Some(rgb) = rec.stage(STAGE, self.skip(), || self.apply(&inp.color, jitter, scratch)) {
             if let Cow::Owned(old) = std::mem::replace(&mut inp.color, Cow::Owned(rgb)) {
                 scratch.recycle(old);
             }
+        }
+    }
+}
+
+impl Reconstruction {
+    /// The stage for a frame shaded sparsely (`sparse`): the filter's full-resolution
+    /// output `color` filtered at the pixel centres, in place (or the record of why not).
+    /// Every temporal filter's frame ends with it ([`super::passes::TemporalState::run`],
+    /// and `upsample`'s reference); a fully shaded frame was reconstructed on its input.
+    pub fn sparse_output(&self, rec: &mut Recorder, color: &mut Rgb, sparse: bool, scratch: &mut Scratch) {
+        if !sparse {
+            return;
+        }
+        if let Some(rgb) = rec.stage(STAGE, self.skip(), || self.apply(color, [0.0, 0.0], scratch)) {
+            let old = std::mem::replace(color, rgb);
+            scratch.recycle(old);
         }
     }
 }

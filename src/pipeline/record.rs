@@ -31,8 +31,6 @@ pub enum Skip {
         /// The parameter.
         param: &'static str,
     },
-    /// The colour is shaded sparsely: the filter places its samples itself.
-    SparseInput,
     /// The stage belongs to another variant of the filter.
     Variant {
         /// The variant that is running.
@@ -49,7 +47,6 @@ impl fmt::Display for Skip {
             Skip::CleanInput => write!(f, "no non-finite or negative input"),
             Skip::NoHistory => write!(f, "no history (first frame or reset)"),
             Skip::Disabled { param } => write!(f, "disabled by {param}"),
-            Skip::SparseInput => write!(f, "sparse shading (the filter places the samples)"),
             Skip::Variant { variant } => write!(f, "not part of variant {variant}"),
         }
     }

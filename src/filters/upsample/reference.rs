@@ -394,6 +394,12 @@ impl ReferenceUpsample {
         } else {
             0
         };
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).sparse_output(
+            &mut rec,
+            &mut out,
+            !sampling.is_full(),
+            &mut self.scratch,
+        );
         Ok(Output {
             color: out,
             record: rec.finish(Upsample::NAME, frame.meta.index, pixels, inp.counts, bytes),
