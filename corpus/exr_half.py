@@ -14,86 +14,32 @@ import struct
 import sys
 import zlib
 
-ZIP_LINES = {0: 1, 2: 1, 3: 16}
-UINT, HALF, FLOAT = 0, 1, 2
+from exr import FLOAT, HALF, Header, predict, unpredict
 
-
-def _cstr(buf, pos):
-    end = buf.index(b"\0", pos)
-    return buf[pos:end], end + 1
-
-
-def _unpredict(data):
-    """ZIP's inverse: undo the delta predictor, then re-interleave the two halves."""
-    d = bytearray(data)
-    for i in range(1, len(d)):
-        d[i] = (d[i - 1] + d[i] - 128) & 0xFF
-    half = (len(d) + 1) // 2
-    out = bytearray(len(d))
-    out[0::2] = d[:half]
-    out[1::2] = d[half:]
-    return bytes(out)
-
-
-def _predict(raw):
-    d = bytearray(raw[0::2] + raw[1::2])
-    for i in range(len(d) - 1, 0, -1):
-        d[i] = (d[i] - d[i - 1] + 128) & 0xFF
-    return bytes(d)
+# The compressions read here: none, ZIPS and ZIP.
+READ = (0, 2, 3)
 
 
 def to_half(path):
     with open(path, "rb") as f:
         buf = f.read()
-    (version,) = struct.unpack_from("<I", buf, 4)
-    if buf[:4] != b"\x76\x2f\x31\x01" or version & (0x200 | 0x800 | 0x1000):
-        raise ValueError(f"{path}: not a single-part scanline OpenEXR file")
-    pos = 8
-    attrs = []
-    channels = []
-    compression = window = None
-    while buf[pos] != 0:
-        name, pos = _cstr(buf, pos)
-        atype, pos = _cstr(buf, pos)
-        (size,) = struct.unpack_from("<i", buf, pos)
-        pos += 4
-        value = buf[pos : pos + size]
-        pos += size
-        attrs.append([name, atype, value])
-        if name == b"channels":
-            p = 0
-            while value[p] != 0:
-                cname, p = _cstr(value, p)
-                (ptype,) = struct.unpack_from("<i", value, p)
-                xs, ys = struct.unpack_from("<2i", value, p + 8)
-                if (xs, ys) != (1, 1):
-                    raise ValueError(f"{path}: subsampled channel {cname!r}")
-                channels.append([cname, ptype, value[p + 4 : p + 8]])
-                p += 16
-        elif name == b"compression":
-            compression = value[0]
-        elif name == b"dataWindow":
-            window = struct.unpack("<4i", value)
-    if compression not in ZIP_LINES:
-        raise ValueError(f"{path}: compression {compression} (only none, zips, zip)")
-    width = window[2] - window[0] + 1
-    height = window[3] - window[1] + 1
-    lines = ZIP_LINES[compression]
-    chunks = -(-height // lines)
-    table = struct.unpack_from(f"<{chunks}Q", buf, pos + 1)
+    h = Header(buf, path)
+    if h.compression not in READ:
+        raise ValueError(f"{path}: compression {h.compression} (only none, zips, zip)")
+    width, lines, channels = h.width, h.lines, h.channels
 
     def decode(k):
-        off = table[k]
+        off = h.offsets[k]
         y, size = struct.unpack_from("<ii", buf, off)
         data = buf[off + 8 : off + 8 + size]
-        n = min(lines, window[3] + 1 - y)
+        n = min(lines, h.window[3] + 1 - y)
         expect = n * width * sum(2 if c[1] == HALF else 4 for c in channels)
-        if compression != 0 and size < expect:
-            data = _unpredict(zlib.decompress(data))
+        if h.compression != 0 and size < expect:
+            data = unpredict(zlib.decompress(data))
         return y, n, data
 
     out_chunks = []
-    for k in range(chunks):
+    for k in range(h.chunks):
         y, n, data = decode(k)
         raw = bytearray()
         p = 0
@@ -107,7 +53,7 @@ def to_half(path):
                     step = (2 if c[1] == HALF else 4) * width
                     raw += data[p : p + step]
                     p += step
-        packed = zlib.compress(_predict(bytes(raw)), 9)
+        packed = zlib.compress(predict(bytes(raw)), 9)
         if len(packed) >= len(raw):
             packed = bytes(raw)
         out_chunks.append(struct.pack("<ii", y, len(packed)) + packed)
@@ -117,7 +63,7 @@ def to_half(path):
             c[1] = HALF
     chlist = b"".join(c[0] + b"\0" + struct.pack("<i", c[1]) + c[2] + struct.pack("<2i", 1, 1) for c in channels) + b"\0"
     head = bytearray(buf[:8])
-    for name, atype, value in attrs:
+    for name, atype, value, _start, _end in h.attrs:
         if name == b"channels":
             value = chlist
         elif name == b"compression":
@@ -127,13 +73,13 @@ def to_half(path):
     out_lines = 16
     if lines != out_lines:
         raise ValueError(f"{path}: re-chunking is not supported (write ZIP from Blender)")
-    offset = len(head) + 8 * chunks
+    offset = len(head) + 8 * h.chunks
     offsets = []
     for c in out_chunks:
         offsets.append(offset)
         offset += len(c)
     with open(path, "wb") as f:
-        f.write(bytes(head) + struct.pack(f"<{chunks}Q", *offsets) + b"".join(out_chunks))
+        f.write(bytes(head) + struct.pack(f"<{h.chunks}Q", *offsets) + b"".join(out_chunks))
 
 
 if __name__ == "__main__":

@@ -23,74 +23,31 @@ import struct
 import sys
 import zlib
 
-LINES = {0: 1, 2: 1, 3: 16}
-
-
-def _cstr(buf, pos):
-    end = buf.index(b"\0", pos)
-    return buf[pos:end], end + 1
-
-
-def _unpredict(data):
-    d = bytearray(data)
-    acc = d[0]
-    for i in range(1, len(d)):
-        acc = (acc + d[i] - 128) & 0xFF
-        d[i] = acc
-    half = (len(d) + 1) // 2
-    out = bytearray(len(d))
-    out[0::2] = d[:half]
-    out[1::2] = d[half:]
-    return bytes(out)
-
+from exr import HALF, Header, unpredict
 
 def read_exr(path, wanted):
     """Channels `wanted` (names) of a single-part scanline EXR (none/zips/zip) as flat
     row-major lists, and the width and height."""
     with open(path, "rb") as f:
         buf = f.read()
-    pos = 8
-    channels = []
-    compression = window = None
-    while buf[pos] != 0:
-        name, pos = _cstr(buf, pos)
-        _atype, pos = _cstr(buf, pos)
-        (size,) = struct.unpack_from("<i", buf, pos)
-        pos += 4
-        value = buf[pos : pos + size]
-        pos += size
-        if name == b"channels":
-            p = 0
-            while value[p] != 0:
-                cname, p = _cstr(value, p)
-                (ptype,) = struct.unpack_from("<i", value, p)
-                channels.append((cname.decode(), ptype))
-                p += 16
-        elif name == b"compression":
-            compression = value[0]
-        elif name == b"dataWindow":
-            window = struct.unpack("<4i", value)
-    w = window[2] - window[0] + 1
-    h = window[3] - window[1] + 1
-    lines = LINES[compression]
-    chunks = -(-h // lines)
-    table = struct.unpack_from(f"<{chunks}Q", buf, pos + 1)
+    h = Header(buf, path)
+    w = h.width
     out = {c: [] for c in wanted}
-    row_bytes = sum((2 if t == 1 else 4) * w for _, t in channels)
-    for off in table:
+    row_bytes = sum((2 if c[1] == HALF else 4) * w for c in h.channels)
+    for off in h.offsets:
         y, size = struct.unpack_from("<ii", buf, off)
         data = buf[off + 8 : off + 8 + size]
-        n = min(lines, window[3] + 1 - y)
+        n = min(h.lines, h.window[3] + 1 - y)
         if size < n * row_bytes:
-            data = _unpredict(zlib.decompress(data))
+            data = unpredict(zlib.decompress(data))
         p = 0
         for _ in range(n):
-            for cname, t in channels:
-                step = (2 if t == 1 else 4) * w
-                if cname in out:
-                    out[cname].extend(struct.unpack_from(f"<{w}{'e' if t == 1 else 'f'}", data, p))
+            for cname, t, _rest in h.channels:
+                step = (2 if t == HALF else 4) * w
+                if cname.decode() in out:
+                    out[cname.decode()].extend(struct.unpack_from(f"<{w}{'e' if t == HALF else 'f'}", data, p))
                 p += step
-    return out, w, h
+    return out, w, h.height
 
 
 def tm(v):
