@@ -402,6 +402,18 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
             &["no color channel"],
         ),
         (
+            "jitter not a number",
+            {
+                let mut p = frame_parts(&fr[0], &s.id, &[Color]);
+                if let Some(frame_chunk::Part::Header(h)) = p.first_mut() {
+                    h.jitter_x = f32::NAN;
+                }
+                p
+            },
+            Code::InvalidArgument,
+            &["jitter", "-1..=1"],
+        ),
+        (
             "data before header",
             vec![data.clone()],
             Code::InvalidArgument,

@@ -266,7 +266,7 @@ pub(super) fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTree
     }
     if let Some((k, j)) = table
         .iter()
-        .find(|(_, j)| !j.iter().all(|v| v.is_finite() && v.abs() <= 1.0))
+        .find(|(_, j)| !afterimage::frame::FrameMeta::jitter_in_range(**j))
     {
         anyhow::bail!("--jitter-from {spec}: frame {k}: jitter {j:?} is not within -1..=1 pixels");
     }

@@ -144,6 +144,18 @@ pub struct FrameMeta {
     pub normal_space: NormalSpace,
 }
 
+/// The largest sub-pixel jitter a frame may say it has, in pixels per axis: a sample
+/// jittered further belongs to the neighbouring pixel.
+pub const MAX_JITTER: f32 = 1.0;
+
+impl FrameMeta {
+    /// Whether `jitter` is a frame's jitter: finite and within [`MAX_JITTER`] per axis
+    /// (every interface checks what it is given with this).
+    pub fn jitter_in_range(jitter: [f32; 2]) -> bool {
+        jitter.iter().all(|v| v.is_finite() && v.abs() <= MAX_JITTER)
+    }
+}
+
 impl Default for FrameMeta {
     fn default() -> Self {
         FrameMeta {

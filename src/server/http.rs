@@ -522,8 +522,11 @@ impl FrameHeaders {
                     )
                 };
                 let (x, y) = v.split_once(',').ok_or_else(bad)?;
-                let parse = |t: &str| t.trim().parse::<f32>().ok().filter(|j| j.abs() <= 1.0);
-                Ok::<_, SessionError>([parse(x).ok_or_else(bad)?, parse(y).ok_or_else(bad)?])
+                let parse = |t: &str| t.trim().parse::<f32>().ok();
+                let j = [parse(x).ok_or_else(bad)?, parse(y).ok_or_else(bad)?];
+                crate::frame::FrameMeta::jitter_in_range(j)
+                    .then_some(j)
+                    .ok_or_else(bad)
             })
             .transpose()?;
         Ok(FrameHeaders { index, reset, jitter })

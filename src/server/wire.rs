@@ -4,7 +4,7 @@
 //! channels, lengths) and says precisely what is wrong.
 
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
+use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
 use crate::session::{clip, FrameShape, SessionError};
 use std::borrow::Cow;
 
@@ -459,7 +459,17 @@ pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
     }
     frame.meta.index = a.header.index;
     frame.meta.reset = a.header.reset;
-    frame.meta.jitter = [a.header.jitter_x, a.header.jitter_y];
+    let jitter = [a.header.jitter_x, a.header.jitter_y];
+    if !FrameMeta::jitter_in_range(jitter) {
+        return Err(invalid(
+            "jitter",
+            format!(
+                "({}, {}): expected x and y in pixels, each finite and in -1..=1",
+                jitter[0], jitter[1]
+            ),
+        ));
+    }
+    frame.meta.jitter = jitter;
     Ok(frame)
 }
 
