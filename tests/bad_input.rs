@@ -1020,3 +1020,26 @@ mod fuzz {
         fuzz_sessions(cases(3000), 104);
     }
 }
+
+/// A file whose `afterimage.jitter` is no jitter (not finite, or past 1 px) reads as an
+/// unknown jitter (0): the reconstruct stage weighs samples by it. A jitter in range is
+/// read as written.
+#[test]
+fn an_out_of_range_jitter_attribute_reads_as_unknown() {
+    let dir = tempfile::tempdir().unwrap();
+    for (i, (written, read)) in [
+        ([5.0, 0.0], [0.0, 0.0]),
+        ([f32::NAN, 0.25], [0.0, 0.0]),
+        ([-0.375, 0.25], [-0.375, 0.25]),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let path = dir.path().join(format!("j{i}.exr"));
+        let mut f = Frame::new(std::array::from_fn(|_| Plane::filled(4, 3, 0.5))).unwrap();
+        f.meta.jitter = written;
+        write_exr(&path, &f, &WriteOptions::default()).unwrap();
+        let back = read_frame(&path, &ReadOptions::default()).unwrap();
+        assert_eq!(back.meta.jitter, read, "{written:?}");
+    }
+}

@@ -618,7 +618,14 @@ fn read_meta(a: &x::LayerAttributes, meta: &mut FrameMeta) {
         }
     }
     if let Some(AttributeValue::FloatVec2(v)) = get(attr::JITTER) {
-        meta.jitter = [v.0, v.1];
+        // The reconstruct stage weighs samples by it: a value that is no jitter is
+        // taken as unknown (0), as a missing one is.
+        let j = [v.0, v.1];
+        if FrameMeta::jitter_in_range(j) {
+            meta.jitter = j;
+        } else {
+            tracing::warn!(jitter = ?j, "{}: not finite and within -1..=1 pixels, taken as unknown", attr::JITTER);
+        }
     }
     if let Some(AttributeValue::I32(r)) = get(attr::RESET) {
         meta.reset = *r != 0;
