@@ -1,10 +1,15 @@
 //! Rectification of history against a colour box: clip toward the centre, or clamp.
 
-/// Guard added to the half-extent of the box so a flat box (min = max) never divides by
-/// zero (Pedersen 2016, INSIDE's `clip_aabb`, `FLT_EPS = 1e-8`).
-pub(crate) const CLIP_EPS: f32 = 1.0e-8;
+/// How far every box is grown on each side before a clip, in working-space colour (LDR,
+/// or HDR tonemapped: within [0, 1]). Pedersen 2016 (INSIDE's `clip_aabb`) guards a flat
+/// box only against a division by zero (`FLT_EPS = 1e-8`); at that size, rounding noise
+/// in a flat channel (min = max, e.g. a constant Co) decides the clip of all three, and
+/// two backends summing in other orders clip differently. 1e-4 lies far above f32
+/// rounding of such values and far below a code value (1/255).
+pub(crate) const CLIP_EPS: f32 = 1.0e-4;
 
-/// Clips `q` toward the centre of the box `[min, max]`: if `q` lies outside, it is moved
+/// Clips `q` toward the centre of the box `[min, max]` (grown by [`CLIP_EPS`] on each
+/// side): if `q` lies outside, it is moved
 /// along the segment to the centre until it meets the box surface; inside, it is returned
 /// unchanged (Pedersen 2016, INSIDE's `clip_aabb`; Karis 2014). Unlike a per-axis clamp this
 /// keeps the history's hue instead of snapping it to a corner (Oliveros 2018, fig. 3.9).
@@ -32,11 +37,12 @@ pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3
 }
 
 /// Clips `q` along the ray toward `target` (a point inside the box, e.g. the current input
-/// colour): if `q` lies outside `[min, max]`, returns the first point of the segment from
-/// `q` to `target` inside the box, else `q` unchanged (Iglesias-Guitian et al. 2016, Algorithm 1 lines 14-17:
-/// `ray_ori = f, ray_dir = y - f`, `f = ray_ori + ray_hit * ray_dir`). A `target` outside
-/// the box is clamped into it first, so the result is always inside. Returns the point and
-/// whether it moved.
+/// colour): if `q` lies outside `[min, max]` grown by [`CLIP_EPS`], returns the first point
+/// of the segment from `q` to `target` inside that box, else `q` unchanged
+/// (Iglesias-Guitian et al. 2016, Algorithm 1 lines 14-17: `ray_ori = f, ray_dir = y - f`,
+/// `f = ray_ori + ray_hit * ray_dir`). A `target` outside `[min, max]` is clamped into it
+/// first, so it lies at least `CLIP_EPS` inside the grown box and the result moves
+/// continuously with `q`. Returns the point and whether it moved.
 #[inline]
 pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {
     let mut t = 0.0f32;
@@ -45,10 +51,11 @@ pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32
     for k in 0..3 {
         tgt[k] = target[k].max(min[k]).min(max[k]);
         // Entering the slab of axis k: the bound q violates, reached at fraction t_k.
-        let bound = if q[k] < min[k] {
-            min[k]
-        } else if q[k] > max[k] {
-            max[k]
+        let (lo, hi) = (min[k] - CLIP_EPS, max[k] + CLIP_EPS);
+        let bound = if q[k] < lo {
+            lo
+        } else if q[k] > hi {
+            hi
         } else {
             continue;
         };
@@ -60,7 +67,11 @@ pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32
     if !outside {
         return (q, false);
     }
-    let p = [0, 1, 2].map(|k| (q[k] + t * (tgt[k] - q[k])).max(min[k]).min(max[k]));
+    let p = [0, 1, 2].map(|k| {
+        (q[k] + t * (tgt[k] - q[k]))
+            .max(min[k] - CLIP_EPS)
+            .min(max[k] + CLIP_EPS)
+    });
     (p, true)
 }
 
@@ -123,16 +134,23 @@ mod tests {
                 let slack = 1e-5 * scale as f32 + 2.0 * CLIP_EPS;
                 assert!(got[k] >= min[k] - slack && got[k] <= max[k] + slack);
             }
-            let inside = (0..3).all(|k| q[k] >= min[k] && q[k] <= max[k]);
+            let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             assert_eq!(!inside, m, "moved flag for {q:?} in {min:?}..{max:?}");
         }
         assert!(moved > 1000, "the random cases exercise clipping ({moved})");
     }
 
+    /// Whether `p` lies in `[min, max]` grown by the guard `CLIP_EPS` (part of the clips'
+    /// definition).
+    fn in_grown(p: [f64; 3], min: [f64; 3], max: [f64; 3]) -> bool {
+        let e = CLIP_EPS as f64;
+        (0..3).all(|k| p[k] >= min[k] - e && p[k] <= max[k] + e)
+    }
+
     /// f64 reference of [`clip_toward_point`]: bisection on the segment for the first point
-    /// inside the box (independent of the slab formula).
+    /// inside the grown box (independent of the slab formula).
     fn clip_point_f64(q: [f64; 3], t: [f64; 3], min: [f64; 3], max: [f64; 3]) -> [f64; 3] {
-        let inside = |p: [f64; 3]| (0..3).all(|k| p[k] >= min[k] && p[k] <= max[k]);
+        let inside = |p: [f64; 3]| in_grown(p, min, max);
         if inside(q) {
             return q;
         }
@@ -171,9 +189,9 @@ mod tests {
                 Tolerance::new(1e-5 * scale, 1e-4)
                     .check("clip toward point", got[k] as f64, expect[k])
                     .unwrap();
-                assert!(got[k] >= min[k] && got[k] <= max[k]);
+                assert!(got[k] >= min[k] - CLIP_EPS && got[k] <= max[k] + CLIP_EPS);
             }
-            let inside = (0..3).all(|k| q[k] >= min[k] && q[k] <= max[k]);
+            let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             assert_eq!(!inside, m);
         }
         assert!(moved > 1000, "the random cases exercise clipping ({moved})");
@@ -184,10 +202,63 @@ mod tests {
         let p = [0.3, 0.2, 0.1];
         let (got, moved) = clip_toward_point([5.0, -2.0, 0.0], p, p, p);
         assert!(moved);
-        assert_eq!(got, p);
-        // A target outside the box is clamped into it: the result is still inside.
+        // On the box grown by the guard.
+        for k in 0..3 {
+            Tolerance::abs(CLIP_EPS as f64 * 1.01)
+                .check("flat", got[k] as f64, p[k] as f64)
+                .unwrap();
+        }
+        // A target outside the box is clamped into it: the result is still inside (the
+        // box grown by the guard).
         let (got, _) = clip_toward_point([2.0, 2.0, 2.0], [-5.0, 0.5, 9.0], [0.0; 3], [1.0; 3]);
-        assert!(got.iter().all(|v| (0.0..=1.0).contains(v)), "{got:?}");
+        let grown = -CLIP_EPS..=1.0 + CLIP_EPS;
+        assert!(got.iter().all(|v| grown.contains(v)), "{got:?}");
+    }
+
+    /// A flat channel (min = max: a constant Co, say) whose history or prediction is off
+    /// by rounding (a sum taken in another order) is inside the box: it neither clips nor
+    /// moves the other channels, and past the guard the clip grows from nothing.
+    #[test]
+    fn rounding_in_a_flat_channel_is_no_clip() {
+        let (min, max) = ([0.1f32, 0.105, -0.04], [0.21, 0.105, 0.045]);
+        let target = [0.12, 0.105, -0.02];
+        let ulp = f32::EPSILON * 0.105;
+        for noise in [ulp, -ulp, 4.0 * ulp, -16.0 * ulp] {
+            let q = [0.1878, 0.105 + noise, 0.0287];
+            assert_eq!(
+                clip_toward_center(q, min, max),
+                (q, false),
+                "centre, noise {noise}"
+            );
+            assert_eq!(
+                clip_toward_point(q, target, min, max),
+                (q, false),
+                "point, noise {noise}"
+            );
+        }
+        // Past the guard by a thousandth of it, each clip moves the point by about a
+        // thousandth of its way to the centre (or the target): the clip grows from nothing.
+        let past = CLIP_EPS * 1e-3;
+        let q = [0.1878, 0.105 + CLIP_EPS + past, 0.0287];
+        let centre = [0, 1, 2].map(|k| 0.5 * (min[k] + max[k]));
+        for (got, moved, to) in [
+            {
+                let (g, m) = clip_toward_center(q, min, max);
+                (g, m, centre)
+            },
+            {
+                let (g, m) = clip_toward_point(q, target, min, max);
+                (g, m, target)
+            },
+        ] {
+            assert!(moved);
+            for k in 0..3 {
+                let bound = 2e-3 * (to[k] - q[k]).abs() as f64 + 1e-7;
+                Tolerance::abs(bound)
+                    .check("continuous", got[k] as f64, q[k] as f64)
+                    .unwrap();
+            }
+        }
     }
 
     #[test]
@@ -196,7 +267,7 @@ mod tests {
         let (got, moved) = clip_toward_center([5.0, -2.0, 0.0], p, p);
         assert!(moved);
         for k in 0..3 {
-            Tolerance::abs(1e-6)
+            Tolerance::abs(CLIP_EPS as f64 * 1.01)
                 .check("flat", got[k] as f64, p[k] as f64)
                 .unwrap();
         }

@@ -289,17 +289,20 @@ pub fn clip_toward_point(
     let mut t = f32x8::splat(0.0);
     let mut outside = f32x8::splat(0.0);
     let mut tgt = [f32x8::splat(0.0); 3];
+    let eps = f32x8::splat(CLIP_EPS);
+    let lo: [f32x8; 3] = each(|k| min[k] - eps);
+    let hi: [f32x8; 3] = each(|k| max[k] + eps);
     for k in 0..3 {
         tgt[k] = min_of(max_of(target[k], min[k]), max[k]);
-        let below = q[k].simd_lt(min[k]);
-        let out = below | q[k].simd_gt(max[k]);
-        let bound = below.select(min[k], max[k]);
+        let below = q[k].simd_lt(lo[k]);
+        let out = below | q[k].simd_gt(hi[k]);
+        let bound = below.select(lo[k], hi[k]);
         let step = min_of((bound - q[k]) / (tgt[k] - q[k]), one);
         t = out.select(max_of(t, step), t);
         outside |= out;
     }
     let p = each(|k| {
-        let moved = min_of(max_of(q[k] + t * (tgt[k] - q[k]), min[k]), max[k]);
+        let moved = min_of(max_of(q[k] + t * (tgt[k] - q[k]), lo[k]), hi[k]);
         outside.select(moved, q[k]).to_array()
     });
     (p, outside.to_bitmask())

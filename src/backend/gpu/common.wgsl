@@ -5,6 +5,8 @@
 // `TONEMAP_MAX` of `kernels/color.rs`.
 const TONEMAP_MAX: f32 = 0.9999999;
 const F32_MAX: f32 = 3.40282347e38;
+// `CLIP_EPS` of `kernels/clip.rs`: every clip box grown by it on each side.
+const CLIP_EPS: f32 = 1.0e-4;
 
 // kernels::tonemap: c / (1 + max c).
 fn tonemap(c: vec3<f32>) -> vec3<f32> {

@@ -214,14 +214,17 @@ fn slab_entry(q: f32, tgt: f32, lo: f32, hi: f32) -> vec2<f32> {
 // no loop over components: a dynamically indexed vector becomes memory on some drivers.
 fn clip_toward_point(q: vec3<f32>, toward: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
     let tgt = min(max(toward, lo), hi);
-    let ex = slab_entry(q.x, tgt.x, lo.x, hi.x);
-    let ey = slab_entry(q.y, tgt.y, lo.y, hi.y);
-    let ez = slab_entry(q.z, tgt.z, lo.z, hi.z);
+    // The box grown by kernels::clip's CLIP_EPS.
+    let glo = lo - vec3<f32>(CLIP_EPS);
+    let ghi = hi + vec3<f32>(CLIP_EPS);
+    let ex = slab_entry(q.x, tgt.x, glo.x, ghi.x);
+    let ey = slab_entry(q.y, tgt.y, glo.y, ghi.y);
+    let ez = slab_entry(q.z, tgt.z, glo.z, ghi.z);
     if ex.y + ey.y + ez.y == 0.0 {
         return vec4<f32>(q, 0.0);
     }
     let t = max(max(ex.x, ey.x), ez.x);
-    return vec4<f32>(min(max(q + t * (tgt - q), lo), hi), 1.0);
+    return vec4<f32>(min(max(q + t * (tgt - q), glo), ghi), 1.0);
 }
 
 // One pixel's model (phlm::Model): beta's rows, and R = P^-1 packed (rls::SYM order:

@@ -51,9 +51,8 @@ const C_RESET: u32 = 0u;
 const C_CLIPPED: u32 = 1u;
 const C_REJECTED: u32 = 2u;
 
-// `MAX_COUNT` of `filters/taa/mod.rs`; `CLIP_EPS` of `kernels/clip.rs`.
+// `MAX_COUNT` of `filters/taa/mod.rs`.
 const MAX_COUNT: f32 = 255.0;
-const CLIP_EPS: f32 = 1.0e-8;
 
 // kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
 fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
