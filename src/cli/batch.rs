@@ -860,7 +860,10 @@ mod tests {
                     &[("alpha".to_string(), 9.0.into())].into_iter().collect(),
                     Default::default(),
                 );
-                anyhow::Error::new(e.err().expect("alpha = 9 is out of bounds"))
+                match e {
+                    Err(e) => anyhow::Error::new(e),
+                    Ok(_) => panic!("alpha = 9 was taken"),
+                }
             },
             || NotOpened("in/sh010: no frames".into()).into(),
             || anyhow::Error::new(Error::new(ErrorKind::InvalidInput, "bad")),

@@ -106,7 +106,7 @@ impl Metrics {
         };
         for s in &record.stages {
             if let Some(ms) = s.ms {
-                self.stages.get_or_create(&stage(&s.name)).observe(ms / 1e3);
+                self.stages.get_or_create(&stage(s.name)).observe(ms / 1e3);
             }
         }
         self.stages
