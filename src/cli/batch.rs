@@ -611,6 +611,8 @@ fn run_shots(
     overall: &ProgressBar,
     plain: Option<&PlainProgress>,
 ) -> anyhow::Result<Vec<ShotResult>> {
+    let first_wait = std::time::Duration::try_from_secs_f64(args.retry_delay)
+        .with_context(|| format!("--retry-delay {}: expected seconds >= 0", args.retry_delay))?;
     let mut results = Vec::new();
     for shot in mine {
         let shot: &Shot = shot;
@@ -665,8 +667,6 @@ fn run_shots(
             *p.current.lock().unwrap_or_else(|p| p.into_inner()) =
                 Some((shot.spec.name.clone(), bar.clone()));
         }
-        let first_wait = std::time::Duration::try_from_secs_f64(args.retry_delay)
-            .with_context(|| format!("--retry-delay {}: expected seconds >= 0", args.retry_delay))?;
         let (outcome, attempts) = with_retries(
             shot_backoff(first_wait, args.retries),
             std::thread::sleep,
