@@ -61,9 +61,17 @@ pub struct BatchArgs {
     /// AFTERIMAGE_SHARD_COUNT; else all shots.
     #[arg(long, value_name = "INDEX/COUNT")]
     shard: Option<String>,
-    /// Times a failed shot is run again.
+    /// Times a failed shot is run again (from its last checkpoint). A shot whose input or
+    /// output is not found or not allowed (no credentials, access denied), or whose filter
+    /// arguments are wrong, is not: another attempt would fail the same way.
     #[arg(long, default_value_t = 1)]
     retries: u32,
+    /// Seconds before a failed shot's first retry; each later wait doubles, up to 120 s,
+    /// with up to as much again at random (jitter), so shards that failed together do not
+    /// retry together. (Each object store request is already retried on its own, with
+    /// backoff, for up to 3 minutes before a shot fails.)
+    #[arg(long, default_value_t = 5.0, value_name = "SECONDS")]
+    retry_delay: f64,
     /// Filter finished shots again instead of skipping them.
     #[arg(long)]
     force: bool,
@@ -396,9 +404,75 @@ fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
+/// A shot whose input did not open when the shard counted the frames: it stays failed for
+/// this run (the shards' split was made without its frames).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+struct NotOpened(String);
+
+/// Why another attempt at a shot that failed with `e` would fail the same way, or `None`
+/// when it might not: a file or object not found, not allowed (access denied, no
+/// credentials: the object store's refusals carry these kinds, see `store::refused`), or
+/// a wrong argument, anywhere in the error's chain.
+fn permanent(e: &anyhow::Error) -> Option<&'static str> {
+    use afterimage::backend::BackendError;
+    use std::io::ErrorKind;
+    e.chain().find_map(|cause| {
+        if cause.is::<NotOpened>() {
+            return Some("its input did not open when the shard started");
+        }
+        if let Some(io) = cause.downcast_ref::<std::io::Error>() {
+            return match io.kind() {
+                ErrorKind::NotFound => Some("not found"),
+                ErrorKind::PermissionDenied => Some("not allowed"),
+                ErrorKind::InvalidInput => Some("a wrong argument"),
+                _ => None,
+            };
+        }
+        match cause.downcast_ref::<BackendError>() {
+            Some(BackendError::NoAdapter { .. } | BackendError::Device(_)) | None => None,
+            Some(_) => Some("the filter, its parameters or backend are wrong"),
+        }
+    })
+}
+
+/// The waits between a failed shot's attempts: exponential from `first` (doubling, at most
+/// 120 s), each with up to as much again at random, `retries` of them at most.
+fn shot_backoff(first: std::time::Duration, retries: u32) -> backon::ExponentialBuilder {
+    backon::ExponentialBuilder::default()
+        .with_min_delay(first)
+        .with_factor(2.0)
+        .with_max_delay(std::time::Duration::from_secs(120).max(first))
+        .with_jitter()
+        .with_max_times(retries as usize)
+}
+
+/// Runs `attempt` (told its number, from 1) until it succeeds, fails [`permanent`]ly, or
+/// the waits of `backoff` run out; between attempts `wait` sleeps and `retrying` is told
+/// the error, the attempt that failed and the wait. The last result, and the attempts made.
+fn with_retries<T>(
+    backoff: backon::ExponentialBuilder,
+    wait: impl backon::BlockingSleeper,
+    mut attempt: impl FnMut(u32) -> anyhow::Result<T>,
+    mut retrying: impl FnMut(&anyhow::Error, u32, std::time::Duration),
+) -> (anyhow::Result<T>, u32) {
+    use backon::BlockingRetryable;
+    let made = std::cell::Cell::new(0u32);
+    let result = (|| {
+        made.set(made.get() + 1);
+        attempt(made.get())
+    })
+    .retry(backoff)
+    .sleep(wait)
+    .when(|e| permanent(e).is_none())
+    .notify(|e, d| retrying(e, made.get(), d))
+    .call();
+    (result, made.get())
+}
+
 fn run_one(shot: &Shot, bar: &ProgressBar, checkpoint_every: usize) -> anyhow::Result<ShotResult> {
     if let Some(e) = &shot.open_error {
-        anyhow::bail!("{e}");
+        return Err(NotOpened(e.clone()).into());
     }
     let args = shot_args(shot)?;
     let report = run_shot(
@@ -537,6 +611,8 @@ fn run_shots(
     overall: &ProgressBar,
     plain: Option<&PlainProgress>,
 ) -> anyhow::Result<Vec<ShotResult>> {
+    let first_wait = std::time::Duration::try_from_secs_f64(args.retry_delay)
+        .with_context(|| format!("--retry-delay {}: expected seconds >= 0", args.retry_delay))?;
     let mut results = Vec::new();
     for shot in mine {
         let shot: &Shot = shot;
@@ -591,39 +667,48 @@ fn run_shots(
             *p.current.lock().unwrap_or_else(|p| p.into_inner()) =
                 Some((shot.spec.name.clone(), bar.clone()));
         }
-        let mut attempt = 0;
-        let result = loop {
-            attempt += 1;
-            bar.reset();
-            match run_one(shot, &bar, args.checkpoint_every) {
-                Ok(mut r) => {
-                    r.attempts = attempt;
-                    write_atomic(&marker, &serde_json::to_string_pretty(&r)?)?;
-                    checkpoints(&shot.spec, args.checkpoint_every)?.clear(&*store)?;
-                    break r;
-                }
-                Err(e) if attempt <= args.retries => {
+        let (outcome, attempts) = with_retries(
+            shot_backoff(first_wait, args.retries),
+            std::thread::sleep,
+            |_| {
+                bar.reset();
+                run_one(shot, &bar, args.checkpoint_every)
+            },
+            |e, attempt, wait| {
+                multi.suspend(|| {
+                    tracing::warn!(
+                        "shot {} failed (attempt {attempt}): {e:#}; trying again in {:.1} s",
+                        shot.spec.name,
+                        wait.as_secs_f64()
+                    )
+                })
+            },
+        );
+        let result = match outcome {
+            Ok(mut r) => {
+                r.attempts = attempts;
+                write_atomic(&marker, &serde_json::to_string_pretty(&r)?)?;
+                checkpoints(&shot.spec, args.checkpoint_every)?.clear(&*store)?;
+                r
+            }
+            Err(e) => {
+                if let (Some(why), true) = (permanent(&e), attempts <= args.retries) {
                     multi.suspend(|| {
-                        tracing::warn!(
-                            "shot {} failed (attempt {attempt}): {e:#}; trying again",
-                            shot.spec.name
-                        )
+                        tracing::warn!("shot {} failed: {e:#}; not retried: {why}", shot.spec.name)
                     });
                 }
-                Err(e) => {
-                    break ShotResult {
-                        name: shot.spec.name.clone(),
-                        input: shot.spec.input.clone(),
-                        output: shot.spec.output.clone(),
-                        frames: shot.frames,
-                        status: "failed".into(),
-                        attempts: attempt,
-                        ms_per_frame: None,
-                        mean_psnr: None,
-                        trmse: None,
-                        error: Some(format!("{e:#}")),
-                        fingerprint: None,
-                    }
+                ShotResult {
+                    name: shot.spec.name.clone(),
+                    input: shot.spec.input.clone(),
+                    output: shot.spec.output.clone(),
+                    frames: shot.frames,
+                    status: "failed".into(),
+                    attempts,
+                    ms_per_frame: None,
+                    mean_psnr: None,
+                    trmse: None,
+                    error: Some(format!("{e:#}")),
+                    fingerprint: None,
                 }
             }
         };
@@ -711,6 +796,86 @@ fn finish(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::{Arc, Mutex};
+    use std::time::Duration;
+
+    /// A fake shot that fails `fails` times with `error` and then succeeds: the attempts
+    /// it was given, and the waits slept between them (recorded, not slept).
+    fn retried(
+        retries: u32,
+        fails: u32,
+        error: fn() -> anyhow::Error,
+    ) -> (anyhow::Result<u32>, u32, Vec<u32>, Vec<Duration>) {
+        let slept = Arc::new(Mutex::new(Vec::new()));
+        let record = slept.clone();
+        let mut told = Vec::new();
+        let (result, attempts) = with_retries(
+            shot_backoff(Duration::from_millis(100), retries),
+            move |d| record.lock().unwrap().push(d),
+            |n| match n <= fails {
+                true => Err(error()),
+                false => Ok(n),
+            },
+            |_, n, _| told.push(n),
+        );
+        let slept = slept.lock().unwrap().clone();
+        (result, attempts, told, slept)
+    }
+
+    /// A transient failure is retried after waits that grow (jitter adds at most as much
+    /// again, doubling still outgrows it), until it succeeds or the retries run out.
+    #[test]
+    fn failed_shots_are_retried_after_growing_waits() {
+        let transient = || anyhow::anyhow!("s3://b/x: connection reset");
+        let (r, attempts, told, slept) = retried(4, 3, transient);
+        assert_eq!((r.unwrap(), attempts, told), (4, 4, vec![1, 2, 3]));
+        assert_eq!(slept.len(), 3);
+        assert!(
+            slept[0] >= Duration::from_millis(100) && slept[0] < Duration::from_millis(200),
+            "{slept:?}"
+        );
+        assert!(slept.windows(2).all(|w| w[1] > w[0]), "the waits grow: {slept:?}");
+        let (r, attempts, _, slept) = retried(2, 5, transient);
+        assert!(r.unwrap_err().to_string().contains("connection reset"));
+        assert_eq!((attempts, slept.len()), (3, 2));
+        let (r, attempts, _, slept) = retried(0, 1, transient);
+        assert_eq!((r.is_err(), attempts, slept.len()), (true, 1, 0));
+    }
+
+    /// Not found, not allowed (as the object store's refusals say no credentials or access
+    /// denied), a wrong filter parameter and an input that never opened fail at once.
+    #[test]
+    fn permanent_failures_are_not_retried() {
+        use std::io::{Error, ErrorKind};
+        fn os(kind: ErrorKind) -> anyhow::Error {
+            let io = afterimage::io::IoError::os(Path::new("s3://b/x.exr"), Error::new(kind, "refused"));
+            anyhow::Error::new(io).context("reading shot sh010")
+        }
+        let cases: [fn() -> anyhow::Error; 5] = [
+            || os(ErrorKind::NotFound),
+            || os(ErrorKind::PermissionDenied),
+            || {
+                let e = afterimage::backend::create(
+                    "taa",
+                    &[("alpha".to_string(), 9.0.into())].into_iter().collect(),
+                    Default::default(),
+                );
+                match e {
+                    Err(e) => anyhow::Error::new(e),
+                    Ok(_) => panic!("alpha = 9 was taken"),
+                }
+            },
+            || NotOpened("in/sh010: no frames".into()).into(),
+            || anyhow::Error::new(Error::new(ErrorKind::InvalidInput, "bad")),
+        ];
+        for case in cases {
+            assert!(permanent(&case()).is_some(), "{:#}", case());
+            let (r, attempts, told, slept) = retried(3, 10, case);
+            assert_eq!((r.is_err(), attempts, told.len(), slept.len()), (true, 1, 0, 0));
+        }
+        assert_eq!(permanent(&os(ErrorKind::ConnectionReset)), None);
+        assert_eq!(permanent(&anyhow::anyhow!("GPU device error")), None);
+    }
 
     #[test]
     fn shots_go_longest_first_to_the_least_loaded_shard() {

@@ -201,6 +201,48 @@ pub fn run(args: FilterArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A jitter CSV: records `frame,x,y`, the first of which may be a header, read by the
+/// `csv` crate (quoted fields, spaces around fields, a byte-order mark, CRLF line ends and
+/// blank lines all read as a spreadsheet writes them). The error names the line.
+fn jitter_csv(text: &str) -> Result<BTreeMap<u64, [f32; 2]>, String> {
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let mut table = BTreeMap::new();
+    for (n, record) in reader.records().enumerate() {
+        let record = record.map_err(|e| e.to_string())?;
+        let parsed = match (record.get(0), record.get(1), record.get(2), record.len()) {
+            (Some(k), Some(x), Some(y), 3) => k
+                .parse::<u64>()
+                .ok()
+                .zip(x.parse::<f32>().ok().zip(y.parse::<f32>().ok())),
+            _ => None,
+        };
+        match parsed {
+            Some((k, (x, y))) => {
+                table.insert(k, [x, y]);
+            }
+            None if n == 0 => {} // a header
+            None => {
+                // The reader's position is where it began to look for the record, before
+                // the blank lines it skipped: count the lines up to the record's first byte.
+                let from = record.position().map_or(0, |p| p.byte() as usize).min(text.len());
+                let bytes = text.as_bytes();
+                let skipped = bytes[from..]
+                    .iter()
+                    .take_while(|&&b| b == b'\r' || b == b'\n')
+                    .count();
+                let line = 1 + bytes[..from + skipped].iter().filter(|&&b| b == b'\n').count();
+                let fields: Vec<&str> = record.iter().collect();
+                return Err(format!("line {line}: expected frame,x,y, got {fields:?}"));
+            }
+        }
+    }
+    Ok(table)
+}
+
 /// The jitter of every frame of `input` from `--jitter-from` (see [`FilterArgs`]), by
 /// frame number; every frame must get one.
 pub(super) fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTreeMap<u64, [f32; 2]>> {
@@ -216,26 +258,7 @@ pub(super) fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTree
         let text = std::fs::read_to_string(spec).with_context(|| format!("--jitter-from {spec}"))?;
         let at = |what: String| format!("--jitter-from {spec}: {what}");
         if spec.to_ascii_lowercase().ends_with(".csv") {
-            let mut t = BTreeMap::new();
-            for (line_no, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-                let f: Vec<&str> = line.split(',').map(str::trim).collect();
-                let parsed = match f[..] {
-                    [k, x, y] => k
-                        .parse::<u64>()
-                        .ok()
-                        .zip(x.parse::<f32>().ok().zip(y.parse::<f32>().ok())),
-                    _ => None,
-                };
-                match parsed {
-                    Some((k, (x, y))) => t.insert(k, [x, y]),
-                    None if line_no == 0 => None, // a header line
-                    None => anyhow::bail!(at(format!(
-                        "line {}: expected frame,x,y, got {line:?}",
-                        line_no + 1
-                    ))),
-                };
-            }
-            t
+            jitter_csv(&text).map_err(|e| anyhow::anyhow!(at(e)))?
         } else {
             match serde_json::from_str::<serde_json::Value>(&text).with_context(|| at("not JSON".into()))? {
                 serde_json::Value::Array(v) => {
@@ -271,4 +294,32 @@ pub(super) fn jitter_table(spec: &str, input: &Sequence) -> anyhow::Result<BTree
         anyhow::bail!("--jitter-from {spec}: frame {k}: jitter {j:?} is not within -1..=1 pixels");
     }
     Ok(table)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What a spreadsheet writes: a byte-order mark, a header with spaces, quoted fields,
+    /// CRLF line ends and a blank line. Splitting lines at ',' took the first frame (behind
+    /// the mark) for a header and refused the quoted one.
+    #[test]
+    fn a_jitter_csv_reads_as_a_spreadsheet_writes_it() {
+        let text = "\u{feff}1001, 0.25, -0.125\r\n\r\n\"1002\",\" 0.5\",\"-0.5\"\r\n 1003 ,0,1\r\n";
+        let t = jitter_csv(text).unwrap();
+        assert_eq!(
+            t.into_iter().collect::<Vec<_>>(),
+            [(1001, [0.25, -0.125]), (1002, [0.5, -0.5]), (1003, [0.0, 1.0])]
+        );
+        let t = jitter_csv("frame, x, y\n1001,0.25,0.75\n").unwrap();
+        assert_eq!(t.into_iter().collect::<Vec<_>>(), [(1001, [0.25, 0.75])]);
+        // Only the first record may be a header; a bad one later is named by its line.
+        let e = jitter_csv("frame,x,y\n1001,0.25,0.75\n\n1002,0.25\n").unwrap_err();
+        assert!(
+            e.starts_with("line 4: expected frame,x,y") && e.contains("\"0.25\""),
+            "{e}"
+        );
+        let e = jitter_csv("1001,0.25,0.75\n1002,\"0.5,0.5\",0\n").unwrap_err();
+        assert!(e.starts_with("line 2:") && e.contains("\"0.5,0.5\""), "{e}");
+    }
 }

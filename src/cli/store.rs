@@ -90,20 +90,34 @@ pub fn storage_for(spec: &str) -> anyhow::Result<Arc<dyn Storage>> {
 }
 
 /// An object store refusal as an [`IoError`] naming the object, led by what it means where
-/// it is one of the usual setup mistakes ([`meaning`]).
-fn refused(path: &Path, e: impl std::fmt::Display) -> IoError {
-    let text = e.to_string();
-    let text = match split(path).and_then(|(scheme, bucket, _)| meaning(scheme, &bucket, &text)) {
-        Some(m) => format!("{m} ({text})"),
-        None => text,
+/// it is one of the usual setup mistakes ([`meaning`]). Its `std::io::Error` has the kind
+/// `NotFound` or `PermissionDenied` for those (and for the store's own `NotFound`,
+/// `PermissionDenied` and `Unauthenticated` errors), which `batch` does not retry:
+/// transient failures were already retried, with backoff, by the store's client.
+fn refused(path: &Path, e: impl std::fmt::Display + 'static) -> IoError {
+    use std::io::ErrorKind;
+    let any: &dyn std::any::Any = &e;
+    let kind = match any.downcast_ref::<object_store::Error>() {
+        Some(object_store::Error::NotFound { .. }) => ErrorKind::NotFound,
+        Some(object_store::Error::PermissionDenied { .. } | object_store::Error::Unauthenticated { .. }) => {
+            ErrorKind::PermissionDenied
+        }
+        _ => ErrorKind::Other,
     };
-    IoError::os(path, std::io::Error::other(text))
+    let text = e.to_string();
+    let error = match split(path).and_then(|(scheme, bucket, _)| meaning(scheme, &bucket, &text)) {
+        Some((kind, m)) => std::io::Error::new(kind, format!("{m} ({text})")),
+        None => std::io::Error::new(kind, text),
+    };
+    IoError::os(path, error)
 }
 
 /// What an object store's error text means when it is no credentials (the provider's
 /// chain ended at the instance metadata service, 169.254.169.254, which refused or did not
-/// answer), no such bucket, or access denied; `None` for anything else.
-fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<String> {
+/// answer), no such bucket, or access denied, with the kind of error it is; `None` for
+/// anything else.
+fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<(std::io::ErrorKind, String)> {
+    use std::io::ErrorKind;
     let t = text.to_ascii_lowercase();
     let has = |words: &[&str]| words.iter().any(|w| t.contains(w));
     if has(&[
@@ -117,7 +131,10 @@ fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<String> {
             "gs" => "set GOOGLE_APPLICATION_CREDENTIALS or GOOGLE_SERVICE_ACCOUNT",
             _ => "set AZURE_STORAGE_ACCOUNT_NAME with AZURE_STORAGE_ACCOUNT_KEY (or a SAS token or managed identity)",
         };
-        return Some(format!("no credentials for {scheme}://{bucket}: {how}"));
+        return Some((
+            ErrorKind::PermissionDenied,
+            format!("no credentials for {scheme}://{bucket}: {how}"),
+        ));
     }
     if has(&[
         "nosuchbucket",
@@ -125,7 +142,7 @@ fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<String> {
         "containernotfound",
         "container does not exist",
     ]) {
-        return Some(format!("no bucket {scheme}://{bucket}"));
+        return Some((ErrorKind::NotFound, format!("no bucket {scheme}://{bucket}")));
     }
     if has(&[
         "accessdenied",
@@ -135,8 +152,9 @@ fn meaning(scheme: &str, bucket: &str, text: &str) -> Option<String> {
         "status 403",
         "403 forbidden",
     ]) {
-        return Some(format!(
-            "access denied to {scheme}://{bucket}: the credentials found are not allowed this"
+        return Some((
+            ErrorKind::PermissionDenied,
+            format!("access denied to {scheme}://{bucket}: the credentials found are not allowed this"),
         ));
     }
     None
@@ -276,24 +294,58 @@ mod tests {
     #[test]
     fn refusals_say_what_they_mean() {
         let p = Path::new("s3://shots/sh010/beauty.0001.exr");
-        for (text, says) in [
+        use std::io::ErrorKind;
+        let kind = |e: &IoError| match e {
+            IoError::Os { source, .. } => source.kind(),
+            other => panic!("not an OS error: {other}"),
+        };
+        for (text, says, is) in [
             (
                 "Generic S3 error: Error getting credentials from provider: HTTP status client error (403 Forbidden) for url (http://169.254.169.254/latest/api/token)",
                 "no credentials for s3://shots: set AWS_ACCESS_KEY_ID",
+                ErrorKind::PermissionDenied,
             ),
             (
                 "Generic S3 error: Client error with status 404 Not Found: <Error><Code>NoSuchBucket</Code><Message>The specified bucket does not exist</Message></Error>",
                 "no bucket s3://shots",
+                ErrorKind::NotFound,
             ),
             (
                 "Generic S3 error: Client error with status 403 Forbidden: <Error><Code>AccessDenied</Code></Error>",
                 "access denied to s3://shots",
+                ErrorKind::PermissionDenied,
             ),
         ] {
-            let e = refused(p, text).to_string();
+            let e = refused(p, text.to_string());
+            assert_eq!(kind(&e), is, "{e}");
+            let e = e.to_string();
             assert!(e.starts_with(&format!("{}: {says}", p.display())), "{e}");
             assert!(e.contains(text), "the store's text is kept: {e}");
         }
+        // The store's own kinds of refusal keep theirs; other failures are plain.
+        let source = || Box::new(std::io::Error::other("x")) as Box<dyn std::error::Error + Send + Sync>;
+        let store = |e: object_store::Error| kind(&refused(p, e));
+        assert_eq!(
+            store(object_store::Error::NotFound {
+                path: "k".into(),
+                source: source()
+            }),
+            ErrorKind::NotFound
+        );
+        assert_eq!(
+            store(object_store::Error::Unauthenticated {
+                path: "k".into(),
+                source: source()
+            }),
+            ErrorKind::PermissionDenied
+        );
+        assert_eq!(
+            store(object_store::Error::Generic {
+                store: "S3",
+                source: source()
+            }),
+            ErrorKind::Other
+        );
         let other = refused(p, "Generic S3 error: connection reset").to_string();
         assert_eq!(
             other,

@@ -672,7 +672,7 @@ async fn metrics(State(svc): State<Service>, headers: HeaderMap) -> HttpResult<R
         svc.caller(value).map_err(HttpError)?;
     }
     let text = svc.metrics.render(svc.sessions.totals());
-    Ok(([(header::CONTENT_TYPE, "text/plain; version=0.0.4")], text).into_response())
+    Ok(([(header::CONTENT_TYPE, super::metrics::CONTENT_TYPE)], text).into_response())
 }
 
 /// The HTTP API.
