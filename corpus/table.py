@@ -1,13 +1,16 @@
 """Prints report.json (afterimage report --corpus ...) as two markdown tables: mean PSNR
-per filter and scene, then SSIM / tRMSE per filter and scene.
+per filter and scene, then SSIM / tRMSE per filter and scene. With `--upsampling`, the
+same for the report's upsampling section.
 
-    python3 corpus/table.py OUT/report.json
+    python3 corpus/table.py OUT/report.json [--upsampling]
 """
 
 import json
 import sys
 
 r = json.load(open(sys.argv[1]))
+if "--upsampling" in sys.argv[2:]:
+    r = r["upsampling"]
 scenes = [s["scene"] for s in r["scenes"]]
 filters = [c["filter"] for c in r["scenes"][0]["cells"]]
 summary = {s["filter"]: s for s in r["summary"]}

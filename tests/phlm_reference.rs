@@ -6,6 +6,7 @@
 
 use afterimage::filters::phlm::{Params, Phlm};
 use afterimage::frame::{ChannelKind, Frame, Plane, Rgb};
+use afterimage::kernels::clip::{CLIP_EPS, CLIP_REL};
 use afterimage::pipeline::{Filter, FilterKind};
 use afterimage::rng::SplitMix64;
 
@@ -203,6 +204,10 @@ fn reference_frame(
             // Predict; outside the box -> first point of the ray toward y inside it; reset.
             let f = ycocg(predict(&m, &x));
             let target = ycocg(y[i]);
+            // The box grown by the clip's guard on each side (part of its definition).
+            let mag = (0..3).map(|k| lo[k].abs().max(hi[k].abs())).fold(0.0, f64::max);
+            let g = CLIP_EPS as f64 + CLIP_REL as f64 * mag;
+            let (lo, hi) = (lo.map(|v| v - g), hi.map(|v| v + g));
             let inside = (0..3).all(|k| f[k] >= lo[k] && f[k] <= hi[k]);
             if !inside {
                 let mut s: f64 = 0.0;

@@ -209,12 +209,11 @@ pub fn dilate_row(d: &[f32], m: [&[f32]; 2], w: usize, h: usize, y: usize, mx: &
     }
 }
 
-/// Sharpens every channel with [`sharpen_cross`] of strength `s`, keeping values >= 0 (and
-/// below 1 when `bounded`, i.e. in the tonemapped working space).
-pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool, scratch: &mut Scratch) -> Rgb {
+/// Sharpens every channel with [`sharpen_cross`] of strength `s`, keeping values in
+/// `[0, hi]` (`hi` the frame's [`output_ceiling`]).
+pub fn sharpen(rgb: &Rgb, s: f32, hi: f32, scratch: &mut Scratch) -> Rgb {
     let (w, h) = rgb[0].size();
     let src = rgb.each_ref().map(|p| p.data());
-    let hi = if bounded { 1.0 - 1e-7 } else { f32::MAX };
     let mut out: Rgb = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, rows| {
         let up = y.saturating_sub(1) * w;
@@ -234,6 +233,20 @@ pub fn sharpen(rgb: &Rgb, s: f32, bounded: bool, scratch: &mut Scratch) -> Rgb {
         }
     });
     out
+}
+
+/// The largest output a filter gives in its working space for a frame with `facts`: with
+/// HDR input (tonemapped), the tonemap of the frame's largest sample, `M / (1 + M)`, which
+/// no channel of any tonemapped input pixel exceeds; unbounded otherwise. A sharpen, or a
+/// model's prediction, may overshoot the range of the input, and near 1 the untonemap
+/// turns a small overshoot into millions: no output is brighter than the frame's brightest
+/// sample. The CPU kernels, their references and the GPU all take it from here.
+pub fn output_ceiling(facts: &crate::pipeline::FrameFacts) -> f32 {
+    if facts.hdr {
+        (facts.max_color / (1.0 + facts.max_color)).min(crate::kernels::TONEMAP_MAX)
+    } else {
+        f32::MAX
+    }
 }
 
 /// The state every temporal filter keeps: double-buffered history planes (the first three

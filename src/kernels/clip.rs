@@ -1,14 +1,30 @@
 //! Rectification of history against a colour box: clip toward the centre, or clamp.
 
-/// How far every box is grown on each side before a clip, in working-space colour (LDR,
-/// or HDR tonemapped: within [0, 1]). Pedersen 2016 (INSIDE's `clip_aabb`) guards a flat
-/// box only against a division by zero (`FLT_EPS = 1e-8`); at that size, rounding noise
-/// in a flat channel (min = max, e.g. a constant Co) decides the clip of all three, and
-/// two backends summing in other orders clip differently. 1e-4 lies far above f32
-/// rounding of such values and far below a code value (1/255).
-pub(crate) const CLIP_EPS: f32 = 1.0e-4;
+/// Absolute part of the [`guard`] by which every box is grown: Pedersen 2016 (INSIDE's
+/// `clip_aabb`, `FLT_EPS = 1e-8`), so that a flat black box never divides by zero.
+pub const CLIP_EPS: f32 = 1.0e-8;
 
-/// Clips `q` toward the centre of the box `[min, max]` (grown by [`CLIP_EPS`] on each
+/// Relative part of the [`guard`]: 1e-4 of the box's largest magnitude. With the
+/// absolute part alone, rounding in a flat channel (min = max, e.g. a constant Co) decides
+/// the clip of all three channels, and two backends that sum in other orders (a Catmull-Rom
+/// fetch, `phlm`'s f32 solve against f64) clip differently. Rounding lies far below 1e-4
+/// of a value; a larger guard starts to keep history a clip should remove (docs/gpu.md).
+pub const CLIP_REL: f32 = 1.0e-4;
+
+/// How far the box `[min, max]` is grown on each side before a clip:
+/// `CLIP_EPS + CLIP_REL * m`, `m` the largest magnitude of its bounds. The lane and WGSL
+/// versions compute the same.
+#[inline(always)]
+pub fn guard(min: [f32; 3], max: [f32; 3]) -> f32 {
+    let m = min[0]
+        .abs()
+        .max(max[0].abs())
+        .max(min[1].abs().max(max[1].abs()))
+        .max(min[2].abs().max(max[2].abs()));
+    CLIP_EPS + CLIP_REL * m
+}
+
+/// Clips `q` toward the centre of the box `[min, max]` (grown by its [`guard`] on each
 /// side): if `q` lies outside, it is moved
 /// along the segment to the centre until it meets the box surface; inside, it is returned
 /// unchanged (Pedersen 2016, INSIDE's `clip_aabb`; Karis 2014). Unlike a per-axis clamp this
@@ -16,12 +32,13 @@ pub(crate) const CLIP_EPS: f32 = 1.0e-4;
 /// Returns the point and whether it moved.
 #[inline]
 pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {
+    let g = guard(min, max);
     let mut worst = 0.0f32;
     let mut center = [0.0f32; 3];
     let mut v = [0.0f32; 3];
     for k in 0..3 {
         center[k] = 0.5 * (max[k] + min[k]);
-        let extent = 0.5 * (max[k] - min[k]) + CLIP_EPS;
+        let extent = 0.5 * (max[k] - min[k]) + g;
         v[k] = q[k] - center[k];
         worst = worst.max((v[k] / extent).abs());
     }
@@ -37,21 +54,22 @@ pub fn clip_toward_center(q: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3
 }
 
 /// Clips `q` along the ray toward `target` (a point inside the box, e.g. the current input
-/// colour): if `q` lies outside `[min, max]` grown by [`CLIP_EPS`], returns the first point
-/// of the segment from `q` to `target` inside that box, else `q` unchanged
+/// colour): if `q` lies outside `[min, max]` grown by its [`guard`], returns the first
+/// point of the segment from `q` to `target` inside that box, else `q` unchanged
 /// (Iglesias-Guitian et al. 2016, Algorithm 1 lines 14-17: `ray_ori = f, ray_dir = y - f`,
 /// `f = ray_ori + ray_hit * ray_dir`). A `target` outside `[min, max]` is clamped into it
-/// first, so it lies at least `CLIP_EPS` inside the grown box and the result moves
+/// first, so it lies at least the guard inside the grown box and the result moves
 /// continuously with `q`. Returns the point and whether it moved.
 #[inline]
 pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32; 3]) -> ([f32; 3], bool) {
     let mut t = 0.0f32;
     let mut outside = false;
     let mut tgt = [0.0f32; 3];
+    let g = guard(min, max);
     for k in 0..3 {
         tgt[k] = target[k].max(min[k]).min(max[k]);
         // Entering the slab of axis k: the bound q violates, reached at fraction t_k.
-        let (lo, hi) = (min[k] - CLIP_EPS, max[k] + CLIP_EPS);
+        let (lo, hi) = (min[k] - g, max[k] + g);
         let bound = if q[k] < lo {
             lo
         } else if q[k] > hi {
@@ -67,11 +85,7 @@ pub fn clip_toward_point(q: [f32; 3], target: [f32; 3], min: [f32; 3], max: [f32
     if !outside {
         return (q, false);
     }
-    let p = [0, 1, 2].map(|k| {
-        (q[k] + t * (tgt[k] - q[k]))
-            .max(min[k] - CLIP_EPS)
-            .min(max[k] + CLIP_EPS)
-    });
+    let p = [0, 1, 2].map(|k| (q[k] + t * (tgt[k] - q[k])).max(min[k] - g).min(max[k] + g));
     (p, true)
 }
 
@@ -89,15 +103,22 @@ mod tests {
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
 
+    /// The guard in f64.
+    fn guard_f64(min: [f64; 3], max: [f64; 3]) -> f64 {
+        let m = (0..3).map(|k| min[k].abs().max(max[k].abs())).fold(0.0, f64::max);
+        CLIP_EPS as f64 + CLIP_REL as f64 * m
+    }
+
     /// f64 reference: the largest s in [0, 1] with centre + s (q - centre) inside the box
-    /// (grown by the kernel's guard `CLIP_EPS` on each side, part of its definition),
-    /// found by intersecting the segment with each slab.
+    /// (grown by the guard on each side, part of the clip's definition), found by
+    /// intersecting the segment with each slab.
     fn clip_f64(q: [f64; 3], min: [f64; 3], max: [f64; 3]) -> [f64; 3] {
         let c: Vec<f64> = (0..3).map(|k| 0.5 * (min[k] + max[k])).collect();
+        let g = guard_f64(min, max);
         let mut s: f64 = 1.0;
         for k in 0..3 {
             let v = q[k] - c[k];
-            let half = 0.5 * (max[k] - min[k]) + CLIP_EPS as f64;
+            let half = 0.5 * (max[k] - min[k]) + g;
             if v.abs() > half {
                 s = s.min(half / v.abs());
             }
@@ -130,8 +151,8 @@ mod tests {
                 Tolerance::new(1e-6 * scale, 1e-5)
                     .check("clip", got[k] as f64, expect[k])
                     .unwrap();
-                // The result is inside the box (up to rounding).
-                let slack = 1e-5 * scale as f32 + 2.0 * CLIP_EPS;
+                // The result is inside the box (up to rounding and the guard).
+                let slack = 1e-5 * scale as f32 + 2.0 * guard(min, max);
                 assert!(got[k] >= min[k] - slack && got[k] <= max[k] + slack);
             }
             let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
@@ -140,10 +161,9 @@ mod tests {
         assert!(moved > 1000, "the random cases exercise clipping ({moved})");
     }
 
-    /// Whether `p` lies in `[min, max]` grown by the guard `CLIP_EPS` (part of the clips'
-    /// definition).
+    /// Whether `p` lies in `[min, max]` grown by the guard (part of the clips' definition).
     fn in_grown(p: [f64; 3], min: [f64; 3], max: [f64; 3]) -> bool {
-        let e = CLIP_EPS as f64;
+        let e = guard_f64(min, max);
         (0..3).all(|k| p[k] >= min[k] - e && p[k] <= max[k] + e)
     }
 
@@ -189,7 +209,8 @@ mod tests {
                 Tolerance::new(1e-5 * scale, 1e-4)
                     .check("clip toward point", got[k] as f64, expect[k])
                     .unwrap();
-                assert!(got[k] >= min[k] - CLIP_EPS && got[k] <= max[k] + CLIP_EPS);
+                let g = guard(min, max);
+                assert!(got[k] >= min[k] - g && got[k] <= max[k] + g);
             }
             let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             assert_eq!(!inside, m);
@@ -204,14 +225,15 @@ mod tests {
         assert!(moved);
         // On the box grown by the guard.
         for k in 0..3 {
-            Tolerance::abs(CLIP_EPS as f64 * 1.01)
+            Tolerance::abs(guard(p, p) as f64 * 1.01)
                 .check("flat", got[k] as f64, p[k] as f64)
                 .unwrap();
         }
         // A target outside the box is clamped into it: the result is still inside (the
         // box grown by the guard).
         let (got, _) = clip_toward_point([2.0, 2.0, 2.0], [-5.0, 0.5, 9.0], [0.0; 3], [1.0; 3]);
-        let grown = -CLIP_EPS..=1.0 + CLIP_EPS;
+        let g = guard([0.0; 3], [1.0; 3]);
+        let grown = -g..=1.0 + g;
         assert!(got.iter().all(|v| grown.contains(v)), "{got:?}");
     }
 
@@ -238,8 +260,8 @@ mod tests {
         }
         // Past the guard by a thousandth of it, each clip moves the point by about a
         // thousandth of its way to the centre (or the target): the clip grows from nothing.
-        let past = CLIP_EPS * 1e-3;
-        let q = [0.1878, 0.105 + CLIP_EPS + past, 0.0287];
+        let g = guard(min, max);
+        let q = [0.1878, 0.105 + g * 1.001, 0.0287];
         let centre = [0, 1, 2].map(|k| 0.5 * (min[k] + max[k]));
         for (got, moved, to) in [
             {
@@ -267,7 +289,7 @@ mod tests {
         let (got, moved) = clip_toward_center([5.0, -2.0, 0.0], p, p);
         assert!(moved);
         for k in 0..3 {
-            Tolerance::abs(CLIP_EPS as f64 * 1.01)
+            Tolerance::abs(guard(p, p) as f64 * 1.01)
                 .check("flat", got[k] as f64, p[k] as f64)
                 .unwrap();
         }

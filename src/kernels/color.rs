@@ -41,7 +41,7 @@ pub fn ycocg_to_rgb(c: [f32; 3]) -> [f32; 3] {
 
 /// The largest value [`tonemap`] produces that [`tonemap_inverse`] accepts: inputs up to
 /// about 1e7 survive the round trip, larger ones come back as about 1e7.
-const TONEMAP_MAX: f32 = 1.0 - 1.0e-7;
+pub const TONEMAP_MAX: f32 = 1.0 - 1.0e-7;
 
 /// The reversible tonemap `c / (1 + max(r, g, b))` (Karis 2014, "High quality temporal
 /// supersampling"): maps HDR colour into [0, 1) so a single firefly cannot dominate the

@@ -7,7 +7,7 @@
 //! pixel: the same operations in the same order, so the same bits (the tests compare them
 //! on random and adversarial inputs).
 
-use super::clip::CLIP_EPS;
+use super::clip::{CLIP_EPS, CLIP_REL};
 use super::neighborhood::{fmax, fmin};
 use wide::{f32x4, f32x8, i32x8};
 
@@ -224,18 +224,32 @@ pub fn clip_toward_center(q: &[Lanes; 3], min: &[Lanes; 3], max: &[Lanes; 3]) ->
 #[inline(always)]
 pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) -> ([f32x8; 3], f32x8) {
     let half = f32x8::splat(0.5);
+    let g = guard(min, max);
     let mut worst = f32x8::splat(0.0);
     let mut center = [f32x8::splat(0.0); 3];
     let mut d = [f32x8::splat(0.0); 3];
     for k in 0..3 {
         center[k] = half * (max[k] + min[k]);
-        let extent = half * (max[k] - min[k]) + f32x8::splat(CLIP_EPS);
+        let extent = half * (max[k] - min[k]) + g;
         d[k] = q[k] - center[k];
         worst = max_of(worst, (d[k] / extent).abs());
     }
     let moved = worst.simd_gt(f32x8::splat(1.0));
     let s = f32x8::splat(1.0) / worst;
     (each(|k| moved.select(center[k] + d[k] * s, q[k])), moved)
+}
+
+/// [`super::clip::guard`] lane by lane.
+#[inline(always)]
+pub fn guard(min: &[f32x8; 3], max: &[f32x8; 3]) -> f32x8 {
+    let m = max_of(
+        max_of(
+            max_of(min[0].abs(), max[0].abs()),
+            max_of(min[1].abs(), max[1].abs()),
+        ),
+        max_of(min[2].abs(), max[2].abs()),
+    );
+    f32x8::splat(CLIP_EPS) + f32x8::splat(CLIP_REL) * m
 }
 
 /// [`fmin`] lane by lane: `a` where `a < b`, else `b` (the same bits).
@@ -289,9 +303,9 @@ pub fn clip_toward_point(
     let mut t = f32x8::splat(0.0);
     let mut outside = f32x8::splat(0.0);
     let mut tgt = [f32x8::splat(0.0); 3];
-    let eps = f32x8::splat(CLIP_EPS);
-    let lo: [f32x8; 3] = each(|k| min[k] - eps);
-    let hi: [f32x8; 3] = each(|k| max[k] + eps);
+    let g = guard(&min, &max);
+    let lo: [f32x8; 3] = each(|k| min[k] - g);
+    let hi: [f32x8; 3] = each(|k| max[k] + g);
     for k in 0..3 {
         tgt[k] = min_of(max_of(target[k], min[k]), max[k]);
         let below = q[k].simd_lt(lo[k]);

@@ -16,7 +16,9 @@ pub mod sharpen;
 pub mod sobel;
 
 pub use clip::{clamp_to_box, clip_toward_center, clip_toward_point};
-pub use color::{luma, luma_v, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709};
+pub use color::{
+    luma, luma_v, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709, TONEMAP_MAX,
+};
 pub use neighborhood::{
     box_from_columns, cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box,
     NeighborhoodStats, CROSS,

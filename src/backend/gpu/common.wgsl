@@ -5,8 +5,9 @@
 // `TONEMAP_MAX` of `kernels/color.rs`.
 const TONEMAP_MAX: f32 = 0.9999999;
 const F32_MAX: f32 = 3.40282347e38;
-// `CLIP_EPS` of `kernels/clip.rs`: every clip box grown by it on each side.
-const CLIP_EPS: f32 = 1.0e-4;
+// `CLIP_EPS` and `CLIP_REL` of `kernels/clip.rs`.
+const CLIP_EPS: f32 = 1.0e-8;
+const CLIP_REL: f32 = 1.0e-4;
 
 // kernels::tonemap: c / (1 + max c).
 fn tonemap(c: vec3<f32>) -> vec3<f32> {
@@ -81,4 +82,10 @@ fn blend(s: vec4<f32>, b: Bilinear) -> f32 {
 // in comparisons, so `v != v` is no test).
 fn finite(v: f32) -> bool {
     return (bitcast<u32>(v) & 0x7f800000u) != 0x7f800000u;
+}
+
+// kernels::clip::guard: how far a clip box [lo, hi] is grown on each side.
+fn clip_guard(lo: vec3<f32>, hi: vec3<f32>) -> f32 {
+    let m = max(abs(lo), abs(hi));
+    return CLIP_EPS + CLIP_REL * max(max(m.x, m.y), m.z);
 }

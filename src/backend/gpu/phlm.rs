@@ -371,7 +371,7 @@ impl GpuPhlm {
         set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
         set(dilate.is_none(), FLAG_DILATE);
         set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
-        let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
+        let hi = crate::filters::passes::output_ceiling(&inp.facts);
         let words = Self::param_words(p, w, h, flags, hi);
 
         let gpu = Arc::clone(&self.gpu);

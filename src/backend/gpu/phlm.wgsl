@@ -214,9 +214,10 @@ fn slab_entry(q: f32, tgt: f32, lo: f32, hi: f32) -> vec2<f32> {
 // no loop over components: a dynamically indexed vector becomes memory on some drivers.
 fn clip_toward_point(q: vec3<f32>, toward: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
     let tgt = min(max(toward, lo), hi);
-    // The box grown by kernels::clip's CLIP_EPS.
-    let glo = lo - vec3<f32>(CLIP_EPS);
-    let ghi = hi + vec3<f32>(CLIP_EPS);
+    // The box grown by its guard (kernels::clip).
+    let g = vec3<f32>(clip_guard(lo, hi));
+    let glo = lo - g;
+    let ghi = hi + g;
     let ex = slab_entry(q.x, tgt.x, glo.x, ghi.x);
     let ey = slab_entry(q.y, tgt.y, glo.y, ghi.y);
     let ez = slab_entry(q.z, tgt.z, glo.z, ghi.z);

@@ -122,8 +122,8 @@ impl Buffers {
     ) -> Result<Self, BackendError> {
         let n = width * height;
         let hist_len = n * (4 + depth as usize);
-        let params = params_buffer(gpu, "taa params", &[0; 8]);
-        let convert_params = params_buffer(gpu, "taa convert params", &[0; 8]);
+        let params = params_buffer(gpu, "taa params", &[0; 9]);
+        let convert_params = params_buffer(gpu, "taa convert params", &[0; 9]);
         let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
         let upload = ColorUpload::new(gpu, upload, &input, n)?;
         let hist = [
@@ -241,7 +241,7 @@ impl GpuTaa {
         Ok(self.buffers.as_ref().expect("just made"))
     }
 
-    fn param_words(&self, width: usize, height: usize, flags: u32) -> [u32; 8] {
+    fn param_words(&self, width: usize, height: usize, flags: u32, top: f32) -> [u32; 9] {
         let p = &self.params;
         [
             width as u32,
@@ -252,6 +252,7 @@ impl GpuTaa {
             p.gamma.to_bits(),
             p.depth_rejection.to_bits(),
             p.sharpen.to_bits(),
+            top.to_bits(),
         ]
     }
 }
@@ -376,8 +377,9 @@ impl GpuTaa {
         let mut clock = FrameClock::start();
         let gpu = Arc::clone(&self.gpu);
         let (read, write) = (self.read, 1 - self.read);
-        let words = self.param_words(w, h, flags);
-        let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 });
+        let top = crate::filters::passes::output_ceiling(&inp.facts);
+        let words = self.param_words(w, h, flags, top);
+        let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top);
         let convert = has_history && self.tonemapped != hdr;
 
         // Upload what the plan reads: the colour (as f32 or f16), then motion, depth and

@@ -25,6 +25,8 @@ struct Params {
     gamma: f32,
     depth_rejection: f32,
     sharpen: f32,
+    // The sharpen's upper bound: passes::output_ceiling.
+    top: f32,
 }
 
 const FLAG_TONEMAP: u32 = 1u;
@@ -57,7 +59,7 @@ const MAX_COUNT: f32 = 255.0;
 // kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
 fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
     let center = 0.5 * (hi + lo);
-    let extent = 0.5 * (hi - lo) + vec3<f32>(CLIP_EPS);
+    let extent = 0.5 * (hi - lo) + vec3<f32>(clip_guard(lo, hi));
     let v = q - center;
     let r = abs(v / extent);
     let worst = max(max(r.x, r.y), r.z);

@@ -1,6 +1,6 @@
 // `sharpen` reads the resolved working colour (`src`, the resolve's output) and writes
 // `dst`: passes::sharpen (kernels::sharpen_cross, thesis eq. 4.17) clamped to
-// [0, 1 - 1e-7] in the tonemapped space (else [0, f32::MAX]), then back to linear.
+// [0, S.top] (passes::output_ceiling), then back to linear in the tonemapped space.
 @group(0) @binding(0) var<storage, read> S: Params;
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
@@ -20,10 +20,7 @@ fn sharpen(@builtin(global_invocation_id) gid: vec3<u32>) {
     let left = select(x - 1u, 0u, x == 0u);
     let right = min(x + 1u, w - 1u);
     let tonemapped = (S.flags & FLAG_TONEMAP) != 0u;
-    var top = F32_MAX;
-    if tonemapped {
-        top = TONEMAP_MAX;
-    }
+    let top = S.top;
     var c: vec3<f32>;
     for (var k = 0u; k < 3u; k++) {
         let o = k * n;

@@ -154,7 +154,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         tonemap: tonemap_skip.is_none(),
         reproject: reproject_skip.is_none(),
         has_history,
-        hi: if facts.hdr { 1.0 - 1e-7 } else { f32::MAX },
+        hi: crate::filters::passes::output_ceiling(&facts),
         prior: 1.0 / p.p0,
         p,
     };

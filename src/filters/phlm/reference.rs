@@ -154,7 +154,7 @@ impl ReferencePhlm {
 
         // Algorithm 1.
         let mut out: Rgb = scratch.planes(w, h);
-        let hi = if hdr { 1.0 - 1e-7 } else { f32::MAX };
+        let hi = super::super::passes::output_ceiling(&facts);
         // The prior R0 = I / p0 that forgetting relaxes toward (rls module docs).
         let prior = 1.0 / p.p0;
         let counts: Counts = rec.run("model", || {

@@ -15,8 +15,8 @@
 
 use super::{HistoryFilter, Params, StagePlan, MAX_COUNT};
 use crate::filters::passes::{
-    dilate_row, from_working, on_screen_bits, previous_positions, sharpen, tonemap_row, untonemap_row,
-    FrameContext, FrameResult,
+    dilate_row, from_working, on_screen_bits, output_ceiling, previous_positions, sharpen, tonemap_row,
+    untonemap_row, FrameContext, FrameResult,
 };
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
@@ -189,7 +189,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         }
     }
     if let Some(s) = rec.stage("sharpen", sharpen_skip, || {
-        sharpen(&out, p.sharpen, facts.hdr, scratch)
+        sharpen(&out, p.sharpen, output_ceiling(&facts), scratch)
     }) {
         scratch.recycle(std::mem::replace(&mut out, s));
         rec.stage("untonemap", tonemap_skip, || from_working(&mut out, true));

@@ -4,7 +4,8 @@
 //! filter computes.
 
 use super::super::passes::{
-    from_working, on_screen, sharpen, slices_mut, to_working, to_ycocg, Reprojection, TemporalState,
+    from_working, on_screen, output_ceiling, sharpen, slices_mut, to_working, to_ycocg, Reprojection,
+    TemporalState,
 };
 use super::super::reconstruct::Reconstruction;
 use super::{HistoryFilter, Params, Taa, CG, CO, COUNT, DEPTH, MAX_COUNT, Y};
@@ -193,7 +194,7 @@ impl ReferenceTaa {
         if let Some(s) = rec.stage(
             "sharpen",
             (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" }),
-            || sharpen(&out, p.sharpen, hdr, scratch),
+            || sharpen(&out, p.sharpen, output_ceiling(&facts), scratch),
         ) {
             scratch.recycle(std::mem::replace(&mut out, s));
         }

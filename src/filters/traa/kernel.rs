@@ -22,8 +22,8 @@ use super::{
     feedback_v, mix_v, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
 };
 use crate::filters::passes::{
-    dilate_row, on_screen_bits, previous_positions, reproject_skip, tonemap_row, untonemap_row, FrameContext,
-    FrameResult,
+    dilate_row, on_screen_bits, output_ceiling, previous_positions, reproject_skip, tonemap_row,
+    untonemap_row, FrameContext, FrameResult,
 };
 use crate::frame::{ChannelKind, Rgb};
 use crate::kernels::lanes::{self, block, mask_of_bits, Lanes, Mask, LANES};
@@ -361,7 +361,7 @@ pub(super) fn frame(
                         w,
                         h,
                         strength,
-                        facts.hdr,
+                        output_ceiling(&facts),
                         untonemap,
                         &clock,
                         rows.clone(),
@@ -1014,21 +1014,19 @@ fn resolve_row<const N: usize>(
 
 /// Stages `sharpen` and `untonemap` of one band: each channel sharpened against its cross
 /// neighbours in `src` (the resolved output, edges clamped) with [`sharpen_cross`], held in
-/// `[0, 1)` in the tonemapped working space (`bounded`), else at least 0; then back to
-/// linear colour when `untonemap`.
+/// `[0, hi]` (the frame's [`output_ceiling`]); then back to linear colour when `untonemap`.
 #[allow(clippy::too_many_arguments)]
 fn sharpen_band(
     src: [&[f32]; 3],
     w: usize,
     h: usize,
     strength: f32,
-    bounded: bool,
+    hi: f32,
     untonemap: bool,
     clock: &StageClock<2>,
     rows: Range<usize>,
     band: [&mut [f32]; 3],
 ) {
-    let hi = if bounded { 1.0 - 1e-7 } else { f32::MAX };
     let [b0, b1, b2] = band;
     let mut band = [b0, b1, b2];
     clock.time(0, || {

@@ -4,7 +4,7 @@
 //! filter computes.
 
 use super::super::passes::{
-    from_working, on_screen, sharpen, slices_mut, to_working, Reprojection, TemporalState,
+    from_working, on_screen, output_ceiling, sharpen, slices_mut, to_working, Reprojection, TemporalState,
 };
 use super::super::reconstruct::Reconstruction;
 use super::{
@@ -261,7 +261,7 @@ impl ReferenceTraa {
         if let Some(s) = rec.stage(
             "sharpen",
             (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
-            || sharpen(&out, strength, hdr, scratch),
+            || sharpen(&out, strength, output_ceiling(&facts), scratch),
         ) {
             scratch.recycle(std::mem::replace(&mut out, s));
         }
