@@ -108,6 +108,9 @@ impl Reconstruction {
             return;
         }
         if let Some(rgb) = rec.stage(STAGE, self.skip(), || self.apply(&inp.color, jitter, scratch)) {
+            // The filter's input is now the reconstruction: its largest sample bounds the
+            // output (`passes::output_ceiling`), as for a frame given reconstructed.
+            inp.facts.max_color = largest(&rgb);
             if let Cow::Owned(old) = std::mem::replace(&mut inp.color, Cow::Owned(rgb)) {
                 scratch.recycle(old);
             }
@@ -129,6 +132,17 @@ impl Reconstruction {
             scratch.recycle(old);
         }
     }
+}
+
+/// The largest sample of `rgb` (at least 0).
+fn largest(rgb: &Rgb) -> f32 {
+    use rayon::prelude::*;
+    crate::pipeline::exec::pool().install(|| {
+        rgb.par_iter()
+            .flat_map(|p| p.data().par_chunks(1 << 14))
+            .map(|c| c.iter().fold(0.0f32, |m, &v| m.max(v)))
+            .reduce(|| 0.0, f32::max)
+    })
 }
 
 #[cfg(test)]

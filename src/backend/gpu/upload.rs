@@ -21,7 +21,7 @@ use super::buffers::params_buffer;
 use super::{bind, pipeline, Gpu, StorageBuffer};
 use crate::backend::BackendError;
 use crate::frame::Rgb;
-use crate::pipeline::UploadPrecision;
+use crate::pipeline::{FrameFacts, UploadPrecision};
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
@@ -108,6 +108,17 @@ impl ColorUpload {
             }
         };
         Ok(ColorUpload { n, packed })
+    }
+
+    /// The facts of a frame as the device sees its colour: the largest sample rounded as
+    /// the upload rounds it (clamped to +-[`F16_MAX`], to nearest), so that bounds drawn
+    /// from it (`passes::output_ceiling`) are those of the CPU filter given that colour.
+    pub(crate) fn uploaded_facts(&self, facts: &FrameFacts) -> FrameFacts {
+        let mut f = *facts;
+        if self.packed.is_some() {
+            f.max_color = f16::from_f32(f.max_color.clamp(-F16_MAX, F16_MAX)).to_f32();
+        }
+        f
     }
 
     /// Queues `color` (planes of `n` samples) for the device; the bytes queued. With f16,
