@@ -242,13 +242,12 @@ pub fn clip_toward_center_v(q: &[f32x8; 3], min: &[f32x8; 3], max: &[f32x8; 3]) 
 /// [`super::clip::guard`] lane by lane.
 #[inline(always)]
 pub fn guard(min: &[f32x8; 3], max: &[f32x8; 3]) -> f32x8 {
-    let m = max_of(
-        max_of(
-            max_of(min[0].abs(), max[0].abs()),
-            max_of(min[1].abs(), max[1].abs()),
-        ),
-        max_of(min[2].abs(), max[2].abs()),
-    );
+    // Magnitudes are neither NaN nor -0, so any maximum gives the scalar code's bits.
+    let m = min[0]
+        .abs()
+        .max(max[0].abs())
+        .max(min[1].abs().max(max[1].abs()))
+        .max(min[2].abs().max(max[2].abs()));
     f32x8::splat(CLIP_EPS) + f32x8::splat(CLIP_REL) * m
 }
 
@@ -350,7 +349,7 @@ pub fn ycocg_to_rgb(c: &[Lanes; 3]) -> [Lanes; 3] {
 pub fn store_texels<const N: usize>(cols: &[Lanes; N], out: &mut [f32]) {
     let whole = N / LANES * LANES;
     for g in (0..whole).step_by(LANES) {
-        let rows = f32x8::transpose(std::array::from_fn(|k| f32x8::from(cols[g + k])));
+        let rows = f32x8::transpose(each(|k| f32x8::from(cols[g + k])));
         for (t, row) in out.chunks_exact_mut(N).zip(rows) {
             t[g..g + LANES].copy_from_slice(&row.to_array());
         }
@@ -392,7 +391,7 @@ pub fn load_texels<const N: usize>(texels: &[[f32; N]; LANES]) -> [Lanes; N] {
     let mut cols = [[0.0; LANES]; N];
     let whole = N / LANES * LANES;
     for g in (0..whole).step_by(LANES) {
-        let rows = std::array::from_fn(|l| f32x8::from(*block::<f32, LANES>(&texels[l], g)));
+        let rows = each(|l| f32x8::from(*block::<f32, LANES>(&texels[l], g)));
         for (k, v) in f32x8::transpose(rows).into_iter().enumerate() {
             cols[g + k] = v.to_array();
         }
@@ -400,7 +399,7 @@ pub fn load_texels<const N: usize>(texels: &[[f32; N]; LANES]) -> [Lanes; N] {
     let tail = N - whole;
     if tail >= TAIL_BY_TRANSPOSE {
         // The last values padded to eight with zeros, and transposed like the others.
-        let rows = std::array::from_fn(|l| {
+        let rows = each(|l| {
             let mut r = [0.0; LANES];
             r[..tail].copy_from_slice(&texels[l][whole..]);
             f32x8::from(r)
