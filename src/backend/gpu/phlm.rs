@@ -371,13 +371,12 @@ impl GpuPhlm {
         set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
         set(dilate.is_none(), FLAG_DILATE);
         set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
-        let uploaded = self
+        let hi = self
             .buffers
             .as_ref()
             .expect("sized")
             .upload
-            .uploaded_facts(&inp.facts);
-        let hi = crate::filters::passes::output_ceiling(&uploaded);
+            .output_ceiling(&inp.facts);
         let words = Self::param_words(p, w, h, flags, hi);
 
         let gpu = Arc::clone(&self.gpu);

@@ -377,13 +377,12 @@ impl GpuTaa {
         let mut clock = FrameClock::start();
         let gpu = Arc::clone(&self.gpu);
         let (read, write) = (self.read, 1 - self.read);
-        let uploaded = self
+        let top = self
             .buffers
             .as_ref()
             .expect("sized")
             .upload
-            .uploaded_facts(&inp.facts);
-        let top = crate::filters::passes::output_ceiling(&uploaded);
+            .output_ceiling(&inp.facts);
         let words = self.param_words(w, h, flags, top);
         let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top);
         let convert = has_history && self.tonemapped != hdr;

@@ -20,6 +20,7 @@
 use super::buffers::params_buffer;
 use super::{bind, pipeline, Gpu, StorageBuffer};
 use crate::backend::BackendError;
+use crate::filters::passes::output_ceiling;
 use crate::frame::Rgb;
 use crate::pipeline::{FrameFacts, UploadPrecision};
 use half::f16;
@@ -110,15 +111,15 @@ impl ColorUpload {
         Ok(ColorUpload { n, packed })
     }
 
-    /// The facts of a frame as the device sees its colour: the largest sample rounded as
-    /// the upload rounds it (clamped to +-[`F16_MAX`], to nearest), so that bounds drawn
-    /// from it (`passes::output_ceiling`) are those of the CPU filter given that colour.
-    pub(crate) fn uploaded_facts(&self, facts: &FrameFacts) -> FrameFacts {
+    /// [`output_ceiling`] of a frame with `facts` as the device sees its colour: the
+    /// largest sample rounded as the upload rounds it (clamped to +-[`F16_MAX`], to
+    /// nearest), so that the bound is that of the CPU filter given that colour.
+    pub(crate) fn output_ceiling(&self, facts: &FrameFacts) -> f32 {
         let mut f = *facts;
         if self.packed.is_some() {
             f.max_color = f16::from_f32(f.max_color.clamp(-F16_MAX, F16_MAX)).to_f32();
         }
-        f
+        output_ceiling(&f)
     }
 
     /// Queues `color` (planes of `n` samples) for the device; the bytes queued. With f16,
