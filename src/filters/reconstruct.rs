@@ -14,7 +14,7 @@
 
 use crate::frame::Rgb;
 use crate::kernels::reconstruct::{blackman_harris, edge_taps, gaussian, reconstruct_row, taps};
-use crate::pipeline::exec::for_rows;
+use crate::pipeline::exec::par_rows;
 use crate::pipeline::{Inputs, Recorder, Scratch, Skip};
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
@@ -79,24 +79,28 @@ impl Reconstruction {
     }
 
     /// `rgb`, jittered by `jitter` (pixels, x right, y down), reconstructed with this
-    /// filter into planes from `scratch`.
-    pub fn apply(&self, rgb: &Rgb, jitter: [f32; 2], scratch: &mut Scratch) -> Rgb {
+    /// filter into planes from `scratch`, and the reconstruction's largest sample (at least
+    /// 0), taken while each row is in cache.
+    pub fn apply(&self, rgb: &Rgb, jitter: [f32; 2], scratch: &mut Scratch) -> (Rgb, f32) {
         let (w, h) = rgb[0].size();
         let wx = taps(jitter[0], |v| self.weight(v));
         let wy = taps(jitter[1], |v| self.weight(v));
         let mut out: Rgb = scratch.planes(w, h);
         let src = rgb.each_ref().map(|p| p.data());
         // One pass over the three planes, a row of each per task.
-        for_rows(out.each_mut().map(|p| p.data_mut()), w, |y, rows| {
+        let largest: Largest = par_rows(out.each_mut().map(|p| p.data_mut()), w, |y, rows| {
             let (up, down) = (y.saturating_sub(1), (y + 1).min(h - 1));
             let wy = edge_taps(wy, y, h);
             let mut tmp = vec![0.0; w];
+            let mut m = Largest::default();
             for (src, row) in src.iter().zip(rows) {
                 let line = |k: usize| &src[k * w..(k + 1) * w];
                 reconstruct_row([line(up), line(y), line(down)], wy, wx, &mut tmp, row);
+                m.0 = row.iter().fold(m.0, |m, &v| m.max(v));
             }
+            m
         });
-        out
+        (out, largest.0)
     }
 
     /// The `reconstruct` stage: replaces `inp.color` by its reconstruction (or records why
@@ -107,10 +111,12 @@ impl Reconstruction {
             // Sparse shading: the stage runs on the output ([`Self::sparse_output`]).
             return;
         }
-        if let Some(rgb) = rec.stage(STAGE, self.skip(), || self.apply(&inp.color, jitter, scratch)) {
+        if let Some((rgb, largest)) =
+            rec.stage(STAGE, self.skip(), || self.apply(&inp.color, jitter, scratch))
+        {
             // The filter's input is now the reconstruction: its largest sample bounds the
             // output (`passes::output_ceiling`), as for a frame given reconstructed.
-            inp.facts.max_color = largest(&rgb);
+            inp.facts.max_color = largest;
             if let Cow::Owned(old) = std::mem::replace(&mut inp.color, Cow::Owned(rgb)) {
                 scratch.recycle(old);
             }
@@ -127,22 +133,22 @@ impl Reconstruction {
         if !sparse {
             return;
         }
-        if let Some(rgb) = rec.stage(STAGE, self.skip(), || self.apply(color, [0.0, 0.0], scratch)) {
+        if let Some((rgb, _)) = rec.stage(STAGE, self.skip(), || self.apply(color, [0.0, 0.0], scratch)) {
             let old = std::mem::replace(color, rgb);
             scratch.recycle(old);
         }
     }
 }
 
-/// The largest sample of `rgb` (at least 0).
-fn largest(rgb: &Rgb) -> f32 {
-    use rayon::prelude::*;
-    crate::pipeline::exec::pool().install(|| {
-        rgb.par_iter()
-            .flat_map(|p| p.data().par_chunks(1 << 14))
-            .map(|c| c.iter().fold(0.0f32, |m, &v| m.max(v)))
-            .reduce(|| 0.0, f32::max)
-    })
+/// The largest of the samples added into it (`+=` keeps the maximum): a row's largest
+/// sample, reduced over the rows by [`par_rows`].
+#[derive(Clone, Copy, Default)]
+struct Largest(f32);
+
+impl std::ops::AddAssign for Largest {
+    fn add_assign(&mut self, other: Largest) {
+        self.0 = self.0.max(other.0);
+    }
 }
 
 #[cfg(test)]
