@@ -86,7 +86,7 @@ trap 'stop_background || true; rm -rf "$work"' EXIT
 # (.ci/run exports AFTERIMAGE_GRPC_ADDR and AFTERIMAGE_HTTP_ADDR for its own servers.)
 while read -r var; do unset "$var"; done < <(compgen -e | grep '^AFTERIMAGE_' || true)
 [ -x target/release/afterimage ] || cargo build --locked --release
-if newer=$(find src proto build.rs Cargo.toml Cargo.lock -newer target/release/afterimage -print -quit) && [ -n "$newer" ]; then
+if newer=$(find src crates Cargo.toml Cargo.lock -newer target/release/afterimage -print -quit) && [ -n "$newer" ]; then
   echo "readme.sh: warning: $newer is newer than target/release/afterimage; rebuild to test the current source" >&2
 fi
 export PATH="$root/target/release:$PATH"

@@ -36,7 +36,7 @@ out=$1
 strip_mode=${STRIP:-debug}
 bin=target/release/afterimage
 # What the binary is built from (the context also has benches/, which Cargo.toml names).
-inputs=(Cargo.toml Cargo.lock build.rs src proto)
+inputs=(Cargo.toml Cargo.lock src crates)
 
 if [ $check = 1 ]; then
   # 1. The Dockerfile's build stage runs this script into /out, and the runtime stage copies

@@ -9,9 +9,9 @@ Prints the markdown table the README shows. Inputs and assumptions:
 
 - state bytes/pixel: `afterimage filters --json` (state_bytes_per_pixel), plus, for a filter
   that holds frames back (pixel_trace: window/2 frames), the queued frames the server
-  reserves, 2 x (lookahead + 1) x 12 B/px (src/session/mod.rs). These are exactly the
+  reserves, 2 x (lookahead + 1) x 12 B/px (crates/server/src/session/mod.rs). These are exactly the
   state_bytes a session reports when created (checked at 720p, 1080p and 4K).
-- a frame in flight reserves wire + decoded + 2 x output bytes (src/server/grpc.rs): wire
+- a frame in flight reserves wire + decoded + 2 x output bytes (crates/server/src/grpc.rs): wire
   4 B per component sent (f32; the filter's "uses" channels), decoded 4 B per component,
   output 12 B/px.
 - ms/frame: the report's "Timing at 1920x1080" median, measured with 2 threads on the

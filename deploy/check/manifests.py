@@ -260,7 +260,7 @@ def check_overlay(out, name, validators, binary):
     # Gateway, routes, policy.
     gw = one['Gateway']
     listeners = {lst['name']: lst for lst in gw['spec']['listeners']}
-    proto = (ROOT / 'proto/afterimage/v1/afterimage.proto').read_text()
+    proto = (ROOT / 'crates/client/proto/afterimage/v1/afterimage.proto').read_text()
     service = '%s.%s' % (re.search(r'^package\s+([\w.]+);', proto, re.M).group(1),
                          re.search(r'^service\s+(\w+)', proto, re.M).group(1))
     for kind, pname in (('GRPCRoute', 'grpc'), ('HTTPRoute', 'http')):

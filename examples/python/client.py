@@ -25,7 +25,7 @@ KEY` (or AFTERIMAGE_API_KEY), sent as `authorization: Bearer KEY` metadata on ev
 `--tls-ca cert.pem` (the CA, or the self-signed certificate, to trust) and, when the
 certificate's name is not the address's host, `--tls-domain NAME`.
 
-The wire format (see proto/afterimage/v1/afterimage.proto): a FrameHeader naming the
+The wire format (see crates/client/proto/afterimage/v1/afterimage.proto): a FrameHeader naming the
 channels, then DataChunks of at most the session's max_chunk_bytes whose concatenation
 is each channel's planes, little-endian, one after another.
 """

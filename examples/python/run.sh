@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Sets up the Python example client (a venv with the pinned packages from PyPI, then the
-# gRPC code generated from proto/ with grpcio-tools) and runs it with the given arguments:
+# gRPC code generated from crates/client/proto/ with grpcio-tools) and runs it with the given arguments:
 #
 #   examples/python/run.sh --server 127.0.0.1:50051 --filter taa
 #
@@ -29,8 +29,8 @@ fi
 
 out="$here/generated"
 mkdir -p "$out"
-"$venv/bin/python" -m grpc_tools.protoc -I "$root/proto" \
+"$venv/bin/python" -m grpc_tools.protoc -I "$root/crates/client/proto" \
   --python_out="$out" --grpc_python_out="$out" \
-  "$root/proto/afterimage/v1/afterimage.proto"
+  "$root/crates/client/proto/afterimage/v1/afterimage.proto"
 
 exec "$venv/bin/python" "$here/client.py" "$@"

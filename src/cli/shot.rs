@@ -17,8 +17,8 @@ use super::filter::{jitter_table, FilterArgs};
 use super::store::storage_for;
 use afterimage::frame::{ChannelKind, Frame, FrameMeta, Rgb};
 use afterimage::io::{
-    encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, OutputNaming, PresetChoice,
-    ReadOptions, Selection, Sequence, Storage,
+    encode_filtered_for, refuse_overwrite, write_png, FilteredFrame, InputImage, IoError, OutputNaming,
+    OutputOptions, PresetChoice, ReadOptions, Selection, Sequence, Storage,
 };
 use afterimage::metrics::{Evaluator, FrameMetrics, MetricSpace, SpaceChoice};
 use afterimage::pipeline::state::StateKey;
@@ -28,9 +28,10 @@ use indicatif::ProgressBar;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{channel, sync_channel, SyncSender};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
+use std::sync::Arc;
 
 /// Frames read and decoded ahead of the filter.
 pub const READ_AHEAD: usize = 2;
@@ -354,20 +355,25 @@ fn resume(
     }
 }
 
-/// Filters the sequence `args` names and writes its outputs and records (see the module);
-/// `bar` counts the frames written (its length is set here). With `checkpoints`, continues
-/// from the last checkpoint of the same command and saves new ones.
-pub fn run_shot(
-    args: &FilterArgs,
-    bar: &ProgressBar,
-    checkpoints: Option<&Checkpoints>,
-) -> anyhow::Result<ShotReport> {
-    let values = parse_assignments(&args.set)?;
-    let made = afterimage::backend::create(&args.filter, &values, args.backend)?;
-    if made.backend != afterimage::backend::Backend::Cpu || args.backend != Default::default() {
-        tracing::info!(filter = %args.filter, backend = %made.backend, "filter backend");
-    }
-    let mut filter = made.filter;
+/// A shot's inputs, outputs and settings, checked before any frame is read.
+struct ShotPlan {
+    in_store: Arc<dyn Storage>,
+    out_store: Arc<dyn Storage>,
+    in_opts: ReadOptions,
+    input: Sequence,
+    /// The reference sequence, with its store, and how to read it.
+    reference: Option<(Sequence, Arc<dyn Storage>)>,
+    ref_opts: ReadOptions,
+    jitter: Option<BTreeMap<u64, [f32; 2]>>,
+    required: Vec<ChannelKind>,
+    naming: OutputNaming,
+    write: OutputOptions,
+}
+
+/// Opens the input (and reference) sequences and checks every argument against them:
+/// `--cuts` frames exist, outputs overwrite no input, `--png` goes to local files. Creates
+/// the output directory.
+fn plan_shot(args: &FilterArgs) -> anyhow::Result<ShotPlan> {
     let in_opts = args.read.options()?;
     let in_store = storage_for(&args.input)?;
     let out_store = storage_for(&args.output)?;
@@ -449,9 +455,39 @@ pub fn run_shot(
         let dir = naming.dir();
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let fingerprint = fingerprint_of(args, &filter.params(), &input, &*in_store)?;
+    Ok(ShotPlan {
+        in_store,
+        out_store,
+        in_opts,
+        input,
+        reference,
+        ref_opts,
+        jitter,
+        required,
+        naming,
+        write,
+    })
+}
+
+/// Filters the sequence `args` names and writes its outputs and records (see the module);
+/// `bar` counts the frames written (its length is set here). With `checkpoints`, continues
+/// from the last checkpoint of the same command and saves new ones.
+pub fn run_shot(
+    args: &FilterArgs,
+    bar: &ProgressBar,
+    checkpoints: Option<&Checkpoints>,
+) -> anyhow::Result<ShotReport> {
+    let values = parse_assignments(&args.set)?;
+    let made = afterimage::backend::create(&args.filter, &values, args.backend)?;
+    if made.backend != afterimage::backend::Backend::Cpu || args.backend != Default::default() {
+        tracing::info!(filter = %args.filter, backend = %made.backend, "filter backend");
+    }
+    let mut filter = made.filter;
+    let plan = plan_shot(args)?;
+    let (input, naming) = (&plan.input, &plan.naming);
+    let fingerprint = fingerprint_of(args, &filter.params(), input, &*plan.in_store)?;
     let start = match checkpoints {
-        Some(c) => resume(c, &*out_store, &fingerprint, filter.as_mut(), input.len())?,
+        Some(c) => resume(c, &*plan.out_store, &fingerprint, filter.as_mut(), input.len())?,
         None => None,
     };
     let start = start.unwrap_or_else(|| Start {
@@ -466,166 +502,39 @@ pub fn run_shot(
     bar.set_length(input.len() as u64);
     bar.set_position(start.next as u64);
     let mut shot = Emitter {
-        naming: &naming,
+        naming,
         png: args.png,
         eval: start.eval,
         earlier: start.records,
         records: Vec::new(),
         pending: VecDeque::new(),
         next: start.next,
-        frames: &input,
+        frames: input,
         checkpoints,
         fingerprint: &fingerprint,
         last_files: start.files,
     };
-    let given = |n: u64| jitter.as_ref().and_then(|t| t.get(&n).copied());
     std::thread::scope(|s| -> anyhow::Result<()> {
         let (read_tx, read_rx) = sync_channel(READ_AHEAD);
-        let (in_store, in_opts, input, reference, ref_opts) =
-            (&*in_store, &in_opts, &input, &reference, &ref_opts);
-        s.spawn(move || {
-            let mut refs = reference
-                .as_ref()
-                .map(|(seq, store)| seq.inputs_in(&**store, ref_opts, |_| None, feed));
-            for item in input.inputs_in(in_store, in_opts, given, feed) {
-                let r = refs
-                    .as_mut()
-                    .map(|it| it.next().expect("same length").map(|(f, _)| f.color().clone()));
-                if read_tx.send((item, r)).is_err() {
-                    break;
-                }
-            }
-        });
         let (jobs, job_rx) = sync_channel::<Job>(WRITE_BEHIND);
         let (back_tx, back_rx) = channel::<Rgb>();
         let (puts, put_rx) = sync_channel::<Put>(1);
-        let out_store = &*out_store;
-        let write = &write;
+        let plan = &plan;
+        s.spawn(move || read_frames(plan, feed, read_tx));
         // Writes and deletes, in order, on a thread of their own: an object store's put
         // waits on the network, and the encoder goes on meanwhile.
-        let uploader = s.spawn(move || -> anyhow::Result<()> {
-            for put in put_rx {
-                match put {
-                    Put::File { path, bytes, frame } => {
-                        out_store.put(&path, &bytes)?;
-                        if frame {
-                            bar.inc(1);
-                        }
-                    }
-                    Put::Delete(path) => out_store.delete(&path)?,
-                }
-            }
-            Ok(())
-        });
-        let writer = s.spawn(move || -> anyhow::Result<()> {
-            let put = |p: Put| puts.send(p).map_err(|_| anyhow::anyhow!("the uploader stopped"));
-            for job in job_rx {
-                match job {
-                    Job::Frame(job) => {
-                        let FrameJob {
-                            path,
-                            color,
-                            meta,
-                            record,
-                            input,
-                            png,
-                        } = *job;
-                        let frame = FilteredFrame {
-                            color: &color,
-                            meta: &meta,
-                            record: Some(&record),
-                            input: Some(&input),
-                        };
-                        let bytes = encode_filtered_for(&path, &frame, write)
-                            .with_context(|| format!("writing {}", path.display()))?;
-                        if let Some((png, hdr)) = png {
-                            write_png(&png, &color, hdr)?;
-                        }
-                        back_tx.send(color).ok();
-                        put(Put::File {
-                            path,
-                            bytes,
-                            frame: true,
-                        })?;
-                    }
-                    Job::Checkpoint {
-                        files,
-                        progress,
-                        text,
-                        stale,
-                    } => {
-                        for (path, bytes) in files {
-                            put(Put::File {
-                                path,
-                                bytes,
-                                frame: false,
-                            })?;
-                        }
-                        put(Put::File {
-                            path: progress,
-                            bytes: text,
-                            frame: false,
-                        })?;
-                        for path in stale {
-                            put(Put::Delete(path))?;
-                        }
-                    }
-                }
-            }
-            Ok(())
-        });
-        let filtered = (|| -> anyhow::Result<()> {
-            let mut fed = feed;
-            for (position, (read, reference)) in (feed..).zip(read_rx) {
-                fed = position + 1;
-                while let Ok(planes) = back_rx.try_recv() {
-                    filter.recycle(planes);
-                }
-                let entry = &input.entries[position];
-                let (mut frame, mut kept) = read?;
-                if let Some(k) = required.iter().find(|k| !frame.channels().contains(**k)) {
-                    anyhow::bail!(
-                        "{}: no {k} channel, which --require {} asks for (the frame has {})",
-                        entry.path.display(),
-                        args.require.join(","),
-                        frame.channels()
-                    );
-                }
-                kept.trim_to(write.keep);
-                if args.cuts.contains(&entry.number) {
-                    frame.meta.reset = true;
-                }
-                let reference = match reference {
-                    Some(r) => Some(r?),
-                    None => frame.reference().cloned(),
-                };
-                shot.pending.push_back(Pending {
-                    position,
-                    number: entry.number,
-                    path: entry.path.clone(),
-                    meta: frame.meta.clone(),
-                    reference,
-                    hdr: frame_is_hdr(&frame),
-                    input: kept,
-                });
-                let outs = filter
-                    .push(&frame)
-                    .with_context(|| format!("filtering {}", entry.path.display()))?;
-                for out in outs {
-                    shot.emit(out, filter.as_mut(), &jobs)?;
-                }
-            }
-            // The reader stops early only by panicking: never flush a window cut short.
-            anyhow::ensure!(
-                fed == input.len(),
-                "reading stopped after frame {fed} of {}",
-                input.len()
-            );
-            for out in filter.finish().context("flushing the filter's window")? {
-                shot.emit(out, filter.as_mut(), &jobs)?;
-            }
-            Ok(())
-        })();
+        let uploader = s.spawn(move || upload(&*plan.out_store, put_rx, bar));
+        let writer = s.spawn(move || encode(&plan.write, job_rx, back_tx, puts));
+        let filtered = filter_frames(
+            args,
+            plan,
+            feed,
+            filter.as_mut(),
+            &mut shot,
+            read_rx,
+            back_rx,
+            &jobs,
+        );
         drop(jobs);
         let written = writer
             .join()
@@ -651,7 +560,7 @@ pub fn run_shot(
         .records
         .clone()
         .unwrap_or_else(|| naming.dir().join("records.json"));
-    out_store
+    plan.out_store
         .put(&path, serde_json::to_string_pretty(&doc)?.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(ShotReport {
@@ -661,6 +570,174 @@ pub fn run_shot(
         summary,
         fingerprint,
     })
+}
+
+/// A frame as read: the decoded frame and its file, and the reference colour when a
+/// reference sequence is given.
+type ReadItem = (Result<(Frame, InputImage), IoError>, Option<Result<Rgb, IoError>>);
+
+/// The reader thread: decodes the input (and reference) frames from position `feed` on.
+fn read_frames(plan: &ShotPlan, feed: usize, out: SyncSender<ReadItem>) {
+    let given = |n: u64| plan.jitter.as_ref().and_then(|t| t.get(&n).copied());
+    let mut refs = plan
+        .reference
+        .as_ref()
+        .map(|(seq, store)| seq.inputs_in(&**store, &plan.ref_opts, |_| None, feed));
+    for item in plan.input.inputs_in(&*plan.in_store, &plan.in_opts, given, feed) {
+        let r = refs
+            .as_mut()
+            .map(|it| it.next().expect("same length").map(|(f, _)| f.color().clone()));
+        if out.send((item, r)).is_err() {
+            break;
+        }
+    }
+}
+
+/// The uploader thread: puts and deletes files in order; a frame's put counts on `bar`.
+fn upload(store: &dyn Storage, puts: Receiver<Put>, bar: &ProgressBar) -> anyhow::Result<()> {
+    for put in puts {
+        match put {
+            Put::File { path, bytes, frame } => {
+                store.put(&path, &bytes)?;
+                if frame {
+                    bar.inc(1);
+                }
+            }
+            Put::Delete(path) => store.delete(&path)?,
+        }
+    }
+    Ok(())
+}
+
+/// The writer thread: encodes each filtered frame (and its PNG preview), hands its colour
+/// planes back for reuse, and passes frames and checkpoints to the uploader in order.
+fn encode(
+    write: &OutputOptions,
+    jobs: Receiver<Job>,
+    back: Sender<Rgb>,
+    puts: SyncSender<Put>,
+) -> anyhow::Result<()> {
+    let put = |p: Put| puts.send(p).map_err(|_| anyhow::anyhow!("the uploader stopped"));
+    for job in jobs {
+        match job {
+            Job::Frame(job) => {
+                let FrameJob {
+                    path,
+                    color,
+                    meta,
+                    record,
+                    input,
+                    png,
+                } = *job;
+                let frame = FilteredFrame {
+                    color: &color,
+                    meta: &meta,
+                    record: Some(&record),
+                    input: Some(&input),
+                };
+                let bytes = encode_filtered_for(&path, &frame, write)
+                    .with_context(|| format!("writing {}", path.display()))?;
+                if let Some((png, hdr)) = png {
+                    write_png(&png, &color, hdr)?;
+                }
+                back.send(color).ok();
+                put(Put::File {
+                    path,
+                    bytes,
+                    frame: true,
+                })?;
+            }
+            Job::Checkpoint {
+                files,
+                progress,
+                text,
+                stale,
+            } => {
+                for (path, bytes) in files {
+                    put(Put::File {
+                        path,
+                        bytes,
+                        frame: false,
+                    })?;
+                }
+                put(Put::File {
+                    path: progress,
+                    bytes: text,
+                    frame: false,
+                })?;
+                for path in stale {
+                    put(Put::Delete(path))?;
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The main thread: pushes each frame read (from position `feed`) through the filter,
+/// after `--require` and `--cuts`, and emits its outputs to the writer through `jobs`.
+#[allow(clippy::too_many_arguments)]
+fn filter_frames(
+    args: &FilterArgs,
+    plan: &ShotPlan,
+    feed: usize,
+    filter: &mut dyn Filter,
+    shot: &mut Emitter<'_>,
+    read: Receiver<ReadItem>,
+    back: Receiver<Rgb>,
+    jobs: &SyncSender<Job>,
+) -> anyhow::Result<()> {
+    let input = &plan.input;
+    let mut fed = feed;
+    for (position, (item, reference)) in (feed..).zip(read) {
+        fed = position + 1;
+        while let Ok(planes) = back.try_recv() {
+            filter.recycle(planes);
+        }
+        let entry = &input.entries[position];
+        let (mut frame, mut kept) = item?;
+        if let Some(k) = plan.required.iter().find(|k| !frame.channels().contains(**k)) {
+            anyhow::bail!(
+                "{}: no {k} channel, which --require {} asks for (the frame has {})",
+                entry.path.display(),
+                args.require.join(","),
+                frame.channels()
+            );
+        }
+        kept.trim_to(plan.write.keep);
+        if args.cuts.contains(&entry.number) {
+            frame.meta.reset = true;
+        }
+        let reference = match reference {
+            Some(r) => Some(r?),
+            None => frame.reference().cloned(),
+        };
+        shot.pending.push_back(Pending {
+            position,
+            number: entry.number,
+            path: entry.path.clone(),
+            meta: frame.meta.clone(),
+            reference,
+            hdr: frame_is_hdr(&frame),
+            input: kept,
+        });
+        let outs = filter
+            .push(&frame)
+            .with_context(|| format!("filtering {}", entry.path.display()))?;
+        for out in outs {
+            shot.emit(out, filter, jobs)?;
+        }
+    }
+    // The reader stops early only by panicking: never flush a window cut short.
+    anyhow::ensure!(
+        fed == input.len(),
+        "reading stopped after frame {fed} of {}",
+        input.len()
+    );
+    for out in filter.finish().context("flushing the filter's window")? {
+        shot.emit(out, filter, jobs)?;
+    }
+    Ok(())
 }
 
 /// The main thread's side of a shot: measures each output, hands it to the writer, and

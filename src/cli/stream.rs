@@ -7,12 +7,12 @@ use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters::create;
 use afterimage::frame::Frame;
 use afterimage::io::{
-    refuse_overwrite, write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, Sequence,
+    refuse_overwrite, write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, OutputOptions, Sequence,
 };
 use afterimage::metrics::Timing;
 use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
-use afterimage::server::client::{Client, ConnectOptions, SendOptions};
+use afterimage::server::client::{Client, ConnectOptions, Reply, SendOptions};
 use afterimage::server::proto as pb;
 use afterimage::session::params_from_json;
 use afterimage::session::random_hex;
@@ -192,10 +192,51 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         let inputs: Vec<PathBuf> = sources.iter().map(|s| s.path.clone()).collect();
         refuse_overwrite(&outputs, &inputs)?;
     }
-    let first = frames.first().context("no frames to send")?;
-    let (w, h) = (first.width() as u32, first.height() as u32);
+    anyhow::ensure!(!frames.is_empty(), "no frames to send");
     let values = parse_assignments(&args.set)?;
-    let params = params_from_json(&values);
+    let bar = ProgressBar::new(frames.len() as u64).with_style(
+        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
+            .progress_chars("=> "),
+    );
+    bar.set_message(args.filter.clone());
+    let wall = Instant::now();
+    let (replies, recreated) = send_shot(&args, &values, &frames, &bar)?;
+    let wall_s = wall.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    if let Some(naming) = &naming {
+        write_replies(naming, &write, &replies, &frames, &sources)?;
+    }
+    for r in &recreated {
+        outln!(
+            "session {} was lost before frame {} ({}): recreated, {} frames of filter history lost",
+            r.session,
+            r.next,
+            r.why,
+            r.history
+        );
+    }
+    let rtt_ms = print_figures(&args, &frames[0], &replies, wall_s)?;
+    if args.compare {
+        let local = in_process_ms(&args.filter, &values, &frames)?;
+        outln!(
+            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",
+            rtt_ms - local,
+            rtt_ms / local
+        );
+    }
+    Ok(())
+}
+
+/// Sends `frames` through one session (a new one after each loss, up to `--retries`) and
+/// returns the replies in order, with the sessions that were lost.
+fn send_shot(
+    args: &StreamArgs,
+    values: &serde_json::Map<String, serde_json::Value>,
+    frames: &[Frame],
+    bar: &ProgressBar,
+) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>)> {
+    let (w, h) = (frames[0].width() as u32, frames[0].height() as u32);
+    let params = params_from_json(values);
     let opts = SendOptions {
         sample: if args.f16 {
             pb::SampleType::F16
@@ -209,19 +250,13 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         },
         reference: args.reference,
     };
-    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
-    let bar = ProgressBar::new(frames.len() as u64).with_style(
-        ProgressStyle::with_template("{msg:>10} [{bar:30}] {pos}/{len} frames, {eta} left")?
-            .progress_chars("=> "),
-    );
-    bar.set_message(args.filter.clone());
-    let mut replies = Vec::new();
-    let wall = Instant::now();
     let route = match &args.route {
         Some(r) => r.clone(),
         None => random_hex(8).map_err(|e| anyhow::anyhow!("no randomness for a routing key: {e}"))?,
     };
+    let mut replies = Vec::new();
     let mut recreated: Vec<Recreated> = Vec::new();
+    let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     rt.block_on(async {
         let connect = ConnectOptions {
             api_key: args.api_key.clone(),
@@ -292,33 +327,38 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         }
         anyhow::Ok(())
     })?;
-    let wall_s = wall.elapsed().as_secs_f64();
-    bar.finish_and_clear();
-    if let Some(naming) = &naming {
-        for r in &replies {
-            let k = frames
-                .iter()
-                .position(|f| f.meta.index == r.index)
-                .with_context(|| format!("the server answered frame {}, which was not sent", r.index))?;
-            let path = naming.path(&sources[k].path, r.index);
-            let frame = FilteredFrame {
-                color: &r.color,
-                meta: &frames[k].meta,
-                record: Some(&r.report.record_json),
-                input: sources[k].input.as_ref(),
-            };
-            write_filtered(&path, &frame, &write).with_context(|| format!("writing {}", path.display()))?;
-        }
+    Ok((replies, recreated))
+}
+
+/// Writes each reply's colour into a copy of its input file (`--output`).
+fn write_replies(
+    naming: &OutputNaming,
+    write: &OutputOptions,
+    replies: &[Reply],
+    frames: &[Frame],
+    sources: &[Source],
+) -> anyhow::Result<()> {
+    for r in replies {
+        let k = frames
+            .iter()
+            .position(|f| f.meta.index == r.index)
+            .with_context(|| format!("the server answered frame {}, which was not sent", r.index))?;
+        let path = naming.path(&sources[k].path, r.index);
+        let frame = FilteredFrame {
+            color: &r.color,
+            meta: &frames[k].meta,
+            record: Some(&r.report.record_json),
+            input: sources[k].input.as_ref(),
+        };
+        write_filtered(&path, &frame, write).with_context(|| format!("writing {}", path.display()))?;
     }
-    for r in &recreated {
-        outln!(
-            "session {} was lost before frame {} ({}): recreated, {} frames of filter history lost",
-            r.session,
-            r.next,
-            r.why,
-            r.history
-        );
-    }
+    Ok(())
+}
+
+/// Prints the round trip, server and transport figures (and the PSNR against a sent
+/// reference); returns the round trip's median, ms.
+fn print_figures(args: &StreamArgs, first: &Frame, replies: &[Reply], wall_s: f64) -> anyhow::Result<f64> {
+    let (w, h) = (first.width(), first.height());
     let rtt: Vec<f64> = replies.iter().map(|r| r.round_trip_ms).collect();
     let server: Vec<f64> = replies.iter().map(|r| r.report.server_ms).collect();
     let bytes: u64 = replies.iter().map(|r| r.payload_bytes).sum();
@@ -348,24 +388,25 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
             psnr.iter().sum::<f64>() / psnr.len() as f64
         );
     }
-    if args.compare {
-        let mut f = create(&args.filter, &values)?;
-        let mut ms = Vec::new();
-        for fr in &frames {
-            let t = Instant::now();
-            let outs = f.push(fr)?;
-            ms.push(t.elapsed().as_secs_f64() * 1e3);
-            for out in outs {
-                f.recycle(out.color);
-            }
+    Ok(Timing::of(&rtt).median_ms)
+}
+
+/// `--compare`: the same filter over the same frames in this process, median ms/frame.
+fn in_process_ms(
+    filter: &str,
+    values: &serde_json::Map<String, serde_json::Value>,
+    frames: &[Frame],
+) -> anyhow::Result<f64> {
+    let mut f = create(filter, values)?;
+    let mut ms = Vec::new();
+    for fr in frames {
+        let t = Instant::now();
+        let outs = f.push(fr)?;
+        ms.push(t.elapsed().as_secs_f64() * 1e3);
+        for out in outs {
+            f.recycle(out.color);
         }
-        f.finish()?;
-        let local = Timing::of(&ms).median_ms;
-        outln!(
-            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",
-            Timing::of(&rtt).median_ms - local,
-            Timing::of(&rtt).median_ms / local
-        );
     }
-    Ok(())
+    f.finish()?;
+    Ok(Timing::of(&ms).median_ms)
 }

@@ -14,14 +14,13 @@
 
 mod floor;
 mod plot;
-mod synthetic;
 mod table;
 
+pub use crate::scene::{synthetic_frame, synthetic_sparse_frame};
 pub use floor::{
     bytes_per_frame, bytes_per_pixel, measure_copy_bandwidth, parallel_copy, Bandwidth, COPY_BYTES,
 };
 pub use plot::write_plots;
-pub use synthetic::{synthetic_frame, synthetic_sparse_frame};
 pub use table::{csv, markdown};
 
 use crate::backend::BackendChoice;

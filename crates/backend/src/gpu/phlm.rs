@@ -1,0 +1,477 @@
+//! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
+//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count
+//! of failed box tests, the speed: 27 planes) stay on the device, double-buffered; a frame uploads its
+//! colour (and motion and the invalid mask when it has them) and reads back the colour and
+//! the model counters in one buffer.
+//!
+//! The RLS update is solved in f32 ([`rls::update_information_f32`], which the shader
+//! mirrors): the information matrix formed with one rounding per entry and Cholesky pivots
+//! held at or above the prior. The CPU solves in f64.
+
+use super::buffers::{download, params_buffer, planes_from, write_words};
+use super::timing::{self, FrameClock, PassTimer};
+use super::upload::ColorUpload;
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use crate::filters::passes::{dilate_skip, reproject_skip};
+use crate::filters::phlm::{
+    convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
+};
+use crate::filters::reconstruct::Reconstruction;
+use crate::frame::{Frame, Plane};
+use crate::pipeline::params::build;
+use crate::pipeline::Scratch;
+use crate::pipeline::{
+    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, ModelHealth,
+    Output, PixelCounts, Recorder, StateError, UploadPrecision,
+};
+use crate::BackendError;
+use serde_json::{Map, Value};
+use std::borrow::Cow;
+use std::sync::Arc;
+
+const SOURCE: &str = include_str!("phlm.wgsl");
+const WORKGROUP: usize = 8;
+
+// Bits of `Params.flags` (the FLAG_ constants of phlm.wgsl).
+const FLAG_TONEMAP: u32 = 1;
+const FLAG_REPROJECT: u32 = 2;
+const FLAG_HISTORY: u32 = 4;
+const FLAG_MOTION: u32 = 8;
+const FLAG_INVALID: u32 = 16;
+const FLAG_NEAREST: u32 = 32;
+const FLAG_VARIANCE_BOX: u32 = 64;
+const FLAG_SHIFT: u32 = 128;
+const FLAG_DILATE: u32 = 256;
+const FLAG_CATMULL_ROM: u32 = 512;
+
+// Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, depth,
+// invalid.
+const INPUT_PLANES: usize = 7;
+const IN_MX: usize = 3;
+const IN_DEPTH: usize = 5;
+const IN_INVALID: usize = 6;
+
+/// Words of the counters (C_ constants of phlm.wgsl): reset, clipped, off screen,
+/// repaired, the largest trace(P) as bits; padded.
+const COUNTERS: usize = 8;
+
+/// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
+/// matrix R, the feature z with the count of failed box tests and the speed; a buffer each, so a 1080p
+/// frame's parts fit the 128 MiB a shader's buffer may have on many devices (all 27 planes
+/// at 1080p are 224 MB).
+const PARTS: [(&str, usize); 3] = [
+    ("phlm models (beta)", 12),
+    ("phlm models (R)", 10),
+    ("phlm models (z, the count of failed box tests, the speed)", 5),
+];
+
+// The parts are the whole state, in its order.
+const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
+
+/// Words of the shader's `Params` (`phlm.wgsl`: 20 four-byte fields, in
+/// [`GpuPhlm::param_words`]'s order).
+const PARAM_WORDS: usize = 20;
+
+/// Device buffers for one frame size, and the two bind groups that alternate the state.
+#[derive(Debug)]
+struct Buffers {
+    width: usize,
+    height: usize,
+    params: wgpu::Buffer,
+    input: StorageBuffer,
+    /// The colour's way into `input`.
+    upload: ColorUpload,
+    /// The models, in [`PARTS`]: `state[read]` is the previous frame's, the other is
+    /// written.
+    state: [[StorageBuffer; 3]; 2],
+    out: StorageBuffer,
+    counters: wgpu::Buffer,
+    /// `bound[k]` reads `state[k]` and writes `state[1 - k]`.
+    bound: [wgpu::BindGroup; 2],
+    /// The pass's timestamps, where the device has them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
+}
+
+impl Buffers {
+    fn new(
+        gpu: &Gpu,
+        pass: &wgpu::ComputePipeline,
+        width: usize,
+        height: usize,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
+        let n = width * height;
+        let params = params_buffer(gpu, "phlm params", &[0; PARAM_WORDS]);
+        let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n)?;
+        let upload = ColorUpload::new(gpu, upload, &input, n)?;
+        let models = || -> Result<[StorageBuffer; 3], BackendError> {
+            let [a, b, c] = PARTS.map(|(label, planes)| StorageBuffer::new(gpu, label, planes * n));
+            Ok([a?, b?, c?])
+        };
+        let state = [models()?, models()?];
+        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n)?;
+        let counters = StorageBuffer::new(gpu, "phlm counters", COUNTERS)?.buffer;
+        let bound = [0, 1].map(|k| {
+            let (from, to) = (&state[k], &state[1 - k]);
+            bind(
+                gpu,
+                pass,
+                &[
+                    &params,
+                    &input.buffer,
+                    &from[0].buffer,
+                    &from[1].buffer,
+                    &from[2].buffer,
+                    &to[0].buffer,
+                    &to[1].buffer,
+                    &to[2].buffer,
+                    &out.buffer,
+                    &counters,
+                ],
+            )
+        });
+        let timer = PassTimer::new(gpu, 1);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
+        Ok(Buffers {
+            width,
+            height,
+            params,
+            input,
+            upload,
+            state,
+            out,
+            counters,
+            bound,
+            timer,
+            back: Readback::new(gpu, "phlm readback", 3 * n + COUNTERS + timer_words),
+        })
+    }
+}
+
+/// `phlm` with its models on the device.
+#[derive(Debug)]
+pub struct GpuPhlm {
+    gpu: Arc<Gpu>,
+    params: Params,
+    /// The precision of the colour's upload.
+    upload: UploadPrecision,
+    pass: wgpu::ComputePipeline,
+    buffers: Option<Buffers>,
+    /// Which of `buffers.state` holds the previous frame's models.
+    read: usize,
+    /// Whether it does (not on the first frame or after a reset).
+    valid: bool,
+    /// Whether its models are in tonemapped working space.
+    tonemapped: bool,
+    /// Readback staging, reused.
+    words: Vec<f32>,
+    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
+    scratch: Scratch,
+}
+
+impl GpuPhlm {
+    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        values: &Map<String, Value>,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
+        let params: Params = build(Phlm::NAME, values)?;
+        Ok(GpuPhlm {
+            upload,
+            pass: pipeline(&gpu, "phlm", &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
+            gpu,
+            params,
+            buffers: None,
+            read: 0,
+            valid: false,
+            tonemapped: false,
+            words: Vec::new(),
+            scratch: Scratch::default(),
+        })
+    }
+
+    /// The buffers for a `width` x `height` frame (new ones drop the models).
+    fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
+        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
+            // Dropped first: the old buffers and the new never take the device's memory
+            // together.
+            self.buffers = None;
+            self.valid = false;
+            self.read = 0;
+            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height, self.upload)?);
+        }
+        Ok(())
+    }
+
+    /// The shader's `Params` words for settings `p` (the effective ones).
+    fn param_words(p: &Params, width: usize, height: usize, flags: u32, hi: f32) -> [u32; PARAM_WORDS] {
+        [
+            width as u32,
+            height as u32,
+            flags,
+            p.clip_after.to_bits(),
+            p.lambda.to_bits(),
+            p.lambda_moving.to_bits(),
+            p.lambda_speed.to_bits(),
+            p.p0.to_bits(),
+            p.clip_p.to_bits(),
+            p.clip_keep.to_bits(),
+            p.feature_a.to_bits(),
+            p.feature_b.to_bits(),
+            p.feature_alpha_min.to_bits(),
+            p.test_gamma.to_bits(),
+            hi.to_bits(),
+            (1.0 / p.p0.max(p.clip_p)).to_bits(),
+            p.fail_keep.to_bits(),
+            p.fail_ramp.to_bits(),
+            p.speed_jump.to_bits(),
+            p.fail_ramp_box.to_bits(),
+        ]
+    }
+
+    /// The previous frame's models as 27 planes (the CPU reference's planar layout).
+    fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
+        let b = self.buffers.as_ref().expect("sized");
+        let (w, h) = (b.width, b.height);
+        let n = w * h;
+        let parts: Vec<&StorageBuffer> = b.state[self.read].iter().collect();
+        let words = download(&self.gpu, "phlm model readback", &parts)?;
+        (0..STATE_PLANES)
+            .map(|k| {
+                Plane::from_vec(w, h, words[k * n..(k + 1) * n].to_vec())
+                    .map_err(|e| BackendError::Device(e.to_string()))
+            })
+            .collect()
+    }
+
+    /// Writes 27 model planes as the previous frame's.
+    fn upload(&self, planes: &[Plane<f32>]) {
+        let b = self.buffers.as_ref().expect("sized");
+        let n = b.width * b.height;
+        let mut k = 0;
+        for (part, (_, count)) in b.state[self.read].iter().zip(PARTS) {
+            for j in 0..count {
+                part.write(&self.gpu, j * n, planes[k].data());
+                k += 1;
+            }
+        }
+    }
+}
+
+impl Filter for GpuPhlm {
+    fn name(&self) -> &'static str {
+        Phlm::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame).map_err(|e| e.into_filter_error(Phlm::NAME))
+    }
+
+    fn reset(&mut self) {
+        self.valid = false;
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.buffers
+            .as_ref()
+            .map_or(0, |b| b.state.iter().flatten().map(StorageBuffer::bytes).sum())
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        let mut st = Phlm::history();
+        if let (Some(b), true) = (&self.buffers, self.valid) {
+            let planes = self.download().map_err(|e| StateError::Device(e.to_string()))?;
+            st.buffer
+                .restore((b.width, b.height), vec![to_texels(&planes)])
+                .map_err(StateError::Device)?;
+        }
+        st.set_tonemapped(self.tonemapped);
+        Ok(st.save(Phlm::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        let mut st = Phlm::history();
+        st.load(state, Phlm::NAME, &self.params())?;
+        match st.buffer.history_size() {
+            Some((w, h)) => {
+                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
+                self.read = 0;
+                self.upload(&from_texels(&st.buffer.read()[0]));
+                self.gpu.queue.submit([]);
+                self.valid = true;
+            }
+            None => self.valid = false,
+        }
+        self.tonemapped = st.tonemapped();
+        Ok(())
+    }
+}
+
+impl GpuPhlm {
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let mut inp = prepare(frame, Phlm::uses(), &mut rec)?;
+        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+        let eff = self.params.effective();
+        Reconstruction::new(eff.pixel_filter, eff.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.scratch,
+        );
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let hdr = inp.facts.hdr;
+        check_size(
+            self.buffers.as_ref().map(|b| (b.width, b.height)),
+            self.valid,
+            frame,
+        )?;
+        self.sized(w, h)?;
+        let has_history = self.valid && !frame.meta.reset;
+        let mut clock = FrameClock::start();
+        if has_history && self.tonemapped != hdr {
+            // A stream moving between LDR and HDR frames: the models move to the new working
+            // space on the CPU (rare; `phlm::convert_state`, the CPU filter's conversion).
+            let mut planes = self.download()?;
+            convert_state(&mut planes, hdr);
+            self.upload(&planes);
+        }
+        let tonemap_skip = inp.facts.tonemap();
+        let reproject = reproject_skip(&inp, has_history);
+        let p = &self.params.effective();
+        let dilate = dilate_skip(&inp, &reproject, p.dilation);
+
+        let mut flags = 0;
+        let mut set = |on: bool, bit: u32| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(tonemap_skip.is_none(), FLAG_TONEMAP);
+        set(reproject.is_none(), FLAG_REPROJECT);
+        set(has_history, FLAG_HISTORY);
+        set(inp.motion.is_some(), FLAG_MOTION);
+        set(inp.invalid.is_some(), FLAG_INVALID);
+        set(p.model_fetch == ModelFetch::Nearest, FLAG_NEAREST);
+        set(p.test_box == TestBox::Variance, FLAG_VARIANCE_BOX);
+        set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
+        set(dilate.is_none(), FLAG_DILATE);
+        set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
+        let hi = self
+            .buffers
+            .as_ref()
+            .expect("sized")
+            .upload
+            .output_ceiling(&inp.facts);
+        let words = Self::param_words(p, w, h, flags, hi);
+
+        let gpu = Arc::clone(&self.gpu);
+        let b = self.buffers.as_mut().expect("sized");
+        let mut bytes = write_words(&gpu, &b.params, &words);
+        // The colour (as f32 or f16), then motion, depth and the invalid mask as f32.
+        bytes += b.upload.write(&gpu, &b.input, &inp.color);
+        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
+            self.scratch.recycle(rgb);
+        }
+        let b = &*b;
+        if let Some(m) = inp.motion.as_deref() {
+            for (k, plane) in m.iter().enumerate() {
+                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+            }
+        }
+        if let (None, Some(d)) = (&dilate, inp.depth.as_deref()) {
+            bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
+        }
+        if let Some(invalid) = &inp.invalid {
+            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
+        }
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        bytes += write_words(&gpu, &b.counters, &[0; COUNTERS]);
+        b.upload.encode(&gpu, &mut enc);
+        {
+            let (gx, gy) = groups(w, h, WORKGROUP);
+            let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
+            pass.set_pipeline(&self.pass);
+            pass.set_bind_group(0, &b.bound[self.read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
+        enc.copy_buffer_to_buffer(
+            &b.counters,
+            0,
+            b.back.buffer(),
+            (3 * n * 4) as u64,
+            (COUNTERS * 4) as u64,
+        );
+        let timer_at = 3 * n + COUNTERS;
+        if let Some(timer) = &b.timer {
+            timer.resolve(&mut enc, 1, &b.back, timer_at);
+        }
+        gpu.queue.submit([enc.finish()]);
+        clock.submitted();
+        let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
+        b.back.read(&gpu, words, &mut self.words)?;
+        clock.back();
+        let color = planes_from(&self.words, w, h)?;
+        let c: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
+        let shaders_ms = b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]);
+        let device = clock.times(shaders_ms, self.upload, bytes);
+
+        // The CPU filter's stages, run or left out for the same reasons; one pass runs them
+        // all, so they share its device time (without timestamps, the frame's round trip).
+        let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+        timing::share(
+            &mut rec,
+            vec![
+                ("tonemap", tonemap_skip.clone()),
+                ("ycocg", None),
+                ("dilate", dilate),
+                ("reproject", reproject),
+                ("feature", None),
+                ("model", None),
+                ("untonemap", tonemap_skip),
+            ],
+            ms,
+        );
+
+        self.read = 1 - self.read;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let pixels = PixelCounts {
+            history_reset: c[0] as u64,
+            history_clipped: c[1] as u64,
+            history_rejected: 0,
+        };
+        let mut record = rec.finish(
+            Phlm::NAME,
+            frame.meta.index,
+            pixels,
+            inp.counts,
+            self.state_bytes(),
+        );
+        record.backend = Backend::Gpu;
+        record.device = Some(device);
+        record.model = Some(ModelHealth {
+            reset_by_clip: c[1] as f64 / n as f64,
+            reset_by_disocclusion: c[2] as f64 / n as f64,
+            max_trace_p: f32::from_bits(c[4]) as f64,
+            p_repaired: c[3] as u64,
+        });
+        Ok(Output { color, record })
+    }
+}

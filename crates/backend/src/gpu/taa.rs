@@ -1,0 +1,531 @@
+//! `taa` on the GPU: the CPU filter's plan ([`StagePlan`]), parameters and state format,
+//! with its per-pixel stages in WGSL (`taa*.wgsl`). The history (texels [Y, Co, Cg, count],
+//! and depth with depth rejection) stays on the device, double-buffered; a frame uploads
+//! its colour (and the motion and depth its plan needs), and reads back the colour and the
+//! pixel counts.
+
+use super::buffers::{download, params_buffer, write_words};
+use super::timing::{self, FrameClock, PassTimer};
+use super::upload::ColorUpload;
+use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use crate::filters::reconstruct::Reconstruction;
+use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
+use crate::frame::{Frame, Plane};
+use crate::pipeline::params::build;
+use crate::pipeline::Scratch;
+use crate::pipeline::{
+    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
+    PixelCounts, Recorder, StateError, UploadPrecision,
+};
+use crate::BackendError;
+use serde_json::{Map, Value};
+use std::borrow::Cow;
+use std::sync::Arc;
+
+const SHARED: &str = include_str!("taa.wgsl");
+const WORKGROUP: usize = 8;
+
+// Bits of `Params.flags` (the FLAG_ constants of taa.wgsl).
+const FLAG_TONEMAP: u32 = 1;
+const FLAG_DILATE: u32 = 2;
+const FLAG_REPROJECT: u32 = 4;
+const FLAG_DEPTH_REJECT: u32 = 8;
+const FLAG_HISTORY: u32 = 16;
+const FLAG_CATMULL_ROM: u32 = 32;
+const FLAG_LUMA_WEIGHT: u32 = 64;
+const FLAG_INVALID: u32 = 128;
+const FLAG_SHARPEN: u32 = 256;
+const FLAG_KEEP_DEPTH: u32 = 512;
+const FLAG_TO_TONEMAPPED: u32 = 1024;
+
+// Planes of the input buffer (IN_ constants of taa.wgsl): r, g, b, motion x, y, depth,
+// invalid.
+const INPUT_PLANES: usize = 7;
+const IN_MX: usize = 3;
+const IN_DEPTH: usize = 5;
+const IN_INVALID: usize = 6;
+
+/// Words of the counters (C_ constants of taa.wgsl): reset, clipped, rejected; padded.
+const COUNTERS: usize = 4;
+
+/// The compiled passes.
+#[derive(Debug)]
+struct Passes {
+    resolve: wgpu::ComputePipeline,
+    sharpen: wgpu::ComputePipeline,
+    convert: wgpu::ComputePipeline,
+}
+
+impl Passes {
+    fn new(gpu: &Gpu) -> Self {
+        let with = |body: &str| format!("{SHARED}\n{body}");
+        Passes {
+            resolve: pipeline(
+                gpu,
+                "taa resolve",
+                &with(&format!("{}\n{REPROJECT}", include_str!("taa_resolve.wgsl"))),
+                "resolve",
+            ),
+            sharpen: pipeline(
+                gpu,
+                "taa sharpen",
+                &with(include_str!("taa_sharpen.wgsl")),
+                "sharpen",
+            ),
+            convert: pipeline(
+                gpu,
+                "taa convert",
+                &with(include_str!("taa_convert.wgsl")),
+                "convert",
+            ),
+        }
+    }
+}
+
+/// Device buffers for one frame size, and the bind groups that use them (made once: the
+/// history alternates between two).
+#[derive(Debug)]
+struct Buffers {
+    width: usize,
+    height: usize,
+    params: wgpu::Buffer,
+    convert_params: wgpu::Buffer,
+    input: StorageBuffer,
+    /// The colour's way into `input`.
+    upload: ColorUpload,
+    /// The history: `hist[read]` is the previous frame's, the other is written.
+    hist: [StorageBuffer; 2],
+    counters: wgpu::Buffer,
+    /// `resolve[k]` reads `hist[k]` and writes `hist[1 - k]` and the colour `out[0]`.
+    resolve: [wgpu::BindGroup; 2],
+    /// Sharpens `out[0]` into `out[1]`.
+    sharpen: wgpu::BindGroup,
+    /// `convert[k]` converts `hist[k]` in place.
+    convert: [wgpu::BindGroup; 2],
+    /// The resolved colour (working space when a sharpen follows), then the sharpened one.
+    out: [StorageBuffer; 2],
+    /// Timestamps of the frame's passes (convert, resolve, sharpen), where the device has
+    /// them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
+}
+
+impl Buffers {
+    fn new(
+        gpu: &Gpu,
+        passes: &Passes,
+        width: usize,
+        height: usize,
+        depth: bool,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
+        let n = width * height;
+        let hist_len = n * (4 + depth as usize);
+        let params = params_buffer(gpu, "taa params", &[0; 9]);
+        let convert_params = params_buffer(gpu, "taa convert params", &[0; 9]);
+        let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
+        let upload = ColorUpload::new(gpu, upload, &input, n)?;
+        let hist = [
+            StorageBuffer::new(gpu, "taa history", hist_len)?,
+            StorageBuffer::new(gpu, "taa history", hist_len)?,
+        ];
+        let out = [
+            StorageBuffer::new(gpu, "taa colour", 3 * n)?,
+            StorageBuffer::new(gpu, "taa colour", 3 * n)?,
+        ];
+        let counters = StorageBuffer::new(gpu, "taa counters", COUNTERS)?.buffer;
+        let resolve = [0, 1].map(|k| {
+            bind(
+                gpu,
+                &passes.resolve,
+                &[
+                    &params,
+                    &input.buffer,
+                    &hist[k].buffer,
+                    &hist[1 - k].buffer,
+                    &out[0].buffer,
+                    &counters,
+                ],
+            )
+        });
+        let sharpen = bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]);
+        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
+        let timer = PassTimer::new(gpu, 3);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
+        Ok(Buffers {
+            width,
+            height,
+            params,
+            convert_params,
+            input,
+            upload,
+            hist,
+            counters,
+            resolve,
+            sharpen,
+            convert,
+            out,
+            back: Readback::new(gpu, "taa readback", 3 * n + COUNTERS + timer_words),
+            timer,
+        })
+    }
+}
+
+/// `taa` with its history on the device.
+#[derive(Debug)]
+pub struct GpuTaa {
+    gpu: Arc<Gpu>,
+    params: Params,
+    /// The precision of the colour's upload.
+    upload: UploadPrecision,
+    passes: Passes,
+    buffers: Option<Buffers>,
+    /// Which of `buffers.hist` holds the previous frame.
+    read: usize,
+    /// Whether it does (not on the first frame or after a reset).
+    valid: bool,
+    /// Whether its colour is tonemapped.
+    tonemapped: bool,
+    /// Readback staging, reused.
+    words: Vec<f32>,
+    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
+    scratch: Scratch,
+}
+
+impl GpuTaa {
+    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(
+        gpu: Arc<Gpu>,
+        values: &Map<String, Value>,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
+        let params: Params = build(Taa::NAME, values)?;
+        Ok(GpuTaa {
+            upload,
+            passes: Passes::new(&gpu),
+            gpu,
+            params,
+            buffers: None,
+            read: 0,
+            valid: false,
+            tonemapped: false,
+            words: Vec::new(),
+            scratch: Scratch::default(),
+        })
+    }
+
+    fn keeps_depth(&self) -> bool {
+        self.params.depth_rejection > 0.0
+    }
+
+    /// The buffers for a `width` x `height` frame (new ones drop the history).
+    fn sized(&mut self, width: usize, height: usize) -> Result<&Buffers, BackendError> {
+        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
+            let depth = self.keeps_depth();
+            // Dropped first: the old buffers and the new never take the device's memory
+            // together.
+            self.buffers = None;
+            self.valid = false;
+            self.read = 0;
+            self.buffers = Some(Buffers::new(
+                &self.gpu,
+                &self.passes,
+                width,
+                height,
+                depth,
+                self.upload,
+            )?);
+        }
+        Ok(self.buffers.as_ref().expect("just made"))
+    }
+
+    fn param_words(&self, width: usize, height: usize, flags: u32, top: f32) -> [u32; 9] {
+        let p = &self.params;
+        [
+            width as u32,
+            height as u32,
+            flags,
+            (4 * width * height) as u32,
+            p.alpha.to_bits(),
+            p.gamma.to_bits(),
+            p.depth_rejection.to_bits(),
+            p.sharpen.to_bits(),
+            top.to_bits(),
+        ]
+    }
+}
+
+impl Filter for GpuTaa {
+    fn name(&self) -> &'static str {
+        Taa::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn backend(&self) -> Backend {
+        Backend::Gpu
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        self.run(frame).map_err(|e| e.into_filter_error(Taa::NAME))
+    }
+
+    fn reset(&mut self) {
+        self.valid = false;
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.buffers
+            .as_ref()
+            .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        let mut st = Taa::history(&self.params);
+        if let (Some(b), true) = (&self.buffers, self.valid) {
+            let planes = self
+                .download_history(b)
+                .map_err(|e| StateError::Device(e.to_string()))?;
+            st.buffer
+                .restore((b.width, b.height), planes)
+                .map_err(StateError::Device)?;
+        }
+        st.set_tonemapped(self.tonemapped);
+        Ok(st.save(Taa::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        let mut st = Taa::history(&self.params);
+        st.load(state, Taa::NAME, &self.params())?;
+        match st.buffer.history_size() {
+            Some((w, h)) => {
+                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
+                let b = self.buffers.as_ref().expect("sized");
+                let mut at = 0;
+                for p in st.buffer.read() {
+                    b.hist[0].write(&self.gpu, at, p.data());
+                    at += p.data().len();
+                }
+                self.gpu.queue.submit([]);
+                self.read = 0;
+                self.valid = true;
+            }
+            None => self.valid = false,
+        }
+        self.tonemapped = st.tonemapped();
+        Ok(())
+    }
+}
+
+impl GpuTaa {
+    /// The history planes as the CPU filter lays them out.
+    fn download_history(&self, b: &Buffers) -> Result<Vec<Plane<f32>>, BackendError> {
+        let n = b.width * b.height;
+        let words = download(&self.gpu, "taa history readback", &[&b.hist[self.read]])?;
+        let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
+        if self.keeps_depth() {
+            planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
+        }
+        Ok(planes)
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_needs(Taa::NAME, Taa::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let mut inp = prepare(frame, Taa::uses(), &mut rec)?;
+        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            &mut rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.scratch,
+        );
+        let (w, h) = (inp.width, inp.height);
+        let n = w * h;
+        let hdr = inp.facts.hdr;
+        check_size(
+            self.buffers.as_ref().map(|b| (b.width, b.height)),
+            self.valid,
+            frame,
+        )?;
+        self.sized(w, h)?;
+        let has_history = self.valid && !frame.meta.reset;
+        let plan = StagePlan::new(&self.params, &inp, has_history);
+        let p = &self.params;
+
+        let mut flags = 0;
+        let mut set = |on: bool, bit: u32| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(plan.tonemap.is_none(), FLAG_TONEMAP);
+        set(plan.dilate.is_none(), FLAG_DILATE);
+        set(plan.reproject.is_none(), FLAG_REPROJECT);
+        set(plan.depth_reject.is_none(), FLAG_DEPTH_REJECT);
+        set(has_history, FLAG_HISTORY);
+        set(p.history_filter == HistoryFilter::CatmullRom, FLAG_CATMULL_ROM);
+        set(p.luminance_weighting, FLAG_LUMA_WEIGHT);
+        set(inp.invalid.is_some(), FLAG_INVALID);
+        set(plan.sharpen.is_none(), FLAG_SHARPEN);
+        set(self.keeps_depth() && inp.depth.is_some(), FLAG_KEEP_DEPTH);
+
+        let mut clock = FrameClock::start();
+        let gpu = Arc::clone(&self.gpu);
+        let (read, write) = (self.read, 1 - self.read);
+        let top = self
+            .buffers
+            .as_ref()
+            .expect("sized")
+            .upload
+            .output_ceiling(&inp.facts);
+        let words = self.param_words(w, h, flags, top);
+        let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top);
+        let convert = has_history && self.tonemapped != hdr;
+
+        // Upload what the plan reads: the colour (as f32 or f16), then motion, depth and
+        // the invalid mask as f32.
+        let b = self.buffers.as_mut().expect("sized");
+        let mut bytes = b.upload.write(&gpu, &b.input, &inp.color);
+        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
+            self.scratch.recycle(rgb);
+        }
+        let b = &*b;
+        if plan.reproject.is_none() {
+            let m = inp.motion.as_deref().expect("reprojection needs motion");
+            for (k, plane) in m.iter().enumerate() {
+                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+            }
+        }
+        if let Some(d) = inp.depth.as_deref() {
+            if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
+                bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
+            }
+        }
+        if let Some(invalid) = &inp.invalid {
+            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
+        }
+        bytes += write_words(&gpu, &b.params, &words);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&b.counters, 0, None);
+        b.upload.encode(&gpu, &mut enc);
+        let timer = b.timer.as_ref();
+        let mut passes = 0;
+        if convert {
+            bytes += write_words(&gpu, &b.convert_params, &convert_words);
+            let groups = n.div_ceil(64);
+            let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.convert);
+            pass.set_bind_group(0, &b.convert[read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let (gx, gy) = groups(w, h, WORKGROUP);
+        {
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.resolve);
+            pass.set_bind_group(0, &b.resolve[read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let result = if plan.sharpen.is_none() {
+            let mut pass = timing::begin(&mut enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.sharpen);
+            pass.set_bind_group(0, &b.sharpen, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+            1
+        } else {
+            0
+        };
+        b.back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
+        enc.copy_buffer_to_buffer(
+            &b.counters,
+            0,
+            b.back.buffer(),
+            (3 * n * 4) as u64,
+            (COUNTERS * 4) as u64,
+        );
+        let timer_at = 3 * n + COUNTERS;
+        if let Some(t) = timer {
+            t.resolve(&mut enc, passes, &b.back, timer_at);
+        }
+        gpu.queue.submit([enc.finish()]);
+        clock.submitted();
+        let words = timer_at + timer.map_or(0, PassTimer::words);
+        b.back.read(&gpu, words, &mut self.words)?;
+        clock.back();
+        let color = super::buffers::planes_from(&self.words, w, h)?;
+        let counts: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
+        let pass_ms = timer.map(|t| t.pass_ms(&self.words[timer_at..], passes));
+        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
+
+        // The same stages as the CPU filter's record, run or left out for the same reasons.
+        // With timestamps `sharpen` gets its pass's time and the others share the rest (one
+        // pass fuses them); without, all share the frame's round trip.
+        let sharpen_ms = match (&pass_ms, plan.sharpen.is_none()) {
+            (Some(v), true) => v.last().copied(),
+            _ => None,
+        };
+        let stages = vec![
+            ("tonemap", plan.tonemap.clone()),
+            ("ycocg", None),
+            ("dilate", plan.dilate.clone()),
+            ("reproject", plan.reproject.clone()),
+            ("depth_reject", plan.depth_reject.clone()),
+            ("resolve", None),
+            ("sharpen", plan.sharpen.clone()),
+            ("untonemap", plan.tonemap.clone()),
+        ];
+        match (device.shaders_ms, sharpen_ms) {
+            (Some(all), Some(sharpen)) => {
+                let rest = stages
+                    .iter()
+                    .filter(|(n, s)| s.is_none() && *n != "sharpen")
+                    .count();
+                for (name, skip) in stages {
+                    match (skip, name) {
+                        (Some(why), _) => rec.skip(name, why),
+                        (None, "sharpen") => rec.ran_for(name, sharpen),
+                        (None, _) => rec.ran_for(name, (all - sharpen) / rest as f64),
+                    }
+                }
+            }
+            (shaders, _) => timing::share(
+                &mut rec,
+                stages,
+                shaders.unwrap_or(device.upload_ms + device.readback_ms),
+            ),
+        }
+
+        self.read = write;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let pixels = PixelCounts {
+            history_reset: counts[0] as u64,
+            history_clipped: counts[1] as u64,
+            history_rejected: counts[2] as u64,
+        };
+        let mut record = rec.finish(
+            Taa::NAME,
+            frame.meta.index,
+            pixels,
+            inp.counts,
+            self.state_bytes(),
+        );
+        record.backend = Backend::Gpu;
+        record.device = Some(device);
+        Ok(Output { color, record })
+    }
+}
+
+/// A plane of samples read back (their count is the plane's by construction).
+fn plane(width: usize, height: usize, data: Vec<f32>) -> Result<Plane<f32>, BackendError> {
+    Plane::from_vec(width, height, data).map_err(|e| BackendError::Device(e.to_string()))
+}

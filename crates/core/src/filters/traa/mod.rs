@@ -1,0 +1,366 @@
+//! `traa`: temporal reprojection anti-aliasing after Oliveros 2018 (*Improved sampling for
+//! temporal anti-aliasing*, the thesis below).
+//!
+//! `variant = baseline` is the thesis's starting point, the INSIDE / Uncharted 4 TRAA
+//! (Pedersen 2016 = thesis ref. \[6\]; Xu 2016 = ref. \[19\]), sec. 3.6:
+//! velocity of the nearest pixel of the 3x3 (3.6.3); history fetched bilinearly; min/max of
+//! the 3x3 and of the cross (+) averaged into the colour box (3.6.3); history clipped toward
+//! the box centre (3.6.4); feedback from the luminance difference of clipped history and
+//! current, biased toward history (3.6.3); the sharpen of eq. 3.1 on the output (3.6.5).
+//!
+//! `variant = improved` adds chapter 4.3 (each term is left out when its channel is):
+//! - `sobel`: Sobel magnitudes of the lit luma l, the albedo luma u and the linear depth d,
+//!   `g = 0.3 u + 0.7 l + d` (eq. 4.9), clamped to [0, 1], `sobel = sqrt(g^2 (3 - 2 g))`
+//!   (eq. 4.10);
+//! - `sobel_history`: the Sobel image's own one-channel TRAA (clamp instead of clip, no
+//!   sharpen; sec. 4.3.3) kept in the state, so the edge mask is stable over time;
+//! - `model_average`: share of the 3x3 with another object id (eq. 4.1);
+//! - `depth_variance`: depth pseudo-variance and temporal pseudo-variance (eq. 4.4-4.6), zero when the
+//!   normalising distance is below 0.002;
+//! - `aliased`: aliasedValue = clamp01(sobelAvg + depthPV + depthTPV + modelAverage) (eq. 4.12-4.14)
+//!   mixes the cross and 3x3 boxes (eq. 4.15) and shrinks the box toward the current colour
+//!   (eq. 4.16);
+//! - the normalised sharpen of eq. 4.17.
+//!
+//! Choices where the thesis is silent, and why:
+//! - The feedback formula and its bounds 0.88 / 0.97 are INSIDE's (`_FeedbackMin`,
+//!   `_FeedbackMax` of Playdead's TemporalReprojection shader, which sec. 3.6.3 describes
+//!   in words): `k = lerp(0.88, 0.97, (1 - |l0 - l1| / max(l0, l1, 0.2))^2)`.
+//! - Linear depth is used as `depth / far` (Unity's Linear01Depth, the depth the thesis's
+//!   0.002 threshold of sec. 4.3.2 is stated in): `far` from the frame's near/far planes,
+//!   else the largest depth in the frame.
+//! - Without albedo, `g = l + d` (the lit and unlit weights of eq. 4.9 summed).
+//! - The box is clipped toward its centre, as INSIDE's `clip_aabb` does; the thesis's
+//!   figure draws the current colour at the centre, which eq. 4.16 makes true when the box
+//!   shrinks.
+//! - Sharpening is applied to the displayed output only, never fed back into history.
+//! - In HDR the filter works on tonemapped colour `c / (1 + max c)` (as `taa`), so eq.
+//!   3.1's "colour peak" cannot reach extreme values.
+//!
+//! The filter runs as one fused pass over bands of rows (`kernel.rs`), plus a second band
+//! pass for the sharpen, which reads its neighbours in the finished output; the stage by
+//! stage statement of the same function is kept as `reference::ReferenceTraa` (tests only), and the
+//! tests check the two give the same bits.
+//!
+//! State: history RGB (working space) as interleaved texels `[r, g, b]` (baseline) or
+//! `[r, g, b, sobel]` (improved, with a second plane of depth / far), double-buffered.
+
+mod kernel;
+// The scalar statement the fused kernel is tested against (a naive oracle, tests only).
+#[cfg(test)]
+mod reference;
+
+use super::passes::{Conversion, TemporalState};
+use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use crate::filter_params;
+use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::kernels::{lanes, tonemap, tonemap_inverse};
+use crate::pipeline::exec::for_rows;
+use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use wide::f32x8;
+
+/// Which TRAA of the thesis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Variant {
+    /// INSIDE / Uncharted 4 (thesis sec. 3.6).
+    Baseline,
+    /// The thesis's improvements (sec. 4.3).
+    Improved,
+}
+
+impl Variant {
+    fn name(self) -> &'static str {
+        match self {
+            Variant::Baseline => "baseline",
+            Variant::Improved => "improved",
+        }
+    }
+}
+
+filter_params! {
+    /// Parameters of `traa`.
+    pub struct Params {
+        variant: Variant = Variant::Improved,
+            ParamKind::Choice { options: &["baseline", "improved"], },
+            "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)";
+        feedback_min: f32 = FEEDBACK_MIN,
+            ParamKind::Float { min: 0.0, max: 0.999 },
+            "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting";
+        feedback_max: f32 = FEEDBACK_MAX,
+            ParamKind::Float { min: 0.0, max: 0.999 },
+            "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response";
+        sharpen: bool = true,
+            ParamKind::Bool,
+            "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved";
+        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
+            ParamKind::Choice { options: PIXEL_FILTERS },
+            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+        filter_width: f32 = DEFAULT_FILTER_WIDTH,
+            ParamKind::Float { min: 0.5, max: 4.0 },
+            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
+    }
+}
+
+/// INSIDE's `_FeedbackMin` (Pedersen 2016; the feedback of thesis sec. 3.6.3).
+pub const FEEDBACK_MIN: f32 = 0.88;
+/// INSIDE's `_FeedbackMax` (Pedersen 2016).
+pub const FEEDBACK_MAX: f32 = 0.97;
+/// Floor of the luma normaliser in the feedback (INSIDE: `max(lum0, max(lum1, 0.2))`).
+const FEEDBACK_LUMA_FLOOR: f32 = 0.2;
+/// Sharpen strength of eq. 3.1, `[0 -1 0; -1 5 -1; 0 -1 0]` (Oliveros 2018, after Xu 2016).
+const SHARPEN_BASELINE: f32 = 4.0;
+/// Sharpen strength of eq. 4.17, `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]` (Oliveros 2018).
+const SHARPEN_IMPROVED: f32 = 1.0;
+/// Eq. 4.9: weight of the albedo ("unlit") luma Sobel.
+const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
+/// Eq. 4.9: weight of the lit luma Sobel.
+const SOBEL_LIT_WEIGHT: f32 = 0.7;
+/// Sec. 4.3.2: below this normalising depth distance the pseudo-variances are zero.
+const DEPTH_DISTANCE_MIN: f32 = 0.002;
+
+/// History planes of the reference: working RGB, then (improved) the Sobel history and
+/// depth / far. (The filter itself keeps the same values as texels, see [`Traa`].)
+#[cfg(test)]
+const SOBEL: usize = 3;
+#[cfg(test)]
+const DEPTH01: usize = 4;
+
+/// The TRAA filter with its history.
+#[derive(Debug)]
+pub struct Traa {
+    params: Params,
+    hist: TemporalState,
+}
+
+impl Traa {
+    /// History planes (of one value per pixel each): RGB, and Sobel and depth when improved.
+    fn history_planes(p: &Params) -> usize {
+        match p.variant {
+            Variant::Baseline => 3,
+            Variant::Improved => 5,
+        }
+    }
+
+    /// Sharpen strength of the variant: eq. 3.1 or eq. 4.17.
+    fn sharpen_strength(p: &Params) -> f32 {
+        match p.variant {
+            Variant::Baseline => SHARPEN_BASELINE,
+            Variant::Improved => SHARPEN_IMPROVED,
+        }
+    }
+}
+
+impl FilterKind for Traa {
+    const NAME: &'static str = "traa";
+    const SUMMARY: &'static str =
+        "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
+    const STAGES: &'static [&'static str] = &[
+        "repair",
+        "reconstruct",
+        "tonemap",
+        "dilate",
+        "reproject",
+        "sobel",
+        "sobel_history",
+        "model_average",
+        "depth_variance",
+        "aliased",
+        "resolve",
+        "sharpen",
+        "untonemap",
+    ];
+    type Params = Params;
+    fn needs() -> ChannelSet {
+        ChannelSet::of(&[ChannelKind::Color])
+    }
+    fn uses() -> ChannelSet {
+        ChannelSet::of(&[
+            ChannelKind::Color,
+            ChannelKind::Motion,
+            ChannelKind::Depth,
+            ChannelKind::Albedo,
+            ChannelKind::ObjectId,
+        ])
+    }
+    fn state_bytes_per_pixel(p: &Params) -> usize {
+        2 * 4 * Self::history_planes(p)
+    }
+    fn new(params: Params) -> Self {
+        // Texels [r, g, b] or [r, g, b, sobel] (one fetch per tap of the history), and
+        // depth / far in a plane of its own: it is only written on frames with depth.
+        let (layout, conversion): (&[usize], Conversion) = match params.variant {
+            Variant::Baseline => (&[3], Conversion::Custom(convert_rgb_texels::<3>)),
+            Variant::Improved => (&[4, 1], Conversion::Custom(convert_rgb_texels::<4>)),
+        };
+        Traa {
+            hist: TemporalState::with_components(layout, conversion),
+            params,
+        }
+    }
+}
+
+/// Converts a history whose first plane holds texels of `N` channels, RGB first, between
+/// linear and tonemapped working space (as the planar conversion of RGB history does; the
+/// other channels stay as they are).
+fn convert_rgb_texels<const N: usize>(planes: &mut [Plane<f32>], to_tonemapped: bool) {
+    let w = planes[0].width();
+    for_rows([planes[0].data_mut()], w, |_, [row]| {
+        for t in row.chunks_exact_mut(N) {
+            let rgb = [t[0], t[1], t[2]];
+            let c = if to_tonemapped {
+                tonemap(rgb)
+            } else {
+                tonemap_inverse(rgb)
+            };
+            t[..3].copy_from_slice(&c);
+        }
+    });
+}
+
+/// INSIDE's feedback: the history weight from the difference of two lumas.
+#[cfg(test)]
+#[inline(always)]
+fn feedback(l0: f32, l1: f32, min: f32, max: f32) -> f32 {
+    let diff = (l0 - l1).abs() / l0.max(l1).max(FEEDBACK_LUMA_FLOOR);
+    let w = (1.0 - diff).max(0.0);
+    min + (max - min) * w * w
+}
+
+#[cfg(test)]
+#[inline(always)]
+fn mix(x: f32, y: f32, t: f32) -> f32 {
+    x * (1.0 - t) + y * t
+}
+
+/// [`feedback`] of eight pixels, lane by lane (the same operations, so the same bits).
+#[inline(always)]
+fn feedback_v(l0: f32x8, l1: f32x8, min: f32, max: f32) -> f32x8 {
+    let floor = f32x8::splat(FEEDBACK_LUMA_FLOOR);
+    let diff = (l0 - l1).abs() / lanes::max_of(lanes::max_of(l0, l1), floor);
+    let w = lanes::max_of(f32x8::splat(1.0) - diff, f32x8::splat(0.0));
+    f32x8::splat(min) + f32x8::splat(max - min) * w * w
+}
+
+/// [`mix`] of eight pixels, lane by lane.
+#[inline(always)]
+fn mix_v(x: f32x8, y: f32x8, t: f32x8) -> f32x8 {
+    x * (f32x8::splat(1.0) - t) + y * t
+}
+
+impl Filter for Traa {
+    fn name(&self) -> &'static str {
+        Self::NAME
+    }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&self.params))
+    }
+
+    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
+        let p = &self.params;
+        let near_far = frame.meta.near_far;
+        self.hist.run(
+            Self::NAME,
+            Self::needs(),
+            Self::uses(),
+            false,
+            Reconstruction::new(p.pixel_filter, p.filter_width),
+            frame,
+            |ctx| kernel::frame(p, near_far, ctx),
+        )
+    }
+
+    fn reset(&mut self) {
+        self.hist.buffer.reset();
+    }
+
+    fn recycle(&mut self, planes: Rgb) {
+        self.hist.scratch.recycle(planes);
+    }
+
+    fn state_bytes(&self) -> usize {
+        self.hist.buffer.bytes()
+    }
+
+    fn save_state(&self) -> Result<FilterState, StateError> {
+        Ok(self.hist.save(Self::NAME, self.params()))
+    }
+
+    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
+        self.hist.load(state, Self::NAME, &self.params())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::reference::ReferenceTraa;
+    use super::*;
+    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
+    use crate::pipeline::params::{build, parse_assignments};
+    use crate::rng::SplitMix64;
+
+    /// The channels `improved` reads beyond the shared sequences': albedo in [0, 1) and
+    /// object ids in small blocks with some single-pixel objects; then left out again as
+    /// `variant` says, or (`near_far`) kept with the far plane set.
+    fn with_gbuffer(f: &Frame, rng: &mut SplitMix64, variant: &str) -> Frame {
+        let mut f = f.clone();
+        let (w, h) = (f.width(), f.height());
+        let albedo = [0, 1, 2].map(|_| Plane::from_fn(w, h, |_, _| rng.next_f64() as f32));
+        f.set_f32(ChannelKind::Albedo, albedo.to_vec()).unwrap();
+        let ids = Plane::from_fn(w, h, |x, y| {
+            ((x / 3 + y / 2) % 3) as u32 + (rng.next_f64() < 0.1) as u32
+        });
+        f.set_object_id(ids).unwrap();
+        match variant {
+            "no albedo" => f.remove(ChannelKind::Albedo),
+            "no object id" => f.remove(ChannelKind::ObjectId),
+            "near_far" => f.meta.near_far = Some([0.5, 3.0]),
+            _ => {}
+        }
+        f
+    }
+
+    /// The fused kernel gives the reference's output, bit for bit, for both variants and
+    /// every option, with each optional channel missing in turn, on every kind of
+    /// sequence, at odd sizes.
+    #[test]
+    fn fused_kernel_matches_the_reference() {
+        let params: &[&[&str]] = &[
+            &["variant=baseline"],
+            &["variant=baseline", "sharpen=false", "feedback_min=0.5"],
+            &[],
+            &["sharpen=false"],
+            &["feedback_min=0.2", "feedback_max=0.99"],
+        ];
+        let channels = ["all", "no albedo", "no object id", "near_far"];
+        let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
+        for (w, h) in sizes {
+            let mut rng = SplitMix64::new((w * 7 + h) as u64);
+            for (name, frames) in sequences(w, h, 6, (w * 31 + h) as u64) {
+                for set in params {
+                    let p: Params = build("traa", &parse_assignments(set).unwrap()).unwrap();
+                    // Baseline reads neither albedo nor object ids.
+                    let kinds = if p.variant == Variant::Baseline {
+                        &channels[..1]
+                    } else {
+                        &channels[..]
+                    };
+                    for kind in kinds {
+                        let frames: Vec<Frame> =
+                            frames.iter().map(|f| with_gbuffer(f, &mut rng, kind)).collect();
+                        let mut slow = ReferenceTraa::new(p.clone());
+                        assert_filter_matches(
+                            &mut Traa::new(p.clone()),
+                            |f| slow.process(f).unwrap(),
+                            &frames,
+                            &format!("{w}x{h} {name} {kind} {set:?}"),
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,40 @@
+//! afterimage's service: per-client filter state ([`session`]) and gRPC (tonic) and HTTP
+//! (axum) as thin layers over it, plus the wire format, config, metrics and the client used
+//! by `afterimage stream`.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+// The layers below, under the names the modules here use.
+use afterimage_backend as backend;
+use afterimage_core::{echo, filters, frame, io, pipeline};
+#[cfg(test)]
+use afterimage_core::{rng, scene};
+
+pub mod session;
+
+pub mod activity;
+pub mod client;
+pub mod config;
+pub mod grpc;
+pub mod http;
+pub mod listener;
+pub mod metrics;
+pub mod proto;
+pub mod run;
+pub mod schedule;
+pub mod service;
+pub mod wire;
+
+pub use config::Config;
+
+/// The routing key of a session: an HTTP header and gRPC metadata entry a client sends,
+/// with the same value, on every request of a session (create, frames, get, close). With
+/// several replicas behind one address, a proxy hashes on it (nginx `hash
+/// $http_x_afterimage_route consistent`, Envoy Gateway's consistent hash on a header) so a
+/// session's requests all reach the replica that holds its state. The server itself does
+/// not read it; a request that reaches another replica gets "no session" naming that
+/// replica (see `deploy/README.md`).
+pub const ROUTE_HEADER: &str = "x-afterimage-route";
+pub use run::{serve, shutdown_signal, start, Running, ServeError};
+pub use service::Service;
