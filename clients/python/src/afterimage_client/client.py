@@ -561,9 +561,9 @@ class FrameStream:
         try:
             for f in frames:
                 self.send(f)
-        except BaseException as e:  # reported by Session.stream after the replies
+        except BaseException as e:
+            # Reported by Session.stream once the frames already sent have come back.
             self._feed_error = e
-            self._call.cancel()
         finally:
             self.finish()
 
