@@ -347,23 +347,24 @@ class Client:
         wait: float = 10.0,
     ):
         self.address = address
-        self._bare = open_channel(address, tls_ca, tls_domain)
+        #: The channel without the API key and routing metadata (for checks of a keyed server).
+        self.raw_channel = open_channel(address, tls_ca, tls_domain)
         if wait > 0:
             try:
-                grpc.channel_ready_future(self._bare).result(timeout=wait)
+                grpc.channel_ready_future(self.raw_channel).result(timeout=wait)
             except grpc.FutureTimeoutError:
-                self._bare.close()
+                self.raw_channel.close()
                 scheme = "TLS" if tls_ca else "plain-text"
                 raise ServerUnavailable(
                     f"no afterimage server answered at {address} ({scheme} gRPC) within {wait:g} s; "
                     f"is `afterimage serve` running there (its gRPC address is AFTERIMAGE_GRPC_ADDR)?"
                 ) from None
         self.route = route or os.urandom(8).hex()
-        self.channel = grpc.intercept_channel(self._bare, _CallMetadata(api_key, self.route))
+        self.channel = grpc.intercept_channel(self.raw_channel, _CallMetadata(api_key, self.route))
         self.stub = pb_grpc.AfterimageStub(self.channel)
 
     def close(self) -> None:
-        self._bare.close()
+        self.raw_channel.close()
 
     def __enter__(self) -> "Client":
         return self
