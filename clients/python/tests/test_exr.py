@@ -204,3 +204,60 @@ def test_wire_encoding_refuses_wrong_shapes():
         encode_channel("object_id", np.zeros((2, 3), np.float32), 3, 2)
     with pytest.raises(FrameError, match="unknown channel 'colour'"):
         encode_channel("colour", np.zeros((2, 3, 3), np.float32), 3, 2)
+
+
+def _fixture_files():
+    import glob
+
+    root = os.path.dirname(FENCE.rstrip("/"))
+    return sorted(glob.glob(os.path.join(root, "**", "*.exr"), recursive=True)) + sorted(
+        glob.glob(os.path.join(MOTION, "*.exr")))
+
+
+def test_builtin_reader_reads_the_fixtures_as_openexr_does():
+    files = _fixture_files()
+    assert len(files) == 11
+    for path in files:
+        a, b = read_exr(path, "builtin"), read_exr(path, "openexr")
+        assert (a.width, a.height) == (b.width, b.height)
+        assert sorted(a.channels) == sorted(b.channels), path
+        for n in b.channels:
+            assert a.channels[n].dtype == b.channels[n].dtype, (path, n)
+            np.testing.assert_array_equal(a.channels[n], b.channels[n], err_msg=f"{path} {n}")
+        assert a.header["compression"] == "ZIP"
+        for k in ("Camera", "Frame"):
+            if k in b.header:
+                assert a.header[k] == b.header[k]
+
+
+def test_builtin_writer_is_read_back_by_openexr(tmp_path):
+    image = read_exr(os.path.join(MOTION, "frame_0003.exr"), "builtin")
+    image.header["afterimage.jitter"] = np.array([0.25, -0.125], np.float32)
+    color = np.random.default_rng(3).random((image.height, image.width, 3), dtype=np.float32)
+    out = tmp_path / "frame_0003.exr"
+    write_filtered(image, color, str(out), Preset("blender"), {"afterimage.record": '{"index":3}', "afterimage.reset": 1})
+    back = read_exr(str(out), "openexr")
+    np.testing.assert_array_equal(read_colour(str(out), backend="openexr"), color)
+    for n, plane in image.channels.items():
+        if ".Combined." not in n or n.endswith(".A"):
+            np.testing.assert_array_equal(back.channels[n], plane, err_msg=n)
+    assert back.header["afterimage.record"] == '{"index":3}'
+    assert back.header["afterimage.reset"] == 1
+    np.testing.assert_array_equal(back.header["afterimage.jitter"], [0.25, -0.125])
+    assert back.header["Camera"] == image.header["Camera"]
+    assert str(back.header["compression"]).endswith("ZIP_COMPRESSION")
+    assert out.stat().st_size < 0.5 * image.width * image.height * 4 * len(image.channels)
+    frame, _, _ = read_frame(str(out), backend="builtin")
+    assert frame.jitter == (0.25, -0.125) and frame.reset
+
+
+def test_builtin_reader_refuses_what_it_does_not_read(tmp_path):
+    import OpenEXR
+
+    f = OpenEXR.File(os.path.join(FENCE, "frame_0001.exr"), separate_channels=True)
+    header = {k: v for k, v in f.header().items() if k not in ("channels", "chunkCount")}
+    header["compression"] = OpenEXR.PIZ_COMPRESSION
+    OpenEXR.File(header, {n: c.pixels for n, c in f.channels().items()}).write(str(tmp_path / "piz.exr"))
+    with pytest.raises(ExrError, match=r"piz\.exr: PIZ compression is not read by the built-in reader \(NONE, ZIPS, ZIP are\)"):
+        read_exr(str(tmp_path / "piz.exr"), "builtin")
+    assert read_exr(str(tmp_path / "piz.exr"), "openexr").width == 160

@@ -24,12 +24,20 @@ to the next frame with y up, so internal motion_next = ``(-Z, W)``. Float object
 A channel whose components are all missing is left out (the filter's stages that read it
 are skipped); one with only some components is an error, as is any channel ``require``
 names that is missing.
+
+Files are read and written with the OpenEXR wheel, or with the package's own small reader
+and writer (numpy and zlib: single-part scanline files, NONE/ZIPS/ZIP, what Blender writes)
+inside Blender, whose own OpenEXR library crashes the wheel's when both are loaded in one
+process. AFTERIMAGE_CLIENT_EXR=openexr or builtin forces one.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import struct
+import sys
+import zlib
 from dataclasses import dataclass
 from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple
 
@@ -198,10 +206,39 @@ class ExrImage:
     channels: Dict[str, np.ndarray]
     width: int
     height: int
+    #: The attributes as stored (type, bytes), when the built-in reader read the file.
+    raw_attributes: Optional[Dict[str, Tuple[str, bytes]]] = None
 
 
-def read_exr(path: str) -> ExrImage:
-    """Reads every channel of a scanline or tiled, single-part EXR file."""
+def exr_backend() -> str:
+    """``openexr`` (the OpenEXR wheel) or ``builtin`` (numpy and zlib): AFTERIMAGE_CLIENT_EXR,
+    else builtin inside Blender and openexr elsewhere."""
+    b = os.environ.get("AFTERIMAGE_CLIENT_EXR", "")
+    if b in ("openexr", "builtin"):
+        return b
+    if b:
+        raise ExrError(f"AFTERIMAGE_CLIENT_EXR={b!r}: expected openexr or builtin")
+    return "builtin" if "bpy" in sys.modules else "openexr"
+
+
+def read_exr(path: str, backend: Optional[str] = None) -> ExrImage:
+    """Reads every channel of a single-part EXR file (scanline or tiled with the OpenEXR
+    backend; scanline NONE/ZIPS/ZIP with the built-in one)."""
+    if (backend or exr_backend()) == "builtin":
+        from . import _exr_numpy
+
+        if not os.path.exists(path):
+            raise ExrError(f"{path}: no such file")
+        try:
+            attrs, raw, channels = _exr_numpy.read(str(path))
+        except _exr_numpy.Unsupported as e:
+            raise ExrError(f"{path}: {e}") from None
+        except (OSError, ValueError, IndexError, KeyError, struct.error, zlib.error) as e:
+            raise ExrError(f"{path}: not a readable OpenEXR file: {e}") from None
+        if not channels:
+            raise ExrError(f"{path}: no channels")
+        height, width = next(iter(channels.values())).shape
+        return ExrImage(str(path), attrs, channels, width, height, raw)
     import OpenEXR
 
     try:
@@ -265,9 +302,9 @@ def frame_from_exr(image: ExrImage, preset: str | Preset = "auto", require: Sequ
     return frame, p
 
 
-def read_frame(path: str, preset: str | Preset = "auto", require: Sequence[str] = (), index: Optional[int] = None) -> Tuple[Frame, ExrImage, Preset]:
+def read_frame(path: str, preset: str | Preset = "auto", require: Sequence[str] = (), index: Optional[int] = None, backend: Optional[str] = None) -> Tuple[Frame, ExrImage, Preset]:
     """Reads one EXR frame: the frame (internal motion), the file, and the preset used."""
-    image = read_exr(path)
+    image = read_exr(path, backend)
     frame, p = frame_from_exr(image, preset, require, index)
     return frame, image, p
 
@@ -310,8 +347,6 @@ def write_filtered(image: ExrImage, color: np.ndarray, path: str, preset: Preset
     """Writes ``image`` with its colour channels replaced by ``color`` (HxWx3), every other
     channel and attribute kept: a drop-in replacement of the input (`afterimage filter
     --keep all`). The colour keeps the input's sample type (half or float)."""
-    import OpenEXR
-
     names = preset.names("color")
     assert names is not None
     c = np.asarray(color)
@@ -321,11 +356,21 @@ def write_filtered(image: ExrImage, color: np.ndarray, path: str, preset: Preset
     for i, n in enumerate(names):
         dtype = image.channels[n].dtype if n in image.channels else np.float32
         channels[n] = np.ascontiguousarray(c[..., i]).astype(dtype)
-    header = {k: v for k, v in image.header.items() if k not in ("channels", "chunkCount")}
-    for k, v in (attributes or {}).items():
-        header[k] = v
+    if image.raw_attributes is None:
+        import OpenEXR
     tmp = f"{path}.partial"
     try:
+        if image.raw_attributes is not None:
+            from . import _exr_numpy
+
+            extra = {k: v for k, v in image.header.items() if k not in image.raw_attributes}
+            extra.update(attributes or {})
+            _exr_numpy.write(tmp, image.raw_attributes, extra, channels)
+            os.replace(tmp, path)
+            return
+        header = {k: v for k, v in image.header.items() if k not in ("channels", "chunkCount")}
+        for k, v in (attributes or {}).items():
+            header[k] = v
         OpenEXR.File(header, channels).write(tmp)
         os.replace(tmp, path)
     except Exception as e:
@@ -334,9 +379,9 @@ def write_filtered(image: ExrImage, color: np.ndarray, path: str, preset: Preset
         raise ExrError(f"{path}: cannot write: {e}") from None
 
 
-def read_colour(path: str, preset: str = "auto") -> np.ndarray:
+def read_colour(path: str, preset: str = "auto", backend: Optional[str] = None) -> np.ndarray:
     """The colour of an EXR as HxWx3 float32 (for comparisons)."""
-    image = read_exr(path)
+    image = read_exr(path, backend)
     p = resolve_preset(preset, list(image.channels), path)
     names = p.names("color")
     assert names is not None
