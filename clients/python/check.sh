@@ -11,7 +11,8 @@
 # 3. the tests in clients/python/tests run against the given server binary: the EXR
 #    mapping and error unit tests, and, against a real `afterimage serve` on loopback
 #    ports, `python -m afterimage_client filter` on the committed Blender frames for taa
-#    and phlm compared with `afterimage filter` on the same frames (bit for bit).
+#    and phlm compared with `afterimage filter` on the same frames (bit for bit), and the
+#    Blender example (examples/blender_stream.py) when `blender` is installed.
 #
 # PYTHON picks the interpreter (default python3); AFTERIMAGE_PY_CONSTRAINTS, a pip
 # constraints file, pins the dependencies (default: none, the newest that fit, as a user
@@ -58,6 +59,12 @@ PY
 echo "== tests against $bin"
 cd "$tmp"
 # -s: the agreement tests print their max |client - afterimage filter| per filter and shot.
+# tests/test_blender_example.py runs examples/blender_stream.py in `blender` when it is on
+# PATH (AFTERIMAGE_REQUIRE_BLENDER=1 makes its absence a failure).
 AFTERIMAGE_BIN="$bin" AFTERIMAGE_REQUIRE_SERVER=1 \
   "$tmp/venv/bin/python" -m pytest -q -s -p no:cacheprovider "$here/tests"
+
+echo "== the EXR and server tests again with the built-in EXR reader and writer (the one Blender uses)"
+AFTERIMAGE_BIN="$bin" AFTERIMAGE_REQUIRE_SERVER=1 AFTERIMAGE_CLIENT_EXR=builtin \
+  "$tmp/venv/bin/python" -m pytest -q -p no:cacheprovider "$here/tests/test_exr.py" "$here/tests/test_server.py"
 echo "== clients/python: all passed"

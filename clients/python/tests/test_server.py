@@ -76,6 +76,22 @@ def test_filter_command_gives_the_colour_of_afterimage_filter(server, afterimage
     assert json.loads(out.header["afterimage.record"])["index"] == records[-1]["index"]
 
 
+@pytest.mark.parametrize("filter_name", ["traa", "pixel_trace", "upsample"])
+@pytest.mark.parametrize("shot", ["fence", "motion"])
+def test_filters_reading_object_ids_albedo_normals_and_motion_next_agree_too(server, afterimage_bin, tmp_path, filter_name, shot):
+    """traa reads object ids and albedo, pixel_trace motion_next (and replies frames late),
+    upsample normals and object ids: their mappings are checked the same way."""
+    src = SHOTS[shot]
+    ours, theirs = tmp_path / "client", tmp_path / "rust"
+    r = run_cli("filter", "--server", server, "--filter", filter_name, "-q", "-i", src, "-o", str(ours))
+    assert r.returncode == 0, r.stderr
+    rust_filter(afterimage_bin, filter_name, src, theirs)
+    worst, names = compare(ours, theirs)
+    assert len(names) == len(find_frames(src))
+    print(f"{filter_name} on {shot}: max |client - afterimage filter| = {worst}")
+    assert worst == 0.0
+
+
 def test_the_comparison_sees_a_motion_mapping_error(server, afterimage_bin, tmp_path):
     """Blender's Vector pass sent without its y flipped (as if it were internal motion)
     gives another colour: the exact comparison above would catch a wrong mapping."""
