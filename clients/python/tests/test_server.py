@@ -216,3 +216,11 @@ def test_a_parameter_reaches_the_filter(server, afterimage_bin, tmp_path):
     assert compare(ours, theirs)[0] == 0.0
     rust_filter(afterimage_bin, "taa", FENCE, tmp_path / "default")
     assert compare(ours, tmp_path / "default")[0] > 0.0
+
+
+def test_filters_command_lists_filters_with_their_parameters(server):
+    r = run_cli("filters", "--server", server)
+    assert r.returncode == 0, r.stderr
+    assert "taa: " in r.stdout and "phlm: " in r.stdout
+    assert "  needs color; uses color, depth, motion" in r.stdout
+    assert "  --param alpha=0.1 (number [" in r.stdout

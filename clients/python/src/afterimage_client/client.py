@@ -489,13 +489,19 @@ class Session:
         or use :meth:`open_stream` to hand frames over one at a time from your own thread
         (a renderer's main thread). ``f16``: send half floats (11 significant bits, at most
         65504); ``reply_f16``: receive half floats."""
-        with self.open_stream(f16=f16, reply_f16=reply_f16) as s:
-            feeder = threading.Thread(target=s._feed_from, args=(iter(frames),), daemon=True)
-            feeder.start()
+        s = self.open_stream(f16=f16, reply_f16=reply_f16)
+        feeder = threading.Thread(target=s._feed_from, args=(iter(frames),), daemon=True)
+        feeder.start()
+        complete = False
+        try:
             yield from s
-            feeder.join()
-            if s._feed_error is not None:
-                raise s._feed_error
+            complete = True
+        finally:
+            if not complete:  # the caller stopped early, or a reply failed: end the call
+                s._call.cancel()
+        feeder.join()
+        if s._feed_error is not None:
+            raise s._feed_error
 
     def filter(self, frame: Frame, *, f16: bool = False, reply_f16: bool = False) -> FilteredFrame:
         """Filters one frame (its own Stream call) and returns the result. Only for causal
