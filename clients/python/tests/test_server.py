@@ -224,3 +224,32 @@ def test_filters_command_lists_filters_with_their_parameters(server):
     assert "taa: " in r.stdout and "phlm: " in r.stdout
     assert "  needs color; uses color, depth, motion" in r.stdout
     assert "  --param alpha=0.1 (number [" in r.stdout
+
+
+def test_a_frame_the_server_refuses_ends_the_stream_with_its_reason(server):
+    frames = [Frame(color=np.full((16, 16, 3), 0.5, np.float32)) for _ in range(3)]
+    frames[1].jitter = (2.0, 0.0)  # outside -1..1 pixels
+    with Client(server) as client, client.create_session("taa", width=16, height=16, channels=["color"]) as s:
+        got = []
+        with pytest.raises(RequestRejected) as e:
+            for out in s.stream(frames):
+                got.append(out.index)
+        assert got == [0]
+        assert e.value.code.name == "INVALID_ARGUMENT"
+        assert "jitter" in e.value.details and "(2, 0)" in e.value.details
+
+
+def test_a_wrong_frame_is_refused_after_the_frames_before_it_come_back(server):
+    from afterimage_client import FrameError
+
+    good = Frame(color=np.full((16, 16, 3), 0.5, np.float32))
+    wrong = Frame(color=np.full((8, 16, 3), 0.5, np.float32))
+    with Client(server) as client, client.create_session("taa", width=16, height=16, channels=["color"]) as s:
+        got = []
+        with pytest.raises(FrameError, match=r"frame of 16x8 for a session of 16x16"):
+            for out in s.stream([good, good, wrong, good]):
+                got.append(out.index)
+        assert got == [0, 1]
+        undeclared = Frame(color=good.color, depth=np.ones((16, 16), np.float32))
+        with pytest.raises(FrameError, match=r"frame carries depth, which the session was not created with \(its channels: color\)"):
+            list(s.stream([undeclared]))

@@ -554,8 +554,16 @@ class FrameStream:
         self.session._check(frame)
         index = self.session._next_index if frame.index is None else int(frame.index)
         self.session._next_index = index + 1
-        self._queue.put((index, frame))
-        return index
+        while True:  # bounded: at most a few frames wait to be sent
+            try:
+                self._queue.put((index, frame), timeout=0.1)
+                return index
+            except queue.Full:
+                if self._call.done():
+                    raise AfterimageError(
+                        f"frame {index}: the stream to session {self.session.id[:8]} has ended "
+                        f"(read the replies for the server's reason)"
+                    ) from None
 
     def finish(self) -> None:
         """Closes the sending side: the server replies to what is left (a windowed
