@@ -253,3 +253,29 @@ def test_a_wrong_frame_is_refused_after_the_frames_before_it_come_back(server):
         undeclared = Frame(color=good.color, depth=np.ones((16, 16), np.float32))
         with pytest.raises(FrameError, match=r"frame carries depth, which the session was not created with \(its channels: color\)"):
             list(s.stream([undeclared]))
+
+
+@pytest.mark.parametrize("filter_name", ["taa", "phlm"])
+def test_afterimage_layout_with_jitter_and_reference(server, afterimage_bin, tmp_path, filter_name):
+    """Frames in this project's own layout (`afterimage scene`: Halton jitter in the
+    header, a reference channel): the same colour, and the PSNR against the reference that
+    afterimage filter prints."""
+    import re
+
+    src = tmp_path / "scene"
+    r = subprocess.run([afterimage_bin, "scene", "fence", "--frames", "5", "--size", "96x54", "--spp", "4",
+                        "--jitter", "8", "-o", str(src)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    jit = {tuple(np.round(read_exr(p).header["afterimage.jitter"], 6)) for _, p in find_frames(str(src))}
+    assert len(jit) == 5  # every frame its own jitter
+    ours, theirs = tmp_path / "client", tmp_path / "rust"
+    c = run_cli("filter", "--server", server, "--filter", filter_name, "-q", "-i", str(src), "-o", str(ours))
+    assert c.returncode == 0, c.stderr
+    rr = subprocess.run([afterimage_bin, "filter", "--filter", filter_name, "-i", str(src), "-o", str(theirs), "-j", "1"],
+                        capture_output=True, text=True, timeout=120)
+    assert rr.returncode == 0, rr.stderr
+    assert compare(ours, theirs)[0] == 0.0
+    theirs_psnr = re.search(r"mean PSNR ([0-9.]+) dB, mean SSIM ([0-9.]+)", rr.stdout + rr.stderr)
+    ours_psnr = re.search(r"mean PSNR ([0-9.]+) dB, mean SSIM ([0-9.]+)", c.stderr)
+    assert theirs_psnr and ours_psnr, (rr.stdout + rr.stderr, c.stderr)
+    assert ours_psnr.groups() == theirs_psnr.groups()

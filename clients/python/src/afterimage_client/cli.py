@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
             "through FILTER on the server and writes each filtered frame under its input's file name "
             "in the output directory: every channel and attribute of the input kept, the colour "
             "replaced (as `afterimage filter --keep all`), plus the per-frame record in the "
-            "`afterimage.record` attribute and records.json. Channels are mapped by the presets of "
+            "`afterimage.record` attribute and records.json (a list, with PSNR and SSIM when the frames have "
+            "a reference channel). Channels are mapped by the presets of "
             "`afterimage filter` (see the package README); only those the filter uses are sent."
         ),
     )
@@ -134,7 +135,7 @@ def cmd_filter(args, client: Client, frames) -> int:
                     names = ", ".join(n for c in lacking for n in preset.names(c) or [])
                     raise ExrError(f"{path}: no {names} ({', '.join(lacking)}, which {frames[0][1]} had and the session was created with); the file has: {', '.join(sorted(image.channels))}")
             for c in list(frame.channels()):
-                if c not in send:
+                if c not in send and c != "reference":  # a reference gets PSNR/SSIM in the records
                     setattr(frame, c, None)
             images[n] = (path, image)
             yield frame
@@ -147,7 +148,9 @@ def cmd_filter(args, client: Client, frames) -> int:
             for out in session.stream(source(), f16=args.f16, reply_f16=args.f16):
                 path, image = images.pop(out.index)
                 dest = os.path.join(args.output, os.path.basename(path))
-                record = out.figures.record
+                record = dict(out.figures.record)
+                if out.figures.psnr is not None:  # the frame carried a reference
+                    record["psnr"], record["ssim"] = out.figures.psnr, out.figures.ssim
                 write_filtered(image, out.color, dest, preset, {"afterimage.record": json.dumps(record, separators=(",", ":"))})
                 records.append(record)
                 done += 1
@@ -163,6 +166,10 @@ def cmd_filter(args, client: Client, frames) -> int:
         raise AfterimageError(f"{len(frames)} frames sent, {done} filtered frames came back")
     med = float(np.median([r.get("total_ms", 0.0) for r in records])) if records else float("nan")
     _log(f"{args.filter}: {done} frames -> {args.output} in {wall:.2f} s ({done / wall:.1f} frames/s; server median {med:.2f} ms/frame)")
+    psnr = [r["psnr"] for r in records if "psnr" in r]
+    if psnr:
+        _log(f"  vs the frames' reference channel: mean PSNR {np.mean(psnr):.3f} dB, "
+             f"mean SSIM {np.mean([r['ssim'] for r in records if 'ssim' in r]):.4f}")
     return 0
 
 

@@ -266,6 +266,9 @@ def read_exr(path: str, backend: Optional[str] = None) -> ExrImage:
 def frame_from_exr(image: ExrImage, preset: str | Preset = "auto", require: Sequence[str] = (), index: Optional[int] = None) -> Tuple[Frame, Preset]:
     """The frame in ``image`` under ``preset``, motion in the internal convention."""
     names = list(image.channels)
+    if "afterimage.shading" in image.header:
+        raise ExrError(f"{image.path}: sparse shading (the afterimage.shading attribute) is not read by this client; "
+                       f"use `afterimage filter` for it")
     p = preset if isinstance(preset, Preset) else resolve_preset(preset, names, image.path)
     mapping = channel_mapping(names, p, image.path, require)
     kw: Dict[str, Any] = {}
