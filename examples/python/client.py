@@ -30,7 +30,6 @@ The protocol itself (chunking, encoding, metadata, TLS) is the `afterimage-clien
 """
 
 import argparse
-import json
 import os
 import sys
 import time

@@ -133,15 +133,15 @@ def build_scene(bpy, args, frames):
         obj.visible_glossy = False
         return obj
 
-    ground = add("ground", bpy.ops.mesh.primitive_plane_add, material("ground", (0.8, 0.78, 0.7), checker=60.0), size=40.0)
+    add("ground", bpy.ops.mesh.primitive_plane_add, material("ground", (0.8, 0.78, 0.7), checker=60.0), size=40.0)
     wood = material("wood", (0.55, 0.42, 0.3))
     for i in range(15):  # 4 cm posts, 1 m tall, and a rail: thin geometry that aliases
         add(f"post_{i}", bpy.ops.mesh.primitive_cube_add, wood, size=1.0, location=(-3.5 + 0.5 * i, 2.0, 0.5),
             scale=(0.04, 0.04, 1.0))
     add("rail", bpy.ops.mesh.primitive_cube_add, wood, size=1.0, location=(0, 2.0, 0.8), scale=(7.5, 0.02, 0.03))
     steel = material("steel", (0.3, 0.3, 0.33))
-    wire = add("wire", bpy.ops.mesh.primitive_cylinder_add, steel, radius=0.004, depth=9.0,
-               location=(0.5, 3.5, 2.2), rotation=(0.0, math.radians(88.0), 0.0))
+    add("wire", bpy.ops.mesh.primitive_cylinder_add, steel, radius=0.004, depth=9.0,
+        location=(0.5, 3.5, 2.2), rotation=(0.0, math.radians(88.0), 0.0))
     ball = add("ball", bpy.ops.mesh.primitive_uv_sphere_add, material("ball", (0.85, 0.25, 0.1), checker=6.0),
                radius=0.5, location=(-3.0, 0.6, 0.5))
     bpy.ops.object.shade_smooth()

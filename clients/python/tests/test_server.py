@@ -279,3 +279,14 @@ def test_afterimage_layout_with_jitter_and_reference(server, afterimage_bin, tmp
     ours_psnr = re.search(r"mean PSNR ([0-9.]+) dB, mean SSIM ([0-9.]+)", c.stderr)
     assert theirs_psnr and ours_psnr, (rr.stdout + rr.stderr, c.stderr)
     assert ours_psnr.groups() == theirs_psnr.groups()
+
+
+def test_session_filter_one_frame(server):
+    color = np.random.default_rng(2).random((12, 20, 3), dtype=np.float32)
+    with Client(server) as client, client.create_session("passthrough", width=20, height=12, channels=["color"]) as s:
+        out = s.filter(Frame(color=color))
+        assert out.index == 0 and out.color.shape == (12, 20, 3)
+        np.testing.assert_array_equal(out.color, color)
+        half = s.filter(Frame(color=color), f16=True, reply_f16=True)
+        assert half.index == 1
+        np.testing.assert_array_equal(half.color, color.astype(np.float16).astype(np.float32))
