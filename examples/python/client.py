@@ -25,13 +25,11 @@ KEY` (or AFTERIMAGE_API_KEY), sent as `authorization: Bearer KEY` metadata on ev
 `--tls-ca cert.pem` (the CA, or the self-signed certificate, to trust) and, when the
 certificate's name is not the address's host, `--tls-domain NAME`.
 
-The wire format (see crates/client/proto/afterimage/v1/afterimage.proto): a FrameHeader naming the
-channels, then DataChunks of at most the session's max_chunk_bytes whose concatenation
-is each channel's planes, little-endian, one after another.
+The protocol itself (chunking, encoding, metadata, TLS) is the `afterimage-client` package's
+(clients/python, installed into the example's venv by run.sh): this script is its user.
 """
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -39,12 +37,9 @@ import time
 import grpc
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "generated"))
-from afterimage.v1 import afterimage_pb2 as pb  # noqa: E402
-from afterimage.v1 import afterimage_pb2_grpc as pb_grpc  # noqa: E402
-
-# Components per channel, in the proto's order.
-COMPONENTS = {"color": 3, "depth": 1, "motion": 2, "normal": 3, "object_id": 1, "albedo": 3, "reference": 3}
+from afterimage_client import Client, Frame, RequestRejected, ServerUnavailable
+from afterimage_client.proto import afterimage_pb2 as pb
+from afterimage_client.proto import afterimage_pb2_grpc as pb_grpc
 
 
 class CheckFailed(Exception):
@@ -57,8 +52,8 @@ def expect(condition, message):
 
 
 def render(width, height, frames, seed=1, speed=(1.25, 0.5), noise=0.15):
-    """A pattern translating by `speed` pixels per frame. Yields dicts of planar float32
-    arrays (channels first) for color, depth, motion and reference.
+    """A pattern translating by `speed` pixels per frame. Yields dicts of float32 arrays in
+    image layout (height x width x components) for color, depth, motion and reference.
 
     Motion follows the internal convention: from the current pixel to where it was in the
     previous frame, in pixels (so it is -speed everywhere)."""
@@ -73,11 +68,13 @@ def render(width, height, frames, seed=1, speed=(1.25, 0.5), noise=0.15):
         # Smooth HDR highlights (peaks of about 8), so the reference needs no antialiasing
         # and what a filter can win is noise.
         glow = 7.0 * np.exp(-((np.sin(u * 0.045) * np.sin(v * 0.06)) - 1.0) ** 2 / 0.01)
-        reference = np.stack([base * (0.6 + 0.8 * tint), base, base * (1.4 - 0.8 * tint)]) + glow
-        color = reference * (1.0 + noise * rng.standard_normal(reference.shape))
+        reference = np.stack([base * (0.6 + 0.8 * tint), base, base * (1.4 - 0.8 * tint)], axis=-1) + glow[..., None]
+        # Drawn channel by channel (planes), as this example always has, so a seed gives the
+        # same frames as before.
+        color = reference * (1.0 + noise * rng.standard_normal((3, height, width)).transpose(1, 2, 0))
         color = np.maximum(color, 0.0)
-        depth = (4.0 + 0.01 * v)[None, :, :]
-        motion = np.stack([np.full_like(xs, -speed[0]), np.full_like(ys, -speed[1])])
+        depth = 4.0 + 0.01 * v
+        motion = np.stack([np.full_like(xs, -speed[0]), np.full_like(ys, -speed[1])], axis=-1)
         yield {
             "color": color.astype(np.float32),
             "depth": depth.astype(np.float32),
@@ -86,93 +83,15 @@ def render(width, height, frames, seed=1, speed=(1.25, 0.5), noise=0.15):
         }
 
 
-def encode(planes, sample):
-    """Planar samples as little-endian bytes."""
-    dtype = "<f2" if sample == pb.SAMPLE_TYPE_F16 else "<f4"
-    return np.ascontiguousarray(planes, dtype=dtype).tobytes()
-
-
-def frame_messages(session, index, channels, sample, reply_sample):
-    """One frame as a FrameHeader message then DataChunk messages."""
-    headers, blobs = [], []
-    for name, planes in channels.items():
-        data = encode(planes, sample)
-        headers.append(pb.ChannelHeader(name=name, sample=sample, compression=pb.COMPRESSION_NONE,
-                                        byte_length=len(data)))
-        blobs.append(data)
-    yield pb.FrameChunk(header=pb.FrameHeader(session_id=session.id, index=index, channels=headers,
-                                              reply_sample=reply_sample,
-                                              reply_compression=pb.COMPRESSION_NONE))
-    payload = b"".join(blobs)
-    step = session.max_chunk_bytes or (1 << 20)
-    for at in range(0, len(payload), step):
-        yield pb.FrameChunk(data=pb.DataChunk(data=payload[at:at + step]))
-
-
-def replies(responses):
-    """Reassembles FilteredChunks into (header, colour array of shape (3, h, w))."""
-    header, parts, have = None, [], 0
-    for msg in responses:
-        if msg.HasField("header"):
-            expect(header is None, "a reply header before the previous reply's data was complete")
-            header, parts, have = msg.header, [], 0
-        else:
-            expect(header is not None, "reply data before its header")
-            parts.append(msg.data.data)
-            have += len(msg.data.data)
-        if header is not None and have == header.color.byte_length:
-            dtype = "<f2" if header.color.sample == pb.SAMPLE_TYPE_F16 else "<f4"
-            color = np.frombuffer(b"".join(parts), dtype=dtype).astype(np.float32)
-            yield header, color.reshape(3, header.height, header.width)
-            header = None
-
-
-def run_session(stub, args, filter_name, params, frames, send):
+def run_session(client, args, filter_name, params, frames, send):
     """Opens a session, streams `frames` (only the channels in `send`), returns the
-    replies as a list of (header, colour) and the session."""
-    session = stub.CreateSession(pb.CreateSessionRequest(
-        filter=filter_name, params=params, width=args.width, height=args.height,
-        motion="internal", channels=[c for c in send if c != "reference"]))
-    sample = pb.SAMPLE_TYPE_F16 if args.f16 else pb.SAMPLE_TYPE_F32
-
-    def requests():
-        for i, f in enumerate(frames):
-            yield from frame_messages(session, i, {c: f[c] for c in send}, sample, sample)
-
+    filtered frames, the session and the wall time."""
+    session = client.create_session(filter_name, params=params, width=args.width, height=args.height,
+                                    motion="internal", channels=[c for c in send if c != "reference"])
     start = time.perf_counter()
-    out = list(replies(stub.Stream(requests())))
+    out = list(session.stream([Frame(**{c: f[c] for c in send}) for f in frames], f16=args.f16, reply_f16=args.f16))
     wall = time.perf_counter() - start
     return session, out, wall
-
-
-class CallMetadata(grpc.UnaryUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
-    """Adds `authorization: Bearer KEY` (with a key) and the routing key
-    `x-afterimage-route` to every call: a proxy in front of several replicas hashes on
-    the routing key, so all of this client's calls reach the replica holding its sessions."""
-
-    def __init__(self, key, route):
-        self.metadata = [("x-afterimage-route", route)]
-        if key:
-            self.metadata.append(("authorization", f"Bearer {key}"))
-
-    def _details(self, d):
-        return d._replace(metadata=list(d.metadata or []) + self.metadata)
-
-    def intercept_unary_unary(self, continuation, details, request):
-        return continuation(self._details(details), request)
-
-    def intercept_stream_stream(self, continuation, details, requests):
-        return continuation(self._details(details), requests)
-
-
-def open_channel(args):
-    """The channel the arguments describe: plain or TLS."""
-    if args.tls_ca:
-        with open(args.tls_ca, "rb") as f:
-            creds = grpc.ssl_channel_credentials(root_certificates=f.read())
-        options = [("grpc.ssl_target_name_override", args.tls_domain)] if args.tls_domain else []
-        return grpc.secure_channel(args.server, creds, options=options)
-    return grpc.insecure_channel(args.server)
 
 
 def mean(xs):
@@ -201,16 +120,14 @@ def main():
     args.width, args.height = (int(x) for x in args.size.lower().split("x"))
     params = dict(kv.split("=", 1) for kv in args.set)
 
-    bare = open_channel(args)
     try:
-        grpc.channel_ready_future(bare).result(timeout=args.wait)
-    except grpc.FutureTimeoutError:
-        print(f"no afterimage server at {args.server} after {args.wait:.0f} s", file=sys.stderr)
+        client = Client(args.server, api_key=args.api_key, tls_ca=args.tls_ca, tls_domain=args.tls_domain,
+                        route=args.route, wait=args.wait)
+    except ServerUnavailable as e:
+        print(e, file=sys.stderr)
         return 2
-    channel = grpc.intercept_channel(bare, CallMetadata(args.api_key, args.route))
-    stub = pb_grpc.AfterimageStub(channel)
 
-    filters = {f.name: f for f in stub.ListFilters(pb.ListFiltersRequest()).filters}
+    filters = client.filters()
     print("server filters:", ", ".join(filters))
     if args.filter not in filters:
         print(f"unknown filter {args.filter!r}", file=sys.stderr)
@@ -219,63 +136,62 @@ def main():
     send = ["color"] + [c for c in ("depth", "motion") if c in info.uses] + ["reference"]
     frames = list(render(args.width, args.height, args.frames))
 
-    session, out, wall = run_session(stub, args, args.filter, params, frames, send)
-    print(f"session {session.id[:8]}...: {args.filter} {json.loads(session.params_json)}, "
+    session, out, wall = run_session(client, args, args.filter, params, frames, send)
+    print(f"session {session.id[:8]}...: {args.filter} {session.params}, "
           f"{args.width}x{args.height}, sending {', '.join(send)}")
-    for header, color in out:
-        r = header.report
-        stages = " ".join(f"{s.name}={s.ms:.2f}" if s.HasField("ms") else f"{s.name}=skipped"
+    for o in out:
+        r = o.figures
+        stages = " ".join(f"{s.name}={s.ms:.2f}" if s.ms is not None else f"{s.name}=skipped"
                           for s in r.stages)
-        print(f"  frame {header.index:3d}: server {r.server_ms:7.2f} ms, PSNR {r.psnr:6.2f} dB, "
+        print(f"  frame {o.index:3d}: server {r.server_ms:7.2f} ms, PSNR {r.psnr:6.2f} dB, "
               f"SSIM {r.ssim:.4f}, clipped {r.history_clipped:6d} | {stages}")
     half = out[len(out) // 2:]
-    psnr = mean([h.report.psnr for h, _ in half])
+    psnr = mean([o.figures.psnr for o in half])
     print(f"{len(out)} frames in {wall:.2f} s ({len(out) / wall:.1f} frames/s); "
           f"mean PSNR over the second half {psnr:.2f} dB")
 
     if not args.check:
-        stub.CloseSession(pb.CloseSessionRequest(id=session.id))
+        session.close()
         return 0
 
     try:
         for f in filters.values():
             expect(set(f.needs) <= set(f.uses) | {"color"}, f"{f.name}: needs {list(f.needs)} not within uses")
             expect(f.stages, f"{f.name}: no stages")
-        expect([h.index for h, _ in out] == list(range(args.frames)),
-               f"replies out of order: {[h.index for h, _ in out]}")
-        expect(all(np.isfinite(c).all() for _, c in out), "a filtered frame has non-finite samples")
-        expect(all(c.shape == (3, args.height, args.width) for _, c in out), "a reply has the wrong size")
+        expect([o.index for o in out] == list(range(args.frames)),
+               f"replies out of order: {[o.index for o in out]}")
+        expect(all(np.isfinite(o.color).all() for o in out), "a filtered frame has non-finite samples")
+        expect(all(o.color.shape == (args.height, args.width, 3) for o in out), "a reply has the wrong size")
 
-        _, passed, _ = run_session(stub, args, "passthrough", {}, frames, ["color", "reference"])
-        for (h, c), f in zip(passed, frames):
+        _, passed, _ = run_session(client, args, "passthrough", {}, frames, ["color", "reference"])
+        for o, f in zip(passed, frames):
             sent = f["color"].astype(np.float16).astype(np.float32) if args.f16 else f["color"]
-            expect(np.array_equal(c, sent), f"passthrough frame {h.index} differs from what was sent")
-        base = mean([h.report.psnr for h, _ in passed[len(passed) // 2:]])
+            expect(np.array_equal(o.color, sent), f"passthrough frame {o.index} differs from what was sent")
+        base = mean([o.figures.psnr for o in passed[len(passed) // 2:]])
         print(f"check: passthrough returned every frame bit for bit; its PSNR {base:.2f} dB, "
               f"{args.filter} {psnr:.2f} dB ({psnr - base:+.2f} dB)")
         expect(psnr >= base + args.min_gain,
                f"{args.filter} gains {psnr - base:.2f} dB over passthrough, expected at least {args.min_gain}")
 
         try:
-            stub.CreateSession(pb.CreateSessionRequest(filter=args.filter, params={"no_such_param": "1"},
-                                                       width=args.width, height=args.height))
+            client.create_session(args.filter, params={"no_such_param": "1"}, width=args.width, height=args.height)
             raise CheckFailed("an unknown parameter was accepted")
-        except grpc.RpcError as e:
-            expect(e.code() == grpc.StatusCode.INVALID_ARGUMENT, f"unknown parameter: got {e.code()}")
-            expect("no_such_param" in e.details(), f"the message does not name the parameter: {e.details()}")
-            print(f"check: bad parameter -> {e.code().name}: {e.details()}")
-        got = stub.GetSession(pb.GetSessionRequest(id=session.id))
+        except RequestRejected as e:
+            expect(e.code == grpc.StatusCode.INVALID_ARGUMENT, f"unknown parameter: got {e.code}")
+            expect("no_such_param" in e.details, f"the message does not name the parameter: {e.details}")
+            print(f"check: bad parameter -> {e.code.name}: {e.details}")
+        got = session.refresh()
         expect(got.frames == args.frames, f"session counts {got.frames} frames, sent {args.frames}")
-        closed = stub.CloseSession(pb.CloseSessionRequest(id=session.id))
-        expect(closed.frames == args.frames, f"close reports {closed.frames} frames")
+        closed = session.close()
+        expect(closed == args.frames, f"close reports {closed} frames")
         try:
-            stub.GetSession(pb.GetSessionRequest(id=session.id))
+            session.refresh()
             raise CheckFailed("a closed session is still there")
-        except grpc.RpcError as e:
-            expect(e.code() == grpc.StatusCode.NOT_FOUND, f"closed session: got {e.code()}")
+        except RequestRejected as e:
+            expect(e.code == grpc.StatusCode.NOT_FOUND, f"closed session: got {e.code}")
         if args.api_key:
             try:
-                pb_grpc.AfterimageStub(bare).ListFilters(pb.ListFiltersRequest())
+                pb_grpc.AfterimageStub(client.raw_channel).ListFilters(pb.ListFiltersRequest())
                 raise CheckFailed("a call without the API key was served")
             except grpc.RpcError as e:
                 expect(e.code() == grpc.StatusCode.UNAUTHENTICATED, f"no key: got {e.code()}")

@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
-# Sets up the Python example client (a venv with the pinned packages from PyPI, then the
-# gRPC code generated from crates/client/proto/ with grpcio-tools) and runs it with the given arguments:
+# Sets up the Python example client (a venv with the afterimage-client package from
+# clients/python, its dependencies pinned by requirements.txt) and runs it with the given
+# arguments:
 #
 #   examples/python/run.sh --server 127.0.0.1:50051 --filter taa
 #
-# The venv and the generated code go under examples/python/.venv and
-# examples/python/generated (both ignored by git); a second run reuses them.
+# The venv goes under examples/python/.venv (ignored by git); a second run reuses it and
+# reinstalls the package only when clients/python or requirements.txt changed.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
@@ -21,16 +22,12 @@ if [ ! -x "$venv/bin/python" ]; then
     "$py" -m venv "$venv"
   fi
 fi
-stamp="$venv/.requirements"
-if ! cmp -s "$here/requirements.txt" "$stamp"; then
-  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r "$here/requirements.txt"
+stamp="$venv/.afterimage-client"
+pkg="$root/clients/python"
+if [ ! -f "$stamp" ] || ! cmp -s "$here/requirements.txt" "$stamp" \
+  || [ -n "$(find "$pkg/pyproject.toml" "$pkg/src" -newer "$stamp" -print -quit)" ]; then
+  "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -c "$here/requirements.txt" "$pkg"
   cp "$here/requirements.txt" "$stamp"
 fi
-
-out="$here/generated"
-mkdir -p "$out"
-"$venv/bin/python" -m grpc_tools.protoc -I "$root/crates/client/proto" \
-  --python_out="$out" --grpc_python_out="$out" \
-  "$root/crates/client/proto/afterimage/v1/afterimage.proto"
 
 exec "$venv/bin/python" "$here/client.py" "$@"
