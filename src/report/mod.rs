@@ -850,51 +850,7 @@ fn run_scenes(
     let mut strips = Vec::new();
     let mut wall_by_filter: Vec<Vec<f64>> = vec![Vec::new(); filters.len()];
     for source in sources {
-        let (name, description, frames, render_ms) = match source {
-            Source::Catalogue(name) => {
-                let scene = Scene::new(name, render).map_err(|source| ReportError::Scene {
-                    scene: name.to_string(),
-                    source,
-                })?;
-                let mut render_ms = Vec::with_capacity(render.frames as usize);
-                let frames: Vec<Frame> = (0..render.frames)
-                    .map(|i| {
-                        let t = Instant::now();
-                        let f = scene.frame(i);
-                        render_ms.push(t.elapsed().as_secs_f64() * 1e3);
-                        tick(&format!("{name}: render"));
-                        f
-                    })
-                    .collect();
-                (
-                    name.to_string(),
-                    scene.def.description.to_string(),
-                    frames,
-                    render_ms,
-                )
-            }
-            Source::Shot(shot) | Source::SparseShot(shot, _) => {
-                let (mut frames, read_ms) = shot.load(tick)?;
-                if let Source::SparseShot(_, factor) = source {
-                    frames = frames
-                        .into_iter()
-                        .enumerate()
-                        .map(|(i, f)| f.shaded_sparsely(Sampling::rotating(*factor, i as u64)))
-                        .collect::<Result<_, _>>()
-                        .map_err(|e| ReportError::Shot {
-                            shot: shot.name.clone(),
-                            message: e.to_string(),
-                        })?;
-                }
-                let unknown = if shot.jitter_unknown {
-                    ", jitter taken as unknown"
-                } else {
-                    ""
-                };
-                let description = format!("frames {}, reference {}{unknown}", shot.input, shot.reference);
-                (shot.name.clone(), description, frames, read_ms)
-            }
-        };
+        let (name, description, frames, render_ms) = load_source(source, render, tick)?;
         let name = &name;
         let strip_index = strip_frame.unwrap_or(frames.len().saturating_sub(1));
         if strip_index >= frames.len() {
@@ -920,51 +876,15 @@ fn run_scenes(
         };
         let mut cells = Vec::new();
         for (k, spec) in filters.iter().enumerate() {
-            let mut filter = spec.create()?.filter;
-            let mut eval = Evaluator::new(SpaceChoice::Auto);
-            let mut records = Vec::with_capacity(frames.len());
-            let mut wall = Vec::with_capacity(frames.len());
-            // A windowed filter gives frame i after frame i + lookahead: outputs are
-            // matched to frames in order, and a call's time is shared by what it gave.
-            let mut done = 0usize;
-            for step in 0..=frames.len() {
-                let t = Instant::now();
-                let outs = match frames.get(step) {
-                    Some(frame) => filter.push(frame),
-                    None => filter.finish(),
-                }
-                .map_err(|source| ReportError::Run {
-                    filter: spec.label.clone(),
-                    scene: name.clone(),
-                    index: frames.get(step).map_or(frames.len() as u64, |f| f.meta.index),
-                    source: Box::new(source),
-                })?;
-                let ms = t.elapsed().as_secs_f64() * 1e3 / outs.len().max(1) as f64;
-                for out in outs {
-                    let (i, frame) = (done, &frames[done]);
-                    done += 1;
-                    wall.push(ms);
-                    let r = frame.reference().expect("scenes render a reference");
-                    eval.push(frame.meta.index, &out.color, r, frame.meta.reset)?;
-                    records.push(out.record);
-                    if i == strip_index {
-                        strip.outputs.push((spec.label.clone(), out.color));
-                    } else {
-                        filter.recycle(out.color);
-                    }
-                    tick(&format!("{label}: {}", spec.label));
-                }
-            }
-            let s = eval.summary().expect("at least one frame");
+            let scene = SceneRun {
+                name,
+                label: &label,
+                frames: &frames,
+                strip_index,
+            };
+            let (cell, wall) = run_filter(spec, &scene, &mut strip, bandwidth, tick)?;
             wall_by_filter[k].extend_from_slice(&wall);
-            cells.push(Cell {
-                filter: spec.label.clone(),
-                mean_psnr: s.mean_psnr,
-                mean_ssim: s.mean_ssim,
-                trmse: s.trmse,
-                cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
-                psnr_per_frame: eval.frames.iter().map(|f| f.psnr).collect(),
-            });
+            cells.push(cell);
         }
         scenes.push(SceneReport {
             scene: label,
@@ -997,6 +917,127 @@ fn run_scenes(
         })
         .collect();
     Ok((scenes, summary, strips))
+}
+
+/// A scene's frames (rendered, or read from a shot and shaded sparsely where asked) with
+/// its name, description and the ms each frame took to render or read.
+fn load_source(
+    source: &Source,
+    render: Settings,
+    tick: &mut dyn FnMut(&str),
+) -> Result<(String, String, Vec<Frame>, Vec<f64>), ReportError> {
+    Ok(match source {
+        Source::Catalogue(name) => {
+            let scene = Scene::new(name, render).map_err(|source| ReportError::Scene {
+                scene: name.to_string(),
+                source,
+            })?;
+            let mut render_ms = Vec::with_capacity(render.frames as usize);
+            let frames: Vec<Frame> = (0..render.frames)
+                .map(|i| {
+                    let t = Instant::now();
+                    let f = scene.frame(i);
+                    render_ms.push(t.elapsed().as_secs_f64() * 1e3);
+                    tick(&format!("{name}: render"));
+                    f
+                })
+                .collect();
+            (
+                name.to_string(),
+                scene.def.description.to_string(),
+                frames,
+                render_ms,
+            )
+        }
+        Source::Shot(shot) | Source::SparseShot(shot, _) => {
+            let (mut frames, read_ms) = shot.load(tick)?;
+            if let Source::SparseShot(_, factor) = source {
+                frames = frames
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, f)| f.shaded_sparsely(Sampling::rotating(*factor, i as u64)))
+                    .collect::<Result<_, _>>()
+                    .map_err(|e| ReportError::Shot {
+                        shot: shot.name.clone(),
+                        message: e.to_string(),
+                    })?;
+            }
+            let unknown = if shot.jitter_unknown {
+                ", jitter taken as unknown"
+            } else {
+                ""
+            };
+            let description = format!("frames {}, reference {}{unknown}", shot.input, shot.reference);
+            (shot.name.clone(), description, frames, read_ms)
+        }
+    })
+}
+
+/// One scene as a filter runs over it.
+struct SceneRun<'a> {
+    name: &'a String,
+    /// The name in tables (with the shading factor where it is sparse).
+    label: &'a str,
+    frames: &'a [Frame],
+    /// The frame whose outputs go into the scene's strip.
+    strip_index: usize,
+}
+
+/// Runs one filter over a scene: its cell of the table, and the ms each output took (a
+/// call's time shared by the outputs it gave). The strip frame's output goes to `strip`.
+fn run_filter(
+    spec: &FilterSpec,
+    scene: &SceneRun<'_>,
+    strip: &mut Strip,
+    bandwidth: &Bandwidth,
+    tick: &mut dyn FnMut(&str),
+) -> Result<(Cell, Vec<f64>), ReportError> {
+    let frames = scene.frames;
+    let mut filter = spec.create()?.filter;
+    let mut eval = Evaluator::new(SpaceChoice::Auto);
+    let mut records = Vec::with_capacity(frames.len());
+    let mut wall = Vec::with_capacity(frames.len());
+    // A windowed filter gives frame i after frame i + lookahead: outputs are matched to
+    // frames in order.
+    let mut done = 0usize;
+    for step in 0..=frames.len() {
+        let t = Instant::now();
+        let outs = match frames.get(step) {
+            Some(frame) => filter.push(frame),
+            None => filter.finish(),
+        }
+        .map_err(|source| ReportError::Run {
+            filter: spec.label.clone(),
+            scene: scene.name.clone(),
+            index: frames.get(step).map_or(frames.len() as u64, |f| f.meta.index),
+            source: Box::new(source),
+        })?;
+        let ms = t.elapsed().as_secs_f64() * 1e3 / outs.len().max(1) as f64;
+        for out in outs {
+            let (i, frame) = (done, &frames[done]);
+            done += 1;
+            wall.push(ms);
+            let r = frame.reference().expect("scenes render a reference");
+            eval.push(frame.meta.index, &out.color, r, frame.meta.reset)?;
+            records.push(out.record);
+            if i == scene.strip_index {
+                strip.outputs.push((spec.label.clone(), out.color));
+            } else {
+                filter.recycle(out.color);
+            }
+            tick(&format!("{}: {}", scene.label, spec.label));
+        }
+    }
+    let s = eval.summary().expect("at least one frame");
+    let cell = Cell {
+        filter: spec.label.clone(),
+        mean_psnr: s.mean_psnr,
+        mean_ssim: s.mean_ssim,
+        trmse: s.trmse,
+        cost: Cost::of(spec, &frames[0], &wall, &records, bandwidth),
+        psnr_per_frame: eval.frames.iter().map(|f| f.psnr).collect(),
+    };
+    Ok((cell, wall))
 }
 
 /// Times each filter on two alternating full-size frames.

@@ -18,7 +18,7 @@ use crate::session::{
 };
 use std::pin::Pin;
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio_stream::{wrappers::ReceiverStream, Stream, StreamExt};
 use tonic::metadata::MetadataMap;
 use tonic::{Code, Request, Response, Status, Streaming};
@@ -360,45 +360,18 @@ async fn handle_stream(
         Err(status(&e))
     };
     loop {
-        let next = match &current {
-            // The whole frame within the request timeout, however it is chunked.
-            Some(r) => {
-                match tokio::time::timeout_at((r.started + frame_timeout).into(), inbound.next()).await {
-                    Ok(m) => m,
-                    Err(_) => {
-                        let e = SessionError::invalid(
-                            "data",
-                            format!(
-                                "frame {}: {} bytes still missing after the request timeout of {} s",
-                                r.assembly.header.index,
-                                r.assembly.missing(),
-                                frame_timeout.as_secs()
-                            ),
-                        );
-                        let _ = tx.send(fail(e)).await;
-                        return;
-                    }
-                }
-            }
-            None => tokio::select! {
-                m = inbound.next() => m,
-                _ = until_true(&mut draining) => {
+        let next =
+            match next_message(&mut inbound, current.as_ref(), frame_timeout, idle, &mut draining).await {
+                Wait::Message(m) => m,
+                Wait::Draining => {
                     let _ = tx.send(Err(status(&SessionError::ShuttingDown))).await;
                     return;
                 }
-                _ = tokio::time::sleep(idle) => {
-                    let e = SessionError::invalid(
-                        "stream",
-                        format!(
-                            "no frame for idle_connection_timeout_s = {} s; open a new stream to go on",
-                            idle.as_secs()
-                        ),
-                    );
+                Wait::Refuse(e) => {
                     let _ = tx.send(fail(e)).await;
                     return;
                 }
-            },
-        };
+            };
         let chunk = match next {
             None => break,
             Some(Ok(c)) => c,
@@ -421,31 +394,7 @@ async fn handle_stream(
                 return;
             }
         };
-        let step: Result<(), SessionError> = match chunk.part {
-            Some(frame_chunk::Part::Header(h)) => match &current {
-                Some(r) => Err(SessionError::invalid(
-                    "header",
-                    format!(
-                        "chunk out of order: a header for frame {} while frame {} still misses {} bytes",
-                        h.index,
-                        r.assembly.header.index,
-                        r.assembly.missing()
-                    ),
-                )),
-                None => start_frame(&svc, &caller, &mut claim, h).map(|r| current = Some(r)),
-            },
-            Some(frame_chunk::Part::Data(d)) => match current.as_mut() {
-                None => Err(SessionError::invalid(
-                    "data",
-                    "chunk out of order: data before any frame header",
-                )),
-                Some(r) => r.assembly.push(&d.data, max_chunk),
-            },
-            None => Err(SessionError::invalid(
-                "part",
-                "an empty FrameChunk (neither header nor data)",
-            )),
-        };
+        let step = take_chunk(&svc, &caller, &mut claim, &mut current, chunk, max_chunk);
         if let Err(e) = step {
             let _ = tx.send(fail(e)).await;
             return;
@@ -489,6 +438,91 @@ async fn handle_stream(
             // not given yet waits for nobody either.
             _ = tx.closed() => abandon(&svc, claim.as_ref()),
         }
+    }
+}
+
+/// How waiting for a stream's next message ended.
+enum Wait {
+    /// A message, the end of the stream (`None`) or the transport's error.
+    Message(Option<Result<pb::FrameChunk, Status>>),
+    /// The server is draining and no frame is half received.
+    Draining,
+    /// A frame did not arrive whole within the request timeout, or no frame began within
+    /// the idle timeout.
+    Refuse(SessionError),
+}
+
+/// Waits for the stream's next message: within the request timeout while a frame is half
+/// received (however it is chunked), else within the idle timeout or until the server
+/// drains.
+async fn next_message(
+    inbound: &mut Streaming<pb::FrameChunk>,
+    current: Option<&Receiving>,
+    frame_timeout: Duration,
+    idle: Duration,
+    draining: &mut watch::Receiver<bool>,
+) -> Wait {
+    match current {
+        Some(r) => match tokio::time::timeout_at((r.started + frame_timeout).into(), inbound.next()).await {
+            Ok(m) => Wait::Message(m),
+            Err(_) => Wait::Refuse(SessionError::invalid(
+                "data",
+                format!(
+                    "frame {}: {} bytes still missing after the request timeout of {} s",
+                    r.assembly.header.index,
+                    r.assembly.missing(),
+                    frame_timeout.as_secs()
+                ),
+            )),
+        },
+        None => tokio::select! {
+            m = inbound.next() => Wait::Message(m),
+            _ = until_true(draining) => Wait::Draining,
+            _ = tokio::time::sleep(idle) => Wait::Refuse(SessionError::invalid(
+                "stream",
+                format!(
+                    "no frame for idle_connection_timeout_s = {} s; open a new stream to go on",
+                    idle.as_secs()
+                ),
+            )),
+        },
+    }
+}
+
+/// Takes one chunk of the stream: a header starts a frame (claiming the session with the
+/// first), data goes into the frame being received; out of order is refused.
+fn take_chunk(
+    svc: &Service,
+    caller: &Caller,
+    claim: &mut Option<StreamClaim>,
+    current: &mut Option<Receiving>,
+    chunk: pb::FrameChunk,
+    max_chunk: usize,
+) -> Result<(), SessionError> {
+    match chunk.part {
+        Some(frame_chunk::Part::Header(h)) => match current {
+            Some(r) => Err(SessionError::invalid(
+                "header",
+                format!(
+                    "chunk out of order: a header for frame {} while frame {} still misses {} bytes",
+                    h.index,
+                    r.assembly.header.index,
+                    r.assembly.missing()
+                ),
+            )),
+            None => start_frame(svc, caller, claim, h).map(|r| *current = Some(r)),
+        },
+        Some(frame_chunk::Part::Data(d)) => match current.as_mut() {
+            None => Err(SessionError::invalid(
+                "data",
+                "chunk out of order: data before any frame header",
+            )),
+            Some(r) => r.assembly.push(&d.data, max_chunk),
+        },
+        None => Err(SessionError::invalid(
+            "part",
+            "an empty FrameChunk (neither header nor data)",
+        )),
     }
 }
 
