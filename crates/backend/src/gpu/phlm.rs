@@ -17,12 +17,12 @@ use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::filters::reconstruct::Reconstruction;
-use crate::frame::{Frame, Plane};
+use crate::frame::{Frame, Plane, Rgb};
 use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, ModelHealth,
-    Output, PixelCounts, Recorder, StateError, UploadPrecision,
+    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, FrameRecord,
+    Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip, StateError, UploadPrecision,
 };
 use crate::BackendError;
 use serde_json::{Map, Value};
@@ -319,21 +319,79 @@ impl Filter for GpuPhlm {
     }
 }
 
+/// Which of the CPU filter's optional stages a frame runs (`None`: it runs, else why it is
+/// left out), and the shader's flags that say the same.
+struct FramePlan {
+    tonemap: Option<Skip>,
+    reproject: Option<Skip>,
+    dilate: Option<Skip>,
+    flags: u32,
+}
+
+impl FramePlan {
+    /// The plan for inputs `inp` under the effective settings `p`, `has_history` saying
+    /// whether the models hold a previous frame.
+    fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
+        let tonemap = inp.facts.tonemap();
+        let reproject = reproject_skip(inp, has_history);
+        let dilate = dilate_skip(inp, &reproject, p.dilation);
+        let mut flags = 0;
+        let mut set = |on: bool, bit: u32| {
+            if on {
+                flags |= bit;
+            }
+        };
+        set(tonemap.is_none(), FLAG_TONEMAP);
+        set(reproject.is_none(), FLAG_REPROJECT);
+        set(has_history, FLAG_HISTORY);
+        set(inp.motion.is_some(), FLAG_MOTION);
+        set(inp.invalid.is_some(), FLAG_INVALID);
+        set(p.model_fetch == ModelFetch::Nearest, FLAG_NEAREST);
+        set(p.test_box == TestBox::Variance, FLAG_VARIANCE_BOX);
+        set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
+        set(dilate.is_none(), FLAG_DILATE);
+        set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
+        FramePlan {
+            tonemap,
+            reproject,
+            dilate,
+            flags,
+        }
+    }
+
+    /// Records the CPU filter's stages, run or left out for the same reasons; one pass runs
+    /// them all, so those that ran share its device time `ms`.
+    fn record(self, rec: &mut Recorder, ms: f64) {
+        timing::share(
+            rec,
+            vec![
+                ("tonemap", self.tonemap.clone()),
+                ("ycocg", None),
+                ("dilate", self.dilate),
+                ("reproject", self.reproject),
+                ("feature", None),
+                ("model", None),
+                ("untonemap", self.tonemap),
+            ],
+            ms,
+        );
+    }
+}
+
+/// What the device gives back for a frame.
+struct FrameBack {
+    color: Rgb,
+    /// The counters (C_ constants of phlm.wgsl).
+    counters: Vec<u32>,
+    /// The pass's time from its timestamps, where the device has them.
+    shaders_ms: Option<f64>,
+}
+
 impl GpuPhlm {
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
-        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Phlm::uses(), &mut rec)?;
-        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-        let eff = self.params.effective();
-        Reconstruction::new(eff.pixel_filter, eff.filter_width).stage(
-            &mut rec,
-            &mut inp,
-            frame.meta.jitter,
-            &mut self.scratch,
-        );
+        let mut inp = self.prepared(frame, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
-        let n = w * h;
         let hdr = inp.facts.hdr;
         check_size(
             self.buffers.as_ref().map(|b| (b.width, b.height)),
@@ -350,59 +408,93 @@ impl GpuPhlm {
             convert_state(&mut planes, hdr);
             self.upload(&planes);
         }
-        let tonemap_skip = inp.facts.tonemap();
-        let reproject = reproject_skip(&inp, has_history);
         let p = &self.params.effective();
-        let dilate = dilate_skip(&inp, &reproject, p.dilation);
-
-        let mut flags = 0;
-        let mut set = |on: bool, bit: u32| {
-            if on {
-                flags |= bit;
-            }
-        };
-        set(tonemap_skip.is_none(), FLAG_TONEMAP);
-        set(reproject.is_none(), FLAG_REPROJECT);
-        set(has_history, FLAG_HISTORY);
-        set(inp.motion.is_some(), FLAG_MOTION);
-        set(inp.invalid.is_some(), FLAG_INVALID);
-        set(p.model_fetch == ModelFetch::Nearest, FLAG_NEAREST);
-        set(p.test_box == TestBox::Variance, FLAG_VARIANCE_BOX);
-        set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
-        set(dilate.is_none(), FLAG_DILATE);
-        set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
+        let plan = FramePlan::new(p, &inp, has_history);
         let hi = self
             .buffers
             .as_ref()
             .expect("sized")
             .upload
             .output_ceiling(&inp.facts);
-        let words = Self::param_words(p, w, h, flags, hi);
+        let words = Self::param_words(p, w, h, plan.flags, hi);
+        let bytes = self.upload_frame(frame, &mut inp, &plan, &words);
+        let back = self.dispatch(w, h, &mut clock)?;
+        let device = clock.times(back.shaders_ms, self.upload, bytes);
+        // Without timestamps, the stages share the frame's round trip.
+        plan.record(
+            &mut rec,
+            back.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
+        );
 
-        let gpu = Arc::clone(&self.gpu);
+        self.read = 1 - self.read;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let mut record = self.frame_record(rec, frame, &inp, &back.counters);
+        record.device = Some(device);
+        Ok(Output {
+            color: back.color,
+            record,
+        })
+    }
+
+    /// The frame's inputs: checked, repaired ([`prepare`]) and reconstructed. The
+    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
+        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
+        let mut inp = prepare(frame, Phlm::uses(), rec)?;
+        let eff = self.params.effective();
+        Reconstruction::new(eff.pixel_filter, eff.filter_width).stage(
+            rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.scratch,
+        );
+        Ok(inp)
+    }
+
+    /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
+    /// host's own go back to the scratch), then motion, depth (for the dilation) and the
+    /// invalid mask as f32, and clears the counters. Returns the bytes written.
+    fn upload_frame<'f>(
+        &mut self,
+        frame: &'f Frame,
+        inp: &mut Inputs<'f>,
+        plan: &FramePlan,
+        words: &[u32; PARAM_WORDS],
+    ) -> u64 {
+        let n = inp.width * inp.height;
+        let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
-        let mut bytes = write_words(&gpu, &b.params, &words);
-        // The colour (as f32 or f16), then motion, depth and the invalid mask as f32.
-        bytes += b.upload.write(&gpu, &b.input, &inp.color);
+        let mut bytes = write_words(gpu, &b.params, words);
+        bytes += b.upload.write(gpu, &b.input, &inp.color);
         if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
             self.scratch.recycle(rgb);
         }
         let b = &*b;
         if let Some(m) = inp.motion.as_deref() {
             for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
             }
         }
-        if let (None, Some(d)) = (&dilate, inp.depth.as_deref()) {
-            bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
+        if let (None, Some(d)) = (&plan.dilate, inp.depth.as_deref()) {
+            bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
         }
         if let Some(invalid) = &inp.invalid {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
+            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
         }
+        bytes + write_words(gpu, &b.counters, &[0; COUNTERS])
+    }
+
+    /// Runs the pass over the uploaded frame (after the colour's unpacking) and reads back
+    /// the colour, the counters and the timestamps, marking `clock` at the submission and
+    /// the readback.
+    fn dispatch(&mut self, w: usize, h: usize, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
+        let n = w * h;
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("sized");
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        bytes += write_words(&gpu, &b.counters, &[0; COUNTERS]);
-        b.upload.encode(&gpu, &mut enc);
+        b.upload.encode(gpu, &mut enc);
         {
             let (gx, gy) = groups(w, h, WORKGROUP);
             let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
@@ -425,33 +517,19 @@ impl GpuPhlm {
         gpu.queue.submit([enc.finish()]);
         clock.submitted();
         let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
-        b.back.read(&gpu, words, &mut self.words)?;
+        b.back.read(gpu, words, &mut self.words)?;
         clock.back();
-        let color = planes_from(&self.words, w, h)?;
-        let c: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
-        let shaders_ms = b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]);
-        let device = clock.times(shaders_ms, self.upload, bytes);
+        Ok(FrameBack {
+            color: planes_from(&self.words, w, h)?,
+            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
+            shaders_ms: b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]),
+        })
+    }
 
-        // The CPU filter's stages, run or left out for the same reasons; one pass runs them
-        // all, so they share its device time (without timestamps, the frame's round trip).
-        let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
-        timing::share(
-            &mut rec,
-            vec![
-                ("tonemap", tonemap_skip.clone()),
-                ("ycocg", None),
-                ("dilate", dilate),
-                ("reproject", reproject),
-                ("feature", None),
-                ("model", None),
-                ("untonemap", tonemap_skip),
-            ],
-            ms,
-        );
-
-        self.read = 1 - self.read;
-        self.valid = true;
-        self.tonemapped = hdr;
+    /// The frame's record, with its pixel counts and model health from the `counters` (its
+    /// device times still to add).
+    fn frame_record(&self, rec: Recorder, frame: &Frame, inp: &Inputs, c: &[u32]) -> FrameRecord {
+        let n = (inp.width * inp.height) as f64;
         let pixels = PixelCounts {
             history_reset: c[0] as u64,
             history_clipped: c[1] as u64,
@@ -465,13 +543,12 @@ impl GpuPhlm {
             self.state_bytes(),
         );
         record.backend = Backend::Gpu;
-        record.device = Some(device);
         record.model = Some(ModelHealth {
-            reset_by_clip: c[1] as f64 / n as f64,
-            reset_by_disocclusion: c[2] as f64 / n as f64,
+            reset_by_clip: c[1] as f64 / n,
+            reset_by_disocclusion: c[2] as f64 / n,
             max_trace_p: f32::from_bits(c[4]) as f64,
             p_repaired: c[3] as u64,
         });
-        Ok(Output { color, record })
+        record
     }
 }

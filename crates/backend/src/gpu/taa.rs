@@ -10,12 +10,12 @@ use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::filters::reconstruct::Reconstruction;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
-use crate::frame::{Frame, Plane};
+use crate::frame::{Frame, Plane, Rgb};
 use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output,
-    PixelCounts, Recorder, StateError, UploadPrecision,
+    check_needs, check_size, prepare, Backend, DeviceTimes, Filter, FilterError, FilterKind, FilterState,
+    Inputs, Output, PixelCounts, Recorder, StateError, UploadPrecision,
 };
 use crate::BackendError;
 use serde_json::{Map, Value};
@@ -334,18 +334,9 @@ impl GpuTaa {
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
-        check_needs(Taa::NAME, Taa::needs(), frame)?;
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Taa::uses(), &mut rec)?;
-        // The reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
-            &mut rec,
-            &mut inp,
-            frame.meta.jitter,
-            &mut self.scratch,
-        );
+        let mut inp = self.prepared(frame, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
-        let n = w * h;
         let hdr = inp.facts.hdr;
         check_size(
             self.buffers.as_ref().map(|b| (b.width, b.height)),
@@ -355,8 +346,65 @@ impl GpuTaa {
         self.sized(w, h)?;
         let has_history = self.valid && !frame.meta.reset;
         let plan = StagePlan::new(&self.params, &inp, has_history);
-        let p = &self.params;
+        let flags = self.flags(&plan, &inp, has_history);
 
+        let mut clock = FrameClock::start();
+        let top = self
+            .buffers
+            .as_ref()
+            .expect("sized")
+            .upload
+            .output_ceiling(&inp.facts);
+        let words = self.param_words(w, h, flags, top);
+        // The history goes to the working space of this frame's colour first.
+        let convert = (has_history && self.tonemapped != hdr)
+            .then(|| self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top));
+        let bytes = self.upload_frame(frame, &mut inp, &plan, flags, &words, convert.as_ref());
+        let back = self.dispatch(w, h, convert.is_some(), plan.sharpen.is_none(), &mut clock)?;
+        let device = clock.times(back.pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
+        record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
+
+        self.read = 1 - self.read;
+        self.valid = true;
+        self.tonemapped = hdr;
+        let c = &back.counters;
+        let pixels = PixelCounts {
+            history_reset: c[0] as u64,
+            history_clipped: c[1] as u64,
+            history_rejected: c[2] as u64,
+        };
+        let mut record = rec.finish(
+            Taa::NAME,
+            frame.meta.index,
+            pixels,
+            inp.counts,
+            self.state_bytes(),
+        );
+        record.backend = Backend::Gpu;
+        record.device = Some(device);
+        Ok(Output {
+            color: back.color,
+            record,
+        })
+    }
+
+    /// The frame's inputs: checked, repaired ([`prepare`]) and reconstructed. The
+    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
+    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
+        check_needs(Taa::NAME, Taa::needs(), frame)?;
+        let mut inp = prepare(frame, Taa::uses(), rec)?;
+        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+            rec,
+            &mut inp,
+            frame.meta.jitter,
+            &mut self.scratch,
+        );
+        Ok(inp)
+    }
+
+    /// The shader's flags for a frame with inputs `inp` under `plan`.
+    fn flags(&self, plan: &StagePlan, inp: &Inputs, has_history: bool) -> u32 {
+        let p = &self.params;
         let mut flags = 0;
         let mut set = |on: bool, bit: u32| {
             if on {
@@ -373,24 +421,26 @@ impl GpuTaa {
         set(inp.invalid.is_some(), FLAG_INVALID);
         set(plan.sharpen.is_none(), FLAG_SHARPEN);
         set(self.keeps_depth() && inp.depth.is_some(), FLAG_KEEP_DEPTH);
+        flags
+    }
 
-        let mut clock = FrameClock::start();
-        let gpu = Arc::clone(&self.gpu);
-        let (read, write) = (self.read, 1 - self.read);
-        let top = self
-            .buffers
-            .as_ref()
-            .expect("sized")
-            .upload
-            .output_ceiling(&inp.facts);
-        let words = self.param_words(w, h, flags, top);
-        let convert_words = self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top);
-        let convert = has_history && self.tonemapped != hdr;
-
-        // Upload what the plan reads: the colour (as f32 or f16), then motion, depth and
-        // the invalid mask as f32.
+    /// Uploads what the plan reads: the colour (as f32 or f16; planes of the host's own go
+    /// back to the scratch), then motion, depth and the invalid mask as f32; then the
+    /// shader's parameter `words` and, when the history is converted, the conversion's.
+    /// Returns the bytes written.
+    fn upload_frame<'f>(
+        &mut self,
+        frame: &'f Frame,
+        inp: &mut Inputs<'f>,
+        plan: &StagePlan,
+        flags: u32,
+        words: &[u32; 9],
+        convert: Option<&[u32; 9]>,
+    ) -> u64 {
+        let n = inp.width * inp.height;
+        let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
-        let mut bytes = b.upload.write(&gpu, &b.input, &inp.color);
+        let mut bytes = b.upload.write(gpu, &b.input, &inp.color);
         if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
             self.scratch.recycle(rgb);
         }
@@ -398,52 +448,45 @@ impl GpuTaa {
         if plan.reproject.is_none() {
             let m = inp.motion.as_deref().expect("reprojection needs motion");
             for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(&gpu, (IN_MX + k) * n, plane.data());
+                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
             }
         }
         if let Some(d) = inp.depth.as_deref() {
             if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
-                bytes += b.input.write(&gpu, IN_DEPTH * n, d.data());
+                bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
             }
         }
         if let Some(invalid) = &inp.invalid {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(&gpu, IN_INVALID * n, &mask);
+            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
         }
-        bytes += write_words(&gpu, &b.params, &words);
+        bytes += write_words(gpu, &b.params, words);
+        if let Some(convert) = convert {
+            bytes += write_words(gpu, &b.convert_params, convert);
+        }
+        bytes
+    }
+
+    /// Runs the frame's passes (the colour's unpacking; the history's conversion when
+    /// `convert`; the resolve; the sharpen when `sharpen`) and reads back the colour, the
+    /// counters and the timestamps, marking `clock` at the submission and the readback.
+    fn dispatch(
+        &mut self,
+        w: usize,
+        h: usize,
+        convert: bool,
+        sharpen: bool,
+        clock: &mut FrameClock,
+    ) -> Result<FrameBack, BackendError> {
+        let n = w * h;
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("sized");
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         enc.clear_buffer(&b.counters, 0, None);
-        b.upload.encode(&gpu, &mut enc);
+        b.upload.encode(gpu, &mut enc);
         let timer = b.timer.as_ref();
-        let mut passes = 0;
-        if convert {
-            bytes += write_words(&gpu, &b.convert_params, &convert_words);
-            let groups = n.div_ceil(64);
-            let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
-            let mut pass = timing::begin(&mut enc, timer, passes);
-            passes += 1;
-            pass.set_pipeline(&self.passes.convert);
-            pass.set_bind_group(0, &b.convert[read], &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        let (gx, gy) = groups(w, h, WORKGROUP);
-        {
-            let mut pass = timing::begin(&mut enc, timer, passes);
-            passes += 1;
-            pass.set_pipeline(&self.passes.resolve);
-            pass.set_bind_group(0, &b.resolve[read], &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        let result = if plan.sharpen.is_none() {
-            let mut pass = timing::begin(&mut enc, timer, passes);
-            passes += 1;
-            pass.set_pipeline(&self.passes.sharpen);
-            pass.set_bind_group(0, &b.sharpen, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-            1
-        } else {
-            0
-        };
+        let passes = self.encode_passes(&mut enc, b, w, h, convert, sharpen);
+        let result = sharpen as usize;
         b.back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
         enc.copy_buffer_to_buffer(
             &b.counters,
@@ -459,69 +502,103 @@ impl GpuTaa {
         gpu.queue.submit([enc.finish()]);
         clock.submitted();
         let words = timer_at + timer.map_or(0, PassTimer::words);
-        b.back.read(&gpu, words, &mut self.words)?;
+        b.back.read(gpu, words, &mut self.words)?;
         clock.back();
-        let color = super::buffers::planes_from(&self.words, w, h)?;
-        let counts: Vec<u32> = self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect();
-        let pass_ms = timer.map(|t| t.pass_ms(&self.words[timer_at..], passes));
-        let device = clock.times(pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
+        Ok(FrameBack {
+            color: super::buffers::planes_from(&self.words, w, h)?,
+            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
+            pass_ms: timer.map(|t| t.pass_ms(&self.words[timer_at..], passes)),
+        })
+    }
 
-        // The same stages as the CPU filter's record, run or left out for the same reasons.
-        // With timestamps `sharpen` gets its pass's time and the others share the rest (one
-        // pass fuses them); without, all share the frame's round trip.
-        let sharpen_ms = match (&pass_ms, plan.sharpen.is_none()) {
-            (Some(v), true) => v.last().copied(),
-            _ => None,
-        };
-        let stages = vec![
-            ("tonemap", plan.tonemap.clone()),
-            ("ycocg", None),
-            ("dilate", plan.dilate.clone()),
-            ("reproject", plan.reproject.clone()),
-            ("depth_reject", plan.depth_reject.clone()),
-            ("resolve", None),
-            ("sharpen", plan.sharpen.clone()),
-            ("untonemap", plan.tonemap.clone()),
-        ];
-        match (device.shaders_ms, sharpen_ms) {
-            (Some(all), Some(sharpen)) => {
-                let rest = stages
-                    .iter()
-                    .filter(|(n, s)| s.is_none() && *n != "sharpen")
-                    .count();
-                for (name, skip) in stages {
-                    match (skip, name) {
-                        (Some(why), _) => rec.skip(name, why),
-                        (None, "sharpen") => rec.ran_for(name, sharpen),
-                        (None, _) => rec.ran_for(name, (all - sharpen) / rest as f64),
-                    }
+    /// Encodes the compute passes (each timed where the device has timestamps): the
+    /// history's conversion in place when `convert`, the resolve into `out[0]`, and when
+    /// `sharpen` the sharpen into `out[1]`. Returns how many passes it encoded.
+    fn encode_passes(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        b: &Buffers,
+        w: usize,
+        h: usize,
+        convert: bool,
+        sharpen: bool,
+    ) -> u32 {
+        let timer = b.timer.as_ref();
+        let mut passes = 0;
+        if convert {
+            let groups = (w * h).div_ceil(64);
+            let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
+            let mut pass = timing::begin(enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.convert);
+            pass.set_bind_group(0, &b.convert[self.read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        let (gx, gy) = groups(w, h, WORKGROUP);
+        {
+            let mut pass = timing::begin(enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.resolve);
+            pass.set_bind_group(0, &b.resolve[self.read], &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        if sharpen {
+            let mut pass = timing::begin(enc, timer, passes);
+            passes += 1;
+            pass.set_pipeline(&self.passes.sharpen);
+            pass.set_bind_group(0, &b.sharpen, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        passes
+    }
+}
+
+/// What the device gives back for a frame.
+struct FrameBack {
+    color: Rgb,
+    /// The counters (C_ constants of taa.wgsl).
+    counters: Vec<u32>,
+    /// Each pass's time from its timestamps, where the device has them.
+    pass_ms: Option<Vec<f64>>,
+}
+
+/// Records the same stages as the CPU filter's record, run or left out for the same
+/// reasons. With timestamps `sharpen` gets its pass's time (the last of `pass_ms`) and the
+/// others share the rest (one pass fuses them); without, all share the frame's round trip.
+fn record_stages(rec: &mut Recorder, plan: &StagePlan, device: &DeviceTimes, pass_ms: Option<&[f64]>) {
+    let sharpen_ms = match (pass_ms, plan.sharpen.is_none()) {
+        (Some(v), true) => v.last().copied(),
+        _ => None,
+    };
+    let stages = vec![
+        ("tonemap", plan.tonemap.clone()),
+        ("ycocg", None),
+        ("dilate", plan.dilate.clone()),
+        ("reproject", plan.reproject.clone()),
+        ("depth_reject", plan.depth_reject.clone()),
+        ("resolve", None),
+        ("sharpen", plan.sharpen.clone()),
+        ("untonemap", plan.tonemap.clone()),
+    ];
+    match (device.shaders_ms, sharpen_ms) {
+        (Some(all), Some(sharpen)) => {
+            let rest = stages
+                .iter()
+                .filter(|(n, s)| s.is_none() && *n != "sharpen")
+                .count();
+            for (name, skip) in stages {
+                match (skip, name) {
+                    (Some(why), _) => rec.skip(name, why),
+                    (None, "sharpen") => rec.ran_for(name, sharpen),
+                    (None, _) => rec.ran_for(name, (all - sharpen) / rest as f64),
                 }
             }
-            (shaders, _) => timing::share(
-                &mut rec,
-                stages,
-                shaders.unwrap_or(device.upload_ms + device.readback_ms),
-            ),
         }
-
-        self.read = write;
-        self.valid = true;
-        self.tonemapped = hdr;
-        let pixels = PixelCounts {
-            history_reset: counts[0] as u64,
-            history_clipped: counts[1] as u64,
-            history_rejected: counts[2] as u64,
-        };
-        let mut record = rec.finish(
-            Taa::NAME,
-            frame.meta.index,
-            pixels,
-            inp.counts,
-            self.state_bytes(),
-        );
-        record.backend = Backend::Gpu;
-        record.device = Some(device);
-        Ok(Output { color, record })
+        (shaders, _) => timing::share(
+            rec,
+            stages,
+            shaders.unwrap_or(device.upload_ms + device.readback_ms),
+        ),
     }
 }
 

@@ -25,11 +25,11 @@ use crate::filters::passes::{
     dilate_row, on_screen_bits, output_ceiling, previous_positions, reproject_skip, tonemap_row,
     untonemap_row, FrameContext, FrameResult,
 };
-use crate::frame::{ChannelKind, Rgb};
+use crate::frame::{ChannelKind, Plane, Rgb};
 use crate::kernels::lanes::{self, block, mask_of_bits, Lanes, Mask, LANES};
 use crate::kernels::{fmax, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, PixelCounts, Skip};
+use crate::pipeline::{FilterError, FrameFacts, Inputs, PixelCounts, Recorder, Skip};
 use std::ops::Range;
 use wide::f32x8;
 
@@ -225,33 +225,129 @@ pub(super) fn frame(
         scratch,
     } = ctx;
     let (w, h) = (inp.width, inp.height);
-    let facts = inp.facts;
-    let improved = p.variant == Variant::Improved;
-    // Why each stage is left out (None: it runs), as the reference plans them.
-    let tonemap_skip = facts.tonemap();
-    let reproject_skip = reproject_skip(&inp, has_history);
-    let dilate_skip = reproject_skip.clone().or_else(|| inp.require(ChannelKind::Depth));
-    let variant_skip = (!improved).then_some(Skip::Variant {
-        variant: p.variant.name(),
-    });
-    let sobel_history_skip = (!has_history).then_some(Skip::NoHistory);
-    let model_skip = variant_skip
-        .clone()
-        .or_else(|| inp.require(ChannelKind::ObjectId));
-    let depth_skip = variant_skip.clone().or_else(|| inp.require(ChannelKind::Depth));
-    let sharpen_skip = (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" });
-    let plan = Plan {
-        improved,
-        tonemap: tonemap_skip.is_none(),
-        dilate: dilate_skip.is_none(),
-        reproject: reproject_skip.is_none(),
-        sobel_history: improved && has_history,
-        depth: depth_skip.is_none(),
-        model_average: model_skip.is_none(),
-        untonemap: tonemap_skip.is_none() && sharpen_skip.is_some(),
-        feedback_min: p.feedback_min,
-        feedback_max: p.feedback_max,
-    };
+    let skips = Skips::new(p, &inp, has_history);
+    let plan = skips.plan(p, has_history);
+    let src = sources(&inp, &plan, near_far, has_history, read);
+    let mut out: Rgb = scratch.planes(w, h);
+    let clock = StageClock::<10>::default();
+    let t = std::time::Instant::now();
+    let pixels = fused_pass(&src, &plan, &clock, &mut out, next);
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let shares = clock.shares();
+    skips.record_fused(rec, plan.improved, ms, &shares);
+    match skips.sharpen {
+        Some(why) => {
+            rec.skip("sharpen", why);
+            record_untonemap(rec, skips.tonemap, ms * shares[UNTONEMAP]);
+        }
+        None => {
+            let mut sharp: Rgb = scratch.planes(w, h);
+            let (ms, shares) = sharpen_pass(p, &out, &mut sharp, &inp.facts, plan.tonemap);
+            rec.ran_for("sharpen", ms * shares[0]);
+            record_untonemap(rec, skips.tonemap, ms * shares[1]);
+            scratch.recycle(std::mem::replace(&mut out, sharp));
+        }
+    }
+    Ok(FrameResult {
+        color: out,
+        pixels,
+        model: None,
+    })
+}
+
+/// Why each stage is left out (`None`: it runs), as the reference plans them.
+struct Skips {
+    tonemap: Option<Skip>,
+    reproject: Option<Skip>,
+    dilate: Option<Skip>,
+    /// The improved variant's own stages (`sobel`, `aliased`).
+    variant: Option<Skip>,
+    sobel_history: Option<Skip>,
+    model: Option<Skip>,
+    depth: Option<Skip>,
+    sharpen: Option<Skip>,
+}
+
+impl Skips {
+    fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
+        let improved = p.variant == Variant::Improved;
+        let reproject = reproject_skip(inp, has_history);
+        let variant = (!improved).then_some(Skip::Variant {
+            variant: p.variant.name(),
+        });
+        Skips {
+            tonemap: inp.facts.tonemap(),
+            dilate: reproject.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            reproject,
+            sobel_history: (!has_history).then_some(Skip::NoHistory),
+            model: variant.clone().or_else(|| inp.require(ChannelKind::ObjectId)),
+            depth: variant.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            variant,
+            sharpen: (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
+        }
+    }
+
+    /// Which stages the fused pass runs, and its knobs.
+    fn plan(&self, p: &Params, has_history: bool) -> Plan {
+        let improved = p.variant == Variant::Improved;
+        Plan {
+            improved,
+            tonemap: self.tonemap.is_none(),
+            dilate: self.dilate.is_none(),
+            reproject: self.reproject.is_none(),
+            sobel_history: improved && has_history,
+            depth: self.depth.is_none(),
+            model_average: self.model.is_none(),
+            untonemap: self.tonemap.is_none() && self.sharpen.is_some(),
+            feedback_min: p.feedback_min,
+            feedback_max: p.feedback_max,
+        }
+    }
+
+    /// Records the fused pass's stages from `tonemap` to `resolve` (`sobel_history` only
+    /// in the improved variant): their `shares` of its time `ms`, or why they were left out.
+    fn record_fused(&self, rec: &mut Recorder, improved: bool, ms: f64, shares: &[f64; 10]) {
+        let mut stages = vec![
+            (TONEMAP, self.tonemap.clone()),
+            (DILATE, self.dilate.clone()),
+            (REPROJECT, self.reproject.clone()),
+            (SOBEL, self.variant.clone()),
+        ];
+        if improved {
+            stages.push((SOBEL_HISTORY, self.sobel_history.clone()));
+        }
+        stages.extend([
+            (MODEL_AVERAGE, self.model.clone()),
+            (DEPTH_VARIANCE, self.depth.clone()),
+            (ALIASED, self.variant.clone()),
+            (RESOLVE, None),
+        ]);
+        for (k, skip) in stages {
+            match skip {
+                Some(why) => rec.skip(STAGES[k], why),
+                None => rec.ran_for(STAGES[k], ms * shares[k]),
+            }
+        }
+    }
+}
+
+/// Records `untonemap`: `ms`, or why it was left out (`tonemap`'s reason).
+fn record_untonemap(rec: &mut Recorder, tonemap: Option<Skip>, ms: f64) {
+    match tonemap {
+        Some(why) => rec.skip("untonemap", why),
+        None => rec.ran_for("untonemap", ms),
+    }
+}
+
+/// What the fused pass reads for a frame with inputs `inp` and the history `read`.
+fn sources<'a>(
+    inp: &'a Inputs,
+    plan: &Plan,
+    near_far: Option<[f32; 2]>,
+    has_history: bool,
+    read: &'a [Plane<f32>],
+) -> Sources<'a> {
+    let improved = plan.improved;
     let depth = inp.depth.as_deref().map(|d| d.data());
     // Depth / far (improved): far from the frame's planes, else its largest depth.
     let far = match (plan.depth, depth) {
@@ -261,9 +357,9 @@ pub(super) fn frame(
             .max(f32::MIN_POSITIVE),
         _ => 1.0,
     };
-    let src = Sources {
-        w,
-        h,
+    Sources {
+        w: inp.width,
+        h: inp.height,
         color: inp.color_slices(),
         albedo: inp
             .albedo
@@ -280,111 +376,73 @@ pub(super) fn frame(
             .get(1)
             .filter(|_| has_history && plan.depth)
             .map(|p| p.data()),
-    };
-    let mut out: Rgb = scratch.planes(w, h);
-    let clock = StageClock::<10>::default();
+    }
+}
+
+/// The fused pass over the frame's bands ([`run_band`]) into `out` and the next history's
+/// planes `next` (the texels, and depth / far when the history keeps it).
+fn fused_pass(
+    src: &Sources,
+    plan: &Plan,
+    clock: &StageClock<10>,
+    out: &mut Rgb,
+    next: &mut [Plane<f32>],
+) -> PixelCounts {
+    let (w, h) = (src.w, src.h);
+    let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+    match next {
+        [texels, depth01] => par_bands_strided(
+            [o0, o1, o2, texels.data_mut(), depth01.data_mut()],
+            [w, w, w, 4 * w, w],
+            h,
+            |band: &mut Band, rows, [or, og, ob, texels, depth01]| {
+                run_band::<4>(src, plan, clock, band, rows, [or, og, ob], texels, Some(depth01))
+            },
+        ),
+        [texels] => par_bands_strided(
+            [o0, o1, o2, texels.data_mut()],
+            [w, w, w, 3 * w],
+            h,
+            |band: &mut Band, rows, [or, og, ob, texels]| {
+                run_band::<3>(src, plan, clock, band, rows, [or, og, ob], texels, None)
+            },
+        ),
+        _ => unreachable!("traa keeps one or two history planes"),
+    }
+}
+
+/// The sharpen pass over bands of `out` into `sharp` (and `untonemap` in the same pass when
+/// the colour is tonemapped): its time in ms and the shares of its two stages.
+fn sharpen_pass(
+    p: &Params,
+    out: &Rgb,
+    sharp: &mut Rgb,
+    facts: &FrameFacts,
+    untonemap: bool,
+) -> (f64, [f64; 2]) {
+    let (w, h) = out[0].size();
+    let strength = Traa::sharpen_strength(p);
+    let clock = StageClock::<2>::default();
     let t = std::time::Instant::now();
-    let pixels = {
-        let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
-        match next {
-            [texels, depth01] => par_bands_strided(
-                [o0, o1, o2, texels.data_mut(), depth01.data_mut()],
-                [w, w, w, 4 * w, w],
+    {
+        let src = out.each_ref().map(|p| p.data());
+        let [s0, s1, s2] = sharp.each_mut().map(|p| p.data_mut());
+        par_bands([s0, s1, s2], w, h, |_: &mut (), rows, band| {
+            sharpen_band(
+                src,
+                w,
                 h,
-                |band: &mut Band, rows, [or, og, ob, texels, depth01]| {
-                    run_band::<4>(
-                        &src,
-                        &plan,
-                        &clock,
-                        band,
-                        rows,
-                        [or, og, ob],
-                        texels,
-                        Some(depth01),
-                    )
-                },
-            ),
-            [texels] => par_bands_strided(
-                [o0, o1, o2, texels.data_mut()],
-                [w, w, w, 3 * w],
-                h,
-                |band: &mut Band, rows, [or, og, ob, texels]| {
-                    run_band::<3>(&src, &plan, &clock, band, rows, [or, og, ob], texels, None)
-                },
-            ),
-            _ => unreachable!("traa keeps one or two history planes"),
-        }
-    };
-    let ms = t.elapsed().as_secs_f64() * 1e3;
-    let shares = clock.shares();
-    let mut stages = vec![
-        (TONEMAP, tonemap_skip.clone()),
-        (DILATE, dilate_skip),
-        (REPROJECT, reproject_skip),
-        (SOBEL, variant_skip.clone()),
-    ];
-    if improved {
-        stages.push((SOBEL_HISTORY, sobel_history_skip));
+                strength,
+                output_ceiling(facts),
+                untonemap,
+                &clock,
+                rows.clone(),
+                band,
+            );
+            rows.len()
+        });
     }
-    stages.extend([
-        (MODEL_AVERAGE, model_skip),
-        (DEPTH_VARIANCE, depth_skip),
-        (ALIASED, variant_skip),
-        (RESOLVE, None),
-    ]);
-    for (k, skip) in stages {
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
-    }
-    match sharpen_skip {
-        Some(why) => {
-            rec.skip("sharpen", why);
-            match tonemap_skip {
-                Some(why) => rec.skip("untonemap", why),
-                None => rec.ran_for("untonemap", ms * shares[UNTONEMAP]),
-            }
-        }
-        None => {
-            let strength = Traa::sharpen_strength(p);
-            let mut sharp: Rgb = scratch.planes(w, h);
-            let clock = StageClock::<2>::default();
-            let t = std::time::Instant::now();
-            {
-                let src = out.each_ref().map(|p| p.data());
-                let [s0, s1, s2] = sharp.each_mut().map(|p| p.data_mut());
-                let untonemap = plan.tonemap;
-                par_bands([s0, s1, s2], w, h, |_: &mut (), rows, band| {
-                    sharpen_band(
-                        src,
-                        w,
-                        h,
-                        strength,
-                        output_ceiling(&facts),
-                        untonemap,
-                        &clock,
-                        rows.clone(),
-                        band,
-                    );
-                    rows.len()
-                });
-            }
-            let ms = t.elapsed().as_secs_f64() * 1e3;
-            let shares = clock.shares();
-            rec.ran_for("sharpen", ms * shares[0]);
-            match tonemap_skip {
-                Some(why) => rec.skip("untonemap", why),
-                None => rec.ran_for("untonemap", ms * shares[1]),
-            }
-            scratch.recycle(std::mem::replace(&mut out, sharp));
-        }
-    }
-    Ok(FrameResult {
-        color: out,
-        pixels,
-        model: None,
-    })
+    (t.elapsed().as_secs_f64() * 1e3, clock.shares())
 }
 
 /// The largest sample of a plane, at least 0 (the reference's fold of `f32::max` from 0,
@@ -421,153 +479,196 @@ fn run_band<const N: usize>(
     next: &mut [f32],
     next_depth: Option<&mut [f32]>,
 ) -> PixelCounts {
-    let (w, h) = (src.w, src.h);
-    let s = stride(w);
+    let h = src.h;
     let grow = |k: usize| rows.start.saturating_sub(k)..(rows.end + k).min(h);
     // Rows with a halo of 1 (what the resolve's and the aliased value's 3x3 read), 2 (the
     // raw Sobel the Sobel history's 3x3 reads) and 3 (what the raw Sobel reads).
     let (r1, r2, r3) = (grow(1), grow(2), grow(3));
-    let Band {
-        work,
-        lit,
-        unlit,
-        depth01,
-        raw,
-        stable,
-        motion,
-        hist,
-        prev_depth,
-        valid,
-        invalid,
-        model_average,
-        depth_variance,
-        aliased,
-    } = band;
-
     // The working colour (and its luma, the albedo's and depth / far for the Sobel).
-    let prep = if plan.improved { r3.clone() } else { r1.clone() };
-    work.iter_mut().for_each(|b| b.hold(&prep, s));
-    clock.time(TONEMAP, || {
-        for r in prep.clone() {
-            let at = r * w..(r + 1) * w;
-            let input = src.color.map(|c| &c[at.clone()]);
-            let [a, b, c] = work.each_mut().map(|b| &mut b.row_mut(r)[1..w + 1]);
-            if plan.tonemap {
-                tonemap_row(input, [a, b, c]);
-            } else {
-                a.copy_from_slice(input[0]);
-                b.copy_from_slice(input[1]);
-                c.copy_from_slice(input[2]);
-            }
-            work.iter_mut().for_each(|b| pad(b.row_mut(r), w));
-        }
-    });
+    let prep = if plan.improved { r3 } else { r1.clone() };
+    band.tonemap(src, plan, clock, &prep);
     if plan.improved {
-        clock.time(SOBEL, || {
-            lit.hold(&prep, s);
+        clock.time(SOBEL, || band.sobel(src, plan, &prep, &r2));
+    }
+    band.history::<N>(src, plan, clock, &rows, &r1);
+    if plan.sobel_history {
+        band.sobel_history(src, plan, clock, &r1);
+    }
+    band.resolve_rows::<N>(src, plan, clock, rows, out, next, next_depth)
+}
+
+impl Band {
+    /// Stage `tonemap` for rows `prep`: the working colour (the input tonemapped, or as it
+    /// is), padded.
+    fn tonemap(&mut self, src: &Sources, plan: &Plan, clock: &StageClock<10>, prep: &Range<usize>) {
+        let w = src.w;
+        let work = &mut self.work;
+        work.iter_mut().for_each(|b| b.hold(prep, stride(w)));
+        clock.time(TONEMAP, || {
             for r in prep.clone() {
-                let [a, b, c] = work.each_ref().map(|b| &b.row(r)[1..w + 1]);
-                let l = &mut lit.row_mut(r)[1..w + 1];
-                for x in 0..w {
-                    l[x] = luma([a[x], b[x], c[x]]);
+                let at = r * w..(r + 1) * w;
+                let input = src.color.map(|c| &c[at.clone()]);
+                let [a, b, c] = work.each_mut().map(|b| &mut b.row_mut(r)[1..w + 1]);
+                if plan.tonemap {
+                    tonemap_row(input, [a, b, c]);
+                } else {
+                    a.copy_from_slice(input[0]);
+                    b.copy_from_slice(input[1]);
+                    c.copy_from_slice(input[2]);
                 }
-                pad(lit.row_mut(r), w);
-            }
-            if let Some(alb) = src.albedo {
-                unlit.hold(&prep, s);
-                for r in prep.clone() {
-                    let at = r * w..(r + 1) * w;
-                    let [a, b, c] = alb.map(|c| &c[at.clone()]);
-                    let u = &mut unlit.row_mut(r)[1..w + 1];
-                    for x in 0..w {
-                        u[x] = luma([a[x], b[x], c[x]]);
-                    }
-                    pad(unlit.row_mut(r), w);
-                }
-            }
-            if plan.depth {
-                let d = src.depth.expect("planned");
-                depth01.hold(&prep, s);
-                for r in prep.clone() {
-                    let dr = &d[r * w..(r + 1) * w];
-                    let o = &mut depth01.row_mut(r)[1..w + 1];
-                    for x in 0..w {
-                        o[x] = dr[x] / src.far;
-                    }
-                    pad(depth01.row_mut(r), w);
-                }
-            }
-            raw.hold(&r2, s);
-            for r in r2.clone() {
-                let l = lit.rows3(r, h);
-                let u = src.albedo.map(|_| unlit.rows3(r, h));
-                let d = plan.depth.then(|| depth01.rows3(r, h));
-                sobel_row(l, u, d, w, raw.row_mut(r));
+                work.iter_mut().for_each(|b| pad(b.row_mut(r), w));
             }
         });
     }
 
-    // The history at each pixel's previous position (or in place when nothing moves).
-    valid.hold(&r1, s);
-    invalid.hold(&r1, s);
-    prev_depth.hold(&rows, s);
-    for r in r1.clone() {
-        let iv = &mut invalid.row_mut(r)[..w];
-        match src.invalid {
-            Some(v) => iv.copy_from_slice(&v[r * w..(r + 1) * w]),
-            None => iv.fill(false),
+    /// Stage `sobel` (improved): the luma of the working colour, the albedo's and depth /
+    /// far for rows `prep` (padded), then the raw Sobel of rows `r2` from them.
+    fn sobel(&mut self, src: &Sources, plan: &Plan, prep: &Range<usize>, r2: &Range<usize>) {
+        let (w, h) = (src.w, src.h);
+        let s = stride(w);
+        let Band {
+            work,
+            lit,
+            unlit,
+            depth01,
+            raw,
+            ..
+        } = self;
+        lit.hold(prep, s);
+        for r in prep.clone() {
+            let [a, b, c] = work.each_ref().map(|b| &b.row(r)[1..w + 1]);
+            let l = &mut lit.row_mut(r)[1..w + 1];
+            for x in 0..w {
+                l[x] = luma([a[x], b[x], c[x]]);
+            }
+            pad(lit.row_mut(r), w);
         }
-    }
-    hist.iter_mut().for_each(|b| b.hold(&r1, s));
-    // The Sobel history reads the history one row beyond the band; the resolve only the
-    // band's rows.
-    let fetch = if plan.sobel_history {
-        r1.clone()
-    } else {
-        rows.clone()
-    };
-    match src.texels {
-        None => r1.clone().for_each(|r| valid.row_mut(r).fill(false)),
-        Some(texels) if plan.reproject => {
-            motion.iter_mut().for_each(|b| b.hold(&r1, s));
-            for r in fetch.clone() {
-                let m: [&[f32]; 2] = if plan.dilate {
-                    let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
-                    let [mx, my] = motion.each_mut().map(|b| &mut b.row_mut(r)[..w]);
-                    clock.time(DILATE, || dilate_row(d, mv, w, h, r, mx, my));
-                    motion.each_ref().map(|b| &b.row(r)[..w])
-                } else {
-                    src.motion.expect("planned").map(|m| &m[r * w..(r + 1) * w])
-                };
-                let prev = src.prev_depth.filter(|_| rows.contains(&r));
-                let pd = &mut prev_depth.row_mut(r.clamp(rows.start, rows.end - 1))[..w];
-                let ok = &mut valid.row_mut(r)[..w];
-                let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
-                clock.time(REPROJECT, || {
-                    reproject_row::<N>(texels, prev, w, h, r, m, ok, hr, pd)
-                });
+        if let Some(alb) = src.albedo {
+            unlit.hold(prep, s);
+            for r in prep.clone() {
+                let at = r * w..(r + 1) * w;
+                let [a, b, c] = alb.map(|c| &c[at.clone()]);
+                let u = &mut unlit.row_mut(r)[1..w + 1];
+                for x in 0..w {
+                    u[x] = luma([a[x], b[x], c[x]]);
+                }
+                pad(unlit.row_mut(r), w);
             }
         }
-        Some(texels) => clock.time(RESOLVE, || {
-            for r in fetch.clone() {
-                valid.row_mut(r)[..w].fill(true);
-                let row = &texels[N * r * w..N * (r + 1) * w];
-                let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
-                for (x, t) in row.chunks_exact(N).enumerate() {
-                    for c in 0..N {
-                        hr[c][x] = t[c];
-                    }
+        if plan.depth {
+            let d = src.depth.expect("planned");
+            depth01.hold(prep, s);
+            for r in prep.clone() {
+                let dr = &d[r * w..(r + 1) * w];
+                let o = &mut depth01.row_mut(r)[1..w + 1];
+                for x in 0..w {
+                    o[x] = dr[x] / src.far;
                 }
-                if let (Some(prev), true) = (src.prev_depth, rows.contains(&r)) {
-                    prev_depth.row_mut(r)[..w].copy_from_slice(&prev[r * w..(r + 1) * w]);
-                }
+                pad(depth01.row_mut(r), w);
             }
-        }),
+        }
+        raw.hold(r2, s);
+        for r in r2.clone() {
+            let l = lit.rows3(r, h);
+            let u = src.albedo.map(|_| unlit.rows3(r, h));
+            let d = plan.depth.then(|| depth01.rows3(r, h));
+            sobel_row(l, u, d, w, raw.row_mut(r));
+        }
     }
 
-    // The Sobel image's own TRAA (sec. 4.3.3); without history, the raw Sobel.
-    let sobel: &Rows<f32> = if plan.sobel_history {
-        stable.hold(&r1, s);
+    /// The history at each pixel's previous position (or in place when nothing moves) for
+    /// the band's rows `rows` (and the halo `r1` when the Sobel history reads it), with
+    /// whether it is used there (`valid`), whether the input was repaired there (`invalid`,
+    /// rows `r1`) and the previous depth / far.
+    fn history<const N: usize>(
+        &mut self,
+        src: &Sources,
+        plan: &Plan,
+        clock: &StageClock<10>,
+        rows: &Range<usize>,
+        r1: &Range<usize>,
+    ) {
+        let w = src.w;
+        let s = stride(w);
+        let Band {
+            motion,
+            hist,
+            prev_depth,
+            valid,
+            invalid,
+            ..
+        } = self;
+        valid.hold(r1, s);
+        invalid.hold(r1, s);
+        prev_depth.hold(rows, s);
+        for r in r1.clone() {
+            let iv = &mut invalid.row_mut(r)[..w];
+            match src.invalid {
+                Some(v) => iv.copy_from_slice(&v[r * w..(r + 1) * w]),
+                None => iv.fill(false),
+            }
+        }
+        hist.iter_mut().for_each(|b| b.hold(r1, s));
+        // The Sobel history reads the history one row beyond the band; the resolve only the
+        // band's rows.
+        let fetch = if plan.sobel_history {
+            r1.clone()
+        } else {
+            rows.clone()
+        };
+        match src.texels {
+            None => r1.clone().for_each(|r| valid.row_mut(r).fill(false)),
+            Some(texels) if plan.reproject => {
+                motion.iter_mut().for_each(|b| b.hold(r1, s));
+                for r in fetch {
+                    let m: [&[f32]; 2] = if plan.dilate {
+                        let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
+                        let [mx, my] = motion.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                        clock.time(DILATE, || dilate_row(d, mv, w, src.h, r, mx, my));
+                        motion.each_ref().map(|b| &b.row(r)[..w])
+                    } else {
+                        src.motion.expect("planned").map(|m| &m[r * w..(r + 1) * w])
+                    };
+                    let prev = src.prev_depth.filter(|_| rows.contains(&r));
+                    let pd = &mut prev_depth.row_mut(r.clamp(rows.start, rows.end - 1))[..w];
+                    let ok = &mut valid.row_mut(r)[..w];
+                    let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                    clock.time(REPROJECT, || {
+                        reproject_row::<N>(texels, prev, w, src.h, r, m, ok, hr, pd)
+                    });
+                }
+            }
+            Some(texels) => clock.time(RESOLVE, || {
+                for r in fetch {
+                    valid.row_mut(r)[..w].fill(true);
+                    let row = &texels[N * r * w..N * (r + 1) * w];
+                    let hr = hist.each_mut().map(|b| &mut b.row_mut(r)[..w]);
+                    for (x, t) in row.chunks_exact(N).enumerate() {
+                        for c in 0..N {
+                            hr[c][x] = t[c];
+                        }
+                    }
+                    if let (Some(prev), true) = (src.prev_depth, rows.contains(&r)) {
+                        prev_depth.row_mut(r)[..w].copy_from_slice(&prev[r * w..(r + 1) * w]);
+                    }
+                }
+            }),
+        }
+    }
+
+    /// Stage `sobel_history`: the Sobel image's own TRAA (sec. 4.3.3) for rows `r1`, from
+    /// the raw Sobel and the history's fourth channel, into `stable`.
+    fn sobel_history(&mut self, src: &Sources, plan: &Plan, clock: &StageClock<10>, r1: &Range<usize>) {
+        let (w, h) = (src.w, src.h);
+        let Band {
+            raw,
+            stable,
+            hist,
+            valid,
+            invalid,
+            ..
+        } = self;
+        stable.hold(r1, stride(w));
         clock.time(SOBEL_HISTORY, || {
             for r in r1.clone() {
                 sobel_history_row(
@@ -581,63 +682,93 @@ fn run_band<const N: usize>(
                 );
             }
         });
-        stable
-    } else {
-        raw
-    };
+    }
 
-    let [or, og, ob] = out;
-    let mut next_depth = next_depth;
-    let mut counts = PixelCounts::default();
-    for y in rows.clone() {
-        let k = y - rows.start;
-        if plan.improved {
-            let ma: Option<&[f32]> = if plan.model_average {
-                let ma = sized(model_average, s);
-                clock.time(MODEL_AVERAGE, || {
-                    model_average_row(src.ids.expect("planned"), w, h, y, ma)
-                });
-                Some(ma)
-            } else {
-                None
-            };
-            let dv: Option<&[f32]> = if plan.depth {
-                let dv = sized(depth_variance, s);
-                clock.time(DEPTH_VARIANCE, || {
-                    depth_variance_row(depth01.rows3(y, h), prev_depth.row(y), valid.row(y), w, dv)
-                });
-                Some(dv)
-            } else {
-                None
-            };
-            let al = sized(aliased, s);
-            clock.time(ALIASED, || aliased_row(sobel.rows3(y, h), ma, dv, w, al));
-            if let (true, Some(nd)) = (plan.depth, next_depth.as_deref_mut()) {
-                nd[k * w..(k + 1) * w].copy_from_slice(&depth01.row(y)[1..w + 1]);
+    /// Row by row: (improved) the model average, depth variance and aliased value, and
+    /// depth / far into the next history's `next_depth`; the resolve into `out` and the next
+    /// history's texels `next`; `untonemap` when it runs here. The Sobel read is the Sobel
+    /// history's where it ran, else the raw Sobel.
+    #[allow(clippy::too_many_arguments)]
+    fn resolve_rows<const N: usize>(
+        &mut self,
+        src: &Sources,
+        plan: &Plan,
+        clock: &StageClock<10>,
+        rows: Range<usize>,
+        out: [&mut [f32]; 3],
+        next: &mut [f32],
+        next_depth: Option<&mut [f32]>,
+    ) -> PixelCounts {
+        let (w, h) = (src.w, src.h);
+        let s = stride(w);
+        let Band {
+            work,
+            depth01,
+            raw,
+            stable,
+            hist,
+            prev_depth,
+            valid,
+            invalid,
+            model_average,
+            depth_variance,
+            aliased,
+            ..
+        } = self;
+        let sobel: &Rows<f32> = if plan.sobel_history { stable } else { raw };
+        let [or, og, ob] = out;
+        let mut next_depth = next_depth;
+        let mut counts = PixelCounts::default();
+        for y in rows.clone() {
+            let k = y - rows.start;
+            if plan.improved {
+                let ma: Option<&[f32]> = if plan.model_average {
+                    let ma = sized(model_average, s);
+                    clock.time(MODEL_AVERAGE, || {
+                        model_average_row(src.ids.expect("planned"), w, h, y, ma)
+                    });
+                    Some(ma)
+                } else {
+                    None
+                };
+                let dv: Option<&[f32]> = if plan.depth {
+                    let dv = sized(depth_variance, s);
+                    clock.time(DEPTH_VARIANCE, || {
+                        depth_variance_row(depth01.rows3(y, h), prev_depth.row(y), valid.row(y), w, dv)
+                    });
+                    Some(dv)
+                } else {
+                    None
+                };
+                let al = sized(aliased, s);
+                clock.time(ALIASED, || aliased_row(sobel.rows3(y, h), ma, dv, w, al));
+                if let (true, Some(nd)) = (plan.depth, next_depth.as_deref_mut()) {
+                    nd[k * w..(k + 1) * w].copy_from_slice(&depth01.row(y)[1..w + 1]);
+                }
+            }
+            let o = k * w..(k + 1) * w;
+            let mut dst = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
+            let c = clock.time(RESOLVE, || {
+                resolve_row::<N>(
+                    work.each_ref().map(|b| b.rows3(y, h)),
+                    hist.each_ref().map(|b| b.row(y)),
+                    valid.row(y),
+                    invalid.row(y),
+                    plan.improved.then_some(&aliased[..]),
+                    plan.improved.then(|| sobel.row(y)),
+                    plan,
+                    w,
+                    &mut dst,
+                    &mut next[N * o.start..N * o.end],
+                )
+            });
+            counts += c;
+            if plan.untonemap {
+                clock.time(UNTONEMAP, || untonemap_row(dst));
             }
         }
-        let o = k * w..(k + 1) * w;
-        let mut dst = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
-        let c = clock.time(RESOLVE, || {
-            resolve_row::<N>(
-                work.each_ref().map(|b| b.rows3(y, h)),
-                hist.each_ref().map(|b| b.row(y)),
-                valid.row(y),
-                invalid.row(y),
-                plan.improved.then_some(&aliased[..]),
-                plan.improved.then(|| sobel.row(y)),
-                plan,
-                w,
-                &mut dst,
-                &mut next[N * o.start..N * o.end],
-            )
-        });
-        counts += c;
-        if plan.untonemap {
-            clock.time(UNTONEMAP, || untonemap_row(dst));
-        }
+        counts
     }
-    counts
 }
 
 /// Stage `reproject` of row `y`: each pixel's previous position `p + motion`, whether it is

@@ -30,7 +30,7 @@ use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
 use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
 use crate::kernels::{fmax, fmin, LUMA_REC709};
 use crate::pipeline::exec::{par_bands_strided, pool, sized, StageClock};
-use crate::pipeline::{FilterError, PixelCounts, Skip};
+use crate::pipeline::{FilterError, Inputs, PixelCounts, Skip};
 use std::ops::Range;
 use wide::{f32x8, i32x8};
 
@@ -656,66 +656,21 @@ pub(super) fn frame(
     };
     let (cw, ch) = inp.color[0].size();
     let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
-    let depth = inp.depth.as_deref().map(Plane::data);
-    let ids = inp.object_id.map(Plane::data);
     let range = rec.stage(
         "geometry",
         (method == Method::Taa)
             .then_some(variant.clone())
             .or_else(|| inp.require(ChannelKind::Depth)),
-        || depth_range(depth.expect("required"), ids, near_far),
+        || {
+            let ids = inp.object_id.map(Plane::data);
+            depth_range(
+                inp.depth.as_deref().map(Plane::data).expect("required"),
+                ids,
+                near_far,
+            )
+        },
     );
-    let f = sampling.factor as isize;
-    let side = 2 * f as usize + 1;
-    let on_column: Mask = each(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
-    // Per row offset and slot, each lane's offset index (`Sparse::dist` order) or none.
-    let offset = |dyi: usize, s: usize, l: usize| -> usize {
-        let m = (l as isize - sampling.phase[0] as isize).rem_euclid(f);
-        let dx = [-f, -m, f - m][s];
-        if s == 0 && m != 0 {
-            // Masked: any offset will do.
-            dyi * side
-        } else {
-            dyi * side + (dx + f) as usize
-        }
-    };
-    let table: Vec<[Lanes; 3]> = (0..side)
-        .map(|dyi| {
-            std::array::from_fn(|s| {
-                each(|l| {
-                    let o = offset(dyi, s, l);
-                    match method {
-                        Method::Spatiotemporal => sparse.dist(o),
-                        Method::Taa => (-TAA_KERNEL * sparse.dist2(o)).exp(),
-                        _ => falloff(sparse.dist(o), p.kernel_wide),
-                    }
-                })
-            })
-        })
-        .collect();
-    let fr = Setup {
-        w,
-        h,
-        f,
-        shift: sampling.factor.trailing_zeros(),
-        px: sampling.phase[0] as isize,
-        py: sampling.phase[1] as isize,
-        sparse: &sparse,
-        geo_depth: depth.filter(|_| range.is_some() && method != Method::Taa),
-        normal: (method != Method::Taa)
-            .then(|| inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)))
-            .flatten(),
-        inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
-        normal_sigma: p.normal_sigma,
-        sky_depth_only: p.sky_depth_only,
-        depth,
-        ids,
-        motion: inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data)),
-        on_column,
-        column: on_column.map(|b| b as u8 as f32),
-        table,
-        stride: w.next_multiple_of(LANES) + 2 * f as usize,
-    };
+    let fr = setup(p, &inp, &sparse, sampling, range);
 
     let mut pixels = PixelCounts::default();
     let mut out: Rgb = scratch.planes(w, h);
@@ -728,7 +683,6 @@ pub(super) fn frame(
     }
     let gradient_skip = (method != Method::Spatiotemporal).then_some(variant);
     let clock = StageClock::<3>::default();
-    let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
     let mut timed = 0.0;
     // `spatiotemporal`: the reprojection as a pass of its own (the box of gradients reads
     // other bands' rows).
@@ -736,46 +690,189 @@ pub(super) fn frame(
     if let (Method::Spatiotemporal, Some(hist)) = (method, hist) {
         let mut rp = scratch.plane(ST * w, h);
         let t = std::time::Instant::now();
-        let lost: u64 = par_bands_strided([rp.data_mut()], [ST * w], h, |_: &mut (), rows, [band]| {
-            let mut lost = 0;
-            for y in rows.clone() {
-                let o = &mut band[ST * w * (y - rows.start)..ST * w * (y - rows.start + 1)];
-                let valid = Some((DEPTH, ID, p.depth_tolerance, p.neighbour_motion, p.subpixel_keep));
-                lost += clock.time(REPROJECT, || {
-                    reproject_row::<ST>(&fr, hist, y, valid, |x, t, total, kept| {
-                        let dst: &mut [f32; ST] = (&mut o[ST * x..ST * x + ST]).try_into().expect("a texel");
-                        *dst = t;
-                        // The tap weight takes the depth's place, the weight kept for a
-                        // sub-pixel surface the id's.
-                        dst[DEPTH] = total;
-                        dst[ID] = kept;
-                    })
-                });
-            }
-            lost
-        });
+        pixels.history_rejected += st_reproject_pass(&fr, p, hist, &clock, rp.data_mut());
         timed += t.elapsed().as_secs_f64() * 1e3;
-        pixels.history_rejected += lost;
         reprojected = Some(rp);
     }
     let t = std::time::Instant::now();
-    let texels = match method {
-        Method::Spatiotemporal => ST,
-        Method::Temporal => TM,
-        Method::Taa => TA,
-        Method::Spatial => 0,
+    let pass = BlendPass {
+        fr: &fr,
+        p,
+        decay,
+        hist,
+        rp: reprojected.as_ref().map(|p| p.data()),
+        clock: &clock,
+        texels: match method {
+            Method::Spatiotemporal => ST,
+            Method::Temporal => TM,
+            Method::Taa => TA,
+            Method::Spatial => 0,
+        },
     };
-    let rp = reprojected.as_ref().map(|p| p.data());
-    let run_band = |band: &mut Band, rows: Range<usize>, [or, og, ob, nx]: [&mut [f32]; 4]| {
+    pixels += pass.run(&mut out, next);
+    let ms = timed + t.elapsed().as_secs_f64() * 1e3;
+    let shares = clock.shares();
+    for (k, skip) in [reproject_skip, gradient_skip, None].into_iter().enumerate() {
+        match skip {
+            Some(why) => rec.skip(STAGES[k], why),
+            None => rec.ran_for(STAGES[k], ms * shares[k]),
+        }
+    }
+    scratch.recycle(reprojected);
+    Ok(FrameResult {
+        color: out,
+        pixels,
+        model: None,
+    })
+}
+
+/// What the passes read for a frame with inputs `inp`, its sparse colour `sparse` and the
+/// depth range `range` (`None`: stage `geometry` was left out).
+fn setup<'a>(
+    p: &Params,
+    inp: &'a Inputs,
+    sparse: &'a Sparse<'a>,
+    sampling: Sampling,
+    range: Option<f32>,
+) -> Setup<'a> {
+    let method = p.method;
+    let (w, h) = (inp.width, inp.height);
+    let f = sampling.factor as isize;
+    let depth = inp.depth.as_deref().map(Plane::data);
+    let on_column: Mask = each(|l| (l as isize - sampling.phase[0] as isize).rem_euclid(f) == 0);
+    Setup {
+        w,
+        h,
+        f,
+        shift: sampling.factor.trailing_zeros(),
+        px: sampling.phase[0] as isize,
+        py: sampling.phase[1] as isize,
+        sparse,
+        geo_depth: depth.filter(|_| range.is_some() && method != Method::Taa),
+        normal: (method != Method::Taa)
+            .then(|| inp.normal.as_deref().map(|n| n.each_ref().map(Plane::data)))
+            .flatten(),
+        inv_depth_scale: 1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
+        normal_sigma: p.normal_sigma,
+        sky_depth_only: p.sky_depth_only,
+        depth,
+        ids: inp.object_id.map(Plane::data),
+        motion: inp.motion.as_deref().map(|m| m.each_ref().map(Plane::data)),
+        on_column,
+        column: on_column.map(|b| b as u8 as f32),
+        table: weight_table(p, sparse, sampling),
+        stride: w.next_multiple_of(LANES) + 2 * f as usize,
+    }
+}
+
+/// [`Setup::table`]: per row offset `dy + f` and slot (left, own, right cell), each lane's
+/// image-space weight (`spatial`, `temporal`: the falloff at `kernel_wide`; `taa`: the
+/// Gaussian) or its distance in block diagonals (`spatiotemporal`).
+fn weight_table(p: &Params, sparse: &Sparse, sampling: Sampling) -> Vec<[Lanes; 3]> {
+    let f = sampling.factor as isize;
+    let side = 2 * f as usize + 1;
+    // Per row offset and slot, each lane's offset index (`Sparse::dist` order) or none.
+    let offset = |dyi: usize, s: usize, l: usize| -> usize {
+        let m = (l as isize - sampling.phase[0] as isize).rem_euclid(f);
+        let dx = [-f, -m, f - m][s];
+        if s == 0 && m != 0 {
+            // Masked: any offset will do.
+            dyi * side
+        } else {
+            dyi * side + (dx + f) as usize
+        }
+    };
+    (0..side)
+        .map(|dyi| {
+            std::array::from_fn(|s| {
+                each(|l| {
+                    let o = offset(dyi, s, l);
+                    match p.method {
+                        Method::Spatiotemporal => sparse.dist(o),
+                        Method::Taa => (-TAA_KERNEL * sparse.dist2(o)).exp(),
+                        _ => falloff(sparse.dist(o), p.kernel_wide),
+                    }
+                })
+            })
+        })
+        .collect()
+}
+
+/// `spatiotemporal`'s reprojection of the history `hist` as a band pass of its own, into
+/// `rp` (texels of [`ST`] floats, the tap weight in the depth's place and the weight kept
+/// for a sub-pixel surface in the id's). Returns the pixels with less than half of the
+/// weight.
+fn st_reproject_pass(fr: &Setup, p: &Params, hist: &[f32], clock: &StageClock<3>, rp: &mut [f32]) -> u64 {
+    let (w, h) = (fr.w, fr.h);
+    par_bands_strided([rp], [ST * w], h, |_: &mut (), rows, [band]| {
+        let mut lost = 0;
+        for y in rows.clone() {
+            let o = &mut band[ST * w * (y - rows.start)..ST * w * (y - rows.start + 1)];
+            let valid = Some((DEPTH, ID, p.depth_tolerance, p.neighbour_motion, p.subpixel_keep));
+            lost += clock.time(REPROJECT, || {
+                reproject_row::<ST>(fr, hist, y, valid, |x, t, total, kept| {
+                    let dst: &mut [f32; ST] = (&mut o[ST * x..ST * x + ST]).try_into().expect("a texel");
+                    *dst = t;
+                    // The tap weight takes the depth's place, the weight kept for a
+                    // sub-pixel surface the id's.
+                    dst[DEPTH] = total;
+                    dst[ID] = kept;
+                })
+            });
+        }
+        lost
+    })
+}
+
+/// The blend pass (with `temporal`'s and `taa`'s reprojection, and `spatiotemporal`'s
+/// gradients): what its bands read besides their own buffers.
+struct BlendPass<'a> {
+    fr: &'a Setup<'a>,
+    p: &'a Params,
+    decay: f32,
+    /// The history's texels, when there is one.
+    hist: Option<&'a [f32]>,
+    /// `spatiotemporal`'s reprojected history ([`st_reproject_pass`]).
+    rp: Option<&'a [f32]>,
+    clock: &'a StageClock<3>,
+    /// Floats of a texel of the next history (0: `spatial` keeps none).
+    texels: usize,
+}
+
+impl BlendPass<'_> {
+    /// The pass over the frame's bands into `out` and the next history's plane (`spatial`
+    /// keeps no history).
+    fn run(&self, out: &mut Rgb, next: &mut [Plane<f32>]) -> PixelCounts {
+        let (w, h) = (self.fr.w, self.fr.h);
+        let [o0, o1, o2] = out.each_mut().map(|p| p.data_mut());
+        match next.first_mut() {
+            Some(np) => par_bands_strided(
+                [o0, o1, o2, np.data_mut()],
+                [w, w, w, self.texels * w],
+                h,
+                |band: &mut Band, rows, planes| self.band(band, rows, planes),
+            ),
+            None => par_bands_strided([o0, o1, o2], [w; 3], h, |band: &mut Band, rows, [or, og, ob]| {
+                self.band(band, rows, [or, og, ob, &mut []])
+            }),
+        }
+    }
+
+    /// One band: its sample rows expanded, `spatiotemporal`'s gradients, then row by row
+    /// the method's blend into the output rows and the next history's.
+    #[inline]
+    fn band(&self, band: &mut Band, rows: Range<usize>, [or, og, ob, nx]: [&mut [f32]; 4]) -> PixelCounts {
+        let (fr, p, clock) = (self.fr, self.p, self.clock);
+        let (method, w, texels) = (p.method, fr.w, self.texels);
         let geometry = method != Method::Taa;
-        band.samples.build(&fr, rows.clone(), geometry);
+        band.samples.build(fr, rows.clone(), geometry);
         let mut counts = PixelCounts::default();
         match method {
             Method::Spatiotemporal => {
                 clock.time(GRADIENT, || {
                     gradient_band(
-                        &fr,
-                        rp,
+                        fr,
+                        self.rp,
                         p.gradient_lag == 2,
                         p.subpixel_keep > 0.0,
                         band,
@@ -791,81 +888,69 @@ pub(super) fn frame(
             let out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
             let nx = &mut nx[texels * o.start..texels * o.end];
             counts += match method {
-                Method::Spatial => clock.time(BLEND, || with_geometry!(fr, spatial_row(&fr, band, y, out))),
-                Method::Temporal => {
-                    let hrow = sized(&mut band.hist, TM * w);
-                    let frow = sized(&mut band.frac, w);
-                    let mut c = PixelCounts::default();
-                    if let Some(hist) = hist {
-                        c.history_rejected += clock.time(REPROJECT, || {
-                            reproject_row::<TM>(
-                                &fr,
-                                hist,
-                                y,
-                                Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0, 0.0)),
-                                |x, t, total, _| {
-                                    hrow[TM * x..TM * x + TM].copy_from_slice(&t);
-                                    frow[x] = total;
-                                },
-                            )
-                        });
-                    }
-                    let hrow = hist.map(|_| (&band.hist[..TM * w], &band.frac[..w]));
-                    c += clock.time(BLEND, || {
-                        with_geometry!(fr, temporal_row(&fr, &band.samples, hrow, y, out, nx))
-                    });
-                    c
-                }
-                Method::Taa => {
-                    let hrow = sized(&mut band.hist, TA * w);
-                    let frow = sized(&mut band.frac, w);
-                    let mut c = PixelCounts::default();
-                    if let Some(hist) = hist {
-                        c.history_reset += clock.time(REPROJECT, || {
-                            reproject_row::<TA>(&fr, hist, y, None, |x, t, total, _| {
-                                hrow[TA * x..TA * x + TA].copy_from_slice(&t);
-                                frow[x] = total;
-                            })
-                        });
-                    }
-                    let hrow = hist.map(|_| (&band.hist[..TA * w], &band.frac[..w]));
-                    c += clock.time(BLEND, || taa_row(&fr, p, &band.samples, hrow, y, out, nx));
-                    c
-                }
+                Method::Spatial => clock.time(BLEND, || with_geometry!(fr, spatial_row(fr, band, y, out))),
+                Method::Temporal => self.temporal(band, y, out, nx),
+                Method::Taa => self.taa(band, y, out, nx),
                 Method::Spatiotemporal => clock.time(BLEND, || {
-                    with_geometry!(fr, st_row(&fr, p, decay, band, rp, rows.start, y, out, nx))
+                    with_geometry!(
+                        fr,
+                        st_row(fr, p, self.decay, band, self.rp, rows.start, y, out, nx)
+                    )
                 }),
             };
         }
         counts
-    };
-    let counts: PixelCounts = match next.first_mut() {
-        Some(np) => par_bands_strided(
-            [o0, o1, o2, np.data_mut()],
-            [w, w, w, texels * w],
-            h,
-            |band: &mut Band, rows, planes| run_band(band, rows, planes),
-        ),
-        // `spatial` keeps no history.
-        None => par_bands_strided([o0, o1, o2], [w; 3], h, |band: &mut Band, rows, [or, og, ob]| {
-            run_band(band, rows, [or, og, ob, &mut []])
-        }),
-    };
-    let ms = timed + t.elapsed().as_secs_f64() * 1e3;
-    pixels += counts;
-    let shares = clock.shares();
-    for (k, skip) in [reproject_skip, gradient_skip, None].into_iter().enumerate() {
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
     }
-    scratch.recycle(reprojected);
-    Ok(FrameResult {
-        color: out,
-        pixels,
-        model: None,
-    })
+
+    /// `temporal` for row `y`: the history reprojected into the band's row (the pixels
+    /// with less than half of the valid weight counted as rejected), then the blend.
+    #[inline(always)]
+    fn temporal(&self, band: &mut Band, y: usize, out: [&mut [f32]; 3], nx: &mut [f32]) -> PixelCounts {
+        let (fr, p, clock, w) = (self.fr, self.p, self.clock, self.fr.w);
+        let hrow = sized(&mut band.hist, TM * w);
+        let frow = sized(&mut band.frac, w);
+        let mut c = PixelCounts::default();
+        if let Some(hist) = self.hist {
+            c.history_rejected += clock.time(REPROJECT, || {
+                reproject_row::<TM>(
+                    fr,
+                    hist,
+                    y,
+                    Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0, 0.0)),
+                    |x, t, total, _| {
+                        hrow[TM * x..TM * x + TM].copy_from_slice(&t);
+                        frow[x] = total;
+                    },
+                )
+            });
+        }
+        let hrow = self.hist.map(|_| (&band.hist[..TM * w], &band.frac[..w]));
+        c += clock.time(BLEND, || {
+            with_geometry!(fr, temporal_row(fr, &band.samples, hrow, y, out, nx))
+        });
+        c
+    }
+
+    /// `taa` for row `y`: the history reprojected into the band's row (the pixels with
+    /// less than half of the weight counted as reset), then the splat and blend.
+    #[inline(always)]
+    fn taa(&self, band: &mut Band, y: usize, out: [&mut [f32]; 3], nx: &mut [f32]) -> PixelCounts {
+        let (fr, p, clock, w) = (self.fr, self.p, self.clock, self.fr.w);
+        let hrow = sized(&mut band.hist, TA * w);
+        let frow = sized(&mut band.frac, w);
+        let mut c = PixelCounts::default();
+        if let Some(hist) = self.hist {
+            c.history_reset += clock.time(REPROJECT, || {
+                reproject_row::<TA>(fr, hist, y, None, |x, t, total, _| {
+                    hrow[TA * x..TA * x + TA].copy_from_slice(&t);
+                    frow[x] = total;
+                })
+            });
+        }
+        let hrow = self.hist.map(|_| (&band.hist[..TA * w], &band.frac[..w]));
+        c += clock.time(BLEND, || taa_row(fr, p, &band.samples, hrow, y, out, nx));
+        c
+    }
 }
 
 /// The table entries of a row's slots (zeros for a missing slot).
