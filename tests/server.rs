@@ -113,6 +113,7 @@ const F32: SendOptions = SendOptions {
     sample: pb::SampleType::F32,
     compression: pb::Compression::None,
     reference: true,
+    in_flight: 2,
 };
 
 async fn stream_all(
@@ -160,6 +161,17 @@ async fn grpc_streams_are_bit_identical_to_in_process_filtering() {
             &in_process(filter, &fr),
             "zstd",
         );
+        // One frame at a time, and more frames ahead than the server takes in (it receives
+        // one while it filters another): the same colour.
+        for in_flight in [1, 4] {
+            let s = open(&mut c, filter).await;
+            let opts = SendOptions { in_flight, ..F32 };
+            same(
+                &stream_all(&mut c, &s, &fr, opts).await.unwrap(),
+                &in_process(filter, &fr),
+                &format!("{filter}, {in_flight} in flight"),
+            );
+        }
         // f16 on the wire: the same as filtering f16-rounded frames, rounded to f16.
         let s = open(&mut c, filter).await;
         let opts = SendOptions {
@@ -2914,6 +2926,68 @@ async fn cancelled_window_streams_leave_other_clients_their_latency() {
     assert!(
         loaded < 2.0 * quiet.max(1.0),
         "p99 {loaded:.2} ms against {quiet:.2} ms unloaded"
+    );
+    r.shutdown().await.unwrap();
+}
+
+/// A memory budget with room for a session and one frame in flight but not two: a
+/// pipelined stream (the next frame sent while the last is filtered) is still served, the
+/// second frame waiting for the first's memory, with the colour of in-process filtering.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_budget_for_one_frame_in_flight_serves_a_pipelined_stream() {
+    use afterimage::server::wire::{encode_frame, FramePlan};
+    use afterimage::session::FrameShape;
+    let (w, h) = (320u32, 180u32);
+    let fr: Vec<Frame> = (0..4)
+        .map(|i| afterimage::scene::synthetic_frame(w as usize, h as usize, i))
+        .collect();
+    // What the server reserves: the session's state, and per frame its wire bytes, the
+    // decoded frame and two outputs.
+    let info = afterimage::filters::info("taa").unwrap();
+    let channels = afterimage::frame::ChannelSet::of(&info.uses).with(afterimage::frame::ChannelKind::Color);
+    let shape = FrameShape {
+        width: w,
+        height: h,
+        channels,
+    };
+    let (header, _) = encode_frame(
+        &fr[0],
+        "s",
+        channels,
+        pb::SampleType::F32,
+        pb::Compression::None,
+        1 << 20,
+    );
+    let plan = FramePlan::check(&header, shape, u64::MAX).unwrap();
+    let frame = plan.wire_bytes + plan.decoded_bytes + 2 * shape.output_bytes();
+    let (_, state_bpp) = afterimage::filters::create_sized("taa", &Default::default()).unwrap();
+    let state = state_bpp as u64 * shape.pixels();
+    let budget_mib = (state + frame + frame / 2) >> 20;
+    assert!(
+        (budget_mib << 20) >= state + frame && (budget_mib << 20) < state + 2 * frame,
+        "the budget holds one frame in flight, not two"
+    );
+    let r = server(|c| c.memory_budget_mib = budget_mib).await;
+    let mut c = client(&r).await;
+    let s = c
+        .inner
+        .create_session(pb::CreateSessionRequest {
+            width: w,
+            height: h,
+            ..session_req("taa")
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let opts = SendOptions {
+        reference: false,
+        in_flight: 2,
+        ..F32
+    };
+    same(
+        &stream_all(&mut c, &s, &fr, opts).await.unwrap(),
+        &in_process("taa", &fr),
+        "taa, a budget for one frame in flight",
     );
     r.shutdown().await.unwrap();
 }

@@ -81,6 +81,11 @@ pub struct StreamArgs {
     /// Also run the filter in this process on the same frames and compare the times.
     #[arg(long)]
     compare: bool,
+    /// Frames sent ahead of their replies: 1 sends each frame when the last reply is in
+    /// (the round trip is then a latency); 2 sends the next while the server filters the
+    /// last (the server receives one frame while it filters another), for throughput.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
+    in_flight: u32,
     /// The routing key sent with every call (`x-afterimage-route`), so that a proxy in
     /// front of several replicas sends all of this run's calls to one (default: random).
     #[arg(long, value_name = "KEY")]
@@ -200,7 +205,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     );
     bar.set_message(args.filter.clone());
     let wall = Instant::now();
-    let (replies, recreated) = send_shot(&args, &values, &frames, &bar)?;
+    let (replies, recreated, streaming_s) = send_shot(&args, &values, &frames, &bar)?;
     let wall_s = wall.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(naming) = &naming {
@@ -216,25 +221,33 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         );
     }
     let rtt_ms = print_figures(&args, &frames[0], &replies, wall_s)?;
+    let period_ms = streaming_s * 1e3 / replies.len().max(1) as f64;
+    outln!(
+        "through the server: {period_ms:.2} ms per frame ({:.1} frames/s) with {} in flight, from the first frame sent to the last reply",
+        1e3 / period_ms,
+        args.in_flight
+    );
     if args.compare {
         let local = in_process_ms(&args.filter, &values, &frames)?;
         outln!(
-            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x)",
+            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x",
             rtt_ms - local,
-            rtt_ms / local
+            rtt_ms / local,
+            period_ms / local
         );
     }
     Ok(())
 }
 
 /// Sends `frames` through one session (a new one after each loss, up to `--retries`) and
-/// returns the replies in order, with the sessions that were lost.
+/// returns the replies in order, the sessions that were lost, and the seconds spent
+/// streaming (from each session's first frame sent to its last reply).
 fn send_shot(
     args: &StreamArgs,
     values: &serde_json::Map<String, serde_json::Value>,
     frames: &[Frame],
     bar: &ProgressBar,
-) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>)> {
+) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>, f64)> {
     let (w, h) = (frames[0].width() as u32, frames[0].height() as u32);
     let params = params_from_json(values);
     let opts = SendOptions {
@@ -249,6 +262,7 @@ fn send_shot(
             pb::Compression::None
         },
         reference: args.reference,
+        in_flight: args.in_flight as usize,
     };
     let route = match &args.route {
         Some(r) => r.clone(),
@@ -256,6 +270,7 @@ fn send_shot(
     };
     let mut replies = Vec::new();
     let mut recreated: Vec<Recreated> = Vec::new();
+    let mut streaming_s = 0.0;
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build()?;
     rt.block_on(async {
         let connect = ConnectOptions {
@@ -290,12 +305,14 @@ fn send_shot(
             // Frames are answered in order: the first without a reply is where this
             // session starts.
             let start = replies.len();
+            let t = Instant::now();
             let sent = client
                 .stream(&session, frames[start..].iter().cloned(), opts, |r| {
                     bar.inc(1);
                     replies.push(r);
                 })
                 .await;
+            streaming_s += t.elapsed().as_secs_f64();
             match sent {
                 Ok(()) => {
                     client
@@ -327,7 +344,7 @@ fn send_shot(
         }
         anyhow::Ok(())
     })?;
-    Ok((replies, recreated))
+    Ok((replies, recreated, streaming_s))
 }
 
 /// Writes each reply's colour into a copy of its input file (`--output`).

@@ -5,8 +5,9 @@ use super::proto::{self as pb, filtered_chunk, frame_chunk};
 use super::wire;
 use crate::frame::{ChannelSet, Frame, Rgb};
 use std::collections::VecDeque;
+use std::sync::Mutex;
 use std::time::Instant;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, Semaphore};
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::StreamExt;
 use tonic::metadata::{Ascii, MetadataValue};
@@ -94,6 +95,11 @@ pub struct SendOptions {
     pub compression: pb::Compression,
     /// Send the frame's reference channel when it has one (the reply then has PSNR/SSIM).
     pub reference: bool,
+    /// Frames sent ahead of their replies (beyond a windowed filter's lookahead): 1 sends
+    /// the next frame when the last reply is in (`round_trip_ms` is then a latency); 2 sends
+    /// it while the server filters the last, which is what the server overlaps (it
+    /// receives one frame while it filters another). At least 1.
+    pub in_flight: usize,
 }
 
 impl Client {
@@ -154,9 +160,10 @@ impl Client {
         Ok(Client { inner })
     }
 
-    /// Streams `frames` to session `session` one at a time (the next frame is sent when the
-    /// previous reply is in, so `round_trip_ms` is a per-frame latency) and calls `on_reply`
-    /// with each reply in order. With a windowed filter (`session.lookahead` = L > 0) the
+    /// Streams `frames` to session `session`, [`SendOptions::in_flight`] at a time (with 1,
+    /// the next frame is sent when the previous reply is in, so `round_trip_ms` is a
+    /// per-frame latency; with 2 it also counts the wait behind the frame before), and calls
+    /// `on_reply` with each reply in order. With a windowed filter (`session.lookahead` = L > 0) the
     /// reply to frame t comes after frame t + L is sent: the client keeps L frames in
     /// flight, closes its side after the last frame and reads the rest (`round_trip_ms`
     /// then counts from the frame's own sending, so it includes the L frames' wait).
@@ -179,74 +186,79 @@ impl Client {
         let (tx, rx) = mpsc::channel::<pb::FrameChunk>(4);
         let mut replies = self.inner.stream(ReceiverStream::new(rx)).await?.into_inner();
         // Frames sent whose reply has not come: when, and how many bytes.
-        let mut in_flight: VecDeque<(Instant, u64)> = VecDeque::new();
-        for frame in frames {
-            // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
-            let send = if opts.reference && frame.reference().is_some() {
-                channels.with(crate::frame::ChannelKind::Reference)
-            } else {
-                channels
-            };
-            let (header, chunks) = wire::encode_frame(
-                &frame,
-                &session.id,
-                send,
-                opts.sample,
-                opts.compression,
-                max_chunk,
-            );
-            let sent: u64 = chunks.iter().map(|c| c.data.len() as u64).sum();
-            in_flight.push_back((Instant::now(), sent));
-            let parts = std::iter::once(frame_chunk::Part::Header(header))
-                .chain(chunks.into_iter().map(frame_chunk::Part::Data));
-            for part in parts {
-                if tx.send(pb::FrameChunk { part: Some(part) }).await.is_err() {
-                    // The server ended the stream: its status says why.
-                    return Err(ended(&mut replies).await);
+        let in_flight: Mutex<VecDeque<(Instant, u64)>> = Mutex::new(VecDeque::new());
+        // A permit per frame that may be in flight; each reply gives one back.
+        let permits = Semaphore::new(lookahead + opts.in_flight.max(1));
+        // Frames go out while replies come in: a server that answers frame t while it
+        // receives frame t + 1 never waits on a client busy sending.
+        let send = async {
+            for frame in frames {
+                match permits.acquire().await {
+                    Ok(p) => p.forget(),
+                    Err(_) => return,
+                }
+                // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
+                let send = if opts.reference && frame.reference().is_some() {
+                    channels.with(crate::frame::ChannelKind::Reference)
+                } else {
+                    channels
+                };
+                let (header, chunks) = wire::encode_frame(
+                    &frame,
+                    &session.id,
+                    send,
+                    opts.sample,
+                    opts.compression,
+                    max_chunk,
+                );
+                let sent: u64 = chunks.iter().map(|c| c.data.len() as u64).sum();
+                lock(&in_flight).push_back((Instant::now(), sent));
+                let parts = std::iter::once(frame_chunk::Part::Header(header))
+                    .chain(chunks.into_iter().map(frame_chunk::Part::Data));
+                for part in parts {
+                    if tx.send(pb::FrameChunk { part: Some(part) }).await.is_err() {
+                        // The server ended the stream: the replies' status says why.
+                        return;
+                    }
                 }
             }
-            if in_flight.len() > lookahead {
-                let reply = read_reply(&mut replies, &mut in_flight).await?;
-                on_reply(reply.ok_or_else(|| Status::unavailable("the server ended the stream"))?);
+            // Closing our side makes a windowed filter give its last frames.
+            drop(tx);
+        };
+        let receive = async {
+            while let Some(reply) = read_reply(&mut replies, &in_flight).await? {
+                permits.add_permits(1);
+                on_reply(reply);
+            }
+            let unanswered = lock(&in_flight).len();
+            if unanswered > 0 {
+                return Err(Status::unavailable(format!(
+                    "the server ended the stream with {unanswered} frames unanswered"
+                )));
+            }
+            Ok(())
+        };
+        tokio::pin!(send, receive);
+        let mut sending = true;
+        loop {
+            tokio::select! {
+                () = &mut send, if sending => sending = false,
+                r = &mut receive => return r,
             }
         }
-        // Closing our side makes a windowed filter give its last frames.
-        drop(tx);
-        while !in_flight.is_empty() {
-            match read_reply(&mut replies, &mut in_flight).await? {
-                Some(reply) => on_reply(reply),
-                None => {
-                    return Err(Status::unavailable(format!(
-                        "the server ended the stream with {} frames unanswered",
-                        in_flight.len()
-                    )))
-                }
-            }
-        }
-        // Read to the end of the stream: its status, and the server has let go of the
-        // session by then (a new stream on it may start at once).
-        while let Some(m) = replies.next().await {
-            m?;
-        }
-        Ok(())
     }
 }
 
-/// Why the server ended a stream: the first error status among the replies left.
-async fn ended(replies: &mut tonic::Streaming<pb::FilteredChunk>) -> Status {
-    while let Some(m) = replies.next().await {
-        if let Err(s) = m {
-            return s;
-        }
-    }
-    Status::unavailable("the server closed the stream")
+/// The queue of frames in flight (never held across an await).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 /// Reads one reply (header, then the colour's chunks), matched to the oldest frame in
 /// flight; None when the stream ended cleanly.
 async fn read_reply(
     replies: &mut tonic::Streaming<pb::FilteredChunk>,
-    in_flight: &mut VecDeque<(Instant, u64)>,
+    in_flight: &Mutex<VecDeque<(Instant, u64)>>,
 ) -> Result<Option<Reply>, Status> {
     let head = match replies.next().await {
         Some(Ok(pb::FilteredChunk {
@@ -272,7 +284,7 @@ async fn read_reply(
     }
     let color = wire::decode_color(&color_h, &bytes, head.width, head.height)
         .map_err(|e| Status::internal(e.to_string()))?;
-    let (t, sent) = in_flight
+    let (t, sent) = lock(in_flight)
         .pop_front()
         .ok_or_else(|| Status::internal("a reply to no frame sent"))?;
     Ok(Some(Reply {

@@ -16,6 +16,7 @@ use crate::session::{
     clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Reservation, SessionError, SessionInfo,
     SessionRequest, StreamClaim,
 };
+use std::future::Future;
 use std::pin::Pin;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -294,28 +295,63 @@ fn replies_of<R>(
         .collect()
 }
 
-/// Decodes, filters and answers one complete frame on the pool.
-async fn filter_frame(
+/// The replies to one frame (or a flush), in order, or why the stream stops.
+type Replies = Result<Vec<Vec<pb::FilteredChunk>>, SessionError>;
+
+/// The stream's replies as tonic sends them.
+type ReplyTx = mpsc::Sender<Result<pb::FilteredChunk, Status>>;
+
+/// A frame's filtering and the sending of its replies, in progress: true when the stream
+/// goes on. Dropping it before it ends cancels the job (see [`Service::on_pool_as`]).
+type Filtering = Pin<Box<dyn Future<Output = bool> + Send>>;
+
+/// Decodes, filters and answers one complete frame on the pool, then sends its replies.
+/// The future owns what it needs, so the stream goes on receiving the next frame while it
+/// runs, and while the replies go out (a client sends its next frame before it reads them).
+fn filter_job(
     svc: &Service,
     caller: &Caller,
     claim: &StreamClaim,
     frame: Receiving,
-    max_chunk: usize,
-) -> Result<Vec<Vec<pb::FilteredChunk>>, SessionError> {
-    let co = svc.count(claim.checkout())?;
+    tx: &ReplyTx,
+) -> Filtering {
+    let max_chunk = svc.config.max_chunk_bytes;
+    let co = svc.count(claim.checkout());
     let shape = claim.shape();
-    let req = frame.assembly.header.clone();
-    let job = svc.clone();
-    svc.on_pool_as(svc.share(caller, claim.id(), shape), move |_| {
-        let t = Instant::now();
-        let mut co = co;
-        let decoded = wire::decode(&frame.assembly, shape)?;
-        drop(frame);
-        let outs = co.process(decoded, MotionInput::Session)?;
-        let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-        Ok(replies_of(&job, &mut co, outs, t, finish))
+    let share = svc.share(caller, claim.id(), shape);
+    let (svc, tx) = (svc.clone(), tx.clone());
+    Box::pin(async move {
+        let replies: Replies = match co {
+            Err(e) => Err(e),
+            Ok(co) => {
+                let req = frame.assembly.header.clone();
+                let job = svc.clone();
+                svc.on_pool_as(share, move |_| {
+                    let t = Instant::now();
+                    let mut co = co;
+                    let decoded = wire::decode(&frame.assembly, shape)?;
+                    drop(frame);
+                    let outs = co.process(decoded, MotionInput::Session)?;
+                    let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
+                    Ok(replies_of(&job, &mut co, outs, t, finish))
+                })
+                .await
+            }
+        };
+        send_replies(&tx, replies).await
     })
-    .await
+}
+
+/// Runs `job` to its end unless the client goes away first (then the window's outputs are
+/// dropped, see [`abandon`]); true when the stream goes on.
+async fn settle(svc: &Service, claim: Option<&StreamClaim>, job: Filtering, tx: &ReplyTx) -> bool {
+    tokio::select! {
+        ok = job => ok,
+        _ = tx.closed() => {
+            abandon(svc, claim);
+            false
+        }
+    }
 }
 
 /// The outputs a windowed filter still holds when its stream ends, as replies encoded
@@ -359,19 +395,42 @@ async fn handle_stream(
         tracing::debug!(error = %e, "stream refused");
         Err(status(&e))
     };
+    // Two frames in flight at most: one filtering while the next is received (and held,
+    // complete, until the filter is free); both hold their memory reservations.
+    let mut filtering: Option<Filtering> = None;
+    let mut ready: Option<Receiving> = None;
     loop {
-        let next =
-            match next_message(&mut inbound, current.as_ref(), frame_timeout, idle, &mut draining).await {
-                Wait::Message(m) => m,
-                Wait::Draining => {
-                    let _ = tx.send(Err(status(&SessionError::ShuttingDown))).await;
+        // Only a stream with nothing in flight is idle, or may be ended by a drain.
+        let quiet = filtering.is_none() && ready.is_none();
+        let wait = tokio::select! {
+            ok = async { filtering.as_mut().expect("checked").await }, if filtering.is_some() => {
+                filtering = None;
+                if !ok {
                     return;
                 }
-                Wait::Refuse(e) => {
-                    let _ = tx.send(fail(e)).await;
-                    return;
+                if let Some(frame) = ready.take() {
+                    let claimed = claim.as_ref().expect("claimed with the header");
+                    filtering = Some(filter_job(&svc, &caller, claimed, frame, &tx));
                 }
-            };
+                continue;
+            }
+            _ = tx.closed(), if !quiet => {
+                abandon(&svc, claim.as_ref());
+                return;
+            }
+            w = next_message(&mut inbound, current.as_ref(), frame_timeout, idle, &mut draining, quiet), if ready.is_none() => w,
+        };
+        let next = match wait {
+            Wait::Message(m) => m,
+            Wait::Draining => {
+                let _ = tx.send(Err(status(&SessionError::ShuttingDown))).await;
+                return;
+            }
+            Wait::Refuse(e) => {
+                let _ = tx.send(fail(e)).await;
+                return;
+            }
+        };
         let chunk = match next {
             None => break,
             Some(Ok(c)) => c,
@@ -390,28 +449,37 @@ async fn handle_stream(
             Some(Err(s)) => {
                 // Cancelled or reset: nobody takes the window's outputs, so they go now.
                 tracing::debug!(status = %s, "client stream ended with an error");
+                drop(filtering.take());
                 abandon(&svc, claim.as_ref());
                 return;
             }
         };
-        let step = take_chunk(&svc, &caller, &mut claim, &mut current, chunk, max_chunk);
+        let header = match (&chunk.part, &filtering) {
+            (Some(frame_chunk::Part::Header(_)), Some(_)) => Some(chunk.clone()),
+            _ => None,
+        };
+        let mut step = take_chunk(&svc, &caller, &mut claim, &mut current, chunk, max_chunk);
+        if let (Err(SessionError::Exhausted(_)), Some(header)) = (&step, header) {
+            // No memory for a second frame in flight: the one filtering finishes (and
+            // gives its memory back) before this one is received.
+            let job = filtering.take().expect("checked");
+            if !settle(&svc, claim.as_ref(), job, &tx).await {
+                return;
+            }
+            step = take_chunk(&svc, &caller, &mut claim, &mut current, header, max_chunk);
+        }
         if let Err(e) = step {
             let _ = tx.send(fail(e)).await;
             return;
         }
         if current.as_ref().is_some_and(|r| r.assembly.complete()) {
             let frame = current.take().expect("checked");
-            let claimed = claim.as_ref().expect("claimed with the header");
             last_header = Some(frame.assembly.header.clone());
-            let replies = tokio::select! {
-                r = filter_frame(&svc, &caller, claimed, frame, max_chunk) => r,
-                _ = tx.closed() => {
-                    abandon(&svc, claim.as_ref());
-                    return;
-                }
-            };
-            if !send_replies(&tx, replies).await {
-                return;
+            if filtering.is_some() {
+                ready = Some(frame);
+            } else {
+                let claimed = claim.as_ref().expect("claimed with the header");
+                filtering = Some(filter_job(&svc, &caller, claimed, frame, &tx));
             }
         }
     }
@@ -427,16 +495,40 @@ async fn handle_stream(
         let _ = tx.send(fail(e)).await;
         return;
     }
-    // The client closed its side: a windowed filter's last frames come out now.
-    if let (Some(claimed), Some(req)) = (&claim, last_header) {
+    finish_stream(&svc, &caller, claim.as_ref(), filtering, ready, last_header, &tx).await;
+}
+
+/// The end of a stream the client closed cleanly: the frames in flight are answered in
+/// order, then a windowed filter's last frames come out.
+async fn finish_stream(
+    svc: &Service,
+    caller: &Caller,
+    claim: Option<&StreamClaim>,
+    mut filtering: Option<Filtering>,
+    mut ready: Option<Receiving>,
+    last_header: Option<pb::FrameHeader>,
+    tx: &ReplyTx,
+) {
+    let max_chunk = svc.config.max_chunk_bytes;
+    while let Some(job) = filtering.take() {
+        if !settle(svc, claim, job, tx).await {
+            return;
+        }
+        if let Some(frame) = ready.take() {
+            let claimed = claim.expect("claimed with the header");
+            filtering = Some(filter_job(svc, caller, claimed, frame, tx));
+        }
+    }
+    // A windowed filter's last frames.
+    if let (Some(claimed), Some(req)) = (claim, last_header) {
         // A client that resets the call now (it left) stops the flush between frames.
         tokio::select! {
-            r = flush_stream(&svc, &caller, claimed, req, max_chunk) => {
-                send_replies(&tx, r).await;
+            r = flush_stream(svc, caller, claimed, req, max_chunk) => {
+                send_replies(tx, r).await;
             }
             // A reset that arrives as the end of the request stream: what the flush had
             // not given yet waits for nobody either.
-            _ = tx.closed() => abandon(&svc, claim.as_ref()),
+            _ = tx.closed() => abandon(svc, claim),
         }
     }
 }
@@ -453,14 +545,15 @@ enum Wait {
 }
 
 /// Waits for the stream's next message: within the request timeout while a frame is half
-/// received (however it is chunked), else within the idle timeout or until the server
-/// drains.
+/// received (however it is chunked); between frames of a `quiet` stream (nothing in
+/// flight) within the idle timeout or until the server drains.
 async fn next_message(
     inbound: &mut Streaming<pb::FrameChunk>,
     current: Option<&Receiving>,
     frame_timeout: Duration,
     idle: Duration,
     draining: &mut watch::Receiver<bool>,
+    quiet: bool,
 ) -> Wait {
     match current {
         Some(r) => match tokio::time::timeout_at((r.started + frame_timeout).into(), inbound.next()).await {
@@ -475,6 +568,7 @@ async fn next_message(
                 ),
             )),
         },
+        None if !quiet => Wait::Message(inbound.next().await),
         None => tokio::select! {
             m = inbound.next() => Wait::Message(m),
             _ = until_true(draining) => Wait::Draining,
