@@ -391,7 +391,7 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
             "missing colour",
             {
                 let depth = afterimage::server::wire::encode_planes(
-                    fr[0].planes(Depth).unwrap(),
+                    &[fr[0].planes(Depth).unwrap()[0].data()],
                     pb::SampleType::F32,
                     pb::Compression::None,
                 );
@@ -2989,5 +2989,64 @@ async fn a_budget_for_one_frame_in_flight_serves_a_pipelined_stream() {
         &in_process("taa", &fr),
         "taa, a budget for one frame in flight",
     );
+    r.shutdown().await.unwrap();
+}
+
+/// A renderer's own client: `afterimage-client` alone (named planes in, planes out, no
+/// frame types of ours) streams a session and gets the colour of in-process filtering,
+/// two frames in flight.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_client_crate_streams_named_planes() {
+    use afterimage::frame::ChannelKind;
+    use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
+    let r = server(|_| {}).await;
+    let mut inner =
+        afterimage_client::connect::connect(format!("http://{}", r.grpc_addr), &Default::default())
+            .await
+            .unwrap();
+    let s = inner
+        .create_session(session_req("taa"))
+        .await
+        .unwrap()
+        .into_inner();
+    let fr = frames("moving-sphere", 5, 1);
+    let how = Encoding {
+        sample: pb::SampleType::F32,
+        compression: pb::Compression::None,
+        max_chunk: s.max_chunk_bytes as usize,
+    };
+    let encoded: Vec<_> = fr
+        .iter()
+        .map(|f| {
+            let kinds = [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion];
+            let planes: Vec<Vec<&[f32]>> = kinds
+                .iter()
+                .map(|&k| f.planes(k).unwrap().iter().map(|p| p.data()).collect())
+                .collect();
+            let data = FrameData {
+                index: f.meta.index,
+                reset: f.meta.reset,
+                jitter: f.meta.jitter,
+                channels: kinds
+                    .iter()
+                    .zip(&planes)
+                    .map(|(k, p)| Channel {
+                        name: k.name(),
+                        planes: p,
+                    })
+                    .collect(),
+                ..Default::default()
+            };
+            encode(&data, &s.id, how)
+        })
+        .collect();
+    let mut got = Vec::new();
+    afterimage_client::stream::stream(&mut inner, &s, encoded, 2, |reply| {
+        assert_eq!((reply.width, reply.height), (64, 36));
+        got.push(reply.color.map(|d| Plane::from_vec(64, 36, d).unwrap()));
+    })
+    .await
+    .unwrap();
+    same(&got, &in_process("taa", &fr), "afterimage-client, named planes");
     r.shutdown().await.unwrap();
 }

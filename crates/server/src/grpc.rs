@@ -117,7 +117,7 @@ pub fn reply(
     };
     let compression = pb::Compression::try_from(req.reply_compression).unwrap_or(pb::Compression::None);
     let (w, h) = f.color[0].size();
-    let bytes = wire::encode_planes(&f.color, sample, compression);
+    let bytes = wire::encode_planes(&f.color.each_ref().map(|p| p.data()), sample, compression);
     let r = &f.record;
     let report = pb::FrameReport {
         index: f.index,

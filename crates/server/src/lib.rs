@@ -28,13 +28,6 @@ pub mod wire;
 
 pub use config::Config;
 
-/// The routing key of a session: an HTTP header and gRPC metadata entry a client sends,
-/// with the same value, on every request of a session (create, frames, get, close). With
-/// several replicas behind one address, a proxy hashes on it (nginx `hash
-/// $http_x_afterimage_route consistent`, Envoy Gateway's consistent hash on a header) so a
-/// session's requests all reach the replica that holds its state. The server itself does
-/// not read it; a request that reaches another replica gets "no session" naming that
-/// replica (see `deploy/README.md`).
-pub const ROUTE_HEADER: &str = "x-afterimage-route";
+pub use afterimage_client::connect::ROUTE_HEADER;
 pub use run::{serve, shutdown_signal, start, Running, ServeError};
 pub use service::Service;

@@ -6,28 +6,19 @@
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
 use crate::session::{clip, FrameShape, SessionError};
+pub use afterimage_client::codec::chunks;
+use afterimage_client::codec::{get_samples, sample_bytes};
+use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
+pub use afterimage_client::frame::{encode_ids, encode_planes};
 use std::borrow::Cow;
 
 /// Default largest chunk: 1 MiB.
 pub const DEFAULT_MAX_CHUNK_BYTES: usize = 1 << 20;
 
-/// HTTP/2 flow-control window per stream. h2's default (64 KiB) makes a 1 MiB chunk wait
-/// for 16 window updates; a few chunks' worth keeps the pipe full on any link.
-pub const STREAM_WINDOW_BYTES: u32 = 4 << 20;
-/// HTTP/2 flow-control window per connection (several streams share it). It is also the
-/// most a gRPC client can make the server buffer outside the memory budget (data sent but
-/// not read yet while a frame is filtered); 8 MiB keeps loopback at 1.4 GB/s.
-pub const CONNECTION_WINDOW_BYTES: u32 = 8 << 20;
+pub use afterimage_client::connect::{CONNECTION_WINDOW_BYTES, STREAM_WINDOW_BYTES};
 
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> SessionError {
     SessionError::invalid(field, message)
-}
-
-fn sample_bytes(s: SampleType) -> usize {
-    match s {
-        SampleType::F16 => 2,
-        SampleType::F32 | SampleType::U32 => 4,
-    }
 }
 
 /// What a frame header announces, checked against the session before a byte of data is
@@ -249,59 +240,6 @@ impl Assembly {
     }
 }
 
-/// Samples per parallel block of the sample conversions: large enough that rayon's
-/// overhead is nil, small enough that a 720p plane splits over every core.
-const BLOCK: usize = 1 << 16;
-
-/// Writes `src` as little-endian f32 or f16 samples into `dst` (exactly as long).
-fn put_samples(src: &[f32], sample: SampleType, dst: &mut [u8]) {
-    use half::slice::HalfFloatSliceExt;
-    use rayon::prelude::*;
-    let width = sample_bytes(sample);
-    debug_assert_eq!(dst.len(), src.len() * width);
-    dst.par_chunks_mut(BLOCK * width)
-        .zip(src.par_chunks(BLOCK))
-        .for_each(|(d, s)| match sample {
-            SampleType::F16 => {
-                let mut h = vec![half::f16::ZERO; s.len()];
-                h.convert_from_f32_slice(s);
-                for (o, v) in d.chunks_exact_mut(2).zip(&h) {
-                    o.copy_from_slice(&v.to_le_bytes());
-                }
-            }
-            _ => {
-                for (o, v) in d.chunks_exact_mut(4).zip(s) {
-                    o.copy_from_slice(&v.to_le_bytes());
-                }
-            }
-        });
-}
-
-/// Reads little-endian f32 or f16 samples from `src` into `dst` (lengths checked by the
-/// caller).
-fn get_samples(src: &[u8], sample: SampleType, dst: &mut [f32]) {
-    use half::slice::HalfFloatSliceExt;
-    use rayon::prelude::*;
-    let width = sample_bytes(sample);
-    debug_assert_eq!(src.len(), dst.len() * width);
-    dst.par_chunks_mut(BLOCK)
-        .zip(src.par_chunks(BLOCK * width))
-        .for_each(|(d, s)| match sample {
-            SampleType::F16 => {
-                let h: Vec<half::f16> = s
-                    .chunks_exact(2)
-                    .map(|b| half::f16::from_le_bytes([b[0], b[1]]))
-                    .collect();
-                h.convert_to_f32_slice(d);
-            }
-            _ => {
-                for (o, b) in d.iter_mut().zip(s.chunks_exact(4)) {
-                    *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                }
-            }
-        });
-}
-
 /// Decodes `planes` planes of `w x h` float samples of channel `name`.
 fn decode_planes(
     name: &str,
@@ -356,18 +294,9 @@ fn decompress<'a>(
 ) -> Result<Cow<'a, [u8]>, SessionError> {
     match Compression::try_from(ch.compression) {
         Ok(Compression::None) => Ok(Cow::Borrowed(bytes)),
-        Ok(Compression::Zstd) => {
-            use std::io::Read;
-            let mut dec = ruzstd::decoding::StreamingDecoder::new(bytes)
-                .map_err(|e| invalid(format!("channels[{name}]"), format!("not a zstd frame: {e}")))?;
-            let mut out = Vec::new();
-            // Read at most one byte past the limit, so a bomb is refused without inflating.
-            (&mut dec)
-                .take(limit as u64 + 1)
-                .read_to_end(&mut out)
-                .map_err(|e| invalid(format!("channels[{name}]"), format!("corrupt zstd data: {e}")))?;
-            Ok(Cow::Owned(out))
-        }
+        Ok(Compression::Zstd) => afterimage_client::codec::decompress(bytes, Compression::Zstd, limit)
+            .map(Cow::Owned)
+            .map_err(|e| invalid(format!("channels[{name}]"), e.to_string())),
         Err(_) => Err(invalid(
             format!("channels[{name}].compression"),
             format!("unknown compression {}", ch.compression),
@@ -473,36 +402,9 @@ pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
     Ok(frame)
 }
 
-fn compress(raw: Vec<u8>, compression: Compression) -> Vec<u8> {
-    match compression {
-        Compression::None => raw,
-        Compression::Zstd => {
-            ruzstd::encoding::compress_to_vec(raw.as_slice(), ruzstd::encoding::CompressionLevel::Fastest)
-        }
-    }
-}
-
-/// Encodes planes as one channel's wire bytes.
-pub fn encode_planes(planes: &[Plane<f32>], sample: SampleType, compression: Compression) -> Vec<u8> {
-    let n: usize = planes.iter().map(|p| p.data().len()).sum();
-    let mut raw = vec![0u8; n * sample_bytes(sample)];
-    let mut at = 0;
-    for p in planes {
-        let len = p.data().len() * sample_bytes(sample);
-        put_samples(p.data(), sample, &mut raw[at..at + len]);
-        at += len;
-    }
-    compress(raw, compression)
-}
-
-/// Encodes object ids as wire bytes.
-pub fn encode_ids(ids: &Plane<u32>, compression: Compression) -> Vec<u8> {
-    let raw: Vec<u8> = ids.data().iter().flat_map(|v| v.to_le_bytes()).collect();
-    compress(raw, compression)
-}
-
 /// A frame as a header plus data chunks of at most `max_chunk` bytes, sending the
-/// channels in `channels` that the frame has (for clients and tests).
+/// channels in `channels` that the frame has (for clients and tests), through
+/// [`afterimage_client::frame::encode`].
 pub fn encode_frame(
     frame: &Frame,
     session_id: &str,
@@ -511,58 +413,47 @@ pub fn encode_frame(
     compression: Compression,
     max_chunk: usize,
 ) -> (FrameHeader, Vec<DataChunk>) {
-    let mut headers = Vec::new();
-    let mut bytes = Vec::new();
-    for kind in channels
+    let kinds: Vec<ChannelKind> = channels
         .with(ChannelKind::Color)
         .iter()
-        .filter(|&k| frame.channels().contains(k))
-    {
-        let (data, s) = if kind == ChannelKind::ObjectId {
-            (
-                encode_ids(frame.object_id().expect("listed"), compression),
-                SampleType::U32,
-            )
-        } else {
-            (
-                encode_planes(frame.planes(kind).expect("listed"), sample, compression),
-                sample,
-            )
-        };
-        headers.push(ChannelHeader {
-            name: kind.name().to_string(),
-            sample: s as i32,
-            compression: compression as i32,
-            byte_length: data.len() as u64,
-        });
-        bytes.extend_from_slice(&data);
-    }
-    let header = FrameHeader {
-        session_id: session_id.to_string(),
+        .filter(|&k| frame.channels().contains(k) && k != ChannelKind::ObjectId)
+        .collect();
+    let slices: Vec<Vec<&[f32]>> = kinds
+        .iter()
+        .map(|&k| {
+            frame
+                .planes(k)
+                .expect("listed")
+                .iter()
+                .map(|p| p.data())
+                .collect()
+        })
+        .collect();
+    let data = FrameData {
         index: frame.meta.index,
         reset: frame.meta.reset,
-        jitter_x: frame.meta.jitter[0],
-        jitter_y: frame.meta.jitter[1],
-        channels: headers,
-        reply_sample: sample as i32,
-        reply_compression: compression as i32,
-        shading_factor: frame.sampling().factor,
-        shading_phase_x: frame.sampling().phase[0],
-        shading_phase_y: frame.sampling().phase[1],
+        jitter: frame.meta.jitter,
+        channels: kinds
+            .iter()
+            .zip(&slices)
+            .map(|(k, planes)| Channel {
+                name: k.name(),
+                planes,
+            })
+            .collect(),
+        object_id: channels
+            .contains(ChannelKind::ObjectId)
+            .then(|| frame.object_id().map(|p| p.data()))
+            .flatten(),
+        shading: Some((frame.sampling().factor, frame.sampling().phase)),
     };
-    (header, chunks(bytes, max_chunk))
-}
-
-/// Splits bytes into chunks of at most `max_chunk` (views of one buffer, not copies).
-pub fn chunks(bytes: Vec<u8>, max_chunk: usize) -> Vec<DataChunk> {
-    let bytes = bytes::Bytes::from(bytes);
-    let step = max_chunk.max(1);
-    (0..bytes.len())
-        .step_by(step)
-        .map(|at| DataChunk {
-            data: bytes.slice(at..(at + step).min(bytes.len())),
-        })
-        .collect()
+    let how = Encoding {
+        sample,
+        compression,
+        max_chunk,
+    };
+    let e = encode(&data, session_id, how);
+    (e.header, e.chunks)
 }
 
 /// Decodes a reply's colour bytes into planes.
@@ -578,6 +469,7 @@ pub fn decode_color(ch: &ChannelHeader, bytes: &[u8], width: u32, height: u32) -
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+    use afterimage_client::codec::{put_samples, BLOCK};
 
     /// Values that stress the conversions: signed zeros, subnormals of both formats, the
     /// f16 overflow edge, infinities and NaN, plus random HDR values.

@@ -1,0 +1,169 @@
+//! A frame as a renderer holds it (named channels of planar samples), encoded for the
+//! wire, and a reply's colour decoded.
+
+use crate::codec::{chunks, compress, decompress, get_samples, put_samples, sample_bytes};
+use crate::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
+
+/// One channel of a frame: its protocol name (`color`, `depth`, `motion`, `normal`,
+/// `albedo`, `motion_next`, `reference`, ...; `docs/server.md` lists them) and its
+/// components as planes of `width x height` samples, row-major (colour: r, g, b).
+#[derive(Clone, Copy, Debug)]
+pub struct Channel<'a> {
+    /// The protocol's channel name.
+    pub name: &'a str,
+    /// One plane per component.
+    pub planes: &'a [&'a [f32]],
+}
+
+/// A frame to send: its channels (colour first or anywhere; at least colour), object ids
+/// when the filter uses them, and what the renderer knows of it.
+#[derive(Clone, Debug, Default)]
+pub struct FrameData<'a> {
+    /// The frame's number.
+    pub index: u64,
+    /// A camera cut: no history survives into this frame.
+    pub reset: bool,
+    /// The sub-pixel offset of this frame's samples from the pixel centres, in pixels.
+    pub jitter: [f32; 2],
+    /// The float channels.
+    pub channels: Vec<Channel<'a>>,
+    /// Object ids, one per pixel.
+    pub object_id: Option<&'a [u32]>,
+    /// Sparse shading: the colour is one sample per `factor x factor` block, taken at
+    /// `phase` (0 or 1: every pixel).
+    pub shading: Option<(u32, [u32; 2])>,
+}
+
+/// How a frame's samples travel, and the reply's.
+#[derive(Clone, Copy, Debug)]
+pub struct Encoding {
+    /// f32, or f16 (half the bytes, 11 significant bits).
+    pub sample: SampleType,
+    /// None, or zstd (for links slower than about 60 MB/s).
+    pub compression: Compression,
+    /// Largest data chunk (the session's `max_chunk_bytes`).
+    pub max_chunk: usize,
+}
+
+/// A frame encoded for the wire: the header, then its data in chunks.
+#[derive(Clone, Debug)]
+pub struct Encoded {
+    /// What the server checks before it takes a byte of data.
+    pub header: FrameHeader,
+    /// The channels' bytes, in header order, in chunks.
+    pub chunks: Vec<DataChunk>,
+}
+
+impl Encoded {
+    /// Bytes of data (the header not counted).
+    pub fn data_bytes(&self) -> u64 {
+        self.chunks.iter().map(|c| c.data.len() as u64).sum()
+    }
+}
+
+/// Encodes one channel's planes as its wire bytes.
+pub fn encode_planes(planes: &[&[f32]], sample: SampleType, compression: Compression) -> Vec<u8> {
+    let n: usize = planes.iter().map(|p| p.len()).sum();
+    let mut raw = vec![0u8; n * sample_bytes(sample)];
+    let mut at = 0;
+    for p in planes {
+        let len = p.len() * sample_bytes(sample);
+        put_samples(p, sample, &mut raw[at..at + len]);
+        at += len;
+    }
+    compress(raw, compression)
+}
+
+/// Encodes object ids as wire bytes.
+pub fn encode_ids(ids: &[u32], compression: Compression) -> Vec<u8> {
+    let raw: Vec<u8> = ids.iter().flat_map(|v| v.to_le_bytes()).collect();
+    compress(raw, compression)
+}
+
+/// `frame` for session `session_id`: a header, and its channels in that order (object ids
+/// last) in chunks of at most `how.max_chunk` bytes. The reply comes in the same sample
+/// type and compression.
+pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded {
+    let mut headers = Vec::new();
+    let mut bytes = Vec::new();
+    let mut put = |name: &str, sample: SampleType, data: Vec<u8>| {
+        headers.push(ChannelHeader {
+            name: name.to_string(),
+            sample: sample as i32,
+            compression: how.compression as i32,
+            byte_length: data.len() as u64,
+        });
+        bytes.extend_from_slice(&data);
+    };
+    for ch in &frame.channels {
+        put(
+            ch.name,
+            how.sample,
+            encode_planes(ch.planes, how.sample, how.compression),
+        );
+    }
+    if let Some(ids) = frame.object_id {
+        put("object_id", SampleType::U32, encode_ids(ids, how.compression));
+    }
+    let (factor, phase) = frame.shading.unwrap_or((1, [0, 0]));
+    let header = FrameHeader {
+        session_id: session_id.to_string(),
+        index: frame.index,
+        reset: frame.reset,
+        jitter_x: frame.jitter[0],
+        jitter_y: frame.jitter[1],
+        channels: headers,
+        reply_sample: how.sample as i32,
+        reply_compression: how.compression as i32,
+        shading_factor: factor,
+        shading_phase_x: phase[0],
+        shading_phase_y: phase[1],
+    };
+    Encoded {
+        header,
+        chunks: chunks(bytes, how.max_chunk),
+    }
+}
+
+/// Why a reply's colour could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplyError {
+    /// The reply's header says nothing the client can read.
+    #[error("reply colour: {0}")]
+    Header(String),
+    /// The bytes do not decode to the announced size.
+    #[error("reply colour: {0}")]
+    Data(#[from] std::io::Error),
+}
+
+/// A reply's colour (`ch` its channel header, `bytes` its data) as three planes of
+/// `width x height` samples.
+pub fn decode_color(
+    ch: &ChannelHeader,
+    bytes: &[u8],
+    width: u32,
+    height: u32,
+) -> Result<[Vec<f32>; 3], ReplyError> {
+    let n = width as usize * height as usize;
+    let sample = SampleType::try_from(ch.sample)
+        .ok()
+        .filter(|s| *s != SampleType::U32)
+        .ok_or_else(|| ReplyError::Header(format!("sample type {} is not f32 or f16", ch.sample)))?;
+    let compression = Compression::try_from(ch.compression)
+        .map_err(|_| ReplyError::Header(format!("unknown compression {}", ch.compression)))?;
+    let raw = decompress(bytes, compression, 3 * n * 4)?;
+    let plane = n * sample_bytes(sample);
+    if raw.len() != 3 * plane {
+        return Err(ReplyError::Header(format!(
+            "expected {} bytes ({} {sample:?} samples of {width}x{height}), got {}",
+            3 * plane,
+            3 * n,
+            raw.len()
+        )));
+    }
+    Ok(std::array::from_fn(|c| {
+        let mut out = vec![0f32; n];
+        get_samples(&raw[c * plane..(c + 1) * plane], sample, &mut out);
+        out
+    }))
+}

@@ -1,0 +1,148 @@
+//! Streaming a session's frames: frames go out while replies come in, a bounded number
+//! ahead, and replies come back in order.
+
+use crate::connect::Inner;
+use crate::frame::{decode_color, Encoded};
+use crate::proto::{self as pb, filtered_chunk, frame_chunk};
+use std::collections::VecDeque;
+use std::sync::Mutex;
+use std::time::Instant;
+use tokio::sync::{mpsc, Semaphore};
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::StreamExt;
+use tonic::Status;
+
+/// A filtered frame as the client receives it.
+#[derive(Clone, Debug)]
+pub struct Reply {
+    /// The frame's number.
+    pub index: u64,
+    /// The filtered colour: r, g and b planes of `width x height`, row-major.
+    pub color: [Vec<f32>; 3],
+    /// Its size.
+    pub width: u32,
+    /// Its size.
+    pub height: u32,
+    /// The server's report.
+    pub report: pb::FrameReport,
+    /// From sending the frame's header to holding its whole reply, ms.
+    pub round_trip_ms: f64,
+    /// Bytes sent for the frame plus bytes received for its reply.
+    pub payload_bytes: u64,
+}
+
+/// Streams `frames` (encoded as they are taken, see [`crate::frame::encode`]) to session
+/// `session`, `in_flight` frames ahead of their replies (at least 1) beyond a windowed
+/// filter's lookahead, and calls `on_reply` with each reply in order. With 1, the next
+/// frame is sent when the last reply is in, so `round_trip_ms` is a latency; with 2 the
+/// next goes out while the server filters the last (the server receives one frame while
+/// it filters another; more gain nothing). With a windowed filter (`session.lookahead` =
+/// L > 0) the reply to frame t comes after frame t + L is sent; the client closes its side
+/// after the last frame and reads the rest.
+pub async fn stream(
+    inner: &mut Inner,
+    session: &pb::Session,
+    frames: impl IntoIterator<Item = Encoded>,
+    in_flight: usize,
+    mut on_reply: impl FnMut(Reply),
+) -> Result<(), Status> {
+    let lookahead = session.lookahead as usize;
+    let (tx, rx) = mpsc::channel::<pb::FrameChunk>(4);
+    let mut replies = inner.stream(ReceiverStream::new(rx)).await?.into_inner();
+    // Frames sent whose reply has not come: when, and how many bytes.
+    let sent_at: Mutex<VecDeque<(Instant, u64)>> = Mutex::new(VecDeque::new());
+    // A permit per frame that may be in flight; each reply gives one back.
+    let permits = Semaphore::new(lookahead + in_flight.max(1));
+    // Frames go out while replies come in: a server that answers frame t while it
+    // receives frame t + 1 never waits on a client busy sending.
+    let send = async {
+        for frame in frames {
+            match permits.acquire().await {
+                Ok(p) => p.forget(),
+                Err(_) => return,
+            }
+            lock(&sent_at).push_back((Instant::now(), frame.data_bytes()));
+            let parts = std::iter::once(frame_chunk::Part::Header(frame.header))
+                .chain(frame.chunks.into_iter().map(frame_chunk::Part::Data));
+            for part in parts {
+                if tx.send(pb::FrameChunk { part: Some(part) }).await.is_err() {
+                    // The server ended the stream: the replies' status says why.
+                    return;
+                }
+            }
+        }
+        // Closing our side makes a windowed filter give its last frames.
+        drop(tx);
+    };
+    let receive = async {
+        while let Some(reply) = read_reply(&mut replies, &sent_at).await? {
+            permits.add_permits(1);
+            on_reply(reply);
+        }
+        let unanswered = lock(&sent_at).len();
+        if unanswered > 0 {
+            return Err(Status::unavailable(format!(
+                "the server ended the stream with {unanswered} frames unanswered"
+            )));
+        }
+        Ok(())
+    };
+    tokio::pin!(send, receive);
+    let mut sending = true;
+    loop {
+        tokio::select! {
+            () = &mut send, if sending => sending = false,
+            r = &mut receive => return r,
+        }
+    }
+}
+
+/// The queue of frames in flight (never held across an await).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Reads one reply (header, then the colour's chunks), matched to the oldest frame in
+/// flight; None when the stream ended cleanly (read to its end, so the server has let go
+/// of the session by then).
+async fn read_reply(
+    replies: &mut tonic::Streaming<pb::FilteredChunk>,
+    sent_at: &Mutex<VecDeque<(Instant, u64)>>,
+) -> Result<Option<Reply>, Status> {
+    let head = match replies.next().await {
+        Some(Ok(pb::FilteredChunk {
+            part: Some(filtered_chunk::Part::Header(h)),
+        })) => h,
+        Some(Ok(_)) => return Err(Status::internal("reply data before its header")),
+        Some(Err(s)) => return Err(s),
+        None => return Ok(None),
+    };
+    let color_h = head
+        .color
+        .clone()
+        .ok_or_else(|| Status::internal("reply without colour"))?;
+    let mut bytes = Vec::with_capacity(color_h.byte_length as usize);
+    while (bytes.len() as u64) < color_h.byte_length {
+        match replies.next().await {
+            Some(Ok(pb::FilteredChunk {
+                part: Some(filtered_chunk::Part::Data(d)),
+            })) => bytes.extend_from_slice(&d.data),
+            Some(Err(s)) => return Err(s),
+            _ => return Err(Status::internal("reply ended before its colour")),
+        }
+    }
+    let color = decode_color(&color_h, &bytes, head.width, head.height)
+        .map_err(|e| Status::internal(e.to_string()))?;
+    let (t, sent) = lock(sent_at)
+        .pop_front()
+        .ok_or_else(|| Status::internal("a reply to no frame sent"))?;
+    Ok(Some(Reply {
+        index: head.index,
+        color,
+        width: head.width,
+        height: head.height,
+        report: head.report.unwrap_or_default(),
+        round_trip_ms: t.elapsed().as_secs_f64() * 1e3,
+        payload_bytes: sent + bytes.len() as u64,
+    }))
+}
