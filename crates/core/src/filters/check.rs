@@ -2,6 +2,15 @@
 //! sequences at odd sizes, and a comparison of two outputs (colour through the tolerance
 //! helper, and the record's stages and counts).
 
+/// What a filter's tests name besides its own module's items (the `Filter` impl that
+/// `history_filter!` writes names these in full).
+pub mod prelude {
+    pub use crate::filters::reconstruct::Reconstruction;
+    pub use crate::frame::{Frame, Rgb};
+    pub use crate::pipeline::{Filter, FilterError, FilterState, Output, StateError};
+    pub use serde_json::Value;
+}
+
 use crate::frame::{ChannelKind, Frame, Plane};
 use crate::pipeline::{Filter, Output};
 use crate::rng::SplitMix64;

@@ -624,3 +624,71 @@ pub fn on_screen_bits(px: &Lanes, py: &Lanes, w: usize, h: usize) -> u32 {
         & y.simd_le(f32x8::splat(h as f32));
     on.to_bitmask()
 }
+/// The [`Filter`](crate::pipeline::Filter) impl of a history filter (a type with
+/// `params` and a [`TemporalState`] `hist`, and its [`FilterKind`](crate::pipeline::FilterKind)):
+/// its frame goes through [`TemporalState::run`] with the filter's channels, sparse input
+/// as its kind says and the reconstruction its `pixel_filter` and `filter_width` choose,
+/// then `body` (given the parameters `p`, the `frame` and the `ctx`); reset, plane reuse,
+/// size and the saved state are the history's. Adding a history filter means writing its
+/// stages and one line of this.
+macro_rules! history_filter {
+    ($ty:ty, |$p:ident, $frame:ident, $ctx:ident| $body:expr) => {
+        $crate::filters::passes::history_filter!($ty, clone, |$p, $frame, $ctx| $body);
+    };
+    // `$params` is the method of the parameters that gives the ones a frame runs with
+    // (`clone`, or phlm's `effective`: its `variant` sets other parameters).
+    ($ty:ty, $params:ident, |$p:ident, $frame:ident, $ctx:ident| $body:expr) => {
+        impl $crate::pipeline::Filter for $ty {
+            fn name(&self) -> &'static str {
+                <Self as $crate::pipeline::FilterKind>::NAME
+            }
+
+            fn params(&self) -> serde_json::Value {
+                serde_json::Value::Object($crate::pipeline::params::to_json(&self.params))
+            }
+
+            fn process(
+                &mut self,
+                $frame: &$crate::frame::Frame,
+            ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
+                use $crate::pipeline::FilterKind;
+                let $p = &self.params.$params();
+                self.hist.run(
+                    Self::NAME,
+                    Self::needs(),
+                    Self::uses(),
+                    Self::SPARSE_INPUT,
+                    $crate::filters::reconstruct::Reconstruction::new($p.pixel_filter, $p.filter_width),
+                    $frame,
+                    |$ctx| $body,
+                )
+            }
+
+            fn reset(&mut self) {
+                self.hist.buffer.reset();
+            }
+
+            fn recycle(&mut self, planes: $crate::frame::Rgb) {
+                self.hist.scratch.recycle(planes);
+            }
+
+            fn state_bytes(&self) -> usize {
+                self.hist.buffer.bytes()
+            }
+
+            fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
+                use $crate::pipeline::FilterKind;
+                Ok(self.hist.save(Self::NAME, self.params()))
+            }
+
+            fn load_state(
+                &mut self,
+                state: &$crate::pipeline::FilterState,
+            ) -> Result<(), $crate::pipeline::StateError> {
+                use $crate::pipeline::FilterKind;
+                self.hist.load(state, Self::NAME, &self.params())
+            }
+        }
+    };
+}
+pub(crate) use history_filter;

@@ -76,19 +76,19 @@ mod reference;
 pub mod rls;
 
 use super::passes::{Conversion, TemporalState};
-use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::filters::passes::history_filter;
+use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::tonemap;
 #[cfg(test)]
 use crate::kernels::{bilinear, catmull_rom};
 use crate::pipeline::exec::for_rows;
 #[cfg(test)]
 use crate::pipeline::PixelCounts;
-use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
+use crate::pipeline::{FilterKind, ParamKind, StateError};
 use rls::{D, P_LEN};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 #[cfg(test)]
 use std::ops::AddAssign;
 
@@ -756,53 +756,13 @@ impl Phlm {
     }
 }
 
-impl Filter for Phlm {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        let p = self.params.effective();
-        self.hist.run(
-            Self::NAME,
-            Self::needs(),
-            Self::uses(),
-            false,
-            Reconstruction::new(p.pixel_filter, p.filter_width),
-            frame,
-            |ctx| kernel::frame(&p, ctx),
-        )
-    }
-
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(self.hist.save(Self::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        self.hist.load(state, Self::NAME, &self.params())
-    }
-}
+history_filter!(Phlm, effective, |p, frame, ctx| kernel::frame(p, ctx));
 
 #[cfg(test)]
 mod tests {
     use super::reference::ReferencePhlm;
     use super::*;
+    use crate::filters::check::prelude::*;
     use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
     use crate::kernels::clip::guard;
     use crate::pipeline::params::{build, parse_assignments};

@@ -25,14 +25,12 @@ mod kernel;
 mod reference;
 
 use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
-use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
-use crate::pipeline::{
-    Filter, FilterError, FilterKind, FilterState, Inputs, Output, ParamKind, Skip, StateError,
-};
+use crate::filters::passes::history_filter;
+use crate::frame::{ChannelKind, ChannelSet};
+use crate::pipeline::{FilterKind, Inputs, ParamKind, Skip};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 
 /// How history is resampled at its reprojected position.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -198,48 +196,7 @@ impl Taa {
     }
 }
 
-impl Filter for Taa {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        let p = &self.params;
-        self.hist.run(
-            Self::NAME,
-            Self::needs(),
-            Self::uses(),
-            false,
-            Reconstruction::new(p.pixel_filter, p.filter_width),
-            frame,
-            |ctx| kernel::frame(p, ctx),
-        )
-    }
-
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(self.hist.save(Self::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        self.hist.load(state, Self::NAME, &self.params())
-    }
-}
+history_filter!(Taa, |p, frame, ctx| kernel::frame(p, ctx));
 
 #[cfg(test)]
 mod tests {

@@ -51,14 +51,14 @@ mod kernel;
 mod reference;
 
 use super::passes::{Conversion, TemporalState};
-use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::filters::passes::history_filter;
+use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::{lanes, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
+use crate::pipeline::{FilterKind, ParamKind};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 use wide::f32x8;
 
 /// Which TRAA of the thesis.
@@ -250,54 +250,13 @@ fn mix_v(x: f32x8, y: f32x8, t: f32x8) -> f32x8 {
     x * (f32x8::splat(1.0) - t) + y * t
 }
 
-impl Filter for Traa {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        let p = &self.params;
-        let near_far = frame.meta.near_far;
-        self.hist.run(
-            Self::NAME,
-            Self::needs(),
-            Self::uses(),
-            false,
-            Reconstruction::new(p.pixel_filter, p.filter_width),
-            frame,
-            |ctx| kernel::frame(p, near_far, ctx),
-        )
-    }
-
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(self.hist.save(Self::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        self.hist.load(state, Self::NAME, &self.params())
-    }
-}
+history_filter!(Traa, |p, frame, ctx| kernel::frame(p, frame.meta.near_far, ctx));
 
 #[cfg(test)]
 mod tests {
     use super::reference::ReferenceTraa;
     use super::*;
+    use crate::filters::check::prelude::*;
     use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;

@@ -75,7 +75,8 @@ mod reference;
 mod spatial;
 mod temporal;
 
-use super::reconstruct::{PixelFilter, Reconstruction, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use crate::filters::passes::history_filter;
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
@@ -86,10 +87,9 @@ pub use temporal::{
 
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb, Sampling};
-use crate::pipeline::{Filter, FilterError, FilterKind, FilterState, Output, ParamKind, StateError};
+use crate::frame::{ChannelKind, ChannelSet, Plane, Sampling};
+use crate::pipeline::{FilterKind, ParamKind, StateError};
 use serde::{Deserialize, Serialize};
-use serde_json::Value;
 
 /// Which reconstruction.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -388,55 +388,19 @@ impl Upsample {
     }
 }
 
-impl Filter for Upsample {
-    fn name(&self) -> &'static str {
-        Self::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        let p = &self.params;
-        let decay = decay_for(p, frame.sampling());
-        let (sampling, near_far) = (frame.sampling(), frame.meta.near_far);
-        self.hist.run(
-            Self::NAME,
-            Self::needs(),
-            Self::uses(),
-            true,
-            Reconstruction::new(p.pixel_filter, p.filter_width),
-            frame,
-            |ctx| kernel::frame(p, decay, sampling, near_far, ctx),
-        )
-    }
-
-    fn reset(&mut self) {
-        self.hist.buffer.reset();
-    }
-
-    fn recycle(&mut self, planes: Rgb) {
-        self.hist.scratch.recycle(planes);
-    }
-
-    fn state_bytes(&self) -> usize {
-        self.hist.buffer.bytes()
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(self.hist.save(Self::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        self.hist.load(state, Self::NAME, &self.params())
-    }
-}
+history_filter!(Upsample, |p, frame, ctx| kernel::frame(
+    p,
+    decay_for(p, frame.sampling()),
+    frame.sampling(),
+    frame.meta.near_far,
+    ctx
+));
 
 #[cfg(test)]
 mod tests {
     use super::reference::ReferenceUpsample;
     use super::*;
+    use crate::filters::check::prelude::*;
     use crate::filters::check::{assert_filter_matches, sparse_sequences, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
