@@ -3050,3 +3050,158 @@ async fn the_client_crate_streams_named_planes() {
     same(&got, &in_process("taa", &fr), "afterimage-client, named planes");
     r.shutdown().await.unwrap();
 }
+
+async fn channel(r: &Running) -> tonic::transport::Channel {
+    tonic::transport::Channel::from_shared(format!("http://{}", r.grpc_addr))
+        .unwrap()
+        .connect()
+        .await
+        .unwrap()
+}
+
+/// `grpc.health.v1.Health/Check` for `service`, without an API key.
+async fn health_of(r: &Running, service: &str) -> Result<i32, tonic::Status> {
+    use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+    HealthClient::new(channel(r).await)
+        .check(HealthCheckRequest {
+            service: service.into(),
+        })
+        .await
+        .map(|resp| resp.into_inner().status)
+}
+
+const SERVING: i32 = tonic_health::pb::health_check_response::ServingStatus::Serving as i32;
+const NOT_SERVING: i32 = tonic_health::pb::health_check_response::ServingStatus::NotServing as i32;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_health_serves_without_a_key_and_turns_not_serving_on_drain() {
+    use tokio_stream::StreamExt;
+    use tonic_health::pb::{health_client::HealthClient, HealthCheckRequest};
+    let (r, _dir) = keyed_server(|c| c.shutdown_deadline_s = 30).await;
+    // The server has keys: the protocol refuses a call without one, health answers it.
+    let mut c = keyed_client(&r, None).await;
+    let e = c.inner.create_session(session_req("taa")).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    for name in ["", "afterimage.v1.Afterimage"] {
+        assert_eq!(health_of(&r, name).await.unwrap(), SERVING, "{name:?}");
+    }
+    let e = health_of(&r, "no.such.Service").await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{e:?}");
+    // A watcher sees the drain.
+    let mut watch = HealthClient::new(channel(&r).await)
+        .watch(HealthCheckRequest {
+            service: String::new(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(watch.next().await.unwrap().unwrap().status, SERVING);
+    // Draining (what SIGTERM starts): /readyz turns 503 and health NOT_SERVING.
+    r.service.drain();
+    let next = tokio::time::timeout(std::time::Duration::from_secs(5), watch.next()).await;
+    assert_eq!(next.unwrap().unwrap().unwrap().status, NOT_SERVING);
+    assert_eq!(
+        http(r.http_addr, "GET", "/readyz", b"", "text/plain").await.0,
+        503
+    );
+    for name in ["", "afterimage.v1.Afterimage"] {
+        assert_eq!(health_of(&r, name).await.unwrap(), NOT_SERVING, "{name:?}");
+    }
+    // The open Watch stream ends when the listeners close, so it does not hold the
+    // shutdown up to its deadline (30 s here).
+    let t = std::time::Instant::now();
+    r.shutdown().await.unwrap();
+    assert!(t.elapsed().as_secs() < 10, "shutdown took {:?}", t.elapsed());
+    let end = tokio::time::timeout(std::time::Duration::from_secs(5), watch.next()).await;
+    assert!(
+        matches!(end, Ok(None | Some(Err(_)))),
+        "the Watch stream ended: {end:?}"
+    );
+}
+
+/// The services a reflection v1 `ListServices` names, and the descriptor of the file that
+/// defines `symbol` (`FileContainingSymbol`), without an API key.
+async fn reflect_v1(r: &Running, symbol: &str) -> Result<(Vec<String>, Vec<Vec<u8>>), tonic::Status> {
+    use tonic_reflection::pb::v1::{
+        server_reflection_client::ServerReflectionClient, server_reflection_request::MessageRequest,
+        server_reflection_response::MessageResponse, ServerReflectionRequest,
+    };
+    let req = |m| ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(m),
+    };
+    let mut replies = ServerReflectionClient::new(channel(r).await)
+        .server_reflection_info(tokio_stream::iter([
+            req(MessageRequest::ListServices(String::new())),
+            req(MessageRequest::FileContainingSymbol(symbol.into())),
+        ]))
+        .await?
+        .into_inner();
+    let mut names = Vec::new();
+    let mut files = Vec::new();
+    while let Some(reply) = replies.message().await? {
+        match reply.message_response {
+            Some(MessageResponse::ListServicesResponse(l)) => {
+                names.extend(l.service.into_iter().map(|s| s.name))
+            }
+            Some(MessageResponse::FileDescriptorResponse(f)) => files = f.file_descriptor_proto,
+            other => panic!("unexpected reply {other:?}"),
+        }
+    }
+    Ok((names, files))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_reflection_lists_the_service_unless_turned_off() {
+    let (r, _dir) = keyed_server(|_| {}).await;
+    let (names, files) = reflect_v1(&r, "afterimage.v1.Afterimage").await.unwrap();
+    for name in [
+        "afterimage.v1.Afterimage",
+        "grpc.health.v1.Health",
+        "grpc.reflection.v1.ServerReflection",
+    ] {
+        assert!(names.iter().any(|n| n == name), "{name} not in {names:?}");
+    }
+    // The descriptor of afterimage.proto, with its methods (a tool builds calls from it).
+    let file = files.concat();
+    for part in [
+        &b"afterimage/v1/afterimage.proto"[..],
+        b"CreateSession",
+        b"FrameChunk",
+    ] {
+        assert!(
+            file.windows(part.len()).any(|w| w == part),
+            "{} not in the descriptor",
+            String::from_utf8_lossy(part)
+        );
+    }
+    // v1alpha too (what older grpcurl and grpcui ask).
+    {
+        use tonic_reflection::pb::v1alpha::{
+            server_reflection_client::ServerReflectionClient, server_reflection_request::MessageRequest,
+            server_reflection_response::MessageResponse, ServerReflectionRequest,
+        };
+        let mut replies = ServerReflectionClient::new(channel(&r).await)
+            .server_reflection_info(tokio_stream::iter([ServerReflectionRequest {
+                host: String::new(),
+                message_request: Some(MessageRequest::ListServices(String::new())),
+            }]))
+            .await
+            .unwrap()
+            .into_inner();
+        match replies.message().await.unwrap().unwrap().message_response {
+            Some(MessageResponse::ListServicesResponse(l)) => assert!(
+                l.service.iter().any(|s| s.name == "afterimage.v1.Afterimage"),
+                "{l:?}"
+            ),
+            other => panic!("unexpected reply {other:?}"),
+        }
+    }
+    r.shutdown().await.unwrap();
+    // Turned off: no reflection service at all, health still there.
+    let (r, _dir) = keyed_server(|c| c.grpc_reflection = false).await;
+    let e = reflect_v1(&r, "afterimage.v1.Afterimage").await.unwrap_err();
+    assert_eq!(e.code(), Code::Unimplemented, "{e:?}");
+    assert_eq!(health_of(&r, "").await.unwrap(), SERVING);
+    r.shutdown().await.unwrap();
+}

@@ -37,4 +37,9 @@ pub mod stream;
 #[allow(missing_docs, clippy::all, clippy::pedantic)]
 pub mod proto {
     tonic::include_proto!("afterimage.v1");
+
+    /// The encoded `FileDescriptorSet` of the protocol (with its comments), for the
+    /// server's reflection service.
+    #[cfg(feature = "server")]
+    pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("afterimage_descriptor");
 }

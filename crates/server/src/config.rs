@@ -55,6 +55,10 @@ pub struct Config {
     pub allow_unauthenticated: bool,
     /// `/metrics` needs an API key too (when the server has keys).
     pub metrics_require_key: bool,
+    /// Serve gRPC server reflection (`grpc.reflection.v1` and `v1alpha`: the service's
+    /// methods and messages, for `grpcurl` and the like) on the gRPC port, without a key.
+    /// The health service (`grpc.health.v1`) is always served.
+    pub grpc_reflection: bool,
     /// PEM certificate chain for TLS on both ports (with `tls_key`); empty: plain TCP.
     pub tls_cert: String,
     /// PEM private key for TLS.
@@ -119,6 +123,7 @@ impl Default for Config {
             key_default_share: 0.5,
             allow_unauthenticated: false,
             metrics_require_key: false,
+            grpc_reflection: true,
             tls_cert: String::new(),
             tls_key: String::new(),
             header_timeout_s: 10,
@@ -557,5 +562,17 @@ mod tests {
         .unwrap();
         assert!(c.allow_unauthenticated);
         assert_eq!(c.replica, "3");
+    }
+
+    #[test]
+    fn grpc_reflection_is_on_by_default_and_can_be_turned_off() {
+        assert!(Config::default().grpc_reflection);
+        let c = Config::load(None, env(&[("AFTERIMAGE_GRPC_REFLECTION", "false")])).unwrap();
+        assert!(!c.grpc_reflection);
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.toml");
+        std::fs::write(&p, "grpc_reflection = false\n").unwrap();
+        assert!(!Config::load(Some(&p), env(&[])).unwrap().grpc_reflection);
+        assert!(toml::to_string(&c).unwrap().contains("grpc_reflection = false"));
     }
 }

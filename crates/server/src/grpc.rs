@@ -23,6 +23,9 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::{wrappers::ReceiverStream, Stream, StreamExt};
 use tonic::metadata::MetadataMap;
 use tonic::{Code, Request, Response, Status, Streaming};
+use tonic_health::pb::health_server::{Health, HealthServer};
+use tonic_health::ServingStatus;
+use tonic_reflection::server::{v1, v1alpha};
 
 /// The status for a session error (its message capped).
 pub fn status(e: &SessionError) -> Status {
@@ -194,6 +197,51 @@ impl Grpc {
             .map(|v| v.to_str().unwrap_or("(not text)"));
         self.0.caller(value).map_err(|e| status(&e))
     }
+}
+
+/// `grpc.health.v1.Health` for the server (`""`) and `afterimage.v1.Afterimage`: SERVING
+/// until the service starts draining, NOT_SERVING from then on (as `/readyz` turns 503).
+/// Open to every caller, with or without a key (the checks of Kubernetes' gRPC probes and
+/// of `grpc_health_probe` send none): only [`Grpc`]'s own calls are authenticated. When
+/// `closed` turns true the statuses are cleared, which ends open `Watch` streams so they
+/// do not hold the shutdown up.
+pub async fn health(service: &Service, mut closed: watch::Receiver<bool>) -> HealthServer<impl Health> {
+    let (mut reporter, server) = tonic_health::server::health_reporter();
+    reporter.set_serving::<AfterimageServer<Grpc>>().await;
+    let mut draining = service.draining();
+    tokio::spawn(async move {
+        let _ = draining.wait_for(|d| *d).await;
+        for name in HEALTH_NAMES {
+            reporter.set_service_status(name, ServingStatus::NotServing).await;
+        }
+        let _ = closed.wait_for(|c| *c).await;
+        for name in HEALTH_NAMES {
+            reporter.clear_service_status(name).await;
+        }
+    });
+    server
+}
+
+/// The names health answers for: the whole server and the service.
+const HEALTH_NAMES: [&str; 2] = ["", <AfterimageServer<Grpc> as tonic::server::NamedService>::NAME];
+
+/// The v1 and v1alpha reflection services, describing `afterimage.v1` and
+/// `grpc.health.v1` (and themselves), for `grpcurl` and other tools that list and call a
+/// server's methods without the .proto files.
+#[allow(clippy::type_complexity)]
+pub fn reflection() -> Result<
+    (
+        v1::ServerReflectionServer<impl v1::ServerReflection>,
+        v1alpha::ServerReflectionServer<impl v1alpha::ServerReflection>,
+    ),
+    tonic_reflection::server::Error,
+> {
+    let builder = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(pb::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    };
+    Ok((builder().build_v1()?, builder().build_v1alpha()?))
 }
 
 type ReplyStream = Pin<Box<dyn Stream<Item = Result<pb::FilteredChunk, Status>> + Send>>;

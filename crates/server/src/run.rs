@@ -1,11 +1,13 @@
 //! Starting and stopping the servers: check the config (no public address without API
 //! keys unless told), bind both ports, sweep idle sessions, and on shutdown drain: refuse
 //! new work (`/readyz` turns 503), let frames in flight finish, then close the listeners,
-//! all within the deadline.
+//! all within the deadline. Next to the protocol, the gRPC port serves `grpc.health.v1`
+//! (NOT_SERVING from the drain on, as `/readyz`) and, unless `grpc_reflection = false`,
+//! server reflection.
 
 use super::activity::ActivityLayer;
 use super::config::Config;
-use super::grpc::Grpc;
+use super::grpc::{health, reflection, Grpc};
 use super::http::router;
 use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings, PerIp};
 use super::service::Service;
@@ -126,10 +128,17 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         .max_concurrent_streams(config.max_concurrent_streams)
         .http2_max_header_list_size(64 << 10)
         .layer(ActivityLayer::default());
+    let (reflection_v1, reflection_v1alpha) = config
+        .grpc_reflection
+        .then(reflection)
+        .transpose()
+        .map_err(|e| ServeError::Run(format!("gRPC reflection: {e}")))?
+        .unzip();
     let service = Service::new(config, keys);
     let (stop, stopped) = watch::channel(false);
     // Closing the listeners comes after the drain, so it has a signal of its own.
     let (close, closed) = watch::channel(false);
+    let health = health(&service, closed.clone()).await;
     let sweeper = {
         let svc = service.clone();
         let mut rx = stopped.clone();
@@ -167,6 +176,9 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         let mut closed = closed.clone();
         grpc_builder
             .add_service(Grpc(service.clone()).server())
+            .add_service(health)
+            .add_optional_service(reflection_v1)
+            .add_optional_service(reflection_v1alpha)
             .serve_with_incoming_shutdown(
                 tokio_stream::wrappers::ReceiverStream::new(grpc_conns).map(Ok::<_, std::io::Error>),
                 async move {
