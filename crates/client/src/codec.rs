@@ -2,6 +2,7 @@
 //! chunks. The server decodes with the same functions it checks the sizes for.
 
 use crate::proto::{Compression, DataChunk, SampleType};
+use std::borrow::Cow;
 
 /// Bytes of one sample of `s` on the wire.
 pub fn sample_bytes(s: SampleType) -> usize {
@@ -86,11 +87,12 @@ pub fn chunks(bytes: Vec<u8>, max_chunk: usize) -> Vec<DataChunk> {
         .collect()
 }
 
-/// Decompresses a channel's wire bytes, reading at most `limit` bytes (one past it when
-/// there are more, so a caller can refuse a bomb without inflating it).
-pub fn decompress(bytes: &[u8], compression: Compression, limit: usize) -> std::io::Result<Vec<u8>> {
+/// Decompresses a channel's wire bytes (uncompressed ones as they are, not copied),
+/// reading at most `limit` bytes (one past it when there are more, so a caller can refuse
+/// a bomb without inflating it).
+pub fn decompress(bytes: &[u8], compression: Compression, limit: usize) -> std::io::Result<Cow<'_, [u8]>> {
     match compression {
-        Compression::None => Ok(bytes.to_vec()),
+        Compression::None => Ok(Cow::Borrowed(bytes)),
         Compression::Zstd => {
             use std::io::Read;
             let mut dec = ruzstd::decoding::StreamingDecoder::new(bytes).map_err(|e| {
@@ -101,7 +103,7 @@ pub fn decompress(bytes: &[u8], compression: Compression, limit: usize) -> std::
                 .take(limit as u64 + 1)
                 .read_to_end(&mut out)
                 .map_err(|e| std::io::Error::new(e.kind(), format!("corrupt zstd data: {e}")))?;
-            Ok(out)
+            Ok(Cow::Owned(out))
         }
     }
 }

@@ -293,9 +293,7 @@ fn decompress<'a>(
     limit: usize,
 ) -> Result<Cow<'a, [u8]>, SessionError> {
     match Compression::try_from(ch.compression) {
-        Ok(Compression::None) => Ok(Cow::Borrowed(bytes)),
-        Ok(Compression::Zstd) => afterimage_client::codec::decompress(bytes, Compression::Zstd, limit)
-            .map(Cow::Owned)
+        Ok(compression) => afterimage_client::codec::decompress(bytes, compression, limit)
             .map_err(|e| invalid(format!("channels[{name}]"), e.to_string())),
         Err(_) => Err(invalid(
             format!("channels[{name}].compression"),
@@ -454,15 +452,6 @@ pub fn encode_frame(
     };
     let e = encode(&data, session_id, how);
     (e.header, e.chunks)
-}
-
-/// Decodes a reply's colour bytes into planes.
-pub fn decode_color(ch: &ChannelHeader, bytes: &[u8], width: u32, height: u32) -> Result<Rgb, SessionError> {
-    let n = width as usize * height as usize;
-    let raw = decompress("color", ch, bytes, 3 * n * 4)?;
-    let planes = decode_planes("color", ch, &raw, width as usize, height as usize, 3)?;
-    let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three planes");
-    Ok([r, g, b])
 }
 
 #[cfg(test)]
