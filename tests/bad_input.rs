@@ -701,12 +701,12 @@ mod fuzz {
                 let plan = FramePlan::check(&head, shape, 1 << 30)?;
                 let mut a = Assembly::start(head.clone(), plan);
                 for chunk in data.chunks(4096) {
-                    a.push(chunk, 1 << 20)?;
+                    a.push(chunk.to_vec(), 1 << 20)?;
                 }
                 if !a.complete() {
                     return Ok(false);
                 }
-                wire::decode(&a, shape).map(|_| true)
+                wire::decode(&a, shape, &mut Default::default()).map(|_| true)
             });
             let r = r.unwrap_or_else(|| panic!("case {case} (seed {seed}) panicked; header {head:?}"));
             assert!(

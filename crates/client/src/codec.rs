@@ -16,6 +16,11 @@ pub fn sample_bytes(s: SampleType) -> usize {
 /// overhead is nil, small enough that a 720p plane splits over every core.
 pub const BLOCK: usize = 1 << 16;
 
+/// Samples converted at a time through a buffer on the stack (f16 goes through the
+/// vector conversions of `half`): a block-sized heap buffer would be 128 KiB, which glibc
+/// maps fresh, and faults in, for every block.
+const STAGE: usize = 1024;
+
 /// Writes `src` as little-endian f32 or f16 samples into `dst` (exactly as long).
 pub fn put_samples(src: &[f32], sample: SampleType, dst: &mut [u8]) {
     use half::slice::HalfFloatSliceExt;
@@ -26,10 +31,13 @@ pub fn put_samples(src: &[f32], sample: SampleType, dst: &mut [u8]) {
         .zip(src.par_chunks(BLOCK))
         .for_each(|(d, s)| match sample {
             SampleType::F16 => {
-                let mut h = vec![half::f16::ZERO; s.len()];
-                h.convert_from_f32_slice(s);
-                for (o, v) in d.chunks_exact_mut(2).zip(&h) {
-                    o.copy_from_slice(&v.to_le_bytes());
+                let mut h = [half::f16::ZERO; STAGE];
+                for (d, s) in d.chunks_mut(2 * STAGE).zip(s.chunks(STAGE)) {
+                    let h = &mut h[..s.len()];
+                    h.convert_from_f32_slice(s);
+                    for (o, v) in d.chunks_exact_mut(2).zip(h.iter()) {
+                        o.copy_from_slice(&v.to_le_bytes());
+                    }
                 }
             }
             _ => {
@@ -51,11 +59,14 @@ pub fn get_samples(src: &[u8], sample: SampleType, dst: &mut [f32]) {
         .zip(src.par_chunks(BLOCK * width))
         .for_each(|(d, s)| match sample {
             SampleType::F16 => {
-                let h: Vec<half::f16> = s
-                    .chunks_exact(2)
-                    .map(|b| half::f16::from_le_bytes([b[0], b[1]]))
-                    .collect();
-                h.convert_to_f32_slice(d);
+                let mut h = [half::f16::ZERO; STAGE];
+                for (d, s) in d.chunks_mut(STAGE).zip(s.chunks(2 * STAGE)) {
+                    let h = &mut h[..d.len()];
+                    for (v, b) in h.iter_mut().zip(s.chunks_exact(2)) {
+                        *v = half::f16::from_le_bytes([b[0], b[1]]);
+                    }
+                    h.convert_to_f32_slice(d);
+                }
             }
             _ => {
                 for (o, b) in d.iter_mut().zip(s.chunks_exact(4)) {
@@ -63,6 +74,76 @@ pub fn get_samples(src: &[u8], sample: SampleType, dst: &mut [f32]) {
                 }
             }
         });
+}
+
+/// Reads samples from a run of byte pieces (a message's data chunks as they came, not
+/// copied together) whose boundaries may fall anywhere, even inside a sample.
+pub struct Samples<'a> {
+    pieces: std::vec::IntoIter<&'a [u8]>,
+    current: &'a [u8],
+    sample: SampleType,
+}
+
+impl<'a> Samples<'a> {
+    /// Samples of type `sample` in `pieces`, in order.
+    pub fn new(pieces: Vec<&'a [u8]>, sample: SampleType) -> Samples<'a> {
+        Samples {
+            pieces: pieces.into_iter(),
+            current: &[],
+            sample,
+        }
+    }
+
+    /// Fills `dst`; false when the pieces ran out first.
+    pub fn read(&mut self, dst: &mut [f32]) -> bool {
+        let width = sample_bytes(self.sample);
+        let mut at = 0;
+        while at < dst.len() {
+            if self.current.is_empty() {
+                match self.pieces.next() {
+                    Some(p) => self.current = p,
+                    None => return false,
+                }
+                continue;
+            }
+            if self.current.len() < width {
+                // A sample split between pieces: gather its bytes.
+                let mut one = [0u8; 4];
+                let mut have = self.current.len();
+                one[..have].copy_from_slice(self.current);
+                while have < width {
+                    let Some(p) = self.pieces.next() else {
+                        return false;
+                    };
+                    let take = (width - have).min(p.len());
+                    one[have..have + take].copy_from_slice(&p[..take]);
+                    have += take;
+                    self.current = &p[take..];
+                }
+                get_samples(&one[..width], self.sample, &mut dst[at..at + 1]);
+                at += 1;
+                continue;
+            }
+            let whole = (self.current.len() / width).min(dst.len() - at);
+            get_samples(
+                &self.current[..whole * width],
+                self.sample,
+                &mut dst[at..at + whole],
+            );
+            at += whole;
+            self.current = &self.current[whole * width..];
+        }
+        true
+    }
+}
+
+/// `pieces` as one slice: borrowed when there is one piece, else copied together.
+pub fn joined<'a>(pieces: &[&'a [u8]]) -> Cow<'a, [u8]> {
+    match pieces {
+        [] => Cow::Borrowed(&[]),
+        [one] => Cow::Borrowed(one),
+        _ => Cow::Owned(pieces.concat()),
+    }
 }
 
 /// `raw` as `compression` makes it (zstd at its fastest level).

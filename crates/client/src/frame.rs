@@ -1,7 +1,7 @@
 //! A frame as a renderer holds it (named channels of planar samples), encoded for the
 //! wire, and a reply's colour decoded.
 
-use crate::codec::{chunks, compress, decompress, get_samples, put_samples, sample_bytes};
+use crate::codec::{chunks, compress, decompress, joined, put_samples, sample_bytes, Samples};
 use crate::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 
 /// One channel of a frame: its protocol name (`color`, `depth`, `motion`, `normal`,
@@ -85,25 +85,40 @@ pub fn encode_ids(ids: &[u32], compression: Compression) -> Vec<u8> {
 /// type and compression.
 pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded {
     let mut headers = Vec::new();
-    let mut bytes = Vec::new();
-    let mut put = |name: &str, sample: SampleType, data: Vec<u8>| {
+    let samples: usize = frame
+        .channels
+        .iter()
+        .flat_map(|c| c.planes)
+        .map(|p| p.len())
+        .sum();
+    let ids = frame.object_id.map_or(0, |i| i.len() * 4);
+    let mut bytes = Vec::with_capacity(samples * sample_bytes(how.sample) + ids);
+    let mut header = |name: &str, sample: SampleType, bytes: usize| {
         headers.push(ChannelHeader {
             name: name.to_string(),
             sample: sample as i32,
             compression: how.compression as i32,
-            byte_length: data.len() as u64,
-        });
-        bytes.extend_from_slice(&data);
+            byte_length: bytes as u64,
+        })
     };
     for ch in &frame.channels {
-        put(
-            ch.name,
-            how.sample,
-            encode_planes(ch.planes, how.sample, how.compression),
-        );
+        let start = bytes.len();
+        if how.compression == Compression::None {
+            // Straight into the frame's buffer: no buffer per channel to copy from.
+            for p in ch.planes {
+                let at = bytes.len();
+                bytes.resize(at + p.len() * sample_bytes(how.sample), 0);
+                put_samples(p, how.sample, &mut bytes[at..]);
+            }
+        } else {
+            bytes.extend_from_slice(&encode_planes(ch.planes, how.sample, how.compression));
+        }
+        header(ch.name, how.sample, bytes.len() - start);
     }
     if let Some(ids) = frame.object_id {
-        put("object_id", SampleType::U32, encode_ids(ids, how.compression));
+        let data = encode_ids(ids, how.compression);
+        bytes.extend_from_slice(&data);
+        header("object_id", SampleType::U32, data.len());
     }
     let (factor, phase) = frame.shading.unwrap_or((1, [0, 0]));
     let header = FrameHeader {
@@ -136,11 +151,11 @@ pub enum ReplyError {
     Data(#[from] std::io::Error),
 }
 
-/// A reply's colour (`ch` its channel header, `bytes` its data) as three planes of
-/// `width x height` samples.
+/// A reply's colour (`ch` its channel header, `pieces` its data chunks in order) as three
+/// planes of `width x height` samples.
 pub fn decode_color(
     ch: &ChannelHeader,
-    bytes: &[u8],
+    pieces: &[&[u8]],
     width: u32,
     height: u32,
 ) -> Result<[Vec<f32>; 3], ReplyError> {
@@ -151,19 +166,29 @@ pub fn decode_color(
         .ok_or_else(|| ReplyError::Header(format!("sample type {} is not f32 or f16", ch.sample)))?;
     let compression = Compression::try_from(ch.compression)
         .map_err(|_| ReplyError::Header(format!("unknown compression {}", ch.compression)))?;
-    let raw = decompress(bytes, compression, 3 * n * 4)?;
-    let plane = n * sample_bytes(sample);
-    if raw.len() != 3 * plane {
+    // Uncompressed samples are read across the chunks as they came.
+    let inflated = match compression {
+        Compression::None => None,
+        _ => Some(decompress(&joined(pieces), compression, 3 * n * 4)?.into_owned()),
+    };
+    let pieces = match &inflated {
+        Some(raw) => vec![raw.as_slice()],
+        None => pieces.to_vec(),
+    };
+    let got: usize = pieces.iter().map(|p| p.len()).sum();
+    let want = 3 * n * sample_bytes(sample);
+    if got != want {
         return Err(ReplyError::Header(format!(
-            "expected {} bytes ({} {sample:?} samples of {width}x{height}), got {}",
-            3 * plane,
+            "expected {want} bytes ({} {sample:?} samples of {width}x{height}), got {got}",
             3 * n,
-            raw.len()
         )));
     }
-    Ok(std::array::from_fn(|c| {
+    let mut samples = Samples::new(pieces, sample);
+    let mut plane = || {
         let mut out = vec![0f32; n];
-        get_samples(&raw[c * plane..(c + 1) * plane], sample, &mut out);
+        let read = samples.read(&mut out);
+        debug_assert!(read, "the length was checked");
         out
-    }))
+    };
+    Ok([plane(), plane(), plane()])
 }

@@ -121,17 +121,23 @@ async fn read_reply(
         .color
         .clone()
         .ok_or_else(|| Status::internal("reply without colour"))?;
-    let mut bytes = Vec::with_capacity(color_h.byte_length as usize);
-    while (bytes.len() as u64) < color_h.byte_length {
+    // The chunks as they came (views of the receive buffers): decoding reads across them.
+    let mut chunks = Vec::new();
+    let mut received = 0u64;
+    while received < color_h.byte_length {
         match replies.next().await {
             Some(Ok(pb::FilteredChunk {
                 part: Some(filtered_chunk::Part::Data(d)),
-            })) => bytes.extend_from_slice(&d.data),
+            })) => {
+                received += d.data.len() as u64;
+                chunks.push(d.data);
+            }
             Some(Err(s)) => return Err(s),
             _ => return Err(Status::internal("reply ended before its colour")),
         }
     }
-    let color = decode_color(&color_h, &bytes, head.width, head.height)
+    let pieces: Vec<&[u8]> = chunks.iter().map(|c| &c[..]).collect();
+    let color = decode_color(&color_h, &pieces, head.width, head.height)
         .map_err(|e| Status::internal(e.to_string()))?;
     let (t, sent) = lock(sent_at)
         .pop_front()
@@ -143,6 +149,6 @@ async fn read_reply(
         height: head.height,
         report: head.report.unwrap_or_default(),
         round_trip_ms: t.elapsed().as_secs_f64() * 1e3,
-        payload_bytes: sent + bytes.len() as u64,
+        payload_bytes: sent + received,
     }))
 }

@@ -377,7 +377,7 @@ fn filter_job(
                 svc.on_pool_as(share, move |_| {
                     let t = Instant::now();
                     let mut co = co;
-                    let decoded = wire::decode(&frame.assembly, shape)?;
+                    let decoded = wire::decode(&frame.assembly, shape, co.input_planes()?)?;
                     drop(frame);
                     let outs = co.process(decoded, MotionInput::Session)?;
                     let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
@@ -659,7 +659,7 @@ fn take_chunk(
                 "data",
                 "chunk out of order: data before any frame header",
             )),
-            Some(r) => r.assembly.push(&d.data, max_chunk),
+            Some(r) => r.assembly.push(d.data, max_chunk),
         },
         None => Err(SessionError::invalid(
             "part",

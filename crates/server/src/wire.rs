@@ -5,11 +5,13 @@
 
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
+use crate::pipeline::Scratch;
 use crate::session::{clip, FrameShape, SessionError};
 pub use afterimage_client::codec::chunks;
-use afterimage_client::codec::{get_samples, sample_bytes};
+use afterimage_client::codec::{joined, sample_bytes, Samples};
 use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
 pub use afterimage_client::frame::{encode_ids, encode_planes};
+use bytes::Bytes;
 use std::borrow::Cow;
 
 /// Default largest chunk: 1 MiB.
@@ -185,38 +187,42 @@ fn channel_kind(
     Ok(kind)
 }
 
-/// Collects one frame's chunks after its header.
+/// Collects one frame's chunks after its header. The chunks are kept as they came (views
+/// of the transport's receive buffers), not copied into one buffer: decoding reads across
+/// them.
 #[derive(Debug)]
 pub struct Assembly {
     /// The header.
     pub header: FrameHeader,
     /// What it announced.
     pub plan: FramePlan,
+    /// The data chunks so far, in order.
+    chunks: Vec<Bytes>,
     /// Bytes received so far.
-    pub bytes: Vec<u8>,
+    received: u64,
 }
 
 impl Assembly {
     /// Starts a frame whose header passed [`FramePlan::check`].
     pub fn start(header: FrameHeader, plan: FramePlan) -> Assembly {
-        // The plan bounds the length by the session's size; still, grow as data comes.
-        let first = plan.wire_bytes.min(16 << 20) as usize;
         Assembly {
             header,
             plan,
-            bytes: Vec::with_capacity(first),
+            chunks: Vec::new(),
+            received: 0,
         }
     }
 
     /// Adds a chunk; refuses one over `max_chunk` bytes or past the announced length.
-    pub fn push(&mut self, chunk: &[u8], max_chunk: usize) -> Result<(), SessionError> {
+    pub fn push(&mut self, chunk: impl Into<Bytes>, max_chunk: usize) -> Result<(), SessionError> {
+        let chunk = chunk.into();
         if chunk.len() > max_chunk {
             return Err(SessionError::too_large(
                 "data",
                 format!("chunk of {} bytes, the limit is {max_chunk}", chunk.len()),
             ));
         }
-        if self.bytes.len() as u64 + chunk.len() as u64 > self.plan.wire_bytes {
+        if self.received + chunk.len() as u64 > self.plan.wire_bytes {
             return Err(invalid(
                 "data",
                 format!(
@@ -225,29 +231,52 @@ impl Assembly {
                 ),
             ));
         }
-        self.bytes.extend_from_slice(chunk);
+        self.received += chunk.len() as u64;
+        if !chunk.is_empty() {
+            self.chunks.push(chunk);
+        }
         Ok(())
     }
 
     /// Whether every announced byte has arrived.
     pub fn complete(&self) -> bool {
-        self.bytes.len() as u64 == self.plan.wire_bytes
+        self.received == self.plan.wire_bytes
     }
 
     /// Bytes still missing.
     pub fn missing(&self) -> u64 {
-        self.plan.wire_bytes - self.bytes.len() as u64
+        self.plan.wire_bytes - self.received
+    }
+
+    /// The pieces of the chunks that hold bytes `at..at + len` of the frame's data, in
+    /// order; None when the data is shorter.
+    fn span(&self, at: usize, len: usize) -> Option<Vec<&[u8]>> {
+        let end = at.checked_add(len)?;
+        let mut pieces = Vec::new();
+        let mut start = 0usize;
+        for c in &self.chunks {
+            let (lo, hi) = (start.max(at), (start + c.len()).min(end));
+            if lo < hi {
+                pieces.push(&c[lo - start..hi - start]);
+            }
+            start += c.len();
+            if start >= end {
+                break;
+            }
+        }
+        (start >= end).then_some(pieces)
     }
 }
 
-/// Decodes `planes` planes of `w x h` float samples of channel `name`.
+/// Decodes `planes` planes of `w x h` float samples of channel `name`, whose bytes are
+/// `raw` (pieces in order), into planes taken from `spare`.
 fn decode_planes(
     name: &str,
     ch: &ChannelHeader,
-    raw: &[u8],
-    w: usize,
-    h: usize,
+    raw: Vec<&[u8]>,
+    (w, h): (usize, usize),
     planes: usize,
+    spare: &mut Scratch,
 ) -> Result<Vec<Plane<f32>>, SessionError> {
     let sample = SampleType::try_from(ch.sample).map_err(|_| {
         invalid(
@@ -267,23 +296,26 @@ fn decode_planes(
     }
     let count = n * planes;
     let want = count * sample_bytes(sample);
-    if raw.len() != want {
+    let got: usize = raw.iter().map(|p| p.len()).sum();
+    if got != want {
         return Err(invalid(
             format!("channels[{name}]"),
-            format!(
-                "expected {want} bytes ({count} {sample:?} samples), got {}",
-                raw.len()
-            ),
+            format!("expected {want} bytes ({count} {sample:?} samples), got {got}"),
         ));
     }
-    Ok(raw
-        .chunks_exact(n * sample_bytes(sample))
-        .map(|bytes| {
-            let mut data = vec![0f32; n];
-            get_samples(bytes, sample, &mut data);
-            Plane::from_vec(w, h, data).expect("length checked")
+    let mut samples = Samples::new(raw, sample);
+    (0..planes)
+        .map(|_| {
+            let mut plane = spare.plane(w, h);
+            if samples.read(plane.data_mut()) {
+                Ok(plane)
+            } else {
+                Err(SessionError::Internal(format!(
+                    "channels[{name}]: the pieces ran out after a length check"
+                )))
+            }
         })
-        .collect())
+        .collect()
 }
 
 fn decompress<'a>(
@@ -303,8 +335,9 @@ fn decompress<'a>(
 }
 
 /// Decodes an assembled frame for a session of `shape` (its header passed
-/// [`FramePlan::check`] against the same shape).
-pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
+/// [`FramePlan::check`] against the same shape), into planes taken from `spare` where it
+/// has them (the session's last input, [`crate::session::Checkout::input_planes`]).
+pub fn decode(a: &Assembly, shape: FrameShape, spare: &mut Scratch) -> Result<Frame, SessionError> {
     let (w, h) = (shape.width as usize, shape.height as usize);
     let n = w * h;
     let mut at = 0usize;
@@ -329,23 +362,30 @@ pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
         seen = seen.with(kind);
         let name = kind.name();
         let len = usize::try_from(ch.byte_length).map_err(|_| invalid("channels.byte_length", "too long"))?;
-        let bytes = at
-            .checked_add(len)
-            .and_then(|end| a.bytes.get(at..end))
-            .ok_or_else(|| {
-                invalid(
-                    format!("channels[{name}]"),
-                    "the data is shorter than the header says",
-                )
-            })?;
+        let pieces = a.span(at, len).ok_or_else(|| {
+            invalid(
+                format!("channels[{name}]"),
+                "the data is shorter than the header says",
+            )
+        })?;
         at += len;
         let (pw, ph) = if kind == ChannelKind::Color {
             (cw, chh)
         } else {
             (w, h)
         };
-        let raw = decompress(name, ch, bytes, raw_len as usize)?;
+        // Uncompressed samples are read across the chunks as they came; compressed ones
+        // are joined for the decompressor.
+        let inflated = match Compression::try_from(ch.compression) {
+            Ok(Compression::None) => None,
+            _ => Some(decompress(name, ch, &joined(&pieces), raw_len as usize)?.into_owned()),
+        };
+        let pieces = match &inflated {
+            Some(raw) => vec![raw.as_slice()],
+            None => pieces,
+        };
         if kind == ChannelKind::ObjectId {
+            let raw = joined(&pieces);
             if raw.len() != n * 4 {
                 return Err(invalid(
                     "channels[object_id]",
@@ -359,7 +399,7 @@ pub fn decode(a: &Assembly, shape: FrameShape) -> Result<Frame, SessionError> {
             ids = Some(Plane::from_vec(w, h, v).expect("length checked"));
             continue;
         }
-        let planes = decode_planes(name, ch, &raw, pw, ph, kind.components())?;
+        let planes = decode_planes(name, ch, pieces, (pw, ph), kind.components(), spare)?;
         if kind == ChannelKind::Color {
             let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
             color = Some([r, g, b]);
@@ -458,7 +498,7 @@ pub fn encode_frame(
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
-    use afterimage_client::codec::{put_samples, BLOCK};
+    use afterimage_client::codec::{get_samples, put_samples, BLOCK};
 
     /// Values that stress the conversions: signed zeros, subnormals of both formats, the
     /// f16 overflow edge, infinities and NaN, plus random HDR values.
@@ -490,6 +530,68 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// A frame decodes to the same bits however its data is cut into chunks: one chunk,
+    /// single bytes, cuts inside samples and across channels, random sizes; and f32 gives
+    /// back exactly what was sent. Odd sizes, adversarial values, planes reused from a
+    /// scratch that already holds other samples.
+    #[test]
+    fn decoding_reads_across_any_chunking() {
+        let (w, h) = (7, 5);
+        let n = w * h;
+        let plane = |k: usize| Plane::from_vec(w, h, adversarial(n + k)[k..].to_vec()).unwrap();
+        let mut frame = Frame::new([plane(0), plane(1), plane(2)]).unwrap();
+        frame.set_f32(ChannelKind::Depth, vec![plane(3)]).unwrap();
+        frame
+            .set_f32(ChannelKind::Motion, vec![plane(4), plane(5)])
+            .unwrap();
+        let channels = ChannelSet::EMPTY
+            .with(ChannelKind::Color)
+            .with(ChannelKind::Depth)
+            .with(ChannelKind::Motion);
+        let shape = FrameShape {
+            width: w as u32,
+            height: h as u32,
+            channels,
+        };
+        let mut rng = SplitMix64::new(3);
+        for sample in [SampleType::F32, SampleType::F16] {
+            let (header, chunks) = encode_frame(&frame, "s", channels, sample, Compression::None, 1 << 20);
+            let data: Vec<u8> = chunks.iter().flat_map(|c| c.data.to_vec()).collect();
+            let random: Vec<usize> = (0..data.len())
+                .map(|_| 1 + (rng.next_f64() * 9.0) as usize)
+                .collect();
+            let cuts: [&dyn Fn(usize) -> usize; 4] = [&|_| data.len(), &|_| 1, &|_| 3, &|i| random[i]];
+            let mut first: Option<Frame> = None;
+            for (c, cut) in cuts.iter().enumerate() {
+                let plan = FramePlan::check(&header, shape, 1 << 30).unwrap();
+                let mut a = Assembly::start(header.clone(), plan);
+                let (mut at, mut i) = (0, 0);
+                while at < data.len() {
+                    let end = (at + cut(i)).min(data.len());
+                    a.push(data[at..end].to_vec(), 1 << 20).unwrap();
+                    (at, i) = (end, i + 1);
+                }
+                let mut spare = Scratch::default();
+                spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
+                let got = decode(&a, shape, &mut spare).unwrap();
+                let bits = |f: &Frame, k: ChannelKind| -> Vec<u32> {
+                    f.planes(k)
+                        .unwrap()
+                        .iter()
+                        .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+                        .collect()
+                };
+                let want = first.get_or_insert_with(|| got.clone());
+                for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
+                    assert_eq!(bits(&got, k), bits(want, k), "{sample:?} cut {c}, {k}");
+                    if sample == SampleType::F32 {
+                        assert_eq!(bits(&got, k), bits(&frame, k), "{sample:?} cut {c}, {k}");
+                    }
+                }
+            }
+        }
     }
 
     /// The blocked, parallel conversions equal the one-sample-at-a-time definition

@@ -548,6 +548,21 @@ impl Frame {
         self.color
     }
 
+    /// Every float plane (colour, then the other channels), taking the frame apart: for a
+    /// caller that reuses them for the next frame ([`crate::pipeline::Scratch`]).
+    pub fn into_planes(self) -> impl Iterator<Item = Plane<f32>> {
+        let rgb = |c: Option<Rgb>| c.into_iter().flatten();
+        let pair = |c: Option<[Plane<f32>; 2]>| c.into_iter().flatten();
+        self.color
+            .into_iter()
+            .chain(self.depth)
+            .chain(pair(self.motion))
+            .chain(pair(self.motion_next))
+            .chain(rgb(self.normal))
+            .chain(rgb(self.albedo))
+            .chain(rgb(self.reference))
+    }
+
     /// Motion planes, mutable.
     pub fn motion_mut(&mut self) -> Option<&mut [Plane<f32>; 2]> {
         self.motion.as_mut()
@@ -625,6 +640,20 @@ mod tests {
             Plane::filled(w, h, v),
             Plane::filled(w, h, v),
         ]
+    }
+
+    /// `into_planes` gives every float plane once, colour first, and no object ids.
+    #[test]
+    fn into_planes_gives_every_float_plane() {
+        let mut f = Frame::new(rgb(3, 2, 1.0)).unwrap();
+        f.set_f32(ChannelKind::Depth, vec![Plane::filled(3, 2, 2.0)])
+            .unwrap();
+        f.set_f32(ChannelKind::Motion, vec![Plane::filled(3, 2, 3.0); 2])
+            .unwrap();
+        f.set_f32(ChannelKind::Reference, rgb(3, 2, 4.0).into()).unwrap();
+        f.set_object_id(Plane::filled(3, 2, 7u32)).unwrap();
+        let firsts: Vec<f32> = f.into_planes().map(|p| p.data()[0]).collect();
+        assert_eq!(firsts, [1.0, 1.0, 1.0, 2.0, 3.0, 3.0, 4.0, 4.0, 4.0]);
     }
 
     #[test]

@@ -256,6 +256,9 @@ struct Inner {
     /// Outputs that came out but were not handed over yet (the HTTP API returns one per
     /// request), oldest first.
     ready: VecDeque<Filtered>,
+    /// The last frame's input planes, which decode the next one: fresh multi-MiB planes
+    /// cost a page fault per 4 KiB, the largest share of a streamed frame's server time.
+    inputs: pipeline::Scratch,
 }
 
 /// Where a session's [`Inner`] is.
@@ -496,7 +499,15 @@ impl Sessions {
         let (channels, needs, uses) = requested_channels(req, &info)?;
         let pixels = req.width as u64 * req.height as u64;
         let lookahead = filter.lookahead();
-        let state_bytes = (state_bpp + queued_bytes_per_pixel(lookahead)) as u64 * pixels;
+        // The filter's state, the frames a window holds, and the planes of the last
+        // frame's input that decode the next ([`Checkout::input_planes`]).
+        let inputs = FrameShape {
+            width: req.width,
+            height: req.height,
+            channels,
+        }
+        .decoded_bytes();
+        let state_bytes = (state_bpp + queued_bytes_per_pixel(lookahead)) as u64 * pixels + inputs;
         let quota = caller.session_slot()?;
         let budgets = self.budgets_of(caller);
         let reservation = Reservation::take(
@@ -543,6 +554,7 @@ impl Sessions {
                 pending: VecDeque::new(),
                 next_index: 0,
                 ready: VecDeque::new(),
+                inputs: pipeline::Scratch::default(),
             }))),
             streamed: AtomicBool::new(false),
             state: Mutex::new(reservation),
@@ -884,6 +896,9 @@ impl Checkout {
         let Some(inner) = self.inner.as_mut() else {
             return outs.map(|_| Vec::new()); // the filter panicked: `outs` is the error
         };
+        // Only this frame's planes: a bound of one decoded frame, whatever sizes came before.
+        inner.inputs = pipeline::Scratch::default();
+        inner.inputs.recycle(frame.into_planes());
         if outs.is_err() {
             inner.pending.pop_back();
         }
@@ -1013,6 +1028,11 @@ impl Checkout {
         Ok(())
     }
 
+    /// Planes the last frame's input left (their samples stale), for decoding the next one.
+    pub fn input_planes(&mut self) -> Result<&mut pipeline::Scratch, SessionError> {
+        Ok(&mut self.inner()?.inputs)
+    }
+
     /// Hands an output's planes back to the filter for reuse (see [`Filter::recycle`]).
     pub fn recycle(&mut self, planes: Rgb) {
         if let Ok(inner) = self.inner() {
@@ -1063,7 +1083,7 @@ impl Checkout {
         let Some(inner) = &self.inner else { return };
         let px = s.info.width as u64 * s.info.height as u64;
         let queued = (inner.pending.len() + inner.ready.len()) as u64 * px * 12;
-        let held = inner.filter.state_bytes() as u64 + queued;
+        let held = inner.filter.state_bytes() as u64 + queued + inner.inputs.bytes() as u64;
         let mut r = lock(&s.state);
         if held > r.bytes() {
             tracing::warn!(id = %s.info.id, filter = %s.info.filter, reserved = r.bytes(), held, "session state outgrew its reservation");
@@ -1246,6 +1266,34 @@ mod tests {
         // And a new session works.
         let fresh = open(&sessions, "phlm");
         process(&sessions, &fresh, frame(0)).unwrap();
+    }
+
+    /// A frame's input planes stay with the session to decode the next one (fresh
+    /// multi-MiB planes fault in page by page): the session holds exactly the last frame's
+    /// float planes, and a plane taken from them is that frame's.
+    #[test]
+    fn a_session_keeps_the_last_input_planes_for_the_next_frame() {
+        let sessions = Sessions::new(Limits::default());
+        let id = open(&sessions, "taa");
+        let f = frame(0);
+        let planes: usize = f
+            .channels()
+            .iter()
+            .filter(|k| *k != ChannelKind::ObjectId)
+            .map(|k| k.components())
+            .sum();
+        let red = f.color()[0].data().to_vec();
+        let mut co = sessions.checkout(&A, &id).unwrap();
+        assert_eq!(co.input_planes().unwrap().bytes(), 0);
+        co.process(f, MotionInput::Internal).unwrap();
+        let spare = co.input_planes().unwrap();
+        assert_eq!(spare.bytes(), planes * 24 * 16 * 4);
+        let reused = spare.plane(24, 16);
+        // Debug builds poison recycled planes; release builds hand back the samples.
+        if !cfg!(debug_assertions) {
+            assert_eq!(reused.data(), &red[..]);
+        }
+        assert_eq!(spare.bytes(), (planes - 1) * 24 * 16 * 4);
     }
 
     #[test]
