@@ -114,6 +114,7 @@ const F32: SendOptions = SendOptions {
     compression: pb::Compression::None,
     reference: true,
     in_flight: 2,
+    shared_memory: false,
 };
 
 async fn stream_all(
@@ -996,46 +997,63 @@ async fn http_frame_values_come_from_headers() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_stream_command_filters_a_scene_remotely() {
-    let r = server(|_| {}).await;
+    let (r, _regions) = shm_server(|_| {}).await;
     let url = format!("http://{}", r.grpc_addr);
-    let dir = tempfile::tempdir().unwrap();
-    let out_dir = dir.path().to_path_buf();
-    let out = tokio::task::spawn_blocking(move || {
-        std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
-            .args([
-                "stream", "--server", &url, "--filter", "taa", "--scene", "fence", "--size", "64x36",
-            ])
-            .args([
-                "--frames",
-                "3",
-                "--spp",
-                "4",
-                "--reference",
-                "--compare",
-                "--output",
-            ])
-            .arg(&out_dir)
-            .output()
-            .unwrap()
-    })
-    .await
-    .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert!(
-        stdout.contains("3 frames of 64x36") && stdout.contains("mean PSNR") && stdout.contains("in process"),
-        "{stdout}"
-    );
-    // What it wrote is what filtering in process gives.
-    let want = in_process("taa", &frames("fence", 3, 1));
-    for (i, w) in want.iter().enumerate() {
-        let f =
-            afterimage::io::read_frame(&dir.path().join(format!("frame_{i:04}.exr")), &Default::default())
-                .unwrap();
-        same(&[f.color().clone()], std::slice::from_ref(w), "stream output");
+    for transport in ["grpc", "shm"] {
+        let dir = tempfile::tempdir().unwrap();
+        let out_dir = dir.path().to_path_buf();
+        let url = url.clone();
+        let out = tokio::task::spawn_blocking(move || {
+            std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
+                .args([
+                    "stream", "--server", &url, "--filter", "taa", "--scene", "fence", "--size", "64x36",
+                ])
+                .args([
+                    "--frames",
+                    "3",
+                    "--spp",
+                    "4",
+                    "--reference",
+                    "--compare",
+                    "--transport",
+                    transport,
+                    "--output",
+                ])
+                .arg(&out_dir)
+                .output()
+                .unwrap()
+        })
+        .await
+        .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{transport}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(
+            stdout.contains("3 frames of 64x36")
+                && stdout.contains("mean PSNR")
+                && stdout.contains("in process"),
+            "{transport}: {stdout}"
+        );
+        // What it wrote is what filtering in process gives.
+        let want = in_process("taa", &frames("fence", 3, 1));
+        for (i, w) in want.iter().enumerate() {
+            let f = afterimage::io::read_frame(
+                &dir.path().join(format!("frame_{i:04}.exr")),
+                &Default::default(),
+            )
+            .unwrap();
+            same(
+                &[f.color().clone()],
+                std::slice::from_ref(w),
+                &format!("{transport} output"),
+            );
+        }
+        // It closed its session.
+        assert_eq!(r.service.sessions.totals().sessions, 0);
     }
-    // It closed its session.
-    assert_eq!(r.service.sessions.totals().sessions, 0);
     r.shutdown().await.unwrap();
 }
 
@@ -3203,5 +3221,274 @@ async fn grpc_reflection_lists_the_service_unless_turned_off() {
     let e = reflect_v1(&r, "afterimage.v1.Afterimage").await.unwrap_err();
     assert_eq!(e.code(), Code::Unimplemented, "{e:?}");
     assert_eq!(health_of(&r, "").await.unwrap(), SERVING);
+    r.shutdown().await.unwrap();
+}
+
+/// A server whose shared memory regions go to a temporary directory (what a test can
+/// list and clean), with `tweak` applied.
+async fn shm_server(tweak: impl FnOnce(&mut Config)) -> (Running, tempfile::TempDir) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().display().to_string();
+    let r = server(|c| {
+        c.shared_memory_dir = path;
+        tweak(c);
+    })
+    .await;
+    (r, dir)
+}
+
+fn files_in(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect()
+}
+
+/// `--transport shm`: frames and replies go through the session's region, only headers
+/// cross the socket, and the colour is the same bits as in process (f32) and as the
+/// socket's f16 (f16); the region is the server user's alone and is removed with its
+/// session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shared_memory_streams_match_the_socket_and_leave_nothing_behind() {
+    use std::os::unix::fs::PermissionsExt;
+    let (r, dir) = shm_server(|_| {}).await;
+    let mut c = client(&r).await;
+    let fr = frames("moving-sphere", 5, 2);
+    let shm = SendOptions {
+        reference: false,
+        shared_memory: true,
+        ..F32
+    };
+    for filter in ["taa", "phlm"] {
+        for in_flight in [1, 2] {
+            let s = open(&mut c, filter).await;
+            let mut payload = 0;
+            let mut got = Vec::new();
+            c.stream(&s, fr.clone(), SendOptions { in_flight, ..shm }, |r| {
+                payload += r.payload_bytes;
+                got.push(r.color)
+            })
+            .await
+            .unwrap();
+            same(
+                &got,
+                &in_process(filter, &fr),
+                &format!("{filter} shm, {in_flight} in flight"),
+            );
+            let files = files_in(dir.path());
+            assert_eq!(files.len(), 1, "one region for the session: {files:?}");
+            let mode = std::fs::metadata(&files[0]).unwrap().permissions().mode();
+            assert_eq!(mode & 0o777, 0o600, "{}", files[0].display());
+            // The payload counts the frames' bytes (written in place), not the replies'.
+            assert!(payload > 0);
+            c.inner
+                .close_session(pb::CloseSessionRequest { id: s.id })
+                .await
+                .unwrap();
+            assert_eq!(
+                files_in(dir.path()),
+                Vec::<std::path::PathBuf>::new(),
+                "removed with the session"
+            );
+        }
+    }
+    let s = open(&mut c, "taa").await;
+    let f16 = SendOptions {
+        sample: pb::SampleType::F16,
+        ..shm
+    };
+    let through_shm = stream_all(&mut c, &s, &fr, f16).await.unwrap();
+    let s = open(&mut c, "taa").await;
+    let through_socket = stream_all(
+        &mut c,
+        &s,
+        &fr,
+        SendOptions {
+            shared_memory: false,
+            ..f16
+        },
+    )
+    .await
+    .unwrap();
+    same(&through_shm, &through_socket, "f16: shm against the socket");
+    r.shutdown().await.unwrap();
+}
+
+/// The shared memory path under attack: every bad offset, size or state gets a precise
+/// status, the server never crashes, and the session still filters afterwards.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shared_memory_refuses_bad_offsets_sizes_and_regions() {
+    use afterimage::frame::ChannelKind::Color;
+    let (r, _dir) = shm_server(|_| {}).await;
+    let mut c = client(&r).await;
+    let fr = frames("flyover", 2, 1);
+    let s = open(&mut c, "taa").await;
+    let (w, h) = (64u64, 36u64);
+    let frame_bytes = 3 * w * h * 4;
+    let header = |at: Option<pb::SharedMemory>| {
+        let mut p = frame_parts(&fr[0], &s.id, &[Color]);
+        let frame_chunk::Part::Header(mut hd) = p.remove(0) else {
+            unreachable!()
+        };
+        hd.shared_memory = at;
+        (hd, p)
+    };
+    let expect = |st: tonic::Status, code: Code, words: &[&str]| {
+        assert_eq!(st.code(), code, "{}", st.message());
+        for w in words {
+            assert!(st.message().contains(w), "{:?} not in {:?}", w, st.message());
+        }
+    };
+    let at = |offset, reply_offset| Some(pb::SharedMemory { offset, reply_offset });
+    // No region yet.
+    let (hd, _) = header(at(0, frame_bytes));
+    expect(
+        raw_stream(&mut c, vec![frame_chunk::Part::Header(hd)]).await,
+        Code::InvalidArgument,
+        &["no shared memory region", "OpenRegion"],
+    );
+    let open_region = |c: &mut Client, id: &str, bytes: u64| {
+        let mut inner = c.inner.clone();
+        let id = id.to_string();
+        async move {
+            inner
+                .open_region(pb::OpenRegionRequest {
+                    session_id: id,
+                    bytes,
+                })
+                .await
+                .map(|r| r.into_inner())
+        }
+    };
+    // Sizes: zero, more than two frames and replies need, then a good one; the same size
+    // again is the same region, another size is refused.
+    // The session's channels and a reference, as f32, and an f32 reply, twice.
+    let components: u64 = s
+        .channels
+        .iter()
+        .map(|c| afterimage::frame::ChannelKind::from_name(c).unwrap().components() as u64)
+        .sum::<u64>()
+        + 3;
+    let max = 2 * (w * h * components * 4 + w * h * 12);
+    for bad in [0, max + 1, u64::MAX] {
+        let e = open_region(&mut c, &s.id, bad).await.unwrap_err();
+        expect(e, Code::InvalidArgument, &["expected 1 to", &max.to_string()]);
+    }
+    let bytes = 2 * frame_bytes + 2 * frame_bytes;
+    let region = open_region(&mut c, &s.id, bytes).await.unwrap();
+    assert_eq!(region.bytes, bytes);
+    assert_eq!(open_region(&mut c, &s.id, bytes).await.unwrap().path, region.path);
+    expect(
+        open_region(&mut c, &s.id, bytes - 1).await.unwrap_err(),
+        Code::InvalidArgument,
+        &["has a region of", "one region"],
+    );
+    // Another session's id that is not ours, and a windowed filter's session.
+    expect(
+        open_region(&mut c, "0123456789abcdef0123456789abcdef", bytes)
+            .await
+            .unwrap_err(),
+        Code::NotFound,
+        &[],
+    );
+    let windowed = open(&mut c, "pixel_trace").await;
+    expect(
+        open_region(&mut c, &windowed.id, bytes).await.unwrap_err(),
+        Code::InvalidArgument,
+        &["windowed filter"],
+    );
+    // Offsets past the end, wrapping, overlapping the reply, a compressed reply, data
+    // chunks after a header in the region.
+    for (offset, reply, words) in [
+        (bytes - 10, 0, &["the frame is", "past the end"][..]),
+        (u64::MAX - 5, frame_bytes, &["past the end"]),
+        (0, u64::MAX, &["the reply is", "past the end"]),
+        (0, frame_bytes - 1, &["overlaps"]),
+        (frame_bytes, 4, &["overlaps"]),
+    ] {
+        let (hd, _) = header(at(offset, reply));
+        expect(
+            raw_stream(&mut c, vec![frame_chunk::Part::Header(hd)]).await,
+            Code::InvalidArgument,
+            words,
+        );
+    }
+    let (mut hd, _) = header(at(0, frame_bytes));
+    hd.reply_compression = pb::Compression::Zstd as i32;
+    expect(
+        raw_stream(&mut c, vec![frame_chunk::Part::Header(hd)]).await,
+        Code::InvalidArgument,
+        &["uncompressed"],
+    );
+    let (hd, data) = header(at(0, frame_bytes));
+    let mut parts = vec![frame_chunk::Part::Header(hd)];
+    parts.extend(data);
+    expect(
+        raw_stream(&mut c, parts).await,
+        Code::InvalidArgument,
+        &["no DataChunk follows"],
+    );
+    // A region the client truncated under the server.
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .open(&region.path)
+        .unwrap();
+    file.set_len(100).unwrap();
+    let (hd, _) = header(at(0, frame_bytes));
+    expect(
+        raw_stream(&mut c, vec![frame_chunk::Part::Header(hd)]).await,
+        Code::InvalidArgument,
+        &["is 100 bytes", "truncated"],
+    );
+    // The session still filters, over the socket, and through the region once it is its
+    // size again.
+    file.set_len(bytes).unwrap();
+    let socket = SendOptions {
+        reference: false,
+        ..F32
+    };
+    same(
+        &stream_all(&mut c, &s, &fr, socket).await.unwrap(),
+        &in_process("taa", &fr),
+        "after the attacks",
+    );
+    r.shutdown().await.unwrap();
+}
+
+/// Regions belong to their session's key, and a server can refuse them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shared_memory_is_per_key_and_can_be_turned_off() {
+    let regions = tempfile::tempdir().unwrap();
+    let dir = regions.path().display().to_string();
+    let (r, _keys) = keyed_server(|c| c.shared_memory_dir = dir).await;
+    let mut a = keyed_client(&r, Some(KEY_A)).await;
+    let mut b = keyed_client(&r, Some(KEY_B)).await;
+    let s = open(&mut a, "taa").await;
+    let req = || pb::OpenRegionRequest {
+        session_id: s.id.clone(),
+        bytes: 1 << 16,
+    };
+    let e = b.inner.open_region(req()).await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{}", e.message());
+    let region = a.inner.open_region(req()).await.unwrap().into_inner();
+    assert!(std::path::Path::new(&region.path).is_file());
+    r.shutdown().await.unwrap();
+    assert!(
+        !std::path::Path::new(&region.path).exists(),
+        "a stopped server leaves no region"
+    );
+    let (r, _dir) = shm_server(|c| c.shared_memory = false).await;
+    let mut c = client(&r).await;
+    let s = open(&mut c, "taa").await;
+    let e = c
+        .inner
+        .open_region(pb::OpenRegionRequest {
+            session_id: s.id,
+            bytes: 1 << 16,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), Code::InvalidArgument, "{}", e.message());
+    assert!(e.message().contains("shared_memory = false"), "{}", e.message());
     r.shutdown().await.unwrap();
 }

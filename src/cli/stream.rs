@@ -86,6 +86,12 @@ pub struct StreamArgs {
     /// last (the server receives one frame while it filters another), for throughput.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
     in_flight: u32,
+    /// How frames travel: `grpc` (their bytes in the stream) or `shm` (a client on the
+    /// server's machine: the bytes go through a shared memory region the server makes for
+    /// the session, and only headers cross the socket; uncompressed, causal filters, at
+    /// most 2 in flight).
+    #[arg(long, default_value = "grpc", value_parser = ["grpc", "shm"])]
+    transport: String,
     /// The routing key sent with every call (`x-afterimage-route`), so that a proxy in
     /// front of several replicas sends all of this run's calls to one (default: random).
     #[arg(long, value_name = "KEY")]
@@ -263,6 +269,7 @@ fn send_shot(
         },
         reference: args.reference,
         in_flight: args.in_flight as usize,
+        shared_memory: args.transport == "shm",
     };
     let route = match &args.route {
         Some(r) => r.clone(),

@@ -133,6 +133,7 @@ pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded
         shading_factor: factor,
         shading_phase_x: phase[0],
         shading_phase_y: phase[1],
+        shared_memory: None,
     };
     Encoded {
         header,

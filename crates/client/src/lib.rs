@@ -2,7 +2,8 @@
 //! renderer, without the filters: the messages and gRPC client generated from
 //! `proto/afterimage/v1/afterimage.proto`, connecting with TLS, an API key and a routing
 //! key ([`connect`]), frames as named planes encoded for the wire ([`frame`]), and
-//! pipelined streaming with replies in order ([`stream`]). `docs/server.md` describes the
+//! pipelined streaming with replies in order ([`stream`]), over the socket or a shared
+//! memory region on the server's machine ([`shm`]). `docs/server.md` describes the
 //! calls; the server's side of the protocol comes with the `server` feature.
 //!
 //! ```no_run
@@ -31,6 +32,7 @@
 pub mod codec;
 pub mod connect;
 pub mod frame;
+pub mod shm;
 pub mod stream;
 
 /// Code generated from `proto/afterimage/v1/afterimage.proto` by `build.rs`.

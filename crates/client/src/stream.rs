@@ -4,6 +4,7 @@
 use crate::connect::Inner;
 use crate::frame::{decode_color, Encoded};
 use crate::proto::{self as pb, filtered_chunk, frame_chunk};
+use crate::shm::SharedRegion;
 use std::collections::VecDeque;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -44,6 +45,20 @@ pub async fn stream(
     session: &pb::Session,
     frames: impl IntoIterator<Item = Encoded>,
     in_flight: usize,
+    on_reply: impl FnMut(Reply),
+) -> Result<(), Status> {
+    stream_through(inner, session, frames, in_flight, None, on_reply).await
+}
+
+/// [`stream`], with the frames' bytes and the replies' colour going through `region` (the
+/// session's shared memory region, cut into at least `lookahead + in_flight` slots) when
+/// given, so that only headers cross the socket.
+pub async fn stream_through(
+    inner: &mut Inner,
+    session: &pb::Session,
+    frames: impl IntoIterator<Item = Encoded>,
+    in_flight: usize,
+    region: Option<&SharedRegion>,
     mut on_reply: impl FnMut(Reply),
 ) -> Result<(), Status> {
     let lookahead = session.lookahead as usize;
@@ -56,26 +71,35 @@ pub async fn stream(
     // Frames go out while replies come in: a server that answers frame t while it
     // receives frame t + 1 never waits on a client busy sending.
     let send = async {
-        for frame in frames {
+        for (n, frame) in (0u64..).zip(frames) {
             match permits.acquire().await {
                 Ok(p) => p.forget(),
-                Err(_) => return,
+                Err(_) => return Ok::<(), Status>(()),
             }
-            lock(&sent_at).push_back((Instant::now(), frame.data_bytes()));
+            let bytes = frame.data_bytes();
+            // Into its slot only now: the reply that used the slot before has been read.
+            let frame = match region {
+                Some(r) => r
+                    .place(n, frame)
+                    .map_err(|e| Status::internal(format!("shared memory region: {e}")))?,
+                None => frame,
+            };
+            lock(&sent_at).push_back((Instant::now(), bytes));
             let parts = std::iter::once(frame_chunk::Part::Header(frame.header))
                 .chain(frame.chunks.into_iter().map(frame_chunk::Part::Data));
             for part in parts {
                 if tx.send(pb::FrameChunk { part: Some(part) }).await.is_err() {
                     // The server ended the stream: the replies' status says why.
-                    return;
+                    return Ok(());
                 }
             }
         }
         // Closing our side makes a windowed filter give its last frames.
         drop(tx);
+        Ok(())
     };
     let receive = async {
-        while let Some(reply) = read_reply(&mut replies, &sent_at).await? {
+        while let Some(reply) = read_reply(&mut replies, &sent_at, region).await? {
             permits.add_permits(1);
             on_reply(reply);
         }
@@ -91,7 +115,10 @@ pub async fn stream(
     let mut sending = true;
     loop {
         tokio::select! {
-            () = &mut send, if sending => sending = false,
+            r = &mut send, if sending => {
+                r?;
+                sending = false;
+            }
             r = &mut receive => return r,
         }
     }
@@ -108,6 +135,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 async fn read_reply(
     replies: &mut tonic::Streaming<pb::FilteredChunk>,
     sent_at: &Mutex<VecDeque<(Instant, u64)>>,
+    region: Option<&SharedRegion>,
 ) -> Result<Option<Reply>, Status> {
     let head = match replies.next().await {
         Some(Ok(pb::FilteredChunk {
@@ -124,6 +152,15 @@ async fn read_reply(
     // The chunks as they came (views of the receive buffers): decoding reads across them.
     let mut chunks = Vec::new();
     let mut received = 0u64;
+    if let Some(at) = &head.shared_memory {
+        let r = region
+            .ok_or_else(|| Status::internal("a reply in shared memory on a stream without a region"))?;
+        let colour = r
+            .read(at.reply_offset, color_h.byte_length)
+            .map_err(|e| Status::internal(format!("shared memory region: reading the reply: {e}")))?;
+        chunks.push(colour.into());
+        received = color_h.byte_length;
+    }
     while received < color_h.byte_length {
         match replies.next().await {
             Some(Ok(pb::FilteredChunk {

@@ -7,6 +7,7 @@ use super::wire;
 use crate::frame::{ChannelSet, Frame, Plane, Rgb};
 pub use afterimage_client::connect::{Auth, ConnectError, ConnectOptions, Inner};
 use afterimage_client::frame::Encoded;
+use afterimage_client::shm::SharedRegion;
 use tonic::Status;
 
 /// A client connected to a server.
@@ -45,6 +46,10 @@ pub struct SendOptions {
     /// it while the server filters the last, which is what the server overlaps (it
     /// receives one frame while it filters another). At least 1.
     pub in_flight: usize,
+    /// Send the frames' bytes and take the replies' colour through a shared memory region
+    /// the server makes for the session (a client on the server's machine; uncompressed,
+    /// causal filters, at most 2 frames in flight): only headers cross the socket.
+    pub shared_memory: bool,
 }
 
 impl Client {
@@ -96,26 +101,87 @@ impl Client {
             );
             Encoded { header, chunks }
         });
+        let region = match opts.shared_memory {
+            true => Some(self.open_region(session, channels, opts).await?),
+            false => None,
+        };
         let mut bad: Option<Status> = None;
-        afterimage_client::stream::stream(&mut self.inner, session, encoded, opts.in_flight, |r| {
-            let (w, h) = (r.width as usize, r.height as usize);
-            let [red, green, blue] = r.color;
-            match [red, green, blue].map(|d| Plane::from_vec(w, h, d)) {
-                [Ok(red), Ok(green), Ok(blue)] => on_reply(Reply {
-                    index: r.index,
-                    color: [red, green, blue],
-                    report: r.report,
-                    round_trip_ms: r.round_trip_ms,
-                    payload_bytes: r.payload_bytes,
-                }),
-                _ => {
-                    bad.get_or_insert_with(|| {
-                        Status::internal(format!("reply {} of a {w}x{h} frame", r.index))
-                    });
+        let through = region.as_ref();
+        afterimage_client::stream::stream_through(
+            &mut self.inner,
+            session,
+            encoded,
+            opts.in_flight,
+            through,
+            |r| {
+                let (w, h) = (r.width as usize, r.height as usize);
+                let [red, green, blue] = r.color;
+                match [red, green, blue].map(|d| Plane::from_vec(w, h, d)) {
+                    [Ok(red), Ok(green), Ok(blue)] => on_reply(Reply {
+                        index: r.index,
+                        color: [red, green, blue],
+                        report: r.report,
+                        round_trip_ms: r.round_trip_ms,
+                        payload_bytes: r.payload_bytes,
+                    }),
+                    _ => {
+                        bad.get_or_insert_with(|| {
+                            Status::internal(format!("reply {} of a {w}x{h} frame", r.index))
+                        });
+                    }
                 }
-            }
-        })
+            },
+        )
         .await?;
         bad.map_or(Ok(()), Err)
+    }
+
+    /// Opens `session`'s shared memory region, a slot per frame in flight, each as large
+    /// as a frame of `channels` (and a reference, when sent) and its reply.
+    async fn open_region(
+        &mut self,
+        session: &pb::Session,
+        channels: ChannelSet,
+        opts: SendOptions,
+    ) -> Result<SharedRegion, Status> {
+        if opts.compression != pb::Compression::None {
+            return Err(Status::invalid_argument(
+                "shared memory takes uncompressed frames: nothing crosses a socket to compress for",
+            ));
+        }
+        if !(1..=2).contains(&opts.in_flight) {
+            return Err(Status::invalid_argument(format!(
+                "shared memory takes 1 or 2 frames in flight (a slot each in the region), not {}",
+                opts.in_flight
+            )));
+        }
+        let send = if opts.reference {
+            channels.with(crate::frame::ChannelKind::Reference)
+        } else {
+            channels
+        };
+        let px = session.width as u64 * session.height as u64;
+        let width = afterimage_client::codec::sample_bytes(opts.sample) as u64;
+        let frame_bytes: u64 = send
+            .with(crate::frame::ChannelKind::Color)
+            .iter()
+            .map(|k| match k {
+                crate::frame::ChannelKind::ObjectId => 4 * px,
+                k => k.components() as u64 * width * px,
+            })
+            .sum();
+        let slots = opts.in_flight as u64;
+        let bytes = SharedRegion::size_for(frame_bytes, 3 * width * px, slots);
+        let region = self
+            .inner
+            .open_region(pb::OpenRegionRequest {
+                session_id: session.id.clone(),
+                bytes,
+            })
+            .await?
+            .into_inner();
+        SharedRegion::open(&region, frame_bytes, slots).map_err(|e| {
+            Status::failed_precondition(format!("opening the shared memory region {}: {e}", region.path))
+        })
     }
 }

@@ -59,6 +59,12 @@ pub struct Config {
     /// methods and messages, for `grpcurl` and the like) on the gRPC port, without a key.
     /// The health service (`grpc.health.v1`) is always served.
     pub grpc_reflection: bool,
+    /// Serve shared memory regions (`OpenRegion`): a client on this machine writes its
+    /// frames into a file on a tmpfs and the stream carries offsets (`afterimage stream
+    /// --transport shm`). A region counts twice its size against the memory budgets.
+    pub shared_memory: bool,
+    /// Where regions are created: a tmpfs the clients can open.
+    pub shared_memory_dir: String,
     /// PEM certificate chain for TLS on both ports (with `tls_key`); empty: plain TCP.
     pub tls_cert: String,
     /// PEM private key for TLS.
@@ -124,6 +130,8 @@ impl Default for Config {
             allow_unauthenticated: false,
             metrics_require_key: false,
             grpc_reflection: true,
+            shared_memory: true,
+            shared_memory_dir: "/dev/shm".into(),
             tls_cert: String::new(),
             tls_key: String::new(),
             header_timeout_s: 10,
@@ -414,6 +422,7 @@ impl Config {
             replica: self.replica_name(),
             default_backend: self.default_backend,
             state_key: self.state_key.clone(),
+            shared_memory_dir: self.shared_memory.then(|| self.shared_memory_dir.clone().into()),
         }
     }
 

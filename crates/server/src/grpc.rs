@@ -13,9 +13,10 @@ use super::wire::{self, Assembly, FramePlan};
 use crate::filters;
 use crate::pipeline::ParamKind;
 use crate::session::{
-    clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Reservation, SessionError, SessionInfo,
+    clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Region, Reservation, SessionError, SessionInfo,
     SessionRequest, StreamClaim,
 };
+use afterimage_client::codec::{put_samples, sample_bytes};
 use std::future::Future;
 use std::pin::Pin;
 use std::time::{Duration, Instant};
@@ -104,23 +105,51 @@ pub fn filters_pb() -> Vec<pb::FilterInfo> {
         .collect()
 }
 
-/// The reply to one filtered frame: a header, then the colour in chunks.
+/// How a frame asks for its reply's colour: the sample type (f32 unless f16) and the
+/// compression.
+fn reply_encoding(req: &pb::FrameHeader) -> (pb::SampleType, pb::Compression) {
+    let sample = match pb::SampleType::try_from(req.reply_sample) {
+        Ok(pb::SampleType::F16) => pb::SampleType::F16,
+        _ => pb::SampleType::F32,
+    };
+    let compression = pb::Compression::try_from(req.reply_compression).unwrap_or(pb::Compression::None);
+    (sample, compression)
+}
+
+/// The reply to one filtered frame: a header, then the colour in chunks; or, with `region`
+/// (the session's shared memory, for a frame that came through it), the colour written at
+/// the frame's `reply_offset` and the header alone.
 pub fn reply(
     f: &Filtered,
     session_id: &str,
     req: &pb::FrameHeader,
     server_ms: f64,
     max_chunk: usize,
-) -> Vec<pb::FilteredChunk> {
-    let sample = pb::SampleType::try_from(req.reply_sample).unwrap_or(pb::SampleType::F32);
-    let sample = if sample == pb::SampleType::U32 {
-        pb::SampleType::F32
-    } else {
-        sample
-    };
-    let compression = pb::Compression::try_from(req.reply_compression).unwrap_or(pb::Compression::None);
+    region: Option<&Region>,
+) -> Result<Vec<pb::FilteredChunk>, SessionError> {
+    let (sample, compression) = reply_encoding(req);
     let (w, h) = f.color[0].size();
-    let bytes = wire::encode_planes(&f.color.each_ref().map(|p| p.data()), sample, compression);
+    let planes = f.color.each_ref().map(|p| p.data());
+    let place = region.zip(req.shared_memory.as_ref());
+    let (bytes, byte_length) = match place {
+        Some((r, at)) => {
+            let len = 3 * w * h * sample_bytes(sample);
+            r.write(f.index, at.reply_offset, len, |buf| {
+                for (p, out) in planes
+                    .iter()
+                    .zip(buf.chunks_exact_mut(w * h * sample_bytes(sample)))
+                {
+                    put_samples(p, sample, out);
+                }
+            })?;
+            (Vec::new(), len)
+        }
+        None => {
+            let bytes = wire::encode_planes(&planes, sample, compression);
+            let len = bytes.len();
+            (bytes, len)
+        }
+    };
     let r = &f.record;
     let report = pb::FrameReport {
         index: f.index,
@@ -153,10 +182,15 @@ pub fn reply(
         color: Some(pb::ChannelHeader {
             name: "color".into(),
             sample: sample as i32,
-            compression: compression as i32,
-            byte_length: bytes.len() as u64,
+            compression: if place.is_some() {
+                pb::Compression::None
+            } else {
+                compression
+            } as i32,
+            byte_length: byte_length as u64,
         }),
         report: Some(report),
+        shared_memory: place.map(|(_, at)| *at),
     };
     let mut out = vec![pb::FilteredChunk {
         part: Some(filtered_chunk::Part::Header(header)),
@@ -168,7 +202,7 @@ pub fn reply(
                 part: Some(filtered_chunk::Part::Data(d)),
             }),
     );
-    out
+    Ok(out)
 }
 
 /// The gRPC service.
@@ -309,14 +343,43 @@ fn start_frame(
         None => svc.sessions.attach(caller, &h.session_id)?,
     };
     let shape = claimed.shape();
+    let region = claimed.region();
     *claim = Some(claimed);
     let plan = FramePlan::check(&h, shape, svc.config.max_frame_mib << 20)?;
-    let bytes = plan.wire_bytes + plan.decoded_bytes + 2 * shape.output_bytes();
+    let assembly = match h.shared_memory {
+        None => Assembly::start(h, plan),
+        Some(at) => {
+            let r = region.ok_or_else(|| {
+                SessionError::invalid(
+                    "header.shared_memory",
+                    format!(
+                        "frame {}: session {} has no shared memory region; open one (OpenRegion) first",
+                        h.index, h.session_id
+                    ),
+                )
+            })?;
+            let (sample, compression) = reply_encoding(&h);
+            if compression != pb::Compression::None {
+                return Err(SessionError::invalid(
+                    "header.reply_compression",
+                    "a reply in shared memory is written uncompressed; expected COMPRESSION_NONE",
+                ));
+            }
+            let reply_len = 3 * shape.pixels() * sample_bytes(sample) as u64;
+            r.check(
+                h.index,
+                (at.offset, plan.wire_bytes),
+                (at.reply_offset, reply_len),
+            )?;
+            Assembly::in_region(h, plan, at.offset)
+        }
+    };
+    let bytes = assembly.plan.wire_bytes + assembly.plan.decoded_bytes + 2 * shape.output_bytes();
     let hold = svc
         .sessions
-        .reserve(caller, bytes, &format!("frame {}", h.index))?;
+        .reserve(caller, bytes, &format!("frame {}", assembly.header.index))?;
     Ok(Receiving {
-        assembly: Assembly::start(h, plan),
+        assembly,
         started: Instant::now(),
         _hold: hold,
         _in_flight: svc.begin(),
@@ -366,6 +429,7 @@ fn filter_job(
     let max_chunk = svc.config.max_chunk_bytes;
     let co = svc.count(claim.checkout());
     let shape = claim.shape();
+    let region = claim.region();
     let share = svc.share(caller, claim.id(), shape);
     let (svc, tx) = (svc.clone(), tx.clone());
     Box::pin(async move {
@@ -376,12 +440,23 @@ fn filter_job(
                 let job = svc.clone();
                 svc.on_pool_as(share, move |_| {
                     let t = Instant::now();
-                    let mut co = co;
-                    let decoded = wire::decode(&frame.assembly, shape, co.input_planes()?)?;
+                    let (mut co, mut frame) = (co, frame);
+                    let region = region
+                        .as_deref()
+                        .filter(|_| frame.assembly.region_offset().is_some());
+                    if let (Some(r), Some(at)) = (region, frame.assembly.region_offset()) {
+                        let len = frame.assembly.plan.wire_bytes as usize;
+                        frame.assembly.fill(r.read(req.index, at, len)?);
+                    }
+                    let decoded = wire::decode(&frame.assembly, shape, co.input_planes()?);
+                    if let Some(r) = region {
+                        r.recycle(frame.assembly.take_buffer());
+                    }
                     drop(frame);
-                    let outs = co.process(decoded, MotionInput::Session)?;
-                    let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-                    Ok(replies_of(&job, &mut co, outs, t, finish))
+                    let outs = co.process(decoded?, MotionInput::Session)?;
+                    let finish =
+                        |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk, region);
+                    replies_of(&job, &mut co, outs, t, finish).into_iter().collect()
                 })
                 .await
             }
@@ -417,8 +492,9 @@ async fn flush_stream(
         let t = Instant::now();
         let mut co = co;
         let outs = co.flush()?;
-        let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk);
-        Ok(replies_of(&job, &mut co, outs, t, finish))
+        // A flush's outputs have no frame of their own to take a place in the region.
+        let finish = |f: &Filtered, ms: f64| reply(f, &req.session_id, &req, ms, max_chunk, None);
+        replies_of(&job, &mut co, outs, t, finish).into_iter().collect()
     })
     .await
 }
@@ -657,7 +733,7 @@ fn take_chunk(
         Some(frame_chunk::Part::Data(d)) => match current.as_mut() {
             None => Err(SessionError::invalid(
                 "data",
-                "chunk out of order: data before any frame header",
+                "chunk out of order: data before any frame header (or after the header of a frame in the shared memory region, which no DataChunk follows)",
             )),
             Some(r) => r.assembly.push(d.data, max_chunk),
         },
@@ -741,6 +817,23 @@ impl Afterimage for Grpc {
             .count(self.0.sessions.close(&caller, &req.into_inner().id))
             .map_err(|e| status(&e))?;
         Ok(Response::new(pb::CloseSessionResponse { frames }))
+    }
+
+    async fn open_region(&self, req: Request<pb::OpenRegionRequest>) -> Result<Response<pb::Region>, Status> {
+        let caller = self.caller(req.metadata())?;
+        let r = req.into_inner();
+        let id = r.session_id.clone();
+        // On the pool: it creates and sizes a file.
+        let region = self
+            .0
+            .on_pool(move |s| s.open_region(&caller, &r.session_id, r.bytes))
+            .await
+            .map_err(|e| status(&e))?;
+        Ok(Response::new(pb::Region {
+            session_id: id,
+            path: region.path().to_string_lossy().into_owned(),
+            bytes: region.bytes(),
+        }))
     }
 
     type StreamStream = ReplyStream;

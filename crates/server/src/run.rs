@@ -204,6 +204,8 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         while svc.in_flight() > 0 && started.elapsed() < deadline {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
+        // Shared memory regions are files on a tmpfs: they would outlive the process.
+        svc.sessions.close_regions();
         let _ = close.send(true);
         let left = deadline.saturating_sub(started.elapsed());
         // The accept loops close their listeners on `close`; waiting for them means a

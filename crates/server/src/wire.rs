@@ -200,6 +200,8 @@ pub struct Assembly {
     chunks: Vec<Bytes>,
     /// Bytes received so far.
     received: u64,
+    /// Where the frame's bytes lie in the session's shared memory region, when they do.
+    region: Option<u64>,
 }
 
 impl Assembly {
@@ -210,12 +212,52 @@ impl Assembly {
             plan,
             chunks: Vec::new(),
             received: 0,
+            region: None,
         }
+    }
+
+    /// A frame whose bytes lie in the session's shared memory region from `offset` (its
+    /// header passed [`FramePlan::check`] and the region's check): complete at once, and
+    /// [`Assembly::fill`] gives it its bytes when they are read.
+    pub fn in_region(header: FrameHeader, plan: FramePlan, offset: u64) -> Assembly {
+        Assembly {
+            received: plan.wire_bytes,
+            region: Some(offset),
+            ..Assembly::start(header, plan)
+        }
+    }
+
+    /// Where the frame's bytes lie in the region, when they do.
+    pub fn region_offset(&self) -> Option<u64> {
+        self.region
+    }
+
+    /// Gives a frame in the region the bytes read from it.
+    pub fn fill(&mut self, bytes: Vec<u8>) {
+        self.chunks = vec![Bytes::from(bytes)];
+    }
+
+    /// Takes back the buffer [`Assembly::fill`] gave (empty if it is shared still).
+    pub fn take_buffer(&mut self) -> Vec<u8> {
+        self.chunks
+            .pop()
+            .and_then(|b| b.try_into_mut().ok())
+            .map(Vec::from)
+            .unwrap_or_default()
     }
 
     /// Adds a chunk; refuses one over `max_chunk` bytes or past the announced length.
     pub fn push(&mut self, chunk: impl Into<Bytes>, max_chunk: usize) -> Result<(), SessionError> {
         let chunk = chunk.into();
+        if self.region.is_some() {
+            return Err(invalid(
+                "data",
+                format!(
+                    "chunk out of order: frame {}'s bytes are in the shared memory region; no DataChunk follows its header",
+                    self.header.index
+                ),
+            ));
+        }
         if chunk.len() > max_chunk {
             return Err(SessionError::too_large(
                 "data",

@@ -16,10 +16,12 @@
 pub mod access;
 pub mod budget;
 mod error;
+pub mod region;
 
 pub use access::{ApiKey, Caller, Keyring, Quotas};
 pub use budget::{Budget, Reservation};
 pub use error::{cap_message, clip, ErrorKind, SessionError, ECHO_CHARS, MAX_MESSAGE_BYTES};
+pub use region::Region;
 
 use crate::backend::Created;
 use crate::filters;
@@ -66,6 +68,8 @@ pub struct Limits {
     /// [`crate::pipeline::state`]); a secret, never shown.
     #[serde(skip)]
     pub state_key: Option<crate::pipeline::state::StateKey>,
+    /// Where shared memory regions are created (None: refused).
+    pub shared_memory_dir: Option<std::path::PathBuf>,
 }
 
 impl Default for Limits {
@@ -81,6 +85,7 @@ impl Default for Limits {
             replica: "local".into(),
             default_backend: crate::backend::BackendChoice::Cpu,
             state_key: None,
+            shared_memory_dir: Some("/dev/shm".into()),
         }
     }
 }
@@ -292,6 +297,8 @@ struct Session {
     state: Mutex<Reservation>,
     /// Its place in its key's session quota.
     _quota: SessionSlot,
+    /// Its shared memory region, once a client opened one (removed with the session).
+    region: Mutex<Option<Arc<Region>>>,
 }
 
 impl Session {
@@ -559,6 +566,7 @@ impl Sessions {
             streamed: AtomicBool::new(false),
             state: Mutex::new(reservation),
             _quota: quota,
+            region: Mutex::new(None),
         });
         let mut map = lock(&self.map);
         if map.len() >= l.max_sessions {
@@ -702,6 +710,73 @@ impl Sessions {
         Checkout::take(s)
     }
 
+    /// Session `id`'s shared memory region, made on the first call (`bytes` long, at most
+    /// what two frames in flight and their f32 replies can take) and the same one after
+    /// with the same size. Refused when the server's config turns regions off. Its memory
+    /// (the file, and the buffers a frame and a reply are staged in) is reserved against
+    /// the caller's budgets until the session closes.
+    pub fn open_region(&self, caller: &Caller, id: &str, bytes: u64) -> Result<Arc<Region>, SessionError> {
+        self.check_open()?;
+        let s = self.get_arc(caller, id)?;
+        let Some(dir) = &self.limits.shared_memory_dir else {
+            return Err(SessionError::invalid(
+                "shared_memory",
+                "this server serves no shared memory regions (shared_memory = false); stream the frames' bytes instead",
+            ));
+        };
+        if s.info.lookahead > 0 {
+            return Err(SessionError::invalid(
+                "session_id",
+                format!(
+                    "session {id} runs a windowed filter ({}, {} frames of lookahead): its outputs come after later frames and have no place of their own in a region; stream its frames' bytes instead",
+                    s.info.filter, s.info.lookahead
+                ),
+            ));
+        }
+        let shape = s.shape();
+        let max = 2 * (shape.decoded_bytes() + shape.output_bytes());
+        if bytes == 0 || bytes > max {
+            return Err(SessionError::invalid(
+                "bytes",
+                format!(
+                    "a region of {bytes} bytes for a {}x{} session: expected 1 to {max} (two frames of its channels as f32 and their replies)",
+                    shape.width, shape.height
+                ),
+            ));
+        }
+        let mut slot = lock(&s.region);
+        if let Some(r) = slot.as_ref() {
+            return if r.bytes() == bytes {
+                Ok(r.clone())
+            } else {
+                Err(SessionError::invalid(
+                    "bytes",
+                    format!(
+                        "session {id} has a region of {} bytes; a session has one region (close the session for another size)",
+                        r.bytes()
+                    ),
+                ))
+            };
+        }
+        let hold = self.reserve(
+            caller,
+            2 * bytes,
+            &format!("a shared memory region of {bytes} bytes"),
+        )?;
+        let region = Arc::new(Region::create(dir, id, bytes, hold)?);
+        tracing::info!(id, bytes, path = %region.path().display(), "shared memory region opened");
+        *slot = Some(region.clone());
+        Ok(region)
+    }
+
+    /// Drops every session's shared memory region (their files are removed once no frame
+    /// in flight holds them): for a server that stops.
+    pub fn close_regions(&self) {
+        for s in lock(&self.map).values() {
+            lock(&s.region).take();
+        }
+    }
+
     /// Claims session `id` for a gRPC stream until the [`StreamClaim`] is dropped: refused
     /// when another stream has it.
     pub fn attach(&self, caller: &Caller, id: &str) -> Result<StreamClaim, SessionError> {
@@ -734,6 +809,11 @@ impl StreamClaim {
     /// The session's frame shape.
     pub fn shape(&self) -> FrameShape {
         self.session.shape()
+    }
+
+    /// The session's shared memory region, if a client opened one.
+    pub fn region(&self) -> Option<Arc<Region>> {
+        lock(&self.session.region).clone()
     }
 
     /// Takes the session for the stream's next frame (refused when it failed). A frame

@@ -22,6 +22,32 @@ SAMPLE_TYPE_U32: SampleType
 COMPRESSION_NONE: Compression
 COMPRESSION_ZSTD: Compression
 
+class OpenRegionRequest(_message.Message):
+    __slots__ = ("session_id", "bytes")
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    BYTES_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    bytes: int
+    def __init__(self, session_id: _Optional[str] = ..., bytes: _Optional[int] = ...) -> None: ...
+
+class Region(_message.Message):
+    __slots__ = ("session_id", "path", "bytes")
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    PATH_FIELD_NUMBER: _ClassVar[int]
+    BYTES_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    path: str
+    bytes: int
+    def __init__(self, session_id: _Optional[str] = ..., path: _Optional[str] = ..., bytes: _Optional[int] = ...) -> None: ...
+
+class SharedMemory(_message.Message):
+    __slots__ = ("offset", "reply_offset")
+    OFFSET_FIELD_NUMBER: _ClassVar[int]
+    REPLY_OFFSET_FIELD_NUMBER: _ClassVar[int]
+    offset: int
+    reply_offset: int
+    def __init__(self, offset: _Optional[int] = ..., reply_offset: _Optional[int] = ...) -> None: ...
+
 class ListFiltersRequest(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...
@@ -158,7 +184,7 @@ class ChannelHeader(_message.Message):
     def __init__(self, name: _Optional[str] = ..., sample: _Optional[_Union[SampleType, str]] = ..., compression: _Optional[_Union[Compression, str]] = ..., byte_length: _Optional[int] = ...) -> None: ...
 
 class FrameHeader(_message.Message):
-    __slots__ = ("session_id", "index", "reset", "jitter_x", "jitter_y", "channels", "reply_sample", "reply_compression", "shading_factor", "shading_phase_x", "shading_phase_y")
+    __slots__ = ("session_id", "index", "reset", "jitter_x", "jitter_y", "channels", "reply_sample", "reply_compression", "shading_factor", "shading_phase_x", "shading_phase_y", "shared_memory")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     RESET_FIELD_NUMBER: _ClassVar[int]
@@ -170,6 +196,7 @@ class FrameHeader(_message.Message):
     SHADING_FACTOR_FIELD_NUMBER: _ClassVar[int]
     SHADING_PHASE_X_FIELD_NUMBER: _ClassVar[int]
     SHADING_PHASE_Y_FIELD_NUMBER: _ClassVar[int]
+    SHARED_MEMORY_FIELD_NUMBER: _ClassVar[int]
     session_id: str
     index: int
     reset: bool
@@ -181,7 +208,8 @@ class FrameHeader(_message.Message):
     shading_factor: int
     shading_phase_x: int
     shading_phase_y: int
-    def __init__(self, session_id: _Optional[str] = ..., index: _Optional[int] = ..., reset: bool = ..., jitter_x: _Optional[float] = ..., jitter_y: _Optional[float] = ..., channels: _Optional[_Iterable[_Union[ChannelHeader, _Mapping]]] = ..., reply_sample: _Optional[_Union[SampleType, str]] = ..., reply_compression: _Optional[_Union[Compression, str]] = ..., shading_factor: _Optional[int] = ..., shading_phase_x: _Optional[int] = ..., shading_phase_y: _Optional[int] = ...) -> None: ...
+    shared_memory: SharedMemory
+    def __init__(self, session_id: _Optional[str] = ..., index: _Optional[int] = ..., reset: bool = ..., jitter_x: _Optional[float] = ..., jitter_y: _Optional[float] = ..., channels: _Optional[_Iterable[_Union[ChannelHeader, _Mapping]]] = ..., reply_sample: _Optional[_Union[SampleType, str]] = ..., reply_compression: _Optional[_Union[Compression, str]] = ..., shading_factor: _Optional[int] = ..., shading_phase_x: _Optional[int] = ..., shading_phase_y: _Optional[int] = ..., shared_memory: _Optional[_Union[SharedMemory, _Mapping]] = ...) -> None: ...
 
 class DataChunk(_message.Message):
     __slots__ = ("data",)
@@ -238,20 +266,22 @@ class FrameReport(_message.Message):
     def __init__(self, index: _Optional[int] = ..., total_ms: _Optional[float] = ..., stages: _Optional[_Iterable[_Union[StageTime, _Mapping]]] = ..., history_reset: _Optional[int] = ..., history_rejected: _Optional[int] = ..., history_clipped: _Optional[int] = ..., non_finite_input: _Optional[int] = ..., negative_input: _Optional[int] = ..., state_bytes: _Optional[int] = ..., psnr: _Optional[float] = ..., ssim: _Optional[float] = ..., record_json: _Optional[str] = ..., server_ms: _Optional[float] = ...) -> None: ...
 
 class FilteredHeader(_message.Message):
-    __slots__ = ("session_id", "index", "width", "height", "color", "report")
+    __slots__ = ("session_id", "index", "width", "height", "color", "report", "shared_memory")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     INDEX_FIELD_NUMBER: _ClassVar[int]
     WIDTH_FIELD_NUMBER: _ClassVar[int]
     HEIGHT_FIELD_NUMBER: _ClassVar[int]
     COLOR_FIELD_NUMBER: _ClassVar[int]
     REPORT_FIELD_NUMBER: _ClassVar[int]
+    SHARED_MEMORY_FIELD_NUMBER: _ClassVar[int]
     session_id: str
     index: int
     width: int
     height: int
     color: ChannelHeader
     report: FrameReport
-    def __init__(self, session_id: _Optional[str] = ..., index: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., color: _Optional[_Union[ChannelHeader, _Mapping]] = ..., report: _Optional[_Union[FrameReport, _Mapping]] = ...) -> None: ...
+    shared_memory: SharedMemory
+    def __init__(self, session_id: _Optional[str] = ..., index: _Optional[int] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., color: _Optional[_Union[ChannelHeader, _Mapping]] = ..., report: _Optional[_Union[FrameReport, _Mapping]] = ..., shared_memory: _Optional[_Union[SharedMemory, _Mapping]] = ...) -> None: ...
 
 class FilteredChunk(_message.Message):
     __slots__ = ("header", "data")

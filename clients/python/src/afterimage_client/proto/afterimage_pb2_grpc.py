@@ -59,6 +59,11 @@ class AfterimageStub(object):
                 request_serializer=afterimage_dot_v1_dot_afterimage__pb2.FrameChunk.SerializeToString,
                 response_deserializer=afterimage_dot_v1_dot_afterimage__pb2.FilteredChunk.FromString,
                 _registered_method=True)
+        self.OpenRegion = channel.unary_unary(
+                '/afterimage.v1.Afterimage/OpenRegion',
+                request_serializer=afterimage_dot_v1_dot_afterimage__pb2.OpenRegionRequest.SerializeToString,
+                response_deserializer=afterimage_dot_v1_dot_afterimage__pb2.Region.FromString,
+                _registered_method=True)
 
 
 class AfterimageServicer(object):
@@ -100,6 +105,17 @@ class AfterimageServicer(object):
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def OpenRegion(self, request, context):
+        """A shared memory region for a session (a file on the server's tmpfs, readable and
+        writable by the server's user only): frames and replies are written in place and
+        the stream carries only their offsets. One per session, freed with it; asking again
+        with the same size gives the same region. Refused when the server's config turns it
+        off.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
 
 def add_AfterimageServicer_to_server(servicer, server):
     rpc_method_handlers = {
@@ -127,6 +143,11 @@ def add_AfterimageServicer_to_server(servicer, server):
                     servicer.Stream,
                     request_deserializer=afterimage_dot_v1_dot_afterimage__pb2.FrameChunk.FromString,
                     response_serializer=afterimage_dot_v1_dot_afterimage__pb2.FilteredChunk.SerializeToString,
+            ),
+            'OpenRegion': grpc.unary_unary_rpc_method_handler(
+                    servicer.OpenRegion,
+                    request_deserializer=afterimage_dot_v1_dot_afterimage__pb2.OpenRegionRequest.FromString,
+                    response_serializer=afterimage_dot_v1_dot_afterimage__pb2.Region.SerializeToString,
             ),
     }
     generic_handler = grpc.method_handlers_generic_handler(
@@ -264,6 +285,33 @@ class Afterimage(object):
             '/afterimage.v1.Afterimage/Stream',
             afterimage_dot_v1_dot_afterimage__pb2.FrameChunk.SerializeToString,
             afterimage_dot_v1_dot_afterimage__pb2.FilteredChunk.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def OpenRegion(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/afterimage.v1.Afterimage/OpenRegion',
+            afterimage_dot_v1_dot_afterimage__pb2.OpenRegionRequest.SerializeToString,
+            afterimage_dot_v1_dot_afterimage__pb2.Region.FromString,
             options,
             channel_credentials,
             insecure,
