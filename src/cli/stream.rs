@@ -314,7 +314,7 @@ fn send_shot(
             let start = replies.len();
             let t = Instant::now();
             let sent = client
-                .stream(&session, frames[start..].iter().cloned(), opts, |r| {
+                .stream(&session, &frames[start..], opts, |r| {
                     bar.inc(1);
                     replies.push(r);
                 })

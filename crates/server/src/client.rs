@@ -72,7 +72,7 @@ impl Client {
     pub async fn stream(
         &mut self,
         session: &pb::Session,
-        frames: impl IntoIterator<Item = Frame>,
+        frames: impl IntoIterator<Item = impl std::borrow::Borrow<Frame>>,
         opts: SendOptions,
         mut on_reply: impl FnMut(Reply),
     ) -> Result<(), Status> {
@@ -85,6 +85,7 @@ impl Client {
         );
         let max_chunk = session.max_chunk_bytes.max(1) as usize;
         let encoded = frames.into_iter().map(|frame| {
+            let frame = frame.borrow();
             // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
             let send = if opts.reference && frame.reference().is_some() {
                 channels.with(crate::frame::ChannelKind::Reference)
@@ -92,7 +93,7 @@ impl Client {
                 channels
             };
             let (header, chunks) = wire::encode_frame(
-                &frame,
+                frame,
                 &session.id,
                 send,
                 opts.sample,
