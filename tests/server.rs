@@ -3440,8 +3440,7 @@ async fn shared_memory_refuses_bad_offsets_sizes_and_regions() {
         Code::InvalidArgument,
         &["is 100 bytes", "truncated"],
     );
-    // The session still filters, over the socket, and through the region once it is its
-    // size again.
+    // The session still filters (over the socket) after all of that.
     file.set_len(bytes).unwrap();
     let socket = SendOptions {
         reference: false,
