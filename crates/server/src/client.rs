@@ -92,14 +92,8 @@ impl Client {
             } else {
                 channels
             };
-            let (header, chunks) = wire::encode_frame(
-                frame,
-                &session.id,
-                send,
-                opts.sample,
-                opts.compression,
-                max_chunk,
-            );
+            let (header, chunks) =
+                wire::encode_frame(frame, &session.id, send, opts.sample, opts.compression, max_chunk);
             Encoded { header, chunks }
         });
         let region = match opts.shared_memory {
