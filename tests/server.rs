@@ -3279,6 +3279,12 @@ async fn shared_memory_streams_match_the_socket_and_leave_nothing_behind() {
             assert_eq!(files.len(), 1, "one region for the session: {files:?}");
             let mode = std::fs::metadata(&files[0]).unwrap().permissions().mode();
             assert_eq!(mode & 0o777, 0o600, "{}", files[0].display());
+            // Anyone can list the directory: the name must not give the session away.
+            assert!(
+                !files[0].display().to_string().contains(&s.id),
+                "{}",
+                files[0].display()
+            );
             // The payload counts the frames' bytes (written in place), not the replies'.
             assert!(payload > 0);
             c.inner

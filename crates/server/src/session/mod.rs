@@ -763,7 +763,7 @@ impl Sessions {
             2 * bytes,
             &format!("a shared memory region of {bytes} bytes"),
         )?;
-        let region = Arc::new(Region::create(dir, id, bytes, hold)?);
+        let region = Arc::new(Region::create(dir, bytes, hold)?);
         tracing::info!(id, bytes, path = %region.path().display(), "shared memory region opened");
         *slot = Some(region.clone());
         Ok(region)

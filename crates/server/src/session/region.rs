@@ -29,16 +29,17 @@ pub struct Region {
 }
 
 impl Region {
-    /// Creates the file `dir/afterimage-<session>-<random>`, of `bytes` bytes, readable and
-    /// writable by this user only. `create_new` refuses a path that exists, a link
-    /// included, so nothing a client planted there is opened.
-    pub fn create(dir: &Path, session: &str, bytes: u64, hold: Reservation) -> Result<Region, SessionError> {
+    /// Creates the file `dir/afterimage-<random>`, of `bytes` bytes, readable and writable
+    /// by this user only. `create_new` refuses a path that exists, a link included, so
+    /// nothing a client planted there is opened. The name leaves the session id out: anyone
+    /// on the machine can list the directory, and an id is what opens a session.
+    pub fn create(dir: &Path, bytes: u64, hold: Reservation) -> Result<Region, SessionError> {
         let io = |what: &str, path: &Path, e: std::io::Error| {
             SessionError::Internal(format!("shared memory: {what} {}: {e}", path.display()))
         };
-        let random = random_hex(8)
+        let random = random_hex(16)
             .map_err(|e| SessionError::Internal(format!("shared memory: no random name: {e}")))?;
-        let name = format!("afterimage-{session}-{random}");
+        let name = format!("afterimage-{random}");
         let path = dir.join(name);
         let file = OpenOptions::new()
             .read(true)
