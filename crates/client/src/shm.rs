@@ -31,16 +31,16 @@ impl SharedRegion {
     }
 
     /// Opens the region the server made (read and write), cut into `slots` slots whose
-    /// frames take at most `frame_bytes`.
-    pub fn open(region: &Region, frame_bytes: u64, slots: u64) -> io::Result<SharedRegion> {
+    /// frames take at most `frame_bytes` and replies at most `reply_bytes`.
+    pub fn open(region: &Region, frame_bytes: u64, reply_bytes: u64, slots: u64) -> io::Result<SharedRegion> {
         let file = OpenOptions::new().read(true).write(true).open(&region.path)?;
         let slots = slots.max(1);
         let slot_bytes = region.bytes / slots;
-        if slot_bytes <= frame_bytes {
+        if slot_bytes < frame_bytes + reply_bytes {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
                 format!(
-                    "a region of {} bytes cut into {slots} slots has {slot_bytes} bytes a slot, not more than a frame's {frame_bytes}",
+                    "a region of {} bytes cut into {slots} slots has {slot_bytes} bytes a slot, less than a frame's {frame_bytes} and a reply's {reply_bytes}",
                     region.bytes
                 ),
             ));
@@ -51,6 +51,11 @@ impl SharedRegion {
             frame_bytes,
             slots,
         })
+    }
+
+    /// Frames it can hold at once.
+    pub fn slots(&self) -> u64 {
+        self.slots
     }
 
     /// Writes the `n`th frame sent into its slot and returns the header to send for it

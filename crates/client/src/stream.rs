@@ -62,6 +62,16 @@ pub async fn stream_through(
     mut on_reply: impl FnMut(Reply),
 ) -> Result<(), Status> {
     let lookahead = session.lookahead as usize;
+    if let Some(r) = region {
+        // A slot per frame in flight, or a frame would overwrite one still in use.
+        let need = (lookahead + in_flight.max(1)) as u64;
+        if r.slots() < need {
+            return Err(Status::invalid_argument(format!(
+                "a shared memory region of {} slots for {need} frames in flight",
+                r.slots()
+            )));
+        }
+    }
     let (tx, rx) = mpsc::channel::<pb::FrameChunk>(4);
     let mut replies = inner.stream(ReceiverStream::new(rx)).await?.into_inner();
     // Frames sent whose reply has not come: when, and how many bytes.

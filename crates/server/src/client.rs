@@ -175,7 +175,7 @@ impl Client {
             })
             .await?
             .into_inner();
-        SharedRegion::open(&region, frame_bytes, slots).map_err(|e| {
+        SharedRegion::open(&region, frame_bytes, 3 * width * px, slots).map_err(|e| {
             Status::failed_precondition(format!("opening the shared memory region {}: {e}", region.path))
         })
     }

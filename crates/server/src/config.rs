@@ -337,6 +337,13 @@ impl Config {
                 got: format!("{addr:?}"),
             })?;
         }
+        if self.shared_memory && !Path::new(&self.shared_memory_dir).is_absolute() {
+            return Err(ConfigError::Invalid {
+                field: "shared_memory_dir",
+                expected: "an absolute directory (a tmpfs such as /dev/shm), or shared_memory = false".into(),
+                got: format!("{:?}", self.shared_memory_dir),
+            });
+        }
         let positive: [(&'static str, u64); 17] = [
             ("max_sessions", self.max_sessions as u64),
             ("memory_budget_mib", self.memory_budget_mib),
@@ -571,6 +578,22 @@ mod tests {
         .unwrap();
         assert!(c.allow_unauthenticated);
         assert_eq!(c.replica, "3");
+    }
+
+    #[test]
+    fn shared_memory_needs_an_absolute_directory_unless_off() {
+        let c = Config::load(None, env(&[("AFTERIMAGE_SHARED_MEMORY_DIR", "shm")])).unwrap_err();
+        assert!(c.to_string().contains("shared_memory_dir"), "{c}");
+        let off = [
+            ("AFTERIMAGE_SHARED_MEMORY_DIR", "shm"),
+            ("AFTERIMAGE_SHARED_MEMORY", "false"),
+        ];
+        let c = Config::load(None, env(&off)).unwrap();
+        assert_eq!(c.limits().shared_memory_dir, None);
+        assert_eq!(
+            Config::default().limits().shared_memory_dir,
+            Some("/dev/shm".into())
+        );
     }
 
     #[test]

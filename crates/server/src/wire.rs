@@ -187,6 +187,9 @@ fn channel_kind(
     Ok(kind)
 }
 
+/// Chunks at least this long are kept as they came; shorter ones are copied together.
+const KEEP_CHUNK_BYTES: usize = 64 << 10;
+
 /// Collects one frame's chunks after its header. The chunks are kept as they came (views
 /// of the transport's receive buffers), not copied into one buffer: decoding reads across
 /// them.
@@ -196,8 +199,12 @@ pub struct Assembly {
     pub header: FrameHeader,
     /// What it announced.
     pub plan: FramePlan,
-    /// The data chunks so far, in order.
+    /// The data so far, in order: large chunks as they came, runs of small ones copied
+    /// together (kept as views, a 1-byte chunk would pin its message's framing and cost a
+    /// piece per byte).
     chunks: Vec<Bytes>,
+    /// Small chunks copied together since the last large one.
+    tail: Vec<u8>,
     /// Bytes received so far.
     received: u64,
     /// Where the frame's bytes lie in the session's shared memory region, when they do.
@@ -211,6 +218,7 @@ impl Assembly {
             header,
             plan,
             chunks: Vec::new(),
+            tail: Vec::new(),
             received: 0,
             region: None,
         }
@@ -274,10 +282,30 @@ impl Assembly {
             ));
         }
         self.received += chunk.len() as u64;
-        if !chunk.is_empty() {
+        if chunk.len() < KEEP_CHUNK_BYTES {
+            if self.tail.capacity() == 0 {
+                // Once, for what is still to come: no regrowth, whatever the chunking.
+                self.tail
+                    .reserve_exact((self.missing() + chunk.len() as u64) as usize);
+            }
+            self.tail.extend_from_slice(&chunk);
+        } else {
+            self.close_tail();
             self.chunks.push(chunk);
         }
+        if self.complete() {
+            self.close_tail();
+            self.tail = Vec::new();
+        }
         Ok(())
+    }
+
+    /// Ends a run of small chunks: one piece of exactly their bytes.
+    fn close_tail(&mut self) {
+        if !self.tail.is_empty() {
+            self.chunks.push(Bytes::copy_from_slice(&self.tail));
+            self.tail.clear();
+        }
     }
 
     /// Whether every announced byte has arrived.
@@ -615,6 +643,8 @@ mod tests {
                     a.push(data[at..end].to_vec(), 1 << 20).unwrap();
                     (at, i) = (end, i + 1);
                 }
+                // Small chunks are copied together: one piece, not one per chunk.
+                assert_eq!(a.chunks.len(), 1, "{sample:?} cut {c}");
                 let mut spare = Scratch::default();
                 spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
                 let got = decode(&a, shape, &mut spare).unwrap();

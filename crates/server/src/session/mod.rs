@@ -745,6 +745,9 @@ impl Sessions {
             ));
         }
         let mut slot = lock(&s.region);
+        // Again under the lock: a region made after `close_regions` swept would outlive
+        // the server.
+        self.check_open()?;
         if let Some(r) = slot.as_ref() {
             return if r.bytes() == bytes {
                 Ok(r.clone())
