@@ -313,13 +313,15 @@ fn phlm_matches_the_f64_reference_over_1000_frames() {
 /// 10,000 frames: the clip test (Algorithm 1 line 16) is a branch; a prediction that lies
 /// within rounding of the box surface can take the other branch in f32 than in f64, and a
 /// clip resets the model, so that pixel's output differs by up to the clip distance until
-/// the models agree again. Such flips are rare (measured: 12 of 3.84 million pixel-frames
-/// over 1e-3, at most 0.032) and heal (last frame: 5.5e-7); everywhere else f32 stays
-/// within 1e-3.
+/// the models agree again. Such flips are rare (measured: 122 of 3.84 million pixel-frames
+/// over 1e-3, at most 0.049; 12 and 0.032 with `lambda_speed = 1`, whose forgetting at
+/// this scene's 0.43 px/frame was 0.91 where the default's is now 0.8, a shorter memory
+/// that follows each frame's rounding more) and heal (last frame: 2.9e-7); everywhere else
+/// f32 stays within 1e-3.
 #[test]
 #[ignore = "10,000 frames: run in release"]
 fn phlm_matches_the_f64_reference_over_10000_frames() {
     let (_, over, last) = compare(10_000);
-    assert!(over <= 40, "{over} pixel-frames over 1e-3 (1e-5 of all)");
+    assert!(over <= 400, "{over} pixel-frames over 1e-3 (1e-4 of all)");
     assert!(last < 1e-3, "{last}");
 }
