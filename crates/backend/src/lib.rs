@@ -84,15 +84,13 @@ impl BackendChoice {
 
 impl std::str::FromStr for BackendChoice {
     type Err = BackendError;
+    /// The choice whose name (as `Display` writes it) is `s`.
     fn from_str(s: &str) -> Result<Self, BackendError> {
-        match s {
-            "cpu" => Ok(BackendChoice::Cpu),
-            "gpu" => Ok(BackendChoice::Gpu),
-            "auto" => Ok(BackendChoice::Auto),
-            "gpu-f16" => Ok(BackendChoice::GpuF16),
-            "auto-f16" => Ok(BackendChoice::AutoF16),
-            _ => Err(BackendError::UnknownChoice { got: s.to_string() }),
-        }
+        let unknown = || BackendError::UnknownChoice { got: s.to_string() };
+        Self::ALL
+            .into_iter()
+            .find(|c| c.to_string() == s)
+            .ok_or_else(unknown)
     }
 }
 
