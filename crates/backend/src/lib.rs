@@ -287,29 +287,28 @@ pub fn create(
     }
 }
 
-#[cfg(feature = "gpu")]
+/// The GPU filter `name` with `values` (`bytes` of state per pixel), its colour uploaded at
+/// `upload`; [`BackendError::NotBuilt`] in a build without the `gpu` feature.
 fn create_gpu(
     name: &'static str,
     values: &Map<String, Value>,
     bytes: usize,
     upload: UploadPrecision,
 ) -> Result<Created, BackendError> {
-    Ok(Created {
-        filter: gpu::create(name, values, upload)?,
-        state_bytes_per_pixel: bytes,
-        backend: Backend::Gpu,
-        upload: Some(upload),
-    })
-}
-
-#[cfg(not(feature = "gpu"))]
-fn create_gpu(
-    _name: &'static str,
-    _values: &Map<String, Value>,
-    _bytes: usize,
-    _upload: UploadPrecision,
-) -> Result<Created, BackendError> {
-    Err(BackendError::NotBuilt)
+    #[cfg(feature = "gpu")]
+    {
+        Ok(Created {
+            filter: gpu::create(name, values, upload)?,
+            state_bytes_per_pixel: bytes,
+            backend: Backend::Gpu,
+            upload: Some(upload),
+        })
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        let _ = (name, values, bytes, upload);
+        Err(BackendError::NotBuilt)
+    }
 }
 
 #[cfg(test)]
