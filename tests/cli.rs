@@ -6,16 +6,8 @@ use afterimage::frame::{ChannelKind, Frame, Plane};
 use afterimage::io::{read_frame, write_exr, ReadOptions, Sequence, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice};
 use afterimage::tolerance::Tolerance;
+use common::run;
 use std::path::Path;
-
-fn run(args: &[&str]) -> (bool, String, String) {
-    let out = common::bin().args(args).output().unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// The subcommands, as the top-level help lists them.
 fn commands() -> Vec<String> {

@@ -6,17 +6,9 @@ mod common;
 use afterimage::filters::list;
 use afterimage::scene::CATALOGUE;
 use afterimage::tolerance::Tolerance;
+use common::run;
 use serde_json::Value;
 use std::path::Path;
-
-fn run(args: &[&str]) -> (bool, String, String) {
-    let out = common::bin().args(args).output().unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn finite(v: &Value, what: &str) -> f64 {
     let x = v.as_f64().unwrap_or_else(|| panic!("{what}: not a number: {v}"));

@@ -49,6 +49,16 @@ pub fn bin() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
 }
 
+/// Runs the `afterimage` binary with `args`: whether it succeeded, its stdout and stderr.
+pub fn run(args: &[&str]) -> (bool, String, String) {
+    let out = bin().args(args).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// EXR images as the `exr` crate reads them: every part, channel and attribute.
 pub type ExrImage =
     exr::prelude::Image<exr::prelude::Layers<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>;
