@@ -597,7 +597,7 @@ fn filters_lists_every_filter_with_bounds_and_bad_params_are_refused() {
         ]
     );
     let taa = &v[2];
-    assert_eq!(taa["defaults"]["alpha"], 0.1);
+    assert_eq!(taa["defaults"]["alpha"], 0.2);
     assert_eq!(taa["params"][0]["kind"]["max"], 1.0);
     assert_eq!(taa["uses"], serde_json::json!(["color", "depth", "motion"]));
     assert_eq!(taa["needs"], serde_json::json!(["color"]));

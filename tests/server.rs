@@ -489,9 +489,9 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn memory_budget_idle_eviction_and_reconnect() {
-    // A 64x36 phlm session reserves its state, 216 B/px = 497,664 bytes, and the planes of
+    // A 64x36 phlm session reserves its state, 224 B/px = 516,096 bytes, and the planes of
     // one decoded frame its next frame decodes into (colour, depth, motion and a
-    // reference in f32: 82,944) = 580,608; a 2 MiB budget fits three and leaves 355,328.
+    // reference in f32: 82,944) = 599,040; a 2 MiB budget fits three and leaves 300,032.
     let r = server(|c| {
         c.memory_budget_mib = 2;
         c.idle_timeout_s = 2;
@@ -510,7 +510,7 @@ async fn memory_budget_idle_eviction_and_reconnect() {
     assert_eq!(e.code(), Code::ResourceExhausted);
     assert!(
         e.message()
-            .contains("needs 580608 bytes; 355328 of the 2097152 bytes of the memory budget are free"),
+            .contains("needs 599040 bytes; 300032 of the 2097152 bytes of the memory budget are free"),
         "{}",
         e.message()
     );
@@ -2684,8 +2684,10 @@ async fn forged_state_is_refused_plane_by_plane_and_unsigned_state_with_a_key() 
     let st0 = FilterState::decode_with(&state, 64 * 36, Some(&key)).unwrap();
     // A history with a NaN, or a negative colour, signed with the server's own key (a
     // stolen key, or a bug): refused plane by plane, naming what and where.
+    // phlm's state is one texel of STATE_PLANES floats a pixel; planes 22..25 are z.
+    let texel = afterimage::filters::phlm::STATE_PLANES;
     let mut nan = st0.clone();
-    nan.planes[0].data_mut()[27 * 5 + 23] = f32::NAN;
+    nan.planes[0].data_mut()[texel * 5 + 23] = f32::NAN;
     let (st, text) = put(nan.encode_with(Some(&key))).await;
     assert_eq!(st, 400, "{text}");
     assert!(
@@ -2693,7 +2695,7 @@ async fn forged_state_is_refused_plane_by_plane_and_unsigned_state_with_a_key() 
         "{text}"
     );
     let mut negative = st0.clone();
-    negative.planes[0].data_mut()[27 * 70 + 22] = -1.0;
+    negative.planes[0].data_mut()[texel * 70 + 22] = -1.0;
     let (st, text) = put(negative.encode_with(Some(&key))).await;
     assert_eq!(st, 400, "{text}");
     assert!(

@@ -1,6 +1,7 @@
 //! `phlm` on the GPU: the CPU filter's parameters, stage plan and saved-state format, with
-//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z and the count
-//! of failed box tests, the speed: 27 planes) stay on the device, double-buffered; a frame uploads its
+//! its per-pixel work in one WGSL pass (`phlm.wgsl`). The models (beta, R, z, the count
+//! of failed box tests, the speed and the depth: [`STATE_PLANES`] planes) stay on the
+//! device, double-buffered; a frame uploads its
 //! colour (and motion and the invalid mask when it has them) and reads back the colour and
 //! the model counters in one buffer.
 //!
@@ -43,6 +44,7 @@ const FLAG_VARIANCE_BOX: u32 = 64;
 const FLAG_SHIFT: u32 = 128;
 const FLAG_DILATE: u32 = 256;
 const FLAG_CATMULL_ROM: u32 = 512;
+const FLAG_DEPTH: u32 = 1024;
 
 // Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, depth,
 // invalid.
@@ -56,21 +58,24 @@ const IN_INVALID: usize = 6;
 const COUNTERS: usize = 8;
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
-/// matrix R, the feature z with the count of failed box tests and the speed; a buffer each, so a 1080p
-/// frame's parts fit the 128 MiB a shader's buffer may have on many devices (all 27 planes
-/// at 1080p are 224 MB).
+/// matrix R, the feature z with the count of failed box tests, the speed and the depth; a
+/// buffer each, so a 1080p frame's parts fit the 128 MiB a shader's buffer may have on many
+/// devices (all 28 planes at 1080p are 232 MB).
 const PARTS: [(&str, usize); 3] = [
     ("phlm models (beta)", 12),
     ("phlm models (R)", 10),
-    ("phlm models (z, the count of failed box tests, the speed)", 5),
+    (
+        "phlm models (z, the count of failed box tests, the speed, the depth)",
+        6,
+    ),
 ];
 
 // The parts are the whole state, in its order.
 const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
 
-/// Words of the shader's `Params` (`phlm.wgsl`: 20 four-byte fields, in
+/// Words of the shader's `Params` (`phlm.wgsl`: 21 four-byte fields, in
 /// [`GpuPhlm::param_words`]'s order).
-const PARAM_WORDS: usize = 20;
+const PARAM_WORDS: usize = 21;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
@@ -230,10 +235,12 @@ impl GpuPhlm {
             p.fail_ramp.to_bits(),
             p.speed_jump.to_bits(),
             p.fail_ramp_box.to_bits(),
+            p.depth_jump.to_bits(),
         ]
     }
 
-    /// The previous frame's models as 27 planes (the CPU reference's planar layout).
+    /// The previous frame's models as [`STATE_PLANES`] planes (the CPU reference's planar
+    /// layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
         let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
@@ -248,7 +255,7 @@ impl GpuPhlm {
             .collect()
     }
 
-    /// Writes 27 model planes as the previous frame's.
+    /// Writes [`STATE_PLANES`] model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
         let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
@@ -351,6 +358,7 @@ impl FramePlan {
         set(p.on_clip == OnClip::Shift, FLAG_SHIFT);
         set(dilate.is_none(), FLAG_DILATE);
         set(p.model_fetch == ModelFetch::CatmullRom, FLAG_CATMULL_ROM);
+        set(inp.depth.is_some(), FLAG_DEPTH);
         FramePlan {
             tonemap,
             reproject,
@@ -417,7 +425,7 @@ impl GpuPhlm {
             .upload
             .output_ceiling(&inp.facts);
         let words = Self::param_words(p, w, h, plan.flags, hi);
-        let bytes = self.upload_frame(frame, &mut inp, &plan, &words);
+        let bytes = self.upload_frame(frame, &mut inp, &words);
         let back = self.dispatch(w, h, &mut clock)?;
         let device = clock.times(back.shaders_ms, self.upload, bytes);
         // Without timestamps, the stages share the frame's round trip.
@@ -453,13 +461,13 @@ impl GpuPhlm {
     }
 
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
-    /// host's own go back to the scratch), then motion, depth (for the dilation) and the
-    /// invalid mask as f32, and clears the counters. Returns the bytes written.
+    /// host's own go back to the scratch), then motion, depth (for the dilation and the
+    /// models' depth) and the invalid mask as f32, and clears the counters. Returns the
+    /// bytes written.
     fn upload_frame<'f>(
         &mut self,
         frame: &'f Frame,
         inp: &mut Inputs<'f>,
-        plan: &FramePlan,
         words: &[u32; PARAM_WORDS],
     ) -> u64 {
         let n = inp.width * inp.height;
@@ -476,7 +484,7 @@ impl GpuPhlm {
                 bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
             }
         }
-        if let (None, Some(d)) = (&plan.dilate, inp.depth.as_deref()) {
+        if let Some(d) = inp.depth.as_deref() {
             bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
         }
         if let Some(invalid) = &inp.invalid {

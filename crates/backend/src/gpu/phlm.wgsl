@@ -9,10 +9,10 @@
 // factorisation whose pivots are held at or above the prior (the rls module's docs give
 // the bound and the still-pixel measurements).
 //
-// State: 27 planes (beta 12, R = P^-1 packed 10, z 3, the count of failed box tests 1,
-// the speed 1;
-// the CPU filter's texel order, one plane each so neighbouring invocations read
-// neighbouring words), in three buffers (beta, R, z with the count and the speed), double-buffered.
+// State: phlm::STATE_PLANES planes (beta 12, R = P^-1 packed 10, z 3, the count of failed
+// box tests 1, the speed 1, the depth 1; the CPU filter's texel order, one plane each so
+// neighbouring invocations read neighbouring words), in three buffers (beta, R, z with the
+// count, the speed and the depth), double-buffered.
 
 struct Params {
     width: u32,
@@ -44,6 +44,8 @@ struct Params {
     speed_jump: f32,
     // phlm::Params::fail_ramp_box (phlm::ramp).
     fail_ramp_box: f32,
+    // phlm::Params::depth_jump (phlm::depth_share).
+    depth_jump: f32,
 }
 
 @group(0) @binding(0) var<storage, read> P: Params;
@@ -70,6 +72,8 @@ const FLAG_VARIANCE_BOX: u32 = 64u;
 const FLAG_SHIFT: u32 = 128u;
 const FLAG_DILATE: u32 = 256u;
 const FLAG_CATMULL_ROM: u32 = 512u;
+// The frame has depth (uploaded; kept with the models, phlm::history_depth).
+const FLAG_DEPTH: u32 = 1024u;
 
 // Planes of `inp`, in units of width * height.
 const IN_MX: u32 = 3u;
@@ -335,6 +339,45 @@ fn jump(v: f32, v_prev: f32) -> f32 {
     return 1.0 + min(abs(v - v_prev) / P.speed_jump, 1.0);
 }
 
+// phlm::history_depth: a positive depth (infinity as f32::MAX), else 0 (unknown).
+fn history_depth(d: f32) -> f32 {
+    if d > 0.0 {
+        return min(d, 3.40282347e38);
+    }
+    return 0.0;
+}
+
+// The 3x3 range of history depths around (x, y), edges clamped (kernel::depth_range_row).
+fn depth_range(x: u32, y: u32) -> vec2<f32> {
+    let n = plane_len();
+    var lo = 3.40282347e38;
+    var hi = 0.0;
+    for (var dy = -1; dy <= 1; dy++) {
+        let yy = u32(clamp(i32(y) + dy, 0, i32(P.height) - 1));
+        for (var dx = -1; dx <= 1; dx++) {
+            let xx = u32(clamp(i32(x) + dx, 0, i32(P.width) - 1));
+            let d = history_depth(inp[IN_DEPTH * n + yy * P.width + xx]);
+            lo = min(lo, d);
+            hi = max(hi, d);
+        }
+    }
+    return vec2<f32>(lo, hi);
+}
+
+// phlm::DEPTH_JUMP_SPEED.
+const DEPTH_JUMP_SPEED: f32 = 1.0;
+
+// phlm::depth_share: how far (0 to 1) the history's depth lies outside the 3x3 range,
+// weighed by the speed v.
+fn depth_share(range: vec2<f32>, d_prev: f32, v: f32) -> f32 {
+    if P.depth_jump == 0.0 || d_prev <= 0.0 || range.y <= 0.0 {
+        return 0.0;
+    }
+    let below = (range.x - d_prev) / d_prev;
+    let above = (d_prev - range.y) / range.y;
+    return min(max(max(below, above), 0.0) / P.depth_jump, 1.0) * min(v / DEPTH_JUMP_SPEED, 1.0);
+}
+
 // phlm::forgetting: lambda, falling with the speed v toward lambda_moving.
 fn forgetting(v: f32) -> f32 {
     if P.lambda_moving == 0.0 {
@@ -560,11 +603,18 @@ fn phlm_pixel(x: u32, y: u32) {
     let xf = vec4<f32>(1.0, z);
     // The count of failed box tests, read as R is (0 without history).
     // And the speed stored with it (phlm::jump).
+    // And the depth (phlm::depth_share).
     var s_prev = 0.0;
     var v_prev = 0.0;
+    var d_prev = 0.0;
     if found {
         s_prev = fetch(Z, 3u, t);
         v_prev = fetch(Z, 4u, t);
+        d_prev = fetch(Z, 5u, t);
+    }
+    var depth = 0.0;
+    if has(FLAG_DEPTH) {
+        depth = history_depth(inp[IN_DEPTH * n + i]);
     }
     var s = strikes(s_prev, 0.0);
     if !invalid {
@@ -583,7 +633,12 @@ fn phlm_pixel(x: u32, y: u32) {
         let clipped = clip_toward_point(q, cur, blo, bhi);
         // A failure clips once it persists (clip_after); before, it relaxes R (fail_keep).
         // Each counts, and relaxes, as much as it missed by (fail_ramp).
-        let hit = miss(q, clipped, ramp(blo, bhi)) * jump(speed, v_prev);
+        // Twice where the speed jumped or the history's depth left the 3x3 range.
+        var depth_jump = 1.0;
+        if has(FLAG_DEPTH) && P.depth_jump > 0.0 {
+            depth_jump = 1.0 + depth_share(depth_range(x, y), d_prev, speed);
+        }
+        let hit = miss(q, clipped, ramp(blo, bhi)) * max(jump(speed, v_prev), depth_jump);
         s = strikes(s_prev, hit);
         if hit > 0.0 && s >= P.clip_after {
             atomicAdd(&wg_counts[C_CLIPPED], 1u);
@@ -626,4 +681,5 @@ fn phlm_pixel(x: u32, y: u32) {
     next_feat[2u * n + i] = z.z;
     next_feat[3u * n + i] = s;
     next_feat[4u * n + i] = speed;
+    next_feat[5u * n + i] = depth;
 }

@@ -414,7 +414,7 @@ fn states_move_between_backends() {
                 .unwrap();
         }
     }
-    let other = make("taa", &["alpha=0.2"], BackendChoice::Cpu)
+    let other = make("taa", &["alpha=0.1"], BackendChoice::Cpu)
         .save_state()
         .unwrap();
     let mut gpu = make("taa", &[], BackendChoice::Gpu);

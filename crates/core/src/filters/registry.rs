@@ -127,7 +127,7 @@ mod tests {
         let st = taa.save_state().unwrap();
         for (name, set) in [
             ("phlm", &[][..]),
-            ("taa", &["alpha=0.2"][..]),
+            ("taa", &["alpha=0.1"][..]),
             ("passthrough", &[][..]),
         ] {
             let e = make(name, set).load_state(&st).unwrap_err();

@@ -1418,7 +1418,7 @@ mod tests {
         let mut ring = Keyring::default();
         let q = Quotas {
             max_sessions: 2,
-            memory_bytes: 24 * 16 * 216 * 3 / 2,
+            memory_bytes: 24 * 16 * 224 * 3 / 2,
         };
         ring.add_plain("a:aaaaaaaaaaaaaaaa,b:bbbbbbbbbbbbbbbb", "test", q)
             .unwrap();
@@ -1435,7 +1435,7 @@ mod tests {
         ] {
             assert!(matches!(e, Some(SessionError::NotFound { .. })), "{e:?}");
         }
-        // phlm at 24x16 reserves 82,944 bytes; the key's quota holds one and a half.
+        // phlm at 24x16 reserves 86,016 bytes; the key's quota holds one and a half.
         let req = SessionRequest {
             filter: "phlm".into(),
             width: 24,

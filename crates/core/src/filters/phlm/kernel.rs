@@ -1,11 +1,11 @@
 //! `phlm`'s stages fused into one pass over bands of rows ([`par_bands_strided`]): a band's
 //! working colour and YCoCg (rows and their 3x3 halo) go to band-local buffers; then each
-//! row's models are fetched at their previous positions (one texel of 27 floats per tap:
-//! beta, R, z, the count of failed box tests and the speed of a pixel side by side), its 3x3
+//! row's models are fetched at their previous positions (one texel of [`STATE_PLANES`] floats per tap:
+//! beta, R, z, the count of failed box tests, the speed and the depth of a pixel side by side), its 3x3
 //! statistics are computed once for both the feature and the model test, and the feature
 //! and Algorithm 1 (prediction, box test, clip, the RLS update in f64 with reciprocal
 //! pivots) run on blocks of eight pixels in vector lanes. The reference
-//! ([`super::reference`]) reads 27 planes per pixel, computes the statistics twice and
+//! ([`super::reference`]) reads the planes one by one per pixel, computes the statistics twice and
 //! solves each pixel alone.
 //!
 //! Every stage computes what the reference computes, with the same float operations in the
@@ -13,7 +13,10 @@
 
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
-use super::{ModelFetch, OnClip, Params, TestBox, BETA, R, S, STATE_PLANES, STRIKE_DECAY, V, Z};
+use super::{
+    history_depth, ModelFetch, OnClip, Params, TestBox, BETA, DEPTH, DEPTH_JUMP_SPEED, R, S, STATE_PLANES,
+    STRIKE_DECAY, V, Z,
+};
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
     FrameResult,
@@ -41,7 +44,7 @@ const UNTONEMAP: usize = 5;
 const ALL: u32 = (1 << LANES) - 1;
 
 /// Floats of one pixel's state texel: beta (12), R (10), z (3), the count of failed box
-/// tests (1), the speed (1).
+/// tests (1), the speed (1), the depth (1).
 pub(super) const TEXEL: usize = STATE_PLANES;
 
 // The Catmull-Rom fetch writes beta's span and the bilinear R, z and count side by side:
@@ -55,6 +58,8 @@ struct Sources<'a> {
     color: [&'a [f32]; 3],
     motion: Option<[&'a [f32]; 2]>,
     invalid: Option<&'a [bool]>,
+    /// The depth, where the frame has it (kept with the models, [`super::depth_share`]).
+    depth: Option<&'a [f32]>,
     /// The previous frame's state texels, when there is history.
     state: Option<&'a [f32]>,
 }
@@ -108,6 +113,9 @@ struct Band {
     texels: [[f32; TEXEL]; LANES],
     /// This row's new feature, block by block.
     z: Vec<[Lanes; 3]>,
+    /// This row's 3x3 depth range (low, high; [`depth_range_row`]), padded to whole
+    /// blocks, and its per-column 3-row range before the columns are taken together.
+    depth: [Vec<f32>; 4],
 }
 
 /// What stage `reproject` hands the feature and the model for one block of pixels.
@@ -167,6 +175,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
             .or(inp.motion.as_deref())
             .map(|m| m.each_ref().map(|p| p.data())),
         invalid: inp.invalid.as_deref(),
+        depth: inp.depth.as_deref().map(|d| d.data()),
         state: has_history.then(|| read[0].data()),
     };
     let mut out: Rgb = scratch.planes(w, h);
@@ -241,6 +250,7 @@ fn run_band(
         fetched,
         texels,
         z,
+        depth,
     } = band;
     let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
     let mut work = work.each_mut().map(|v| sized(v, (r1 - r0) * w));
@@ -296,8 +306,12 @@ fn run_band(
         let row_out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
         let texels = &mut next[TEXEL * o.start..TEXEL * o.end];
         counts += clock.time(MODEL, || {
+            let depths = src.depth.map(|d| {
+                let range = (plan.p.depth_jump > 0.0).then(|| depth_range_row(d, w, h, y, wp, depth));
+                (&d[at.clone()], range)
+            });
             model_row(
-                &stats, working, ycocg, fetched, z, invalid, plan, w, row_out, texels,
+                &stats, working, ycocg, fetched, z, depths, invalid, plan, w, row_out, texels,
             )
         });
         if plan.tonemap {
@@ -622,6 +636,46 @@ fn miss_lanes(pred: &[Lanes; 3], clipped: &[Lanes; 3], moved: u32, ramp: f32x8) 
     m.select(share, f32x8::splat(0.0))
 }
 
+/// Row `y`'s 3x3 range of [`history_depth`] (edges clamped), low and high, in the first
+/// two of `bufs` (`wp` long, the padding 0), the other two the per-column ranges.
+fn depth_range_row<'a>(
+    depth: &[f32],
+    w: usize,
+    h: usize,
+    y: usize,
+    wp: usize,
+    bufs: &'a mut [Vec<f32>; 4],
+) -> [&'a [f32]; 2] {
+    let [lo, hi, col_lo, col_hi] = bufs.each_mut().map(|v| sized(v, wp));
+    let rows = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(|r| &depth[r * w..(r + 1) * w]);
+    for x in 0..w {
+        let [a, b, c] = rows.map(|r| history_depth(r[x]));
+        col_lo[x] = a.min(b).min(c);
+        col_hi[x] = a.max(b).max(c);
+    }
+    for x in 0..w {
+        let (l, r) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        lo[x] = col_lo[l].min(col_lo[x]).min(col_lo[r]);
+        hi[x] = col_hi[l].max(col_hi[x]).max(col_hi[r]);
+    }
+    lo[w..].fill(0.0);
+    hi[w..].fill(0.0);
+    [lo, hi]
+}
+
+/// [`super::depth_share`] in lanes.
+fn depth_share_lanes(lo: &Lanes, hi: &Lanes, d_prev: &Lanes, v: &Lanes, depth_jump: f32) -> f32x8 {
+    let (lo, hi, b) = (lanes::v(lo), lanes::v(hi), lanes::v(d_prev));
+    let (zero, one) = (f32x8::splat(0.0), f32x8::splat(1.0));
+    let below = (lo - b) / b;
+    let above = (b - hi) / hi;
+    let share = lanes::min_of(
+        lanes::max_of(lanes::max_of(below, above), zero) / f32x8::splat(depth_jump),
+        one,
+    ) * lanes::min_of(lanes::v(v) / f32x8::splat(DEPTH_JUMP_SPEED), one);
+    (b.simd_gt(zero) & hi.simd_gt(zero)).select(share, zero)
+}
+
 /// Stage `model` of one row: Algorithm 1 lines 11-22 (Iglesias-Guitian et al. 2016) on blocks of eight pixels: the
 /// fetched model (or a new one), its prediction tested against the 3x3 box and clipped
 /// toward the input with a reset, the RLS update, the output; writes the state texels.
@@ -632,6 +686,7 @@ fn model_row(
     ycocg: [&[f32]; 3],
     fetched: &[Fetched],
     z: &[[Lanes; 3]],
+    depths: Option<(&[f32], Option<[&[f32]; 2]>)>,
     invalid: Option<&[bool]>,
     plan: &Plan,
     w: usize,
@@ -672,8 +727,27 @@ fn model_row(
         let moved = moved & active;
         // A failure clips once it persists (`clip_after`): [`miss`](super::miss) and
         // [`strikes`](super::strikes) in `f32x8`, the same operations in the same order.
+        // [`super::depth_share`]: a failure counts twice where the history's depth left
+        // the 3x3 range, or the speed jumped, whichever is more.
+        let (depth, range) = depths.unzip();
+        let depth: Lanes = depth.map_or([0.0; LANES], |d| {
+            lanes::map(&lanes_of(d, x0, w, 0.0), history_depth)
+        });
+        let depth_jump = match range.flatten() {
+            Some([dlo, dhi]) => {
+                let share = depth_share_lanes(
+                    lanes::block(dlo, x0),
+                    lanes::block(dhi, x0),
+                    &f.state[DEPTH],
+                    &f.speed,
+                    p.depth_jump,
+                );
+                f32x8::splat(1.0) + share
+            }
+            None => f32x8::splat(1.0),
+        };
         let hit = miss_lanes(&pred_ycocg, &clipped, moved, ramp_lanes(&lo, &hi, p))
-            * jump_lanes(&f.speed, &f.state[V], p.speed_jump);
+            * lanes::max_of(jump_lanes(&f.speed, &f.state[V], p.speed_jump), depth_jump);
         let count_v = f32x8::splat(STRIKE_DECAY) * lanes::v(&f.state[S]) + hit;
         let zero = f32x8::splat(0.0);
         // `hit > 0` only where the prediction moved (`miss` is 0 elsewhere).
@@ -741,6 +815,7 @@ fn model_row(
         state[R..R + P_LEN].copy_from_slice(&r);
         state[S] = count;
         state[V] = f.speed;
+        state[DEPTH] = depth;
         lanes::store_texels(&state, &mut next[TEXEL * x0..TEXEL * (x0 + n)]);
     }
     counts.max_trace = max_trace.to_array().into_iter().fold(counts.max_trace, f32::max);

@@ -25,8 +25,8 @@
 //! 8. `untonemap` (HDR input only).
 //!
 //! State: beta (12), the information matrix R = P^-1 (10, packed symmetric), z (3), the
-//! count of failed box tests (1) and the speed of the frame that wrote it (1) = 27 float
-//! planes, double-buffered (216 bytes per pixel).
+//! count of failed box tests (1), and the speed and depth of the frame that wrote it (2)
+//! = [`STATE_PLANES`] float planes, double-buffered.
 //!
 //! Choices where the paper is open (each cited where it is made; `variant = paper` puts
 //! back the paper's own settings, [`Variant`]):
@@ -66,7 +66,10 @@
 //!   both by a rounding and the GPU follows the CPU; and twice where the pixel's speed
 //!   changed since its history was written (`speed_jump`, [`DEFAULT_SPEED_JUMP`],
 //!   [`jump`]), so that a surface that left the pixel (a fast thin spoke) is clipped at
-//!   once rather than after three frames (docs/phlm-ablations.md, table 13).
+//!   once rather than after three frames (docs/phlm-ablations.md, table 13); and twice
+//!   where the depth stored with the history lies outside this frame's 3x3 depth range
+//!   (`depth_jump`, [`DEFAULT_DEPTH_JUMP`], [`depth_share`]): a disocclusion behind a thin
+//!   post, where post and background move alike and the speed does not tell them apart.
 
 pub mod feature;
 mod kernel;
@@ -115,10 +118,10 @@ pub enum Variant {
     /// Iglesias-Guitian et al. 2016's own settings where we depart from them: one
     /// `lambda` for every pixel (`lambda_moving = 0`), no velocity dilation, bilinear model
     /// fetch, `p0 = clip_p = 1000`, and a hard reset on clip (`clip_keep = 0`) at every
-    /// failed box test, however far out and whatever the pixel's speed did (`clip_after =
-    /// 1`, `fail_ramp = fail_ramp_box = 0`, `speed_jump = 0`) on each pixel's own sample
-    /// (`pixel_filter = box`); these eleven parameters are then overridden
-    /// ([`Params::effective`]).
+    /// failed box test, however far out and whatever the pixel's speed or depth did
+    /// (`clip_after = 1`, `fail_ramp = fail_ramp_box = 0`, `speed_jump = depth_jump = 0`)
+    /// on each pixel's own sample (`pixel_filter = box`); these twelve parameters are then
+    /// overridden ([`Params::effective`]).
     Paper,
 }
 
@@ -153,7 +156,7 @@ filter_params! {
             "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
         variant: Variant = Variant::Tuned,
             ParamKind::Choice { options: &["tuned", "paper"], },
-            "tuned (the parameters as given; defaults measured on the Blender corpus and the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = fail_ramp_box = 0, speed_jump = 0, pixel_filter = box)";
+            "tuned (the parameters as given; defaults measured on the Blender corpus and the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = fail_ramp_box = 0, speed_jump = depth_jump = 0, pixel_filter = box)";
         p0: f32 = DEFAULT_P0,
             ParamKind::Float { min: 1e-3, max: 1e6 },
             "diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
@@ -178,9 +181,9 @@ filter_params! {
         lambda_moving: f32 = DEFAULT_LAMBDA_MOVING,
             ParamKind::Float { min: 0.0, max: 0.99999 },
             "forgetting factor of moving pixels (default 0.8; 0 = off: the paper's lambda everywhere): lambda falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed px/frame and faster). Still content keeps the long memory that supersamples it, moving content follows its changes (0.8 from the lambda sweep of docs/phlm-ablations.md, table 4)";
-        lambda_speed: f32 = 1.0,
+        lambda_speed: f32 = DEFAULT_LAMBDA_SPEED,
             ParamKind::Float { min: 0.01, max: 100.0 },
-            "speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only): lower treats slow motion as moving";
+            "speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only; default 0.25): lower treats slow motion as moving (follows a slow dolly or a moving object sooner, keeps a little more flicker), higher keeps the still pixels' long memory for slow motion too";
         test_box: TestBox = TestBox::Minmax,
             ParamKind::Choice { options: &["minmax", "variance"], },
             "box the prediction is tested against: minmax (paper's 3x3 AABB) or variance (mean +- test_gamma sigma within it, as taa): tighter catches more ghosting and jitter-driven drift, but clips (and resets) more models, which shows more raw input";
@@ -205,6 +208,9 @@ filter_params! {
         speed_jump: f32 = DEFAULT_SPEED_JUMP,
             ParamKind::Float { min: 0.0, max: 1000.0 },
             "change of a pixel's speed (px/frame) at which a failed box test counts twice, so that it clips at once: a miss counts 1 + min(1, |v - v_prev| / speed_jump) times, v_prev the speed stored with the fetched history (default 1; 0: off). Lower: a surface that leaves a pixel (a spoke passing, a disocclusion) is cut sooner; higher: still content under a moving neighbour keeps its model";
+        depth_jump: f32 = DEFAULT_DEPTH_JUMP,
+            ParamKind::Float { min: 0.0, max: 100.0 },
+            "how far outside this frame's 3x3 depth range (relative to the depth) the depth stored with the fetched history must lie for a failed box test to count twice, so that it clips at once: a miss counts 1 + min(1, d / depth_jump) times, d = (lo - d_prev) / d_prev below the range, (d_prev - hi) / hi above it (default 0.25; 0: off; needs depth). Lower: a background uncovered behind a thin post sheds the post's colour sooner; higher: only clear disocclusions count";
         clip_keep: f32 = DEFAULT_CLIP_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
@@ -219,7 +225,7 @@ filter_params! {
 
 impl Params {
     /// The settings a frame runs with: these parameters, or with `variant = paper` the
-    /// paper's values of the eleven it overrides ([`Variant::Paper`]).
+    /// paper's values of the twelve it overrides ([`Variant::Paper`]).
     pub fn effective(&self) -> Params {
         match self.variant {
             Variant::Tuned => self.clone(),
@@ -238,6 +244,7 @@ impl Params {
                 // No effect on the output once every whole failure clips; set so that the
                 // count in the state is the paper's too.
                 speed_jump: 0.0,
+                depth_jump: 0.0,
                 ..self.clone()
             },
         }
@@ -339,6 +346,19 @@ pub const DEFAULT_FAIL_RAMP_BOX: f32 = 0.2;
 /// docs/phlm-ablations.md, table 13). A jittered still pixel's speed is 0 frame after
 /// frame, so the count of [`strikes`] still waits there.
 pub const DEFAULT_SPEED_JUMP: f32 = 1.0;
+/// How far outside the 3x3 depth range a history's depth makes a failed box test clip at
+/// once ([`depth_share`]): a quarter of the depth (our choice, measured on the Blender
+/// corpus). Behind a thin post that the camera passes, the uncovered background fetches
+/// the post's models; post and background move alike on screen, so [`jump`] does not cut
+/// them, and the post's colour trailed one to three pixels behind it for the three frames
+/// the count waits. The history's depth against the whole 3x3 range, not the pixel's own
+/// depth, so that the depth a jittered sample hits at a silhouette or on a grazing floor
+/// (which changes by more than half from frame to frame at the corpus' horizons) does not
+/// count; and only at a moving pixel ([`DEPTH_JUMP_SPEED`]). On the corpus (docs/corpus.md,
+/// "What each change gained") 0.25 and 0.5 score the same to 0.01 dB: `fence` +0.23 /
+/// +0.25 dB (jitter known / unknown, 16 frames), `foliage` +0.19 / +0.19, no scene below
+/// by more than 0.01; the catalogue's mean moves by -0.01.
+pub const DEFAULT_DEPTH_JUMP: f32 = 0.25;
 /// How a pixel's count of failed box tests decays per frame: it halves ([`strikes`]), so
 /// `clip_after` 1.5 needs two failures in a row, 1.75 three and 1.875 four (our choice: a
 /// failure three frames back still counts an eighth).
@@ -410,6 +430,42 @@ pub(crate) fn jump(v: f32, v_prev: f32, speed_jump: f32) -> f32 {
     1.0 + ((v - v_prev).abs() / speed_jump).min(1.0)
 }
 
+/// The depth a pixel's history keeps of depth `d`: `d` where it is a positive depth
+/// (infinity as `f32::MAX`), else 0, which [`depth_share`] reads as unknown.
+#[inline(always)]
+pub(crate) fn history_depth(d: f32) -> f32 {
+    if d > 0.0 {
+        d.min(f32::MAX)
+    } else {
+        0.0
+    }
+}
+
+/// How far, as a share in [0, 1], the depth `d_prev` stored with the fetched history lies
+/// outside this frame's 3x3 depth range `lo..=hi` (each a [`history_depth`]): the
+/// relative distance `(lo - d_prev) / d_prev` below it or `(d_prev - hi) / hi` above it,
+/// over `depth_jump`, at most 1; 0 inside the range, with `depth_jump = 0`, and where
+/// either depth is unknown (0); times `min(1, v / DEPTH_JUMP_SPEED)`, `v` this frame's
+/// speed. A failed box test counts `1 + share` times where that is more than [`jump`].
+/// The fused kernel computes it in `f32x8` with the same operations.
+#[cfg(test)]
+#[inline(always)]
+pub(crate) fn depth_share(lo: f32, hi: f32, d_prev: f32, v: f32, depth_jump: f32) -> f32 {
+    if depth_jump == 0.0 || d_prev <= 0.0 || hi <= 0.0 {
+        return 0.0;
+    }
+    let below = (lo - d_prev) / d_prev;
+    let above = (d_prev - hi) / hi;
+    (below.max(above).max(0.0) / depth_jump).min(1.0) * (v / DEPTH_JUMP_SPEED).min(1.0)
+}
+
+/// The speed (px/frame) from which [`depth_share`] counts whole: 1, linear below. A
+/// surface uncovers another only where something moves; at a still pixel the depth a
+/// jittered sample hits changes with the jitter's phase (a sub-pixel wire that some phases
+/// hit), which the count of [`strikes`] is there to wait out (on the catalogue's still
+/// scenes an unweighted share cost `static` 0.37 dB and `thin-line` 0.31).
+pub const DEPTH_JUMP_SPEED: f32 = 1.0;
+
 /// The confidence a failure that does not clip leaves a model: `fail_keep` for a whole
 /// miss or more (`hit >= 1`, [`miss`] times [`jump`]), 1 for none, linear in between
 /// (`1 - min(hit, 1) (1 - fail_keep)`), so that the relax too is continuous at the box's
@@ -430,6 +486,18 @@ pub(crate) fn fail_relax(hit: f32, fail_keep: f32) -> f32 {
 /// no scene below today's by more than 0.02 dB); noisy variants 32.05 -> 32.16 dB.
 pub const DEFAULT_LAMBDA_MOVING: f32 = 0.8;
 
+/// The speed at which the forgetting factor reaches [`DEFAULT_LAMBDA_MOVING`]: 0.25 px/frame
+/// (our choice, measured on the Blender corpus; 1 before). A slow dolly or an object
+/// moving a quarter pixel a frame then forgets at the moving rate. Against `taa` at its
+/// corpus blend weight (0.2), on the 48-frame corpus' mean with [`DEFAULT_DEPTH_JUMP`]: 1 /
+/// 0.5 / 0.25 / 0.125 lead it by +0.58 / +0.73 / +0.86 / +0.89 dB with the jitter known
+/// and +0.39 / +0.49 / +0.56 / +0.57 unknown; `foliage` trails it by 1.12 / 0.46 / 0.12 /
+/// -0.05 dB (known); tRMSE 0.0347 / 0.0349 / 0.0350 / 0.0351 (measured before
+/// [`DEPTH_JUMP_SPEED`], which moves 0.25's leads to +0.88 / +0.58; docs/corpus.md, "What
+/// each change gained"). Below 0.25 the gain is within another corpus' noise and flicker
+/// grows.
+pub const DEFAULT_LAMBDA_SPEED: f32 = 0.25;
+
 /// The forgetting factor of a pixel moving `v` pixels per frame: [`Params::lambda`], or
 /// with motion-dependent forgetting (`lambda_moving > 0`) the blend
 /// `lambda + (lambda_moving - lambda) min(v / lambda_speed, 1)` (our ablation: a global
@@ -444,8 +512,9 @@ pub(crate) fn forgetting(v: f32, p: &Params) -> f32 {
 }
 
 /// Number of state planes: beta (12), R = P^-1 (10), z (3), the count of failed box
-/// tests (1, [`strikes`]) and the pixel's speed when it was last updated (1, [`jump`]).
-pub const STATE_PLANES: usize = 3 * D + P_LEN + 3 + 2;
+/// tests (1, [`strikes`]), and the pixel's speed and depth when it was last updated (2,
+/// [`jump`] and [`depth_share`]).
+pub const STATE_PLANES: usize = 3 * D + P_LEN + 3 + 3;
 /// First plane of beta (row-major: channel c, feature j at `BETA + c * D + j`).
 pub(crate) const BETA: usize = 0;
 /// First plane of the information matrix R = P^-1 (packed upper triangle).
@@ -456,6 +525,8 @@ pub(crate) const Z: usize = R + P_LEN;
 pub(crate) const S: usize = Z + 3;
 /// The plane of the pixel's speed (px/frame) in the frame that last updated it ([`jump`]).
 pub(crate) const V: usize = S + 1;
+/// The plane of the pixel's depth in the frame that last updated it ([`history_depth`]).
+pub(crate) const DEPTH: usize = V + 1;
 
 /// One pixel's model state.
 #[derive(Clone, Copy, Debug)]
@@ -671,7 +742,7 @@ pub fn convert_state(planes: &mut [Plane<f32>], to_tonemapped: bool) {
 
 /// Checks loaded state texels: what the filter writes is a non-negative colour z (below
 /// 1 when tonemapped), an information matrix with a positive diagonal (it is positive
-/// definite), and a non-negative strike count and speed.
+/// definite), and a non-negative strike count, speed and depth.
 fn check_state_texels(planes: &[Plane<f32>], _: &[usize], tonemapped: bool) -> Result<(), StateError> {
     let Some(texels) = planes.first() else {
         return Ok(());
@@ -704,6 +775,9 @@ fn check_state_texels(planes: &[Plane<f32>], _: &[usize], tonemapped: bool) -> R
         if t[V] < 0.0 {
             return bad("the speed", t[V]);
         }
+        if t[DEPTH].is_nan() || t[DEPTH] < 0.0 {
+            return bad("the depth", t[DEPTH]);
+        }
     }
     Ok(())
 }
@@ -732,7 +806,7 @@ pub fn to_texels(planes: &[Plane<f32>]) -> Plane<f32> {
 }
 
 impl Phlm {
-    /// The filter's state, empty: one texel of the 27 state floats per pixel (a fetch reads
+    /// The filter's state, empty: one texel of the [`STATE_PLANES`] state floats per pixel (a fetch reads
     /// a pixel's model at once), converted between linear and tonemapped working space by
     /// [`convert_state`]. The GPU backend saves and loads this same format.
     pub fn history() -> TemporalState {
@@ -803,6 +877,9 @@ mod tests {
             &["speed_jump=0.2", "fail_ramp=0.05", "model_fetch=nearest"],
             &["clip_after=2", "fail_keep=1", "model_fetch=nearest"],
             &["clip_after=1.25", "fail_keep=0.7", "model_fetch=bilinear"],
+            &["depth_jump=0"],
+            &["depth_jump=0.01", "speed_jump=0"],
+            &["depth_jump=100", "model_fetch=nearest"],
         ];
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
@@ -935,6 +1012,118 @@ mod tests {
         }
     }
 
+    /// How far outside the 3x3 depth range a history's depth is, as a share of
+    /// `depth_jump`: 0 inside the range, where a depth is unknown (0) and with
+    /// `depth_jump = 0`; linear up to 1 below and above it.
+    #[test]
+    fn a_failure_counts_twice_where_the_depth_left_the_range() {
+        let tol = Tolerance::abs(1e-6);
+        for (lo, hi, d_prev, at, want) in [
+            (2.0, 10.0, 5.0, 0.25, 0.0),
+            (2.0, 10.0, 2.0, 0.25, 0.0),
+            (4.0, 10.0, 3.2, 0.25, 1.0),
+            (4.0, 10.0, 3.8, 0.25, 4.0 * (0.2 / 3.8)),
+            (2.0, 10.0, 11.0, 0.25, 0.4),
+            (2.0, 10.0, 11.0, 0.0, 0.0),
+            (0.0, 0.0, 5.0, 0.25, 0.0),
+            (2.0, 10.0, 0.0, 0.25, 0.0),
+            (0.0, 10.0, 30.0, 0.25, 1.0),
+        ] {
+            let got = depth_share(lo, hi, d_prev, 1.0, at) as f64;
+            tol.check(&format!("depth {d_prev} against {lo}..{hi} at {at}"), got, want)
+                .unwrap();
+        }
+        // Weighed by the speed up to DEPTH_JUMP_SPEED: nothing at a still pixel.
+        for (v, want) in [(0.0, 0.0), (0.5, 0.5), (1.0, 1.0), (3.0, 1.0)] {
+            let got = depth_share(2.0, 10.0, 1.0, v, 0.25) as f64;
+            tol.check(&format!("depth share at speed {v}"), got, want)
+                .unwrap();
+        }
+        // What the history keeps of a depth: unknown (0) for none, NaN or a negative one.
+        assert_eq!(
+            [5.0, 0.0, -1.0, f32::NAN, f32::INFINITY].map(history_depth),
+            [5.0, 0.0, 0.0, 0.0, f32::MAX]
+        );
+    }
+
+    /// An image at depth 10 panning 2 px/frame that a nearer surface (depth 2, another
+    /// colour) panning at the same speed covers at once: the speed does not jump, but the
+    /// history's depth leaves the new 3x3 range, so the first failed box test clips and the
+    /// new colour shows from that frame; with `depth_jump = 0` the clip waits for the third
+    /// failure. The state keeps the depth.
+    #[test]
+    fn a_change_of_depth_clips_at_once() {
+        let frame = |v: f32, depth: f32| {
+            let mut f = Frame::new(std::array::from_fn(|_| Plane::from_fn(9, 7, |_, _| v))).unwrap();
+            f.set_f32(ChannelKind::Depth, vec![Plane::filled(9, 7, depth)])
+                .unwrap();
+            f.set_f32(
+                ChannelKind::Motion,
+                vec![Plane::filled(9, 7, -2.0), Plane::filled(9, 7, 0.0)],
+            )
+            .unwrap();
+            f
+        };
+        let frames: Vec<Frame> = (0..12)
+            .map(|t| if t < 8 { frame(0.2, 10.0) } else { frame(0.8, 2.0) })
+            .collect();
+        for (set, first) in [(&[][..], 8), (&["depth_jump=0"], 10)] {
+            let out = run_own_samples(set, &frames);
+            for t in 8..12 {
+                let err = (out[t].color[0].get(4, 3) - 0.8).abs();
+                assert_eq!(
+                    err <= guard([0.8; 3], [0.8; 3]),
+                    t >= first,
+                    "{set:?} frame {t}: {err}"
+                );
+            }
+        }
+        let mut f = Phlm::new(Params::default());
+        for (t, fr) in frames[..9].iter().enumerate() {
+            f.process(fr).unwrap();
+            let st = f.save_state().unwrap();
+            let at = (3 * 9 + 4) * STATE_PLANES + DEPTH;
+            assert_eq!(
+                st.planes[0].data()[at],
+                if t < 8 { 10.0 } else { 2.0 },
+                "frame {t}"
+            );
+        }
+    }
+
+    /// Depths a renderer or a client may send (NaN, infinite, zero, negative, denormal,
+    /// the largest float) leave the fused kernel on the reference's bits, and the state it
+    /// saves loads again (no depth it keeps is refused).
+    #[test]
+    fn hostile_depths_keep_the_kernel_on_the_reference() {
+        let mut frames = random_motion(13, 9);
+        let bad = [
+            f32::NAN,
+            f32::INFINITY,
+            0.0,
+            -1.0,
+            1e-40,
+            f32::MAX,
+            f32::NEG_INFINITY,
+        ];
+        for (t, f) in frames.iter_mut().enumerate() {
+            let mut d = f.depth().expect("depth").clone();
+            for (k, v) in bad.iter().enumerate() {
+                let at = (t * 5 + k * 17) % d.data().len();
+                d.data_mut()[at] = *v;
+            }
+            f.set_f32(ChannelKind::Depth, vec![d]).unwrap();
+        }
+        for set in [&[][..], &["depth_jump=0.01"]] {
+            let params: Params = build("phlm", &parse_assignments(set).unwrap()).unwrap();
+            let mut slow = ReferencePhlm::new(params.clone());
+            let mut fast = Phlm::new(params);
+            assert_filter_matches(&mut fast, |f| slow.process(f).unwrap(), &frames, "hostile depths");
+            let st = fast.save_state().unwrap();
+            fast.load_state(&st).unwrap();
+        }
+    }
+
     /// A still image that changes at once to one moving 2 px/frame (a surface that was
     /// not there): the speed jumps, so the first failed box test clips (its miss counts
     /// twice) and the new colour shows from that frame; with `speed_jump = 0` the clip
@@ -994,7 +1183,8 @@ mod tests {
         old.components = vec![STATE_PLANES - 1];
         old.planes = vec![Plane::from_fn((STATE_PLANES - 1) * w, h, |_, _| 0.5)];
         let e = f.load_state(&old).unwrap_err().to_string();
-        assert!(e.contains("[26]") && e.contains("[27]"), "{e}");
+        let (old, now) = (format!("[{}]", STATE_PLANES - 1), format!("[{STATE_PLANES}]"));
+        assert!(e.contains(&old) && e.contains(&now), "{e}");
         let untouched = run(&[], &frames);
         let next = f.process(&frames[2]).unwrap();
         assert!((0..3).all(|c| next.color[c].data() == untouched[2].color[c].data()));
@@ -1084,7 +1274,7 @@ mod tests {
             .1
     }
 
-    /// `variant = paper` runs exactly the eleven settings it names, whatever they were set to.
+    /// `variant = paper` runs exactly the twelve settings it names, whatever they were set to.
     #[test]
     fn the_paper_variant_is_the_papers_settings() {
         let frames = random_motion(5, 9);
@@ -1097,6 +1287,7 @@ mod tests {
                 "fail_ramp=0.5",
                 "fail_ramp_box=1",
                 "speed_jump=3",
+                "depth_jump=0.01",
                 "pixel_filter=gaussian",
             ],
             &frames,
@@ -1113,6 +1304,7 @@ mod tests {
                 "fail_ramp=0",
                 "fail_ramp_box=0",
                 "speed_jump=0",
+                "depth_jump=0",
                 "pixel_filter=box",
             ],
             &frames,

@@ -10,8 +10,8 @@ use super::super::passes::{
 use super::super::reconstruct::Reconstruction;
 use super::rls::{self, D, P_LEN};
 use super::{
-    convert_state, fail_relax, feature, fetch, fetch_model, jump, miss, ramp, strikes, Counts, From, Model,
-    Params, Phlm, TestBox, BETA, R, S, STATE_PLANES, V, Z,
+    convert_state, depth_share, fail_relax, feature, fetch, fetch_model, history_depth, jump, miss, ramp,
+    strikes, Counts, From, Model, Params, Phlm, TestBox, BETA, DEPTH, R, S, STATE_PLANES, V, Z,
 };
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
@@ -109,9 +109,21 @@ impl ReferencePhlm {
         };
         let src_z: [&[f32]; 3] = std::array::from_fn(|k| src[Z + k]);
         let src_model: [&[f32]; Z] = std::array::from_fn(|k| src[k]);
-        // The count of failed box tests and the speed, read as R is (bilinear unless
-        // `nearest`).
-        let src_strikes: [&[f32]; 2] = [src[S], src[V]];
+        // The count of failed box tests, the speed and the depth, read as R is (bilinear
+        // unless `nearest`).
+        let src_strikes: [&[f32]; 3] = [src[S], src[V], src[DEPTH]];
+        let depth = inp.depth.as_deref().map(|d| d.data());
+        // This frame's 3x3 range of history depths around pixel (x, y), edges clamped.
+        let depth_range = |d: &[f32], x: usize, y: usize| {
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for yy in [y.saturating_sub(1), y, (y + 1).min(h - 1)] {
+                for xx in [x.saturating_sub(1), x, (x + 1).min(w - 1)] {
+                    let v = history_depth(d[yy * w + xx]);
+                    (lo, hi) = (lo.min(v), hi.max(v));
+                }
+            }
+            (lo, hi)
+        };
 
         // Feature (sec. 5.1): written into next's z planes.
         {
@@ -160,16 +172,24 @@ impl ReferencePhlm {
         let counts: Counts = rec.run("model", || {
             let (model_next, z_next) = next.split_at_mut(Z);
             let (z_next, sv_next) = z_next.split_at_mut(3);
-            let (s_next, v_next) = sv_next.split_at_mut(1);
+            let (s_next, vd_next) = sv_next.split_at_mut(1);
+            let (v_next, d_next) = vd_next.split_at_mut(1);
             let zs: [&[f32]; 3] = std::array::from_fn(|k| z_next[k].data());
             let [o0, o1, o2] = slices_mut(&mut out);
             let mut it = model_next.iter_mut();
             let mrows: [&mut [f32]; Z] = std::array::from_fn(|_| it.next().expect("model planes").data_mut());
             let mut all: Vec<&mut [f32]> = mrows.into_iter().collect();
-            all.extend([o0, o1, o2, s_next[0].data_mut(), v_next[0].data_mut()]);
-            // Rows Z..Z + 3 of this pass are the output planes, rows Z + 3 and Z + 4 the
-            // count and the speed.
-            let rows: [&mut [f32]; Z + 5] = all.try_into().expect("Z + 5 planes");
+            all.extend([
+                o0,
+                o1,
+                o2,
+                s_next[0].data_mut(),
+                v_next[0].data_mut(),
+                d_next[0].data_mut(),
+            ]);
+            // Rows Z..Z + 3 of this pass are the output planes, rows Z + 3 to Z + 5 the
+            // count, the speed and the depth.
+            let rows: [&mut [f32]; Z + 6] = all.try_into().expect("Z + 6 planes");
             par_rows(rows, w, |y, mut r| {
                 let mut c = Counts::default();
                 for_each_row_stats(cur, w, h, y, |x, stats| {
@@ -188,7 +208,7 @@ impl ReferencePhlm {
                         _ => Model::from_state(&fetch_model(src_model, w, h, f, p.model_fetch), z),
                     };
                     let x_feat = m.x();
-                    let [s_prev, v_prev] = fetch(src_strikes, w, h, f, p.model_fetch);
+                    let [s_prev, v_prev, d_prev] = fetch(src_strikes, w, h, f, p.model_fetch);
                     let v = motion.map_or(0.0, |m| (m[0][i] * m[0][i] + m[1][i] * m[1][i]).sqrt());
                     let mut s = strikes(s_prev, 0.0, p.clip_after).0;
                     if !inp.is_invalid(i) {
@@ -203,8 +223,15 @@ impl ReferencePhlm {
                             clip_toward_point(pred_ycocg, [cur[0][i], cur[1][i], cur[2][i]], lo, hi);
                         // A failure clips once it persists (`clip_after`, [`strikes`]); how
                         // much of one it is, [`miss`] and [`jump`].
+                        let depth_jump = match depth {
+                            Some(d) if p.depth_jump > 0.0 => {
+                                let (dlo, dhi) = depth_range(d, x, y);
+                                1.0 + depth_share(dlo, dhi, d_prev, v, p.depth_jump)
+                            }
+                            _ => 1.0,
+                        };
                         let hit = miss(pred_ycocg, clipped, moved, ramp(lo, hi, &p))
-                            * jump(v, v_prev, p.speed_jump);
+                            * jump(v, v_prev, p.speed_jump).max(depth_jump);
                         let (count, clip) = strikes(s_prev, hit, p.clip_after);
                         s = count;
                         if clip {
@@ -247,6 +274,7 @@ impl ReferencePhlm {
                     }
                     r[Z + 3][x] = s;
                     r[Z + 4][x] = v;
+                    r[Z + 5][x] = depth.map_or(0.0, |d| history_depth(d[i]));
                 });
                 c
             })
