@@ -286,23 +286,27 @@ def sky_dome(radius=80.0, **kw):
     return obj
 
 
-def sun(direction_euler, strength=3.0, angle=0.0):
-    light = bpy.data.lights.new("sun", "SUN")
-    light.energy = strength
-    light.angle = angle
-    obj = bpy.data.objects.new("sun", light)
-    obj.rotation_euler = Euler(direction_euler)
+def light_object(name, kind, energy, **settings):
+    """A light of `kind` named `name` with `energy` and the light `settings`, linked
+    into the scene."""
+    light = bpy.data.lights.new(name, kind)
+    light.energy = energy
+    for key, value in settings.items():
+        setattr(light, key, value)
+    obj = bpy.data.objects.new(name, light)
     bpy.context.scene.collection.objects.link(obj)
     return obj
 
 
+def sun(direction_euler, strength=3.0, angle=0.0):
+    obj = light_object("sun", "SUN", strength, angle=angle)
+    obj.rotation_euler = Euler(direction_euler)
+    return obj
+
+
 def point_light(loc, power=800.0, radius=0.0):
-    light = bpy.data.lights.new("lamp", "POINT")
-    light.energy = power
-    light.shadow_soft_size = radius
-    obj = bpy.data.objects.new("lamp", light)
+    obj = light_object("lamp", "POINT", power, shadow_soft_size=radius)
     obj.location = loc
-    bpy.context.scene.collection.objects.link(obj)
     return obj
 
 
@@ -621,15 +625,18 @@ def set_jitter(scene, j):
     scene.camera.data.shift_y = -j[1] / big
 
 
+def set_gbuffer_passes(layer, on):
+    """Turns the view layer's G-buffer passes (what the inputs carry beside the colour
+    and the reference leaves out) on or off."""
+    for name in ("z", "vector", "normal", "object_index", "diffuse_color"):
+        setattr(layer, f"use_pass_{name}", on)
+
+
 def render_input(args, out, frames):
     scene = bpy.context.scene
     layer = scene.view_layers[0]
     layer.use_pass_combined = True
-    layer.use_pass_z = True
-    layer.use_pass_vector = True
-    layer.use_pass_normal = True
-    layer.use_pass_object_index = True
-    layer.use_pass_diffuse_color = True
+    set_gbuffer_passes(layer, True)
     scene.cycles.samples = 1
     scene.cycles.filter_width = 0.01
     s = scene.render.image_settings
@@ -657,11 +664,7 @@ def render_input(args, out, frames):
 def render_reference(args, out, frames):
     scene = bpy.context.scene
     layer = scene.view_layers[0]
-    layer.use_pass_z = False
-    layer.use_pass_vector = False
-    layer.use_pass_normal = False
-    layer.use_pass_object_index = False
-    layer.use_pass_diffuse_color = False
+    set_gbuffer_passes(layer, False)
     scene.cycles.samples = args.ref_spp
     scene.cycles.filter_width = 1.5
     # Another seed than the inputs': the reference's first sample must not be the input's.

@@ -6,8 +6,14 @@ mod common;
 
 use afterimage::filters::{create, list};
 use afterimage::frame::{ChannelKind, Frame, Plane};
-use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError, Skip};
+use afterimage::pipeline::{params::parse_assignments, run_sequence, Filter, FilterError, Skip};
 use afterimage::scene::{Jitter, Scene, Settings};
+
+/// Two fresh instances of filter `name` with its defaults, to run side by side.
+fn twins(name: &str) -> (Box<dyn Filter>, Box<dyn Filter>) {
+    let fresh = || create(name, &Default::default()).unwrap();
+    (fresh(), fresh())
+}
 
 fn small_scene(name: &str, frames: u64) -> Vec<Frame> {
     let s = Settings {
@@ -90,8 +96,7 @@ fn non_finite_input_never_reaches_history_or_output_and_is_counted() {
 fn a_flood_of_nan_leaves_history_usable() {
     let clean = small_scene("static", 6);
     for name in ["taa", "traa"] {
-        let mut f = create(name, &Default::default()).unwrap();
-        let mut g = create(name, &Default::default()).unwrap();
+        let (mut f, mut g) = twins(name);
         for frame in &clean[..3] {
             f.process(frame).unwrap();
             g.process(frame).unwrap();
@@ -125,21 +130,21 @@ fn parameters_are_validated_with_the_bound_in_the_message() {
             .unwrap()
             .to_string()
     };
+    let refused = [
+        ("taa", "alpha=2"),
+        ("traa", "variant=fancy"),
+        ("taa", "alhpa=0.2"),
+        ("taa", "dilation=3"),
+    ]
+    .map(|(filter, set)| err(filter, &[set]));
     assert_eq!(
-        err("taa", &["alpha=2"]),
-        "filter taa, parameter alpha: 2 is out of bounds: expected 0.01 <= value <= 1"
-    );
-    assert_eq!(
-        err("traa", &["variant=fancy"]),
-        "filter traa, parameter variant: expected one of baseline, improved, got \"fancy\""
-    );
-    assert_eq!(
-        err("taa", &["alhpa=0.2"]),
-        "filter taa has no parameter \"alhpa\"; its parameters: alpha, gamma, history_filter, dilation, luminance_weighting, depth_rejection, sharpen, pixel_filter, filter_width"
-    );
-    assert_eq!(
-        err("taa", &["dilation=3"]),
-        "filter taa, parameter dilation: expected true or false, got 3"
+        refused,
+        [
+            "filter taa, parameter alpha: 2 is out of bounds: expected 0.01 <= value <= 1",
+            "filter traa, parameter variant: expected one of baseline, improved, got \"fancy\"",
+            "filter taa has no parameter \"alhpa\"; its parameters: alpha, gamma, history_filter, dilation, luminance_weighting, depth_rejection, sharpen, pixel_filter, filter_width",
+            "filter taa, parameter dilation: expected true or false, got 3",
+        ]
     );
     assert!(err("nope", &[]).starts_with("unknown filter \"nope\"; known: passthrough, fxaa, taa, traa"));
     assert_eq!(
@@ -260,8 +265,7 @@ fn skipping_reprojection_when_nothing_moves_changes_nothing() {
     // output: the left-out stage had no effect to lose.
     let frames = small_scene("static", 4);
     for name in ["taa", "traa"] {
-        let mut a = create(name, &Default::default()).unwrap();
-        let mut b = create(name, &Default::default()).unwrap();
+        let (mut a, mut b) = twins(name);
         for f in &frames {
             let mut moved = f.clone();
             // Force the stage to run with a 1e-3 px motion on pixel 0 (compared away from
@@ -291,8 +295,7 @@ fn recycled_buffers_never_leak_into_results() {
     // before writing all of it would show it.
     let frames = small_scene("moving-sphere", 6);
     for info in list() {
-        let mut a = create(info.name, &Default::default()).unwrap();
-        let mut b = create(info.name, &Default::default()).unwrap();
+        let (mut a, mut b) = twins(info.name);
         for (i, f) in frames.iter().enumerate() {
             let last = i + 1 == frames.len();
             let (mut oa, mut ob) = (a.push(f).unwrap(), b.push(f).unwrap());

@@ -51,34 +51,39 @@ fn full_frame(seed: u64) -> Frame {
     f
 }
 
+/// `f` written as EXR at `precision` with each compression and read back.
+fn exr_round_trips(f: &Frame, precision: Precision) -> Vec<(Compression, Frame)> {
+    let dir = tempfile::tempdir().unwrap();
+    [Compression::None, Compression::Zip, Compression::Piz]
+        .into_iter()
+        .map(|compression| {
+            let path = dir.path().join(format!("{compression:?}.exr"));
+            write_exr(
+                &path,
+                f,
+                &WriteOptions {
+                    precision,
+                    compression,
+                },
+            )
+            .unwrap();
+            (compression, read_frame(&path, &ReadOptions::default()).unwrap())
+        })
+        .collect()
+}
+
 #[test]
 fn f32_round_trip_is_lossless_for_every_compression() {
-    let dir = tempfile::tempdir().unwrap();
     let f = full_frame(1);
-    for compression in [Compression::None, Compression::Zip, Compression::Piz] {
-        let path = dir.path().join(format!("{compression:?}.exr"));
-        let opts = WriteOptions {
-            precision: Precision::F32,
-            compression,
-        };
-        write_exr(&path, &f, &opts).unwrap();
-        let back = read_frame(&path, &ReadOptions::default()).unwrap();
+    for (compression, back) in exr_round_trips(&f, Precision::F32) {
         assert_eq!(back, f, "{compression:?}");
     }
 }
 
 #[test]
 fn f16_round_trip_is_within_half_rounding() {
-    let dir = tempfile::tempdir().unwrap();
     let f = full_frame(2);
-    for compression in [Compression::None, Compression::Zip, Compression::Piz] {
-        let path = dir.path().join(format!("{compression:?}.exr"));
-        let opts = WriteOptions {
-            precision: Precision::F16,
-            compression,
-        };
-        write_exr(&path, &f, &opts).unwrap();
-        let back = read_frame(&path, &ReadOptions::default()).unwrap();
+    for (compression, back) in exr_round_trips(&f, Precision::F16) {
         assert_eq!(back.channels(), f.channels());
         assert_eq!(back.meta, f.meta);
         assert_eq!(back.object_id(), f.object_id(), "ids stay exact u32");

@@ -1,6 +1,8 @@
 //! `pixel_trace` (Shinya 1993): the paper's two experiments on our scenes, flow
 //! separation at silhouettes, and the windowed interface (latency, flush, cuts).
 
+mod common;
+
 use afterimage::filters::create;
 use afterimage::frame::{ChannelKind, Frame, Rgb};
 use afterimage::metrics::{mse, psnr_from_mse, MetricSpace};
@@ -8,16 +10,7 @@ use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError,
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn settings(width: usize, height: usize, frames: u64, spp: u32) -> Settings {
-    Settings {
-        width,
-        height,
-        frames,
-        spp,
-        jitter: Jitter::None,
-        noise: false,
-        seed: 7,
-        shading: 1,
-    }
+    common::unjittered(width, height, frames, spp, 7, 1)
 }
 
 fn pixel_trace(set: &[&str]) -> Box<dyn afterimage::pipeline::Filter> {

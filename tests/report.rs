@@ -6,22 +6,28 @@ mod common;
 use afterimage::filters::list;
 use afterimage::scene::CATALOGUE;
 use afterimage::tolerance::Tolerance;
+use common::run;
 use serde_json::Value;
 use std::path::Path;
-
-fn run(args: &[&str]) -> (bool, String, String) {
-    let out = common::bin().args(args).output().unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn finite(v: &Value, what: &str) -> f64 {
     let x = v.as_f64().unwrap_or_else(|| panic!("{what}: not a number: {v}"));
     assert!(x.is_finite(), "{what}: {x}");
     x
+}
+
+/// The report's `cell` has the mean PSNR, mean SSIM and tRMSE of `eval --json`'s summary
+/// (to 1e-12 relative); `label` names the cell in a failure.
+fn assert_cell_is_eval(label: &str, cell: &Value, eval: &Value) {
+    for key in ["mean_psnr", "mean_ssim", "trmse"] {
+        Tolerance::rel(1e-12)
+            .check(
+                &format!("{label} {key}"),
+                finite(&cell[key], key),
+                finite(&eval["summary"][key], key),
+            )
+            .unwrap();
+    }
 }
 
 /// Runs the quick report once into `dir` and returns the parsed JSON and stdout.
@@ -206,19 +212,7 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
         assert!(ok, "{err}");
         let eval: Value = serde_json::from_str(&out).unwrap();
         let cell = &scenes.iter().find(|s| s["scene"] == scene).unwrap()["cells"][pass];
-        for (a, b) in [
-            ("mean_psnr", "mean_psnr"),
-            ("mean_ssim", "mean_ssim"),
-            ("trmse", "trmse"),
-        ] {
-            Tolerance::rel(1e-12)
-                .check(
-                    &format!("{scene} {a}"),
-                    finite(&cell[a], a),
-                    finite(&eval["summary"][b], b),
-                )
-                .unwrap();
-        }
+        assert_cell_is_eval(scene, cell, &eval);
     }
 }
 
@@ -394,15 +388,7 @@ fn report_on_blender_frames_matches_filter_then_eval() {
             ]);
             assert!(ok, "{err}");
             let eval: Value = serde_json::from_str(&text).unwrap();
-            for key in ["mean_psnr", "mean_ssim", "trmse"] {
-                Tolerance::rel(1e-12)
-                    .check(
-                        &format!("{scene} {filter} {key}"),
-                        finite(&cell[key], key),
-                        finite(&eval["summary"][key], key),
-                    )
-                    .unwrap();
-            }
+            assert_cell_is_eval(&format!("{scene} {filter}"), cell, &eval);
         }
     }
     // A reference per input, in order.

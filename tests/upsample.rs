@@ -2,6 +2,8 @@
 //! still scene, sharp silhouettes, disocclusion, and the paper's comparison with the
 //! spatial-only, temporal-only and TAA-style baselines.
 
+mod common;
+
 use afterimage::filters::create;
 use afterimage::frame::{Frame, Rgb, Sampling};
 use afterimage::io::{read_frame, write_exr, ReadOptions, WriteOptions};
@@ -10,16 +12,7 @@ use afterimage::pipeline::{params::parse_assignments, run_sequence, FilterError,
 use afterimage::scene::{Jitter, Scene, Settings};
 
 fn settings(width: usize, height: usize, frames: u64, spp: u32, shading: u32) -> Settings {
-    Settings {
-        width,
-        height,
-        frames,
-        spp,
-        jitter: Jitter::None,
-        noise: false,
-        seed: 11,
-        shading,
-    }
+    common::unjittered(width, height, frames, spp, 11, shading)
 }
 
 fn render(scene: &str, s: Settings) -> Vec<Frame> {

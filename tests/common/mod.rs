@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 use afterimage::frame::{Plane, Rgb};
+use afterimage::scene::{Jitter, Settings};
 use std::path::{Path, PathBuf};
 
 /// `tests/fixtures/<rel>`.
@@ -17,9 +18,45 @@ pub fn random_rgb(w: usize, h: usize, seed: u64, lo: f64, hi: f64) -> Rgb {
     [0, 1, 2].map(|_| Plane::from_fn(w, h, |_, _| rng.range(lo, hi) as f32))
 }
 
+/// Scene settings without jitter or noise: `width` x `height`, `frames`, `spp` reference
+/// samples, `seed`, one pixel shaded in every `shading` x `shading` block.
+pub fn unjittered(width: usize, height: usize, frames: u64, spp: u32, seed: u64, shading: u32) -> Settings {
+    Settings {
+        width,
+        height,
+        frames,
+        spp,
+        jitter: Jitter::None,
+        noise: false,
+        seed,
+        shading,
+    }
+}
+
+/// A check skipped for a missing tool: `SKIPPED: {skipped}` on stderr, unless the
+/// environment variable `require` is set (CI installs the tool and sets it): then the test
+/// fails with `{require} is set but {missing}`.
+pub fn skip_missing_tool(require: &str, missing: &str, skipped: &str) {
+    assert!(
+        std::env::var_os(require).is_none(),
+        "{require} is set but {missing}"
+    );
+    eprintln!("SKIPPED: {skipped}");
+}
+
 /// The `afterimage` binary built for this test run.
 pub fn bin() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_afterimage"))
+}
+
+/// Runs the `afterimage` binary with `args`: whether it succeeded, its stdout and stderr.
+pub fn run(args: &[&str]) -> (bool, String, String) {
+    let out = bin().args(args).output().unwrap();
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
 }
 
 /// EXR images as the `exr` crate reads them: every part, channel and attribute.

@@ -84,15 +84,13 @@ impl BackendChoice {
 
 impl std::str::FromStr for BackendChoice {
     type Err = BackendError;
+    /// The choice whose name (as `Display` writes it) is `s`.
     fn from_str(s: &str) -> Result<Self, BackendError> {
-        match s {
-            "cpu" => Ok(BackendChoice::Cpu),
-            "gpu" => Ok(BackendChoice::Gpu),
-            "auto" => Ok(BackendChoice::Auto),
-            "gpu-f16" => Ok(BackendChoice::GpuF16),
-            "auto-f16" => Ok(BackendChoice::AutoF16),
-            _ => Err(BackendError::UnknownChoice { got: s.to_string() }),
-        }
+        let unknown = || BackendError::UnknownChoice { got: s.to_string() };
+        Self::ALL
+            .into_iter()
+            .find(|c| c.to_string() == s)
+            .ok_or_else(unknown)
     }
 }
 
@@ -289,29 +287,28 @@ pub fn create(
     }
 }
 
-#[cfg(feature = "gpu")]
+/// The GPU filter `name` with `values` (`bytes` of state per pixel), its colour uploaded at
+/// `upload`; [`BackendError::NotBuilt`] in a build without the `gpu` feature.
 fn create_gpu(
     name: &'static str,
     values: &Map<String, Value>,
     bytes: usize,
     upload: UploadPrecision,
 ) -> Result<Created, BackendError> {
-    Ok(Created {
-        filter: gpu::create(name, values, upload)?,
-        state_bytes_per_pixel: bytes,
-        backend: Backend::Gpu,
-        upload: Some(upload),
-    })
-}
-
-#[cfg(not(feature = "gpu"))]
-fn create_gpu(
-    _name: &'static str,
-    _values: &Map<String, Value>,
-    _bytes: usize,
-    _upload: UploadPrecision,
-) -> Result<Created, BackendError> {
-    Err(BackendError::NotBuilt)
+    #[cfg(feature = "gpu")]
+    {
+        Ok(Created {
+            filter: gpu::create(name, values, upload)?,
+            state_bytes_per_pixel: bytes,
+            backend: Backend::Gpu,
+            upload: Some(upload),
+        })
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        let _ = (name, values, bytes, upload);
+        Err(BackendError::NotBuilt)
+    }
 }
 
 #[cfg(test)]

@@ -10,6 +10,30 @@
 // more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+/// `Display` for types with a `name()`: each prints as its name. (Defined before the
+/// modules so that each of them can use it.)
+macro_rules! display_name {
+    ($($ty:ty),+) => {
+        $(impl std::fmt::Display for $ty {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(self.name())
+            }
+        })+
+    };
+}
+
+/// `AddAssign` field by field, each with its own `+=`. (Defined before the modules so
+/// that each of them can use it.)
+macro_rules! add_assign_fields {
+    ($ty:ty { $($field:ident),+ }) => {
+        impl std::ops::AddAssign for $ty {
+            fn add_assign(&mut self, o: $ty) {
+                $(self.$field += o.$field;)+
+            }
+        }
+    };
+}
+
 pub mod echo;
 pub mod filters;
 pub mod frame;

@@ -231,6 +231,11 @@ impl Grpc {
             .map(|v| v.to_str().unwrap_or("(not text)"));
         self.0.caller(value).map_err(|e| status(&e))
     }
+
+    /// `r` counted as [`Service::count`] does, an error as its status.
+    fn counted<T>(&self, r: Result<T, SessionError>) -> Result<T, Status> {
+        self.0.count(r).map_err(|e| status(&e))
+    }
 }
 
 /// `grpc.health.v1.Health` for the server (`""`) and `afterimage.v1.Afterimage`: SERVING
@@ -800,10 +805,7 @@ impl Afterimage for Grpc {
         req: Request<pb::GetSessionRequest>,
     ) -> Result<Response<pb::Session>, Status> {
         let caller = self.caller(req.metadata())?;
-        let info = self
-            .0
-            .count(self.0.sessions.get(&caller, &req.into_inner().id))
-            .map_err(|e| status(&e))?;
+        let info = self.counted(self.0.sessions.get(&caller, &req.into_inner().id))?;
         Ok(Response::new(session_pb(info, self.0.config.max_chunk_bytes)))
     }
 
@@ -812,10 +814,7 @@ impl Afterimage for Grpc {
         req: Request<pb::CloseSessionRequest>,
     ) -> Result<Response<pb::CloseSessionResponse>, Status> {
         let caller = self.caller(req.metadata())?;
-        let frames = self
-            .0
-            .count(self.0.sessions.close(&caller, &req.into_inner().id))
-            .map_err(|e| status(&e))?;
+        let frames = self.counted(self.0.sessions.close(&caller, &req.into_inner().id))?;
         Ok(Response::new(pb::CloseSessionResponse { frames }))
     }
 

@@ -11,6 +11,7 @@ use super::grpc::{health, reflection, Grpc};
 use super::http::router;
 use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings, PerIp};
 use super::service::Service;
+use crate::session::Keyring;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -82,8 +83,9 @@ async fn bind(addr: &str, what: &'static str) -> Result<TcpListener, ServeError>
     })
 }
 
-/// Binds both ports (port 0 picks a free one) and serves in the background.
-pub async fn start(config: Config) -> Result<Running, ServeError> {
+/// The configured API keys; none is refused where a port is reachable from other machines,
+/// unless `allow_unauthenticated` says so.
+fn keyring(config: &Config) -> Result<Keyring, ServeError> {
     let keys = config.keyring().map_err(|e| ServeError::Config(e.to_string()))?;
     let public = config.public_addrs();
     if keys.is_empty() && !public.is_empty() && !config.allow_unauthenticated {
@@ -92,6 +94,25 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
             public.join(" and ")
         )));
     }
+    Ok(keys)
+}
+
+/// Evicts idle sessions once a second until `stopped` turns true.
+fn spawn_sweeper(svc: Service, mut stopped: watch::Receiver<bool>) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            tokio::select! {
+                _ = tick.tick() => { svc.sessions.evict_idle(); }
+                _ = stopped.wait_for(|s| *s) => break,
+            }
+        }
+    })
+}
+
+/// Binds both ports (port 0 picks a free one) and serves in the background.
+pub async fn start(config: Config) -> Result<Running, ServeError> {
+    let keys = keyring(&config)?;
     let tls = |alpn: &[&[u8]]| -> Result<_, ServeError> {
         if config.tls_cert.is_empty() {
             return Ok(None);
@@ -139,19 +160,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
     // Closing the listeners comes after the drain, so it has a signal of its own.
     let (close, closed) = watch::channel(false);
     let health = health(&service, closed.clone()).await;
-    let sweeper = {
-        let svc = service.clone();
-        let mut rx = stopped.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(Duration::from_secs(1));
-            loop {
-                tokio::select! {
-                    _ = tick.tick() => { svc.sessions.evict_idle(); }
-                    _ = rx.wait_for(|s| *s) => break,
-                }
-            }
-        })
-    };
+    let sweeper = spawn_sweeper(service.clone(), stopped.clone());
     let (grpc_conns, grpc_accept) = accept(
         grpc_l,
         ConnSettings {

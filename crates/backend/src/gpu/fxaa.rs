@@ -4,14 +4,11 @@
 use super::buffers::params_buffer;
 use super::timing::{begin, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer};
+use super::{bind, groups, pipeline, stateless_filter, stateless_output, Gpu, Readback, StorageBuffer};
 use crate::filters::fxaa::{Fxaa, Params};
 use crate::frame::Frame;
 use crate::pipeline::params::build;
-use crate::pipeline::{
-    check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
-    Recorder, StateError, UploadPrecision,
-};
+use crate::pipeline::{check_needs, prepare, FilterKind, Output, Recorder, UploadPrecision};
 use crate::BackendError;
 use serde_json::{Map, Value};
 use std::sync::Arc;
@@ -145,47 +142,15 @@ impl GpuFxaa {
         };
         rec.ran_for("luma", each[0]);
         rec.ran_for("fxaa", each[1]);
-        let mut record = rec.finish(
+        Ok(stateless_output(
             Fxaa::NAME,
-            frame.meta.index,
-            PixelCounts::default(),
+            frame,
+            rec,
             inp.counts,
-            0,
-        );
-        record.backend = Backend::Gpu;
-        record.device = Some(device);
-        Ok(Output { color, record })
+            color,
+            device,
+        ))
     }
 }
 
-impl Filter for GpuFxaa {
-    fn name(&self) -> &'static str {
-        Fxaa::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn backend(&self) -> Backend {
-        Backend::Gpu
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        self.run(frame).map_err(|e| e.into_filter_error(Fxaa::NAME))
-    }
-
-    fn reset(&mut self) {}
-
-    fn state_bytes(&self) -> usize {
-        0
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(FilterState::empty(Fxaa::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        state.check_stateless(Fxaa::NAME, &self.params())
-    }
-}
+stateless_filter!(GpuFxaa, Fxaa, |f| &f.params);

@@ -25,7 +25,10 @@ mod timing;
 mod upload;
 
 use super::{AdapterInfo, BackendError};
-use crate::pipeline::{Filter, UploadPrecision};
+use crate::frame::{Frame, Rgb};
+use crate::pipeline::{
+    Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
+};
 use serde_json::{Map, Value};
 use std::sync::{Arc, OnceLock};
 
@@ -192,6 +195,73 @@ pub(crate) fn bind(
         entries: &entries,
     })
 }
+
+/// The output of a stateless filter's frame on the device: `color`, and `rec` finished
+/// (no history to count) as run on the GPU with the `device` times.
+pub(crate) fn stateless_output(
+    filter: &'static str,
+    frame: &Frame,
+    rec: Recorder,
+    input: InputCounts,
+    color: Rgb,
+    device: DeviceTimes,
+) -> Output {
+    let mut record = rec.finish(filter, frame.meta.index, PixelCounts::default(), input, 0);
+    record.backend = Backend::Gpu;
+    record.device = Some(device);
+    Output { color, record }
+}
+
+/// [`Filter`] for a stateless device filter `$ty`: named and checked as the
+/// [`FilterKind`](crate::pipeline::FilterKind) `$kind`, its frames through its own `run`,
+/// its parameters `$params` (with `self` as `$s`).
+macro_rules! stateless_filter {
+    ($ty:ty, $kind:ty, |$s:ident| $params:expr) => {
+        impl $crate::pipeline::Filter for $ty {
+            fn name(&self) -> &'static str {
+                <$kind as $crate::pipeline::FilterKind>::NAME
+            }
+
+            fn params(&self) -> serde_json::Value {
+                let $s = self;
+                serde_json::Value::Object($crate::pipeline::params::to_json($params))
+            }
+
+            fn backend(&self) -> $crate::pipeline::Backend {
+                $crate::pipeline::Backend::Gpu
+            }
+
+            fn process(
+                &mut self,
+                frame: &$crate::frame::Frame,
+            ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
+                self.run(frame)
+                    .map_err(|e| e.into_filter_error(<$kind as $crate::pipeline::FilterKind>::NAME))
+            }
+
+            fn reset(&mut self) {}
+
+            fn state_bytes(&self) -> usize {
+                0
+            }
+
+            fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
+                Ok($crate::pipeline::FilterState::empty(
+                    self.name(),
+                    self.params(),
+                ))
+            }
+
+            fn load_state(
+                &mut self,
+                state: &$crate::pipeline::FilterState,
+            ) -> Result<(), $crate::pipeline::StateError> {
+                state.check_stateless(self.name(), &self.params())
+            }
+        }
+    };
+}
+pub(crate) use stateless_filter;
 
 /// Workgroups of `size` x `size` covering a `width` x `height` image.
 pub(crate) fn groups(width: usize, height: usize, size: usize) -> (u32, u32) {

@@ -3,15 +3,11 @@
 //! upload the colour comes back widened (`upload`): rounded to f16, not bit for bit.
 
 use super::upload::ColorUpload;
-use super::{Gpu, Readback, StorageBuffer};
+use super::{stateless_filter, stateless_output, Gpu, Readback, StorageBuffer};
 use crate::filters::passthrough::{Params, Passthrough};
 use crate::frame::Frame;
-use crate::pipeline::{
-    check_needs, prepare, Backend, Filter, FilterError, FilterKind, FilterState, Output, PixelCounts,
-    Recorder, StateError, UploadPrecision,
-};
+use crate::pipeline::{check_needs, prepare, FilterKind, Output, Recorder, UploadPrecision};
 use crate::BackendError;
-use serde_json::Value;
 use std::sync::Arc;
 
 /// `passthrough` through the device.
@@ -65,48 +61,15 @@ impl GpuPassthrough {
         // No shader: the copy is the upload and the readback.
         let device = clock.times(None, self.upload, bytes);
         rec.ran_for("copy", device.upload_ms + device.readback_ms);
-        let mut record = rec.finish(
+        Ok(stateless_output(
             Passthrough::NAME,
-            frame.meta.index,
-            PixelCounts::default(),
+            frame,
+            rec,
             inp.counts,
-            0,
-        );
-        record.backend = Backend::Gpu;
-        record.device = Some(device);
-        Ok(Output { color, record })
+            color,
+            device,
+        ))
     }
 }
 
-impl Filter for GpuPassthrough {
-    fn name(&self) -> &'static str {
-        Passthrough::NAME
-    }
-
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&Params {}))
-    }
-
-    fn backend(&self) -> Backend {
-        Backend::Gpu
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        self.run(frame)
-            .map_err(|e| e.into_filter_error(Passthrough::NAME))
-    }
-
-    fn reset(&mut self) {}
-
-    fn state_bytes(&self) -> usize {
-        0
-    }
-
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        Ok(FilterState::empty(Passthrough::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        state.check_stateless(Passthrough::NAME, &self.params())
-    }
-}
+stateless_filter!(GpuPassthrough, Passthrough, |_f| &Params {});

@@ -69,12 +69,6 @@ impl FilterKind for Fxaa {
     fn needs() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color])
     }
-    fn uses() -> ChannelSet {
-        Self::needs()
-    }
-    fn state_bytes_per_pixel(_: &Params) -> usize {
-        0
-    }
     fn new(params: Params) -> Self {
         Fxaa {
             params,
@@ -152,9 +146,9 @@ pub fn fxaa_position(l: &[f32], w: usize, h: usize, x: usize, y: usize, p: &Para
     let at = |dx: isize, dy: isize| crate::kernels::fetch_clamped(l, w, h, x as isize + dx, y as isize + dy);
     let pos_m = [x as f32 + 0.5, y as f32 + 0.5];
     let luma_m = at(0, 0);
-    let mut luma_s = at(0, 1);
+    let luma_s = at(0, 1);
     let luma_e = at(1, 0);
-    let mut luma_n = at(0, -1);
+    let luma_n = at(0, -1);
     let luma_w = at(-1, 0);
     let range_max = luma_s.max(luma_m).max(luma_e).max(luma_n).max(luma_w);
     let range_min = luma_s.min(luma_m).min(luma_e).min(luma_n).min(luma_w);
@@ -162,82 +156,161 @@ pub fn fxaa_position(l: &[f32], w: usize, h: usize, x: usize, y: usize, p: &Para
     if range < p.edge_threshold_min.max(range_max * p.edge_threshold) {
         return pos_m;
     }
-    let luma_nw = at(-1, -1);
-    let luma_se = at(1, 1);
-    let luma_ne = at(1, -1);
-    let luma_sw = at(-1, 1);
-    let luma_ns = luma_n + luma_s;
-    let luma_we = luma_w + luma_e;
-    let subpix_nswe = luma_ns + luma_we;
-    let edge_horz1 = -2.0 * luma_m + luma_ns;
-    let edge_vert1 = -2.0 * luma_m + luma_we;
-    let luma_nese = luma_ne + luma_se;
-    let luma_nwne = luma_nw + luma_ne;
-    let edge_horz2 = -2.0 * luma_e + luma_nese;
-    let edge_vert2 = -2.0 * luma_n + luma_nwne;
-    let luma_nwsw = luma_nw + luma_sw;
-    let luma_swse = luma_sw + luma_se;
-    let edge_horz4 = edge_horz1.abs() * 2.0 + edge_horz2.abs();
-    let edge_vert4 = edge_vert1.abs() * 2.0 + edge_vert2.abs();
-    let edge_horz3 = -2.0 * luma_w + luma_nwsw;
-    let edge_vert3 = -2.0 * luma_s + luma_swse;
-    let edge_horz = edge_horz3.abs() + edge_horz4;
-    let edge_vert = edge_vert3.abs() + edge_vert4;
-    let subpix_nwswnese = luma_nwsw + luma_nese;
-    let horz_span = edge_horz >= edge_vert;
-    let subpix_a = subpix_nswe * 2.0 + subpix_nwswnese;
-    if !horz_span {
-        luma_n = luma_w;
-        luma_s = luma_e;
-    }
-    let subpix_b = subpix_a * (1.0 / 12.0) - luma_m;
-    let gradient_n = luma_n - luma_m;
-    let gradient_s = luma_s - luma_m;
-    let pair_n = gradient_n.abs() >= gradient_s.abs();
-    let gradient = gradient_n.abs().max(gradient_s.abs());
-    let length_sign = if pair_n { -1.0 } else { 1.0 };
-    let subpix_c = (subpix_b.abs() / range).clamp(0.0, 1.0);
-    // Across the edge by half a pixel toward the steeper neighbour; search along it.
-    let (pos_b, off) = if horz_span {
-        ([pos_m[0], pos_m[1] + length_sign * 0.5], [1.0, 0.0])
-    } else {
-        ([pos_m[0] + length_sign * 0.5, pos_m[1]], [0.0, 1.0])
+    let lumas = Lumas {
+        nw: at(-1, -1),
+        se: at(1, 1),
+        ne: at(1, -1),
+        sw: at(-1, 1),
+        m: luma_m,
+        n: luma_n,
+        s: luma_s,
+        e: luma_e,
+        w: luma_w,
     };
-    let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
-    let gradient_scaled = gradient * 0.25;
-    let luma_mm = luma_m - luma_nn * 0.5;
+    let edge = Edge::new(pos_m, lumas, range);
+    let off = if edge.horz_span { [1.0, 0.0] } else { [0.0, 1.0] };
     let ends = edge_search(
         l,
         w,
         h,
-        pos_b,
+        edge.pos_b,
         off,
-        luma_nn * 0.5,
-        gradient_scaled,
+        edge.luma_nn * 0.5,
+        edge.gradient_scaled,
         &PRESET_12_STEPS,
     );
-    let (dst_n, dst_p) = if horz_span {
-        (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
-    } else {
-        (pos_m[1] - ends.pos_n[1], ends.pos_p[1] - pos_m[1])
-    };
-    let luma_m_lt_zero = luma_mm < 0.0;
-    let good_span_n = (ends.end_n < 0.0) != luma_m_lt_zero;
-    let good_span_p = (ends.end_p < 0.0) != luma_m_lt_zero;
-    let span_length = dst_p + dst_n;
-    let direction_n = dst_n < dst_p;
-    let dst = dst_n.min(dst_p);
-    let good_span = if direction_n { good_span_n } else { good_span_p };
-    let subpix_d = -2.0 * subpix_c + 3.0;
-    let subpix_f = subpix_d * subpix_c * subpix_c;
-    let subpix_h = subpix_f * subpix_f * p.subpix;
-    let pixel_offset = -dst / span_length + 0.5;
-    let pixel_offset_good = if good_span { pixel_offset } else { 0.0 };
-    let offset = pixel_offset_good.max(subpix_h) * length_sign;
-    if horz_span {
-        [pos_m[0], pos_m[1] + offset]
-    } else {
-        [pos_m[0] + offset, pos_m[1]]
+    edge.position(pos_m, &ends, p.subpix)
+}
+
+/// A pixel's luma and its eight neighbours' (Fxaa3_11.h's names: `m` the pixel, `n` the
+/// one above, `s` the one below).
+struct Lumas {
+    m: f32,
+    n: f32,
+    s: f32,
+    e: f32,
+    w: f32,
+    nw: f32,
+    ne: f32,
+    sw: f32,
+    se: f32,
+}
+
+/// The edge through a pixel that passed the contrast test: Fxaa3_11.h's quantities from
+/// that test to the edge-end search, shared by [`fxaa_position`] and the fused pass.
+#[derive(Clone, Copy)]
+struct Edge {
+    /// Whether the edge runs horizontally (the search steps along x).
+    horz_span: bool,
+    /// Toward the steeper neighbour: -1 (n or w) or 1.
+    length_sign: f32,
+    subpix_c: f32,
+    luma_nn: f32,
+    gradient_scaled: f32,
+    luma_mm: f32,
+    /// Across the edge by half a pixel from the pixel's centre: where the search starts.
+    pos_b: [f32; 2],
+}
+
+impl Edge {
+    /// The edge at the pixel centred on `pos_m`, whose cross has luma range `range`.
+    #[inline(always)]
+    fn new(pos_m: [f32; 2], l: Lumas, range: f32) -> Edge {
+        let Lumas {
+            m: luma_m,
+            n: mut luma_n,
+            s: mut luma_s,
+            e: luma_e,
+            w: luma_w,
+            nw: luma_nw,
+            ne: luma_ne,
+            sw: luma_sw,
+            se: luma_se,
+        } = l;
+        let luma_ns = luma_n + luma_s;
+        let luma_we = luma_w + luma_e;
+        let subpix_nswe = luma_ns + luma_we;
+        let edge_horz1 = -2.0 * luma_m + luma_ns;
+        let edge_vert1 = -2.0 * luma_m + luma_we;
+        let luma_nese = luma_ne + luma_se;
+        let luma_nwne = luma_nw + luma_ne;
+        let edge_horz2 = -2.0 * luma_e + luma_nese;
+        let edge_vert2 = -2.0 * luma_n + luma_nwne;
+        let luma_nwsw = luma_nw + luma_sw;
+        let luma_swse = luma_sw + luma_se;
+        let edge_horz4 = edge_horz1.abs() * 2.0 + edge_horz2.abs();
+        let edge_vert4 = edge_vert1.abs() * 2.0 + edge_vert2.abs();
+        let edge_horz3 = -2.0 * luma_w + luma_nwsw;
+        let edge_vert3 = -2.0 * luma_s + luma_swse;
+        let edge_horz = edge_horz3.abs() + edge_horz4;
+        let edge_vert = edge_vert3.abs() + edge_vert4;
+        let subpix_nwswnese = luma_nwsw + luma_nese;
+        let horz_span = edge_horz >= edge_vert;
+        let subpix_a = subpix_nswe * 2.0 + subpix_nwswnese;
+        if !horz_span {
+            luma_n = luma_w;
+            luma_s = luma_e;
+        }
+        let subpix_b = subpix_a * (1.0 / 12.0) - luma_m;
+        let gradient_n = luma_n - luma_m;
+        let gradient_s = luma_s - luma_m;
+        let pair_n = gradient_n.abs() >= gradient_s.abs();
+        let gradient = gradient_n.abs().max(gradient_s.abs());
+        let length_sign = if pair_n { -1.0 } else { 1.0 };
+        let subpix_c = (subpix_b.abs() / range).clamp(0.0, 1.0);
+        // Across the edge by half a pixel toward the steeper neighbour; search along it.
+        let pos_b = if horz_span {
+            [pos_m[0], pos_m[1] + length_sign * 0.5]
+        } else {
+            [pos_m[0] + length_sign * 0.5, pos_m[1]]
+        };
+        let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
+        let gradient_scaled = gradient * 0.25;
+        let luma_mm = luma_m - luma_nn * 0.5;
+        Edge {
+            horz_span,
+            length_sign,
+            subpix_c,
+            luma_nn,
+            gradient_scaled,
+            luma_mm,
+            pos_b,
+        }
+    }
+
+    /// The position to fetch the colour at, given the ends the search found.
+    #[inline(always)]
+    fn position(&self, pos_m: [f32; 2], ends: &EdgeEnds, subpix: f32) -> [f32; 2] {
+        let Edge {
+            horz_span,
+            length_sign,
+            subpix_c,
+            luma_mm,
+            ..
+        } = *self;
+        let (dst_n, dst_p) = if horz_span {
+            (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
+        } else {
+            (pos_m[1] - ends.pos_n[1], ends.pos_p[1] - pos_m[1])
+        };
+        let luma_m_lt_zero = luma_mm < 0.0;
+        let good_span_n = (ends.end_n < 0.0) != luma_m_lt_zero;
+        let good_span_p = (ends.end_p < 0.0) != luma_m_lt_zero;
+        let span_length = dst_p + dst_n;
+        let direction_n = dst_n < dst_p;
+        let dst = dst_n.min(dst_p);
+        let good_span = if direction_n { good_span_n } else { good_span_p };
+        let subpix_d = -2.0 * subpix_c + 3.0;
+        let subpix_f = subpix_d * subpix_c * subpix_c;
+        let subpix_h = subpix_f * subpix_f * subpix;
+        let pixel_offset = -dst / span_length + 0.5;
+        let pixel_offset_good = if good_span { pixel_offset } else { 0.0 };
+        let offset = pixel_offset_good.max(subpix_h) * length_sign;
+        if horz_span {
+            [pos_m[0], pos_m[1] + offset]
+        } else {
+            [pos_m[0] + offset, pos_m[1]]
+        }
     }
 }
 
@@ -525,81 +598,32 @@ impl LumaView<'_> {
         let [up, mid, down] = rows;
         let pos_m = [x as f32 + 0.5, y as f32 + 0.5];
         let luma_m = mid[x + 1];
-        let mut luma_s = down[x + 1];
+        let luma_s = down[x + 1];
         let luma_e = mid[x + 2];
-        let mut luma_n = up[x + 1];
+        let luma_n = up[x + 1];
         let luma_w = mid[x];
         let range_max = luma_s.max(luma_m).max(luma_e).max(luma_n).max(luma_w);
         let range_min = luma_s.min(luma_m).min(luma_e).min(luma_n).min(luma_w);
         let range = range_max - range_min;
-        let luma_nw = up[x];
-        let luma_se = down[x + 2];
-        let luma_ne = up[x + 2];
-        let luma_sw = down[x];
-        let luma_ns = luma_n + luma_s;
-        let luma_we = luma_w + luma_e;
-        let subpix_nswe = luma_ns + luma_we;
-        let edge_horz1 = -2.0 * luma_m + luma_ns;
-        let edge_vert1 = -2.0 * luma_m + luma_we;
-        let luma_nese = luma_ne + luma_se;
-        let luma_nwne = luma_nw + luma_ne;
-        let edge_horz2 = -2.0 * luma_e + luma_nese;
-        let edge_vert2 = -2.0 * luma_n + luma_nwne;
-        let luma_nwsw = luma_nw + luma_sw;
-        let luma_swse = luma_sw + luma_se;
-        let edge_horz4 = edge_horz1.abs() * 2.0 + edge_horz2.abs();
-        let edge_vert4 = edge_vert1.abs() * 2.0 + edge_vert2.abs();
-        let edge_horz3 = -2.0 * luma_w + luma_nwsw;
-        let edge_vert3 = -2.0 * luma_s + luma_swse;
-        let edge_horz = edge_horz3.abs() + edge_horz4;
-        let edge_vert = edge_vert3.abs() + edge_vert4;
-        let subpix_nwswnese = luma_nwsw + luma_nese;
-        let horz_span = edge_horz >= edge_vert;
-        let subpix_a = subpix_nswe * 2.0 + subpix_nwswnese;
-        if !horz_span {
-            luma_n = luma_w;
-            luma_s = luma_e;
-        }
-        let subpix_b = subpix_a * (1.0 / 12.0) - luma_m;
-        let gradient_n = luma_n - luma_m;
-        let gradient_s = luma_s - luma_m;
-        let pair_n = gradient_n.abs() >= gradient_s.abs();
-        let gradient = gradient_n.abs().max(gradient_s.abs());
-        let length_sign = if pair_n { -1.0 } else { 1.0 };
-        let subpix_c = (subpix_b.abs() / range).clamp(0.0, 1.0);
-        // Across the edge by half a pixel toward the steeper neighbour; search along it.
-        let pos_b = if horz_span {
-            [pos_m[0], pos_m[1] + length_sign * 0.5]
-        } else {
-            [pos_m[0] + length_sign * 0.5, pos_m[1]]
+        let lumas = Lumas {
+            m: luma_m,
+            n: luma_n,
+            s: luma_s,
+            e: luma_e,
+            w: luma_w,
+            nw: up[x],
+            ne: up[x + 2],
+            sw: down[x],
+            se: down[x + 2],
         };
-        let luma_nn = if pair_n { luma_n + luma_m } else { luma_s + luma_m };
-        let gradient_scaled = gradient * 0.25;
-        let luma_mm = luma_m - luma_nn * 0.5;
-        let ends = self.edge_search(pos_b, horz_span, luma_nn * 0.5, gradient_scaled);
-        let (dst_n, dst_p) = if horz_span {
-            (pos_m[0] - ends.pos_n[0], ends.pos_p[0] - pos_m[0])
-        } else {
-            (pos_m[1] - ends.pos_n[1], ends.pos_p[1] - pos_m[1])
-        };
-        let luma_m_lt_zero = luma_mm < 0.0;
-        let good_span_n = (ends.end_n < 0.0) != luma_m_lt_zero;
-        let good_span_p = (ends.end_p < 0.0) != luma_m_lt_zero;
-        let span_length = dst_p + dst_n;
-        let direction_n = dst_n < dst_p;
-        let dst = dst_n.min(dst_p);
-        let good_span = if direction_n { good_span_n } else { good_span_p };
-        let subpix_d = -2.0 * subpix_c + 3.0;
-        let subpix_f = subpix_d * subpix_c * subpix_c;
-        let subpix_h = subpix_f * subpix_f * p.subpix;
-        let pixel_offset = -dst / span_length + 0.5;
-        let pixel_offset_good = if good_span { pixel_offset } else { 0.0 };
-        let offset = pixel_offset_good.max(subpix_h) * length_sign;
-        if horz_span {
-            [pos_m[0], pos_m[1] + offset]
-        } else {
-            [pos_m[0] + offset, pos_m[1]]
-        }
+        let edge = Edge::new(pos_m, lumas, range);
+        let ends = self.edge_search(
+            edge.pos_b,
+            edge.horz_span,
+            edge.luma_nn * 0.5,
+            edge.gradient_scaled,
+        );
+        edge.position(pos_m, &ends, p.subpix)
     }
 }
 
@@ -613,12 +637,7 @@ struct PassStats {
     seen: CleanMax,
 }
 
-impl std::ops::AddAssign for PassStats {
-    fn add_assign(&mut self, o: PassStats) {
-        self.passed += o.passed;
-        self.seen += o.seen;
-    }
-}
+add_assign_fields!(PassStats { passed, seen });
 
 /// The filter's fused pass into `out`: per band of rows, `luma` of the band's rows and
 /// one row above and below (those not held from the task's previous band), the
@@ -786,39 +805,6 @@ mod tests {
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
 
-    /// f64 reference of the search: each side walks on its own, sampling after every step
-    /// but the last.
-    #[allow(clippy::too_many_arguments)]
-    fn search_f64(
-        l: &[f64],
-        w: usize,
-        h: usize,
-        b: [f64; 2],
-        off: [f64; 2],
-        avg: f64,
-        g: f64,
-        steps: &[f64],
-    ) -> ([f64; 2], [f64; 2], f64, f64) {
-        let bil = |x: f64, y: f64| crate::kernels::sample::tests::bilinear_f64(l, w, h, x, y);
-        let side = |sign: f64| {
-            let mut pos = [b[0] + sign * off[0] * steps[0], b[1] + sign * off[1] * steps[0]];
-            let mut end = bil(pos[0], pos[1]) - avg;
-            for (k, &s) in steps.iter().enumerate().skip(1) {
-                if end.abs() >= g {
-                    break;
-                }
-                pos = [pos[0] + sign * off[0] * s, pos[1] + sign * off[1] * s];
-                if k + 1 < steps.len() {
-                    end = bil(pos[0], pos[1]) - avg;
-                }
-            }
-            (pos, end)
-        };
-        let (pn, en) = side(-1.0);
-        let (pp, ep) = side(1.0);
-        (pn, pp, en, ep)
-    }
-
     #[test]
     fn edge_search_matches_the_f64_reference() {
         let mut rng = SplitMix64::new(61);
@@ -830,6 +816,31 @@ mod tests {
             .collect();
         let l64: Vec<f64> = l.iter().map(|&v| v as f64).collect();
         let steps64 = PRESET_12_STEPS.map(|s| s as f64);
+        // The f64 reference of the search: each side walks on its own, sampling after every
+        // step but the last.
+        let search_f64 = |b: [f64; 2], off: [f64; 2], avg: f64, g: f64| {
+            let bil = |x: f64, y: f64| crate::kernels::sample::tests::bilinear_f64(&l64, w, h, x, y);
+            let side = |sign: f64| {
+                let mut pos = [
+                    b[0] + sign * off[0] * steps64[0],
+                    b[1] + sign * off[1] * steps64[0],
+                ];
+                let mut end = bil(pos[0], pos[1]) - avg;
+                for (k, &s) in steps64.iter().enumerate().skip(1) {
+                    if end.abs() >= g {
+                        break;
+                    }
+                    pos = [pos[0] + sign * off[0] * s, pos[1] + sign * off[1] * s];
+                    if k + 1 < steps64.len() {
+                        end = bil(pos[0], pos[1]) - avg;
+                    }
+                }
+                (pos, end)
+            };
+            let (pn, en) = side(-1.0);
+            let (pp, ep) = side(1.0);
+            (pn, pp, en, ep)
+        };
         for _ in 0..5000 {
             let x = (rng.next_f64() * w as f64).floor() + 0.5;
             let y = (rng.next_f64() * h as f64).floor();
@@ -851,7 +862,7 @@ mod tests {
                 g as f32,
                 &PRESET_12_STEPS,
             );
-            let (pn, pp, en, ep) = search_f64(&l64, w, h, b, off, avg, g, &steps64);
+            let (pn, pp, en, ep) = search_f64(b, off, avg, g);
             assert_eq!(got.pos_n.map(|v| v as f64), pn);
             assert_eq!(got.pos_p.map(|v| v as f64), pp);
             assert_eq!(got.end_n as f64, en);

@@ -8,8 +8,8 @@ use crate::kernels::lanes::{block, each, Lanes, IOTA, LANES};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{
-    bind_size, check_channels, check_needs, prepare, DoubleBuffer, FilterError, FilterState, Inputs,
-    ModelHealth, Output, PixelCounts, Recorder, Scratch, Skip, StateError,
+    bind_size, check_channels, check_needs, DoubleBuffer, FilterError, FilterState, Inputs, ModelHealth,
+    Output, PixelCounts, Recorder, Scratch, Skip, StateError,
 };
 use std::borrow::Cow;
 use wide::f32x8;
@@ -30,32 +30,27 @@ pub fn to_working<'a>(color: &'a Rgb, on: bool, scratch: &mut Scratch) -> Cow<'a
     if !on {
         return Cow::Borrowed(color);
     }
-    let (w, h) = color[0].size();
-    let src = color.each_ref().map(|p| p.data());
-    let mut out: Rgb = scratch.planes(w, h);
-    for_rows(slices_mut(&mut out), w, |y, [r, g, b]| {
-        for x in 0..w {
-            let i = y * w + x;
-            let t = tonemap([src[0][i], src[1][i], src[2][i]]);
-            (r[x], g[x], b[x]) = (t[0], t[1], t[2]);
-        }
-    });
-    Cow::Owned(out)
+    Cow::Owned(map_color(color, scratch, tonemap))
 }
 
-/// The colour converted to YCoCg planes (Malvar and Sullivan 2003; see
-/// [`rgb_to_ycocg`]), in reused planes.
-pub fn to_ycocg(rgb: &Rgb, scratch: &mut Scratch) -> Rgb {
+/// `f` applied to each pixel's colour, into reused planes.
+fn map_color(rgb: &Rgb, scratch: &mut Scratch, f: impl Fn([f32; 3]) -> [f32; 3] + Sync) -> Rgb {
     let (w, h) = rgb[0].size();
     let src = rgb.each_ref().map(|p| p.data());
     let mut out: Rgb = scratch.planes(w, h);
     for_rows(slices_mut(&mut out), w, |y, [a, b, c]| {
         for x in 0..w {
             let i = y * w + x;
-            [a[x], b[x], c[x]] = rgb_to_ycocg([src[0][i], src[1][i], src[2][i]]);
+            [a[x], b[x], c[x]] = f([src[0][i], src[1][i], src[2][i]]);
         }
     });
     out
+}
+
+/// The colour converted to YCoCg planes (Malvar and Sullivan 2003; see
+/// [`rgb_to_ycocg`]), in reused planes.
+pub fn to_ycocg(rgb: &Rgb, scratch: &mut Scratch) -> Rgb {
+    map_color(rgb, scratch, rgb_to_ycocg)
 }
 
 /// Back from the working space to linear colour (in place); a no-op when `tonemap` is off.
@@ -422,6 +417,30 @@ pub struct FrameContext<'f, 's> {
     pub scratch: &'s mut Scratch,
 }
 
+/// A [`FrameContext`] taken apart: its fields in their order.
+pub type FrameParts<'f, 's> = (
+    Inputs<'f>,
+    &'s mut Recorder,
+    bool,
+    &'s [Plane<f32>],
+    &'s mut [Plane<f32>],
+    &'s mut Scratch,
+);
+
+impl<'f, 's> FrameContext<'f, 's> {
+    /// The fields as a tuple, for a body that works with them all as locals.
+    pub fn into_parts(self) -> FrameParts<'f, 's> {
+        (
+            self.inp,
+            self.rec,
+            self.has_history,
+            self.read,
+            self.next,
+            self.scratch,
+        )
+    }
+}
+
 /// What a temporal filter's stages produce for one frame.
 pub struct FrameResult {
     /// The output colour, linear.
@@ -456,8 +475,7 @@ impl TemporalState {
             check_needs(filter, needs, frame)?;
         }
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, uses, &mut rec)?;
-        recon.stage(&mut rec, &mut inp, frame.meta.jitter, &mut self.scratch);
+        let inp = recon.prepare(frame, uses, &mut rec, &mut self.scratch)?;
         let hdr = inp.facts.hdr;
         let counts = inp.counts;
         let has_history = self.begin(frame, hdr)?;

@@ -38,12 +38,6 @@ impl FilterKind for Passthrough {
     fn needs() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color])
     }
-    fn uses() -> ChannelSet {
-        Self::needs()
-    }
-    fn state_bytes_per_pixel(_: &Params) -> usize {
-        0
-    }
     fn new(_: Params) -> Self {
         Passthrough::default()
     }
@@ -73,18 +67,19 @@ impl Filter for Passthrough {
     fn name(&self) -> &'static str {
         Self::NAME
     }
+
+    fn params(&self) -> Value {
+        Value::Object(crate::pipeline::params::to_json(&Params {}))
+    }
+
     fn save_state(&self) -> Result<FilterState, StateError> {
         Ok(FilterState::empty(Self::NAME, self.params()))
     }
 
     fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        state.check_stateless(Self::NAME, &self.params())?;
-        Ok(())
+        state.check_stateless(Self::NAME, &self.params())
     }
 
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&Params {}))
-    }
     fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
         check_needs(Self::NAME, Self::needs(), frame)?;
         let mut rec = Recorder::new();

@@ -12,10 +12,10 @@
 //! filter's full-resolution output instead, at the pixel centres ([`Reconstruction::sparse_output`]),
 //! and the history keeps the unfiltered values, so a still image still converges.
 
-use crate::frame::Rgb;
+use crate::frame::{ChannelSet, Frame, Rgb};
 use crate::kernels::reconstruct::{blackman_harris, edge_taps, gaussian, reconstruct_row, taps};
 use crate::pipeline::exec::par_rows;
-use crate::pipeline::{Inputs, Recorder, Scratch, Skip};
+use crate::pipeline::{prepare, FilterError, Inputs, Recorder, Scratch, Skip};
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 
@@ -101,6 +101,20 @@ impl Reconstruction {
             m
         });
         (out, largest.0)
+    }
+
+    /// The frame's inputs as every temporal filter starts from them: the channels it `uses`
+    /// repaired and planned (stage `repair`), then this stage.
+    pub fn prepare<'a>(
+        &self,
+        frame: &'a Frame,
+        uses: ChannelSet,
+        rec: &mut Recorder,
+        scratch: &mut Scratch,
+    ) -> Result<Inputs<'a>, FilterError> {
+        let mut inp = prepare(frame, uses, rec)?;
+        self.stage(rec, &mut inp, frame.meta.jitter, scratch);
+        Ok(inp)
     }
 
     /// The `reconstruct` stage: replaces `inp.color` by its reconstruction (or records why

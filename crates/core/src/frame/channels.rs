@@ -90,11 +90,7 @@ impl ChannelKind {
     }
 }
 
-impl fmt::Display for ChannelKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
+display_name!(ChannelKind);
 
 /// A set of channels (what a frame carries, what a filter needs or can use).
 #[derive(Clone, Copy, Default, PartialEq, Eq, Hash)]

@@ -122,11 +122,7 @@ impl std::str::FromStr for Compression {
     }
 }
 
-impl std::fmt::Display for Compression {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+display_name!(Compression);
 
 /// How [`write_exr`] writes a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -136,16 +136,25 @@ mod tests {
         )
     }
 
-    #[test]
-    fn clip_matches_the_slab_reference() {
-        let mut rng = SplitMix64::new(21);
+    /// `case` on 20 000 random boxes (at scales 1, 1e3 and 1e-3 in turn, from a generator
+    /// seeded `seed`, which `case` draws its points from too); `case` says whether the clip
+    /// moved its point, which must happen in more than 1000 cases.
+    fn for_random_boxes(seed: u64, mut case: impl FnMut(&mut SplitMix64, f64, [f32; 3], [f32; 3]) -> bool) {
+        let mut rng = SplitMix64::new(seed);
         let mut moved = 0;
         for i in 0..20_000 {
             let scale = [1.0, 1e3, 1e-3][i % 3];
             let (min, max) = random_box(&mut rng, scale);
+            moved += case(&mut rng, scale, min, max) as u32;
+        }
+        assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+    }
+
+    #[test]
+    fn clip_matches_the_slab_reference() {
+        for_random_boxes(21, |rng, scale, min, max| {
             let q = [0, 1, 2].map(|_| (rng.range(-2.0, 2.0) * scale) as f32);
             let (got, m) = clip_toward_center(q, min, max);
-            moved += m as u32;
             let expect = clip_f64(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             for k in 0..3 {
                 Tolerance::new(1e-6 * scale, 1e-5)
@@ -157,8 +166,8 @@ mod tests {
             }
             let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             assert_eq!(!inside, m, "moved flag for {q:?} in {min:?}..{max:?}");
-        }
-        assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+            m
+        });
     }
 
     /// Whether `p` lies in `[min, max]` grown by the guard (part of the clips' definition).
@@ -189,16 +198,11 @@ mod tests {
 
     #[test]
     fn clip_toward_point_matches_bisection() {
-        let mut rng = SplitMix64::new(23);
-        let mut moved = 0;
-        for i in 0..20_000 {
-            let scale = [1.0, 1e3, 1e-3][i % 3];
-            let (min, max) = random_box(&mut rng, scale);
+        for_random_boxes(23, |rng, scale, min, max| {
             // The target inside the box (the pixel's own input is part of its 3x3).
             let target = [0, 1, 2].map(|k| min[k] + (max[k] - min[k]) * rng.next_f64() as f32);
             let q = [0, 1, 2].map(|_| (rng.range(-3.0, 3.0) * scale) as f32);
             let (got, m) = clip_toward_point(q, target, min, max);
-            moved += m as u32;
             let expect = clip_point_f64(
                 q.map(f64::from),
                 target.map(f64::from),
@@ -214,8 +218,8 @@ mod tests {
             }
             let inside = in_grown(q.map(f64::from), min.map(f64::from), max.map(f64::from));
             assert_eq!(!inside, m);
-        }
-        assert!(moved > 1000, "the random cases exercise clipping ({moved})");
+            m
+        });
     }
 
     #[test]

@@ -76,13 +76,20 @@ mod tests {
         out
     }
 
+    /// 10 000 random colours from a generator seeded `seed`, each with the scale it was
+    /// drawn at (`scales` in turn), components in `[0, scale)`.
+    fn random_colours(seed: u64, scales: [f64; 4]) -> impl Iterator<Item = ([f32; 3], f64)> {
+        let mut rng = SplitMix64::new(seed);
+        (0..10_000).map(move |i| {
+            let scale = scales[i % 4];
+            ([0, 1, 2].map(|_| (rng.next_f64() * scale) as f32), scale)
+        })
+    }
+
     #[test]
     fn ycocg_matches_the_matrix_and_round_trips() {
-        let mut rng = SplitMix64::new(7);
-        for i in 0..10_000 {
-            // Random LDR, HDR and adversarial (tiny, huge) colours.
-            let scale = [1.0, 100.0, 1e-6, 1e5][i % 4];
-            let c = [0, 1, 2].map(|_| (rng.next_f64() * scale) as f32);
+        // Random LDR, HDR and adversarial (tiny, huge) colours.
+        for (c, scale) in random_colours(7, [1.0, 100.0, 1e-6, 1e5]) {
             let y = rgb_to_ycocg(c);
             let r = ycocg_f64(c.map(f64::from));
             // Co and Cg are differences: their error is relative to the inputs' scale.
@@ -101,10 +108,7 @@ mod tests {
 
     #[test]
     fn tonemap_round_trips_and_matches_f64() {
-        let mut rng = SplitMix64::new(8);
-        for i in 0..10_000 {
-            let scale = [1.0, 1e3, 1e-6, 1e5][i % 4];
-            let c = [0, 1, 2].map(|_| (rng.next_f64() * scale) as f32);
+        for (c, _) in random_colours(8, [1.0, 1e3, 1e-6, 1e5]) {
             let t = tonemap(c);
             let m = c.iter().fold(0.0f64, |a, &v| a.max(v as f64));
             for k in 0..3 {

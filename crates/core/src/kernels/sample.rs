@@ -12,12 +12,8 @@ pub fn bilinear<const N: usize>(
     x: f32,
     y: f32,
 ) -> [f32; N] {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x0 = fx.floor();
-    let y0 = fy.floor();
-    let tx = fx - x0;
-    let ty = fy - y0;
+    let (x0y0, t) = bilinear_footprint(x, y);
+    let [x0, y0] = x0y0;
     if x0 >= 0.0 && y0 >= 0.0 && x0 + 1.0 < width as f32 && y0 + 1.0 < height as f32 {
         // The 2x2 footprint is inside: no clamping.
         let a = y0 as usize * width + x0 as usize;
@@ -25,21 +21,45 @@ pub fn bilinear<const N: usize>(
         let mut out = [0.0; N];
         for (o, p) in out.iter_mut().zip(planes) {
             let (r0, r1) = (&p[a..a + 2], &p[b..b + 2]);
-            let top = r0[0] + (r0[1] - r0[0]) * tx;
-            let bottom = r1[0] + (r1[1] - r1[0]) * tx;
-            *o = top + (bottom - top) * ty;
+            *o = lerp2([r0[0], r0[1], r1[0], r1[1]], t);
         }
         return out;
     }
+    let [i00, i10, i01, i11] = clamped_taps(x0y0, width, height);
+    planes.map(|p| lerp2([p[i00], p[i10], p[i01], p[i11]], t))
+}
+
+/// The top-left tap of the bilinear 2x2 footprint of a sample at `(x, y)` (whole numbers
+/// as f32, possibly outside, huge or NaN) and the fractions past it.
+#[inline(always)]
+fn bilinear_footprint(x: f32, y: f32) -> ([f32; 2], [f32; 2]) {
+    let fx = x - 0.5;
+    let fy = y - 0.5;
+    let x0 = fx.floor();
+    let y0 = fy.floor();
+    ([x0, y0], [fx - x0, fy - y0])
+}
+
+/// The indices of the 2x2 footprint's taps (top left, top right, bottom left, bottom
+/// right) whose top-left tap is `x0y0`, each clamped into the image.
+#[inline(always)]
+fn clamped_taps(x0y0: [f32; 2], width: usize, height: usize) -> [usize; 4] {
+    let [x0, y0] = x0y0;
     let xa = clamp_index(x0, width);
     let xb = clamp_index(x0 + 1.0, width);
     let ya = clamp_index(y0, height) * width;
     let yb = clamp_index(y0 + 1.0, height) * width;
-    planes.map(|p| {
-        let top = p[ya + xa] + (p[ya + xb] - p[ya + xa]) * tx;
-        let bottom = p[yb + xa] + (p[yb + xb] - p[yb + xa]) * tx;
-        top + (bottom - top) * ty
-    })
+    [ya + xa, ya + xb, yb + xa, yb + xb]
+}
+
+/// Bilinear interpolation of taps `[p00, p10, p01, p11]` at fractions `t`: along x in
+/// both rows, then between the rows.
+#[inline(always)]
+fn lerp2(p: [f32; 4], t: [f32; 2]) -> f32 {
+    let [p00, p10, p01, p11] = p;
+    let top = p00 + (p10 - p00) * t[0];
+    let bottom = p01 + (p11 - p01) * t[0];
+    top + (bottom - top) * t[1]
 }
 
 /// Index `i` (a whole number as f32, possibly out of range or huge) clamped into `0..n`.
@@ -568,8 +588,8 @@ pub fn catmull_rom_texel(tex: &[f32], width: usize, height: usize, f: &Footprint
         f.wy,
     );
     // The count: bilinear, from bilinear's clamped taps.
-    let k = TEXEL - 1;
-    out[k] = bilinear_channel_from(tex, width, height, [f.x1, f.y1], [f.tx, f.ty], k);
+    let taps = clamped_taps([f.x1, f.y1], width, height);
+    out[TEXEL - 1] = lerp2(taps.map(|i| tex[i * TEXEL + TEXEL - 1]), [f.tx, f.ty]);
     out
 }
 
@@ -598,10 +618,7 @@ fn catmull_rom_weighted(tex: &[f32], width: usize, first: usize, w: f32x8, t: [f
     let mut out = catmull_rom_rows(rows, [w[0], w[1], w[2], w[3]], [w[4], w[5], w[6], w[7]]);
     // The count: bilinear over the four centre taps, which are bilinear's own taps inside
     // the image.
-    let [c11, c12, c21, c22] = centre_counts(&rows);
-    let top = c11 + (c12 - c11) * t[0];
-    let bottom = c21 + (c22 - c21) * t[0];
-    out[TEXEL - 1] = top + (bottom - top) * t[1];
+    out[TEXEL - 1] = lerp2(centre_counts(&rows), t);
     out
 }
 
@@ -666,33 +683,8 @@ pub fn catmull_rom_texels(tex: &[f32], width: usize, height: usize, x: f32, y: f
 /// [`bilinear`] of channel `c` of an interleaved 4-channel plane.
 #[inline]
 pub fn bilinear_texel_channel(tex: &[f32], width: usize, height: usize, x: f32, y: f32, c: usize) -> f32 {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x0 = fx.floor();
-    let y0 = fy.floor();
-    bilinear_channel_from(tex, width, height, [x0, y0], [fx - x0, fy - y0], c)
-}
-
-/// [`bilinear_texel_channel`] from the top-left tap `x0y0` (whole numbers, clamped here)
-/// and the fraction `t` past it.
-#[inline(always)]
-fn bilinear_channel_from(
-    tex: &[f32],
-    width: usize,
-    height: usize,
-    x0y0: [f32; 2],
-    t: [f32; 2],
-    c: usize,
-) -> f32 {
-    let [x0, y0] = x0y0;
-    let xa = clamp_index(x0, width);
-    let xb = clamp_index(x0 + 1.0, width);
-    let ya = clamp_index(y0, height) * width;
-    let yb = clamp_index(y0 + 1.0, height) * width;
-    let p = |i: usize| tex[i * TEXEL + c];
-    let top = p(ya + xa) + (p(ya + xb) - p(ya + xa)) * t[0];
-    let bottom = p(yb + xa) + (p(yb + xb) - p(yb + xa)) * t[0];
-    top + (bottom - top) * t[1]
+    let (x0y0, t) = bilinear_footprint(x, y);
+    lerp2(clamped_taps(x0y0, width, height).map(|i| tex[i * TEXEL + c]), t)
 }
 
 /// [`bilinear`] of every channel of a plane of interleaved `N`-channel texels (the same
@@ -715,11 +707,8 @@ pub fn bilinear_span<const N: usize>(
     x: f32,
     y: f32,
 ) -> [f32; N] {
-    let fx = x - 0.5;
-    let fy = y - 0.5;
-    let x0 = fx.floor();
-    let y0 = fy.floor();
-    bilinear_at(tex, stride, first, width, height, [x0, y0], [fx - x0, fy - y0])
+    let (x0y0, t) = bilinear_footprint(x, y);
+    bilinear_at(tex, stride, first, width, height, x0y0, t)
 }
 
 /// [`bilinear_span`] from its top-left tap `x0y0` (whole numbers as f32, possibly outside,
@@ -779,9 +768,7 @@ fn bilinear_inside<const N: usize>(
         out[c..c + 4].copy_from_slice(&(top + (bottom - top) * ty).to_array());
     }
     for c in whole..N {
-        let top = r0[c] + (r0[stride + c] - r0[c]) * t[0];
-        let bottom = r1[c] + (r1[stride + c] - r1[c]) * t[0];
-        out[c] = top + (bottom - top) * t[1];
+        out[c] = lerp2([r0[c], r0[stride + c], r1[c], r1[stride + c]], t);
     }
     out
 }
@@ -798,19 +785,9 @@ fn bilinear_clamped<const N: usize>(
     x0y0: [f32; 2],
     t: [f32; 2],
 ) -> [f32; N] {
-    let [x0, y0] = x0y0;
-    let [tx, ty] = t;
-    let xa = clamp_index(x0, width);
-    let xb = clamp_index(x0 + 1.0, width);
-    let ya = clamp_index(y0, height) * width;
-    let yb = clamp_index(y0 + 1.0, height) * width;
     let at = |i: usize| -> &[f32; N] { block(tex, i * stride + first) };
-    let [p00, p10, p01, p11] = [ya + xa, ya + xb, yb + xa, yb + xb].map(at);
-    std::array::from_fn(|c| {
-        let top = p00[c] + (p10[c] - p00[c]) * tx;
-        let bottom = p01[c] + (p11[c] - p01[c]) * tx;
-        top + (bottom - top) * ty
-    })
+    let [p00, p10, p01, p11] = clamped_taps(x0y0, width, height).map(at);
+    std::array::from_fn(|c| lerp2([p00[c], p10[c], p01[c], p11[c]], t))
 }
 
 /// The bilinear footprints of eight positions, one per lane: [`bilinear_texels`]'s

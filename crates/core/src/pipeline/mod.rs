@@ -212,10 +212,15 @@ pub trait FilterKind: Filter + Sized + 'static {
     type Params: FilterParams;
     /// Channels it cannot work without.
     fn needs() -> ChannelSet;
-    /// Channels it reads when present (a superset of `needs`).
-    fn uses() -> ChannelSet;
-    /// Bytes of state per pixel with these parameters (both history buffers).
-    fn state_bytes_per_pixel(params: &Self::Params) -> usize;
+    /// Channels it reads when present (a superset of `needs`; by default `needs` alone).
+    fn uses() -> ChannelSet {
+        Self::needs()
+    }
+    /// Bytes of state per pixel with these parameters (both history buffers; by default
+    /// none, as for a filter without history).
+    fn state_bytes_per_pixel(_params: &Self::Params) -> usize {
+        0
+    }
     /// Whether it reconstructs sparsely shaded colour (see [`crate::frame::Sampling`]);
     /// the others refuse such frames with [`FilterError::SparseColor`].
     const SPARSE_INPUT: bool = false;

@@ -3,7 +3,6 @@
 
 use serde::Serialize;
 use std::fmt;
-use std::ops::AddAssign;
 use std::time::Instant;
 
 use crate::frame::ChannelKind;
@@ -74,13 +73,11 @@ pub struct PixelCounts {
     pub history_clipped: u64,
 }
 
-impl AddAssign for PixelCounts {
-    fn add_assign(&mut self, o: PixelCounts) {
-        self.history_reset += o.history_reset;
-        self.history_rejected += o.history_rejected;
-        self.history_clipped += o.history_clipped;
-    }
-}
+add_assign_fields!(PixelCounts {
+    history_reset,
+    history_rejected,
+    history_clipped
+});
 
 /// Input samples that could not be used as they came.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -184,12 +181,6 @@ impl UploadPrecision {
     }
 }
 
-impl std::fmt::Display for UploadPrecision {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
 /// Where a filter runs: the CPU (on the crate's rayon pool; the reference) or a GPU (the
 /// `gpu` cargo feature's wgpu backend, `crate::backend`). Which one a caller gets is chosen
 /// there; the filter interface and its records only say which one ran.
@@ -213,11 +204,7 @@ impl Backend {
     }
 }
 
-impl std::fmt::Display for Backend {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+display_name!(UploadPrecision, Backend);
 
 /// The window of frames behind one output of a windowed filter, and its flows.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]

@@ -1286,6 +1286,11 @@ mod tests {
         open_as(sessions, &A, filter)
     }
 
+    /// The message of a refused request.
+    fn refusal<T>(r: Result<T, SessionError>) -> String {
+        r.err().unwrap().to_string()
+    }
+
     fn frame(index: u64) -> Frame {
         let mut f = synthetic_frame(24, 16, index);
         f.meta.index = index;
@@ -1397,18 +1402,8 @@ mod tests {
         assert_eq!(sessions.get(&A, &id).unwrap().frames, 1);
         // A stream's claim keeps HTTP and other streams out until it ends.
         let claim = sessions.attach(&A, &id).unwrap();
-        assert!(sessions
-            .attach(&A, &id)
-            .err()
-            .unwrap()
-            .to_string()
-            .contains("another stream"));
-        assert!(sessions
-            .checkout(&A, &id)
-            .err()
-            .unwrap()
-            .to_string()
-            .contains("gRPC stream"));
+        assert!(refusal(sessions.attach(&A, &id)).contains("another stream"));
+        assert!(refusal(sessions.checkout(&A, &id)).contains("gRPC stream"));
         claim
             .checkout()
             .unwrap()

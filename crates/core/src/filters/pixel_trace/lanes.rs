@@ -401,37 +401,15 @@ impl PathLanes<'_> {
         // `invert` (trace.rs): x0 = p - m(i), x1 = p - m(pixel of x0); it stops at x0
         // when x0 is in pixel i or x1 equals x0, at x1 when x1 is in x0's pixel; past
         // the image it has no pixel and the step keeps its velocity.
-        const _: () = assert!(INVERSE_ITERATIONS >= 2);
         let p = Pts::of(self.p);
-        let r = run(&at.pixel);
-        let (mx, my) = (
-            gather_run(next.mx, &at.pixel, r),
-            gather_run(next.my, &at.pixel, r),
-        );
-        let x0 = Pts {
-            x: std::array::from_fn(|i| p.x[i] - mx[i]),
-            y: std::array::from_fn(|i| p.y[i] - my[i]),
-        };
-        let (a0, in0) = pixel_lanes(g, &x0);
-        let r0 = run(&a0);
-        let (mx, my) = (gather_run(next.mx, &a0, r0), gather_run(next.my, &a0, r0));
-        let x1 = Pts {
-            x: std::array::from_fn(|i| p.x[i] - mx[i]),
-            y: std::array::from_fn(|i| p.y[i] - my[i]),
-        };
-        let (a1, in1) = pixel_lanes(g, &x1);
-        let mut x = [[0.0f32; LANES]; 2];
-        let mut landed = [false; LANES];
-        let mut odd = [false; LANES];
-        for i in 0..LANES {
-            let stop0 = (a0[i] == at.pixel[i])
-                | ((x1.x[i].to_bits() == x0.x[i].to_bits()) & (x1.y[i].to_bits() == x0.y[i].to_bits()));
-            let stop1 = !stop0 & in1[i] & (a1[i] == a0[i]);
-            landed[i] = in0[i] & (stop0 | stop1);
-            x[0][i] = if stop0 { x0.x[i] } else { x1.x[i] };
-            x[1][i] = if stop0 { x0.y[i] } else { x1.y[i] };
-            odd[i] = at.valid[i] & in0[i] & !stop0 & in1[i] & !stop1;
-        }
+        let Inverted {
+            x,
+            at: a0,
+            run: r0,
+            landed,
+            odd,
+        } = Inverted::of(g, next, &p, &at.pixel);
+        let odd: Mask = std::array::from_fn(|i| at.valid[i] & odd[i]);
         let shows = shows_lanes(next, &a0, r0, self.id);
         let take: Mask = std::array::from_fn(|i| landed[i] & shows[i]);
         // Where the inversion lands on the object the velocity is x - p.

@@ -11,7 +11,7 @@
 //! Positions are continuous pixel coordinates: pixel `(x, y)` covers `[x, x+1) x [y, y+1)`,
 //! its centre is `(x + 0.5, y + 0.5)`, its sample in frame `l` lies at centre + jitter_l.
 
-use super::trace::{Pos, TraceCounts, Window, INVERSE_ITERATIONS, LOST};
+use super::trace::{blend_sorted, Flow, Pos, TraceCounts, Window, INVERSE_ITERATIONS, LOST};
 use super::{Kernel, Params, BLEND, PATHS, SEPARATE};
 use crate::frame::{Frame, Plane, Rgb};
 use crate::pipeline::exec::{par_rows, pool};
@@ -402,16 +402,6 @@ fn for_footprint(g: &Geometry, p: Pos, r: f32, mut f: impl FnMut(usize)) {
     }
 }
 
-/// One flow of a pixel: weighted colour sum, weight, nearest depth (eq. 16).
-#[derive(Clone, Copy, Debug, Default)]
-struct Flow {
-    /// The object id of its samples (`u32::MAX`: the pixel's own flow).
-    key: u32,
-    w: f32,
-    rgb: [f32; 3],
-    z: f32,
-}
-
 /// A pixel's bounded list of missed flows.
 #[derive(Clone, Debug, Default)]
 struct Flows {
@@ -464,23 +454,5 @@ fn blend(own: Flow, others: &[Flow], total: f32, counts: &mut TraceCounts) -> [f
         counts.several_flows += 1;
     }
     flows.sort_by(|a, b| a.z.total_cmp(&b.z));
-    let mut out = [0.0f32; 3];
-    let mut left = 1.0f32;
-    let last = flows.len() - 1;
-    for (i, f) in flows.iter().enumerate() {
-        let alpha = if i == last {
-            1.0
-        } else {
-            (f.w / total.max(f32::MIN_POSITIVE)).min(1.0)
-        };
-        let a = left * alpha;
-        for (o, v) in out.iter_mut().zip(f.rgb) {
-            *o += a * v / f.w;
-        }
-        left -= a;
-        if left <= 0.0 {
-            break;
-        }
-    }
-    out
+    blend_sorted(&flows, total)
 }

@@ -26,7 +26,6 @@ use crate::frame::{Frame, Rgb};
 use crate::pipeline::exec::{par_rows, pool, BAND_ROWS};
 use crate::pipeline::{Recorder, Skip};
 use rayon::prelude::*;
-use std::ops::AddAssign;
 
 /// A position, `NAN` when the path left the image (or behind the camera).
 pub(super) type Pos = [f32; 2];
@@ -52,12 +51,10 @@ pub struct TraceCounts {
     pub dropped: u64,
 }
 
-impl AddAssign for TraceCounts {
-    fn add_assign(&mut self, o: Self) {
-        self.several_flows += o.several_flows;
-        self.dropped += o.dropped;
-    }
-}
+add_assign_fields!(TraceCounts {
+    several_flows,
+    dropped
+});
 
 /// The frames of one window and the output position in it.
 pub struct Window<'a> {
@@ -500,12 +497,12 @@ pub(super) struct Failed {
 
 /// One flow of a pixel: weighted colour sum, weight, nearest depth (eq. 16).
 #[derive(Clone, Copy, Debug, Default)]
-struct Flow {
+pub(super) struct Flow {
     /// The object id of its samples (`u32::MAX`: the pixel's own flow).
-    key: u32,
-    w: f32,
-    rgb: [f32; 3],
-    z: f32,
+    pub(super) key: u32,
+    pub(super) w: f32,
+    pub(super) rgb: [f32; 3],
+    pub(super) z: f32,
 }
 
 const NONE: u32 = u32::MAX;
@@ -1604,10 +1601,17 @@ fn blend(own: Flow, missed: &Missed, k0: usize, total: f32, counts: &mut TraceCo
             }
         }
     }
+    blend_sorted(&flows[..len], total)
+}
+
+/// [`blend`]'s front-to-back sum over `flows` (at least one, of weight above 0, sorted
+/// near to far), the last taking the coverage left over.
+#[inline(always)]
+pub(super) fn blend_sorted(flows: &[Flow], total: f32) -> [f32; 3] {
     let mut out = [0.0f32; 3];
     let mut left = 1.0f32;
-    let last = len - 1;
-    for (i, f) in flows[..len].iter().enumerate() {
+    let last = flows.len() - 1;
+    for (i, f) in flows.iter().enumerate() {
         let alpha = if i == last {
             1.0
         } else {

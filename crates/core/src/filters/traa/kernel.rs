@@ -29,23 +29,16 @@ use crate::frame::{ChannelKind, Plane, Rgb};
 use crate::kernels::lanes::{self, block, mask_of_bits, Lanes, Mask, LANES};
 use crate::kernels::{fmax, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, FrameFacts, Inputs, PixelCounts, Recorder, Skip};
+use crate::pipeline::{FilterError, FilterKind, FrameFacts, Inputs, PixelCounts, Recorder, Skip};
 use std::ops::Range;
 use wide::f32x8;
 
-/// Stages of the fused pass, in order (indices into its [`StageClock`]).
-const STAGES: [&str; 10] = [
-    "tonemap",
-    "dilate",
-    "reproject",
-    "sobel",
-    "sobel_history",
-    "model_average",
-    "depth_variance",
-    "aliased",
-    "resolve",
-    "untonemap",
-];
+/// Stages of the fused pass, in order (indices into its [`StageClock`]): the filter's
+/// stages less `repair` and `reconstruct` (run before it) and `sharpen` (a pass of its own).
+const STAGES: [&str; 10] = {
+    let s = <Traa as FilterKind>::STAGES;
+    [s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[12]]
+};
 const TONEMAP: usize = 0;
 const DILATE: usize = 1;
 const REPROJECT: usize = 2;
@@ -216,14 +209,7 @@ pub(super) fn frame(
     near_far: Option<[f32; 2]>,
     ctx: FrameContext<'_, '_>,
 ) -> Result<FrameResult, FilterError> {
-    let FrameContext {
-        inp,
-        rec,
-        has_history,
-        read,
-        next,
-        scratch,
-    } = ctx;
+    let (inp, rec, has_history, read, next, scratch) = ctx.into_parts();
     let (w, h) = (inp.width, inp.height);
     let skips = Skips::new(p, &inp, has_history);
     let plan = skips.plan(p, has_history);

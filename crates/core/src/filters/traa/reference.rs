@@ -16,7 +16,7 @@ use crate::kernels::{
     bilinear, clamp_to_box, clip_toward_center, for_each_row_stats, gather3x3, luma, sobel_plane, CROSS,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
+use crate::pipeline::{check_needs, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
 use std::borrow::Cow;
 
 /// `traa` computed stage by stage over whole planes.
@@ -41,13 +41,12 @@ impl ReferenceTraa {
         let p = self.params.clone();
         let improved = p.variant == Variant::Improved;
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Traa::uses(), &mut rec)?;
-        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+        let inp = Reconstruction::new(p.pixel_filter, p.filter_width).prepare(
+            frame,
+            Traa::uses(),
             &mut rec,
-            &mut inp,
-            frame.meta.jitter,
             &mut self.hist.scratch,
-        );
+        )?;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;

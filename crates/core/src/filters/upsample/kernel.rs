@@ -639,14 +639,7 @@ pub(super) fn frame(
     near_far: Option<[f32; 2]>,
     ctx: FrameContext<'_, '_>,
 ) -> Result<FrameResult, FilterError> {
-    let FrameContext {
-        inp,
-        rec,
-        has_history,
-        read,
-        next,
-        scratch,
-    } = ctx;
+    let (inp, rec, has_history, read, next, scratch) = ctx.into_parts();
     let method = p.method;
     let (w, h) = (inp.width, inp.height);
     let stateful = method != Method::Spatial;
@@ -906,25 +899,13 @@ impl BlendPass<'_> {
     /// with less than half of the valid weight counted as rejected), then the blend.
     #[inline(always)]
     fn temporal(&self, band: &mut Band, y: usize, out: [&mut [f32]; 3], nx: &mut [f32]) -> PixelCounts {
-        let (fr, p, clock, w) = (self.fr, self.p, self.clock, self.fr.w);
-        let hrow = sized(&mut band.hist, TM * w);
-        let frow = sized(&mut band.frac, w);
-        let mut c = PixelCounts::default();
-        if let Some(hist) = self.hist {
-            c.history_rejected += clock.time(REPROJECT, || {
-                reproject_row::<TM>(
-                    fr,
-                    hist,
-                    y,
-                    Some((T_DEPTH, T_ID, p.depth_tolerance, 0.0, 0.0)),
-                    |x, t, total, _| {
-                        hrow[TM * x..TM * x + TM].copy_from_slice(&t);
-                        frow[x] = total;
-                    },
-                )
-            });
-        }
-        let hrow = self.hist.map(|_| (&band.hist[..TM * w], &band.frac[..w]));
+        let (fr, clock) = (self.fr, self.clock);
+        let valid = Some((T_DEPTH, T_ID, self.p.depth_tolerance, 0.0, 0.0));
+        let mut c = PixelCounts {
+            history_rejected: self.reproject_band::<TM>(band, y, valid),
+            ..PixelCounts::default()
+        };
+        let hrow = self.hist.map(|_| (&band.hist[..TM * fr.w], &band.frac[..fr.w]));
         c += clock.time(BLEND, || {
             with_geometry!(fr, temporal_row(fr, &band.samples, hrow, y, out, nx))
         });
@@ -935,21 +916,35 @@ impl BlendPass<'_> {
     /// less than half of the weight counted as reset), then the splat and blend.
     #[inline(always)]
     fn taa(&self, band: &mut Band, y: usize, out: [&mut [f32]; 3], nx: &mut [f32]) -> PixelCounts {
-        let (fr, p, clock, w) = (self.fr, self.p, self.clock, self.fr.w);
-        let hrow = sized(&mut band.hist, TA * w);
-        let frow = sized(&mut band.frac, w);
-        let mut c = PixelCounts::default();
-        if let Some(hist) = self.hist {
-            c.history_reset += clock.time(REPROJECT, || {
-                reproject_row::<TA>(fr, hist, y, None, |x, t, total, _| {
-                    hrow[TA * x..TA * x + TA].copy_from_slice(&t);
-                    frow[x] = total;
-                })
-            });
-        }
-        let hrow = self.hist.map(|_| (&band.hist[..TA * w], &band.frac[..w]));
+        let (fr, p, clock) = (self.fr, self.p, self.clock);
+        let mut c = PixelCounts {
+            history_reset: self.reproject_band::<TA>(band, y, None),
+            ..PixelCounts::default()
+        };
+        let hrow = self.hist.map(|_| (&band.hist[..TA * fr.w], &band.frac[..fr.w]));
         c += clock.time(BLEND, || taa_row(fr, p, &band.samples, hrow, y, out, nx));
         c
+    }
+
+    /// Row `y` of the history reprojected into the band (`N` values a pixel, then the
+    /// valid share); the pixels with less than half of the weight (0 without history).
+    #[inline(always)]
+    fn reproject_band<const N: usize>(
+        &self,
+        band: &mut Band,
+        y: usize,
+        valid: Option<(usize, usize, f32, f32, f32)>,
+    ) -> u64 {
+        let (fr, w) = (self.fr, self.fr.w);
+        let hrow = sized(&mut band.hist, N * w);
+        let frow = sized(&mut band.frac, w);
+        let Some(hist) = self.hist else { return 0 };
+        self.clock.time(REPROJECT, || {
+            reproject_row::<N>(fr, hist, y, valid, |x, t, total, _| {
+                hrow[N * x..N * x + N].copy_from_slice(&t);
+                frow[x] = total;
+            })
+        })
     }
 }
 

@@ -14,8 +14,8 @@ use crate::frame::{ChannelKind, Frame, Plane, Rgb};
 use crate::kernels::luma;
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::{
-    bind_size, check_channels, prepare, DoubleBuffer, FilterError, FilterKind, Output, PixelCounts, Recorder,
-    Scratch, Skip,
+    bind_size, check_channels, DoubleBuffer, FilterError, FilterKind, Output, PixelCounts, Recorder, Scratch,
+    Skip,
 };
 
 /// `upsample` computed stage by stage over whole planes.
@@ -42,13 +42,12 @@ impl ReferenceUpsample {
         let p = self.params.clone();
         let method = p.method;
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Upsample::uses(), &mut rec)?;
-        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+        let inp = Reconstruction::new(p.pixel_filter, p.filter_width).prepare(
+            frame,
+            Upsample::uses(),
             &mut rec,
-            &mut inp,
-            frame.meta.jitter,
             &mut self.scratch,
-        );
+        )?;
         let (w, h) = (inp.width, inp.height);
         let sampling = frame.sampling();
         let stateful = method != Method::Spatial;
@@ -127,63 +126,33 @@ impl ReferenceUpsample {
                     width: w,
                     height: h,
                 };
+                // The methods keep different numbers of history planes (the array length
+                // differs), hence a macro rather than a closure.
+                macro_rules! reproject_planes {
+                    ($validity:expr, $($k:expr),+) => {{
+                        let mut o = scratch.planes(w, h);
+                        let lost = reproject([$(src($k)),+], motion, $validity, w, h, slices_mut(&mut o), fr, kp);
+                        (Vec::from(o), lost)
+                    }};
+                }
                 match method {
                     Method::Spatiotemporal => {
-                        let mut o: [Plane<f32>; 11] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [
-                                src(R),
-                                src(R + 1),
-                                src(R + 2),
-                                src(W),
-                                src(G1),
-                                src(G1 + 1),
-                                src(G1 + 2),
-                                src(LK),
-                                src(LK + 1),
-                                src(LK + 2),
-                                src(LK + 3),
-                            ],
-                            motion,
+                        let (o, lost) = reproject_planes!(
                             Some(&validity),
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                            kp,
+                            R, R + 1, R + 2, W, G1, G1 + 1, G1 + 2, LK, LK + 1, LK + 2, LK + 3
                         );
                         pixels.history_rejected += lost;
-                        o.into()
+                        o
                     }
                     Method::Temporal => {
-                        let mut o: [Plane<f32>; 3] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [src(R), src(R + 1), src(R + 2)],
-                            motion,
-                            Some(&validity),
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                            kp,
-                        );
+                        let (o, lost) = reproject_planes!(Some(&validity), R, R + 1, R + 2);
                         pixels.history_rejected += lost;
-                        o.into()
+                        o
                     }
                     Method::Taa | Method::Spatial => {
-                        let mut o: [Plane<f32>; 4] = scratch.planes(w, h);
-                        let lost = reproject(
-                            [src(R), src(R + 1), src(R + 2), src(W)],
-                            motion,
-                            None,
-                            w,
-                            h,
-                            slices_mut(&mut o),
-                            fr,
-                            kp,
-                        );
+                        let (o, lost) = reproject_planes!(None, R, R + 1, R + 2, W);
                         pixels.history_reset += lost;
-                        o.into()
+                        o
                     }
                 }
             },
