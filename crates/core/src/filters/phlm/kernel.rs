@@ -663,6 +663,10 @@ fn depth_range_row<'a>(
     [lo, hi]
 }
 
+/// A row's depth, where the frame has it, and its 3x3 range ([`depth_range_row`]) where
+/// `depth_jump` reads it.
+type RowDepths<'a> = Option<(&'a [f32], Option<[&'a [f32]; 2]>)>;
+
 /// [`super::depth_share`] in lanes.
 fn depth_share_lanes(lo: &Lanes, hi: &Lanes, d_prev: &Lanes, v: &Lanes, depth_jump: f32) -> f32x8 {
     let (lo, hi, b) = (lanes::v(lo), lanes::v(hi), lanes::v(d_prev));
@@ -686,7 +690,7 @@ fn model_row(
     ycocg: [&[f32]; 3],
     fetched: &[Fetched],
     z: &[[Lanes; 3]],
-    depths: Option<(&[f32], Option<[&[f32]; 2]>)>,
+    depths: RowDepths,
     invalid: Option<&[bool]>,
     plan: &Plan,
     w: usize,
