@@ -1067,28 +1067,7 @@ mod tests {
         let frames: Vec<Frame> = (0..12)
             .map(|t| if t < 8 { frame(0.2, 10.0) } else { frame(0.8, 2.0) })
             .collect();
-        for (set, first) in [(&[][..], 8), (&["depth_jump=0"], 10)] {
-            let out = run_own_samples(set, &frames);
-            for t in 8..12 {
-                let err = (out[t].color[0].get(4, 3) - 0.8).abs();
-                assert_eq!(
-                    err <= guard([0.8; 3], [0.8; 3]),
-                    t >= first,
-                    "{set:?} frame {t}: {err}"
-                );
-            }
-        }
-        let mut f = Phlm::new(Params::default());
-        for (t, fr) in frames[..9].iter().enumerate() {
-            f.process(fr).unwrap();
-            let st = f.save_state().unwrap();
-            let at = (3 * 9 + 4) * STATE_PLANES + DEPTH;
-            assert_eq!(
-                st.planes[0].data()[at],
-                if t < 8 { 10.0 } else { 2.0 },
-                "frame {t}"
-            );
-        }
+        assert_the_change_clips_at_once(&frames, "depth_jump=0", DEPTH, [10.0, 2.0]);
     }
 
     /// Depths a renderer or a client may send (NaN, infinite, zero, negative, denormal,
@@ -1142,11 +1121,18 @@ mod tests {
         let frames: Vec<Frame> = (0..12)
             .map(|t| if t < 8 { frame(0.2, 0.0) } else { frame(0.8, -2.0) })
             .collect();
-        for (set, first) in [(&[][..], 8), (&["speed_jump=0"], 10)] {
-            let out = run_own_samples(set, &frames);
+        assert_the_change_clips_at_once(&frames, "speed_jump=0", V, [0.0, 2.0]);
+    }
+
+    /// For 12 flat 9x7 frames whose colour changes from 0.2 to 0.8 at frame 8: the centre
+    /// pixel (its history 2 px to the left is on screen where it moves) shows the new
+    /// colour from frame 8 with the defaults, from frame 10 (the third failure) with `off`;
+    /// a clip lands on the box grown by the clip's guard. The state's `plane` keeps
+    /// `kept[0]` before the change and `kept[1]` from it.
+    fn assert_the_change_clips_at_once(frames: &[Frame], off: &str, plane: usize, kept: [f32; 2]) {
+        for (set, first) in [(&[][..], 8), (&[off][..], 10)] {
+            let out = run_own_samples(set, frames);
             for t in 8..12 {
-                // The centre pixel: its history (2 px to the left) is on screen. A clip
-                // lands on the box grown by the clip's guard.
                 let err = (out[t].color[0].get(4, 3) - 0.8).abs();
                 assert_eq!(
                     err <= guard([0.8; 3], [0.8; 3]),
@@ -1155,17 +1141,12 @@ mod tests {
                 );
             }
         }
-        // The state keeps each pixel's speed of the frame that wrote it.
         let mut f = Phlm::new(Params::default());
         for (t, fr) in frames[..9].iter().enumerate() {
             f.process(fr).unwrap();
             let st = f.save_state().unwrap();
-            let at = (3 * 9 + 4) * STATE_PLANES + V;
-            assert_eq!(
-                st.planes[0].data()[at],
-                if t < 8 { 0.0 } else { 2.0 },
-                "frame {t}"
-            );
+            let at = (3 * 9 + 4) * STATE_PLANES + plane;
+            assert_eq!(st.planes[0].data()[at], kept[usize::from(t >= 8)], "frame {t}");
         }
     }
 
