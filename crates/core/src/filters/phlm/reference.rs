@@ -16,7 +16,7 @@ use super::{
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{clip_toward_point, for_each_row_stats, rgb_to_ycocg, variance_box, ycocg_to_rgb};
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, ModelHealth, Output, Recorder};
+use crate::pipeline::{check_needs, FilterError, FilterKind, ModelHealth, Output, Recorder};
 
 /// `phlm` computed stage by stage over whole planes.
 #[derive(Debug)]
@@ -39,13 +39,12 @@ impl ReferencePhlm {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
         let p = self.params.effective();
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Phlm::uses(), &mut rec)?;
-        Reconstruction::new(p.pixel_filter, p.filter_width).stage(
+        let inp = Reconstruction::new(p.pixel_filter, p.filter_width).prepare(
+            frame,
+            Phlm::uses(),
             &mut rec,
-            &mut inp,
-            frame.meta.jitter,
             &mut self.hist.scratch,
-        );
+        )?;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;

@@ -14,7 +14,7 @@ use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
-use crate::pipeline::{check_needs, prepare, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
+use crate::pipeline::{check_needs, FilterError, FilterKind, Output, PixelCounts, Recorder, Skip};
 
 /// `taa` computed stage by stage over whole planes.
 #[derive(Debug)]
@@ -37,13 +37,12 @@ impl ReferenceTaa {
         check_needs(Taa::NAME, Taa::needs(), frame)?;
         let p = self.params.clone();
         let mut rec = Recorder::new();
-        let mut inp = prepare(frame, Taa::uses(), &mut rec)?;
-        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
+        let inp = Reconstruction::new(self.params.pixel_filter, self.params.filter_width).prepare(
+            frame,
+            Taa::uses(),
             &mut rec,
-            &mut inp,
-            frame.meta.jitter,
             &mut self.hist.scratch,
-        );
+        )?;
         let (w, h) = (inp.width, inp.height);
         let facts = inp.facts;
         let hdr = facts.hdr;
