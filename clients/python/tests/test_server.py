@@ -223,7 +223,7 @@ def test_filters_command_lists_filters_with_their_parameters(server):
     assert r.returncode == 0, r.stderr
     assert "taa: " in r.stdout and "phlm: " in r.stdout
     assert "  needs color; uses color, depth, motion" in r.stdout
-    assert "  --param alpha=0.1 (number [" in r.stdout
+    assert "  --param alpha=0.2 (number [" in r.stdout
 
 
 def test_a_frame_the_server_refuses_ends_the_stream_with_its_reason(server):
