@@ -4,7 +4,8 @@
 //!
 //! With the jitter known (the file's `afterimage.jitter`, `--jitter-from`, or the
 //! session's per-frame field) the 3x3 samples are weighted where they fell; with it
-//! unknown (0) they are weighted at the pixel centres, a fixed blur of the same width.
+//! unknown (0 on both axes) they are weighted at the pixel centres, a fixed blur a little
+//! wider ([`Reconstruction::blind`]).
 //! `box` leaves the colour as it is: each pixel's own sample, which converges to the box
 //! integral over the pixel (what our procedural references are).
 //!
@@ -71,6 +72,40 @@ impl Reconstruction {
         }
     }
 
+    /// The reconstruction of a frame whose jitter is unknown: at the pixel centres, with the
+    /// width at which the centred taps average as much of the samples' noise (the same sum
+    /// of squared weights, per axis) as this filter's taps do on average over uniformly
+    /// jittered positions. Blackman-Harris 1.5 px gives 1.73 px. At the same width the
+    /// centred taps are nearly the pixel's own sample (Blackman-Harris weighs a neighbour
+    /// a pixel away at 0.06 of the centre), so a blind frame would average less than a
+    /// jittered one, and its aliasing and noise pass through. On the Blender corpus with
+    /// the jitter unknown (docs/corpus.md, "The width when the jitter is unknown") this
+    /// width gains `taa` +0.23 dB, `phlm` +0.51, `traa` +0.87 and `upsample` +1.04 on
+    /// the mean over the same width as the jittered taps.
+    pub fn blind(&self) -> Reconstruction {
+        if self.filter == PixelFilter::Box {
+            return *self;
+        }
+        let at = |width: f32| Reconstruction { width, ..*self };
+        let gain = |t: [f32; 3]| t.iter().map(|w| w * w).sum::<f32>();
+        const PHASES: usize = 64;
+        let target = (0..PHASES)
+            .map(|k| gain(taps((k as f32 + 0.5) / PHASES as f32 - 0.5, |v| self.weight(v))))
+            .sum::<f32>()
+            / PHASES as f32;
+        // The centred taps' gain falls as the width grows (their neighbours weigh more).
+        let (mut lo, mut hi) = (self.width, 4.0 * self.width);
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if gain(taps(0.0, |v| at(mid).weight(v))) > target {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        at(0.5 * (lo + hi))
+    }
+
     /// Why the stage is left out, if it is.
     fn skip(&self) -> Option<Skip> {
         (self.filter == PixelFilter::Box).then_some(Skip::Disabled {
@@ -120,13 +155,16 @@ impl Reconstruction {
     /// The `reconstruct` stage: replaces `inp.color` by its reconstruction (or records why
     /// it is left out). Every temporal filter runs it right after `repair`, the CPU's
     /// reference and fused kernels and the GPU backend alike, so they see the same colour.
+    /// A jitter of 0 on both axes is a renderer that did not say where it sampled: the
+    /// frame is reconstructed [`Self::blind`].
     pub fn stage(&self, rec: &mut Recorder, inp: &mut Inputs, jitter: [f32; 2], scratch: &mut Scratch) {
         if inp.color[0].size() != (inp.width, inp.height) {
             // Sparse shading: the stage runs on the output ([`Self::sparse_output`]).
             return;
         }
+        let recon = if jitter == [0.0, 0.0] { self.blind() } else { *self };
         if let Some((rgb, largest)) =
-            rec.stage(STAGE, self.skip(), || self.apply(&inp.color, jitter, scratch))
+            rec.stage(STAGE, self.skip(), || recon.apply(&inp.color, jitter, scratch))
         {
             // The filter's input is now the reconstruction: its largest sample bounds the
             // output (`passes::output_ceiling`), as for a frame given reconstructed.
@@ -231,5 +269,52 @@ mod tests {
             Tolerance::abs(1e-6).eq(inp.color[0].data()[9 + 4] as f64, want),
             "{l} {c} {r}"
         );
+    }
+
+    /// The sum of squared weights of 3x3 taps, per axis, for jitter `j`.
+    fn gain(r: Reconstruction, j: f32) -> f64 {
+        taps(j, |v| r.weight(v)).iter().map(|&w| (w as f64).powi(2)).sum()
+    }
+
+    #[test]
+    fn the_blind_width_averages_as_much_as_the_jittered_taps() {
+        // Widths solved independently (numpy, bisection on the same filters).
+        for (filter, want) in [(PixelFilter::BlackmanHarris, 1.7303), (PixelFilter::Gaussian, 1.8369)] {
+            let r = Reconstruction::new(filter, DEFAULT_FILTER_WIDTH);
+            let b = r.blind();
+            assert_eq!(b.filter, filter);
+            Tolerance::abs(2e-3).check(&format!("{filter:?} blind width"), b.width as f64, want).unwrap();
+            // The jittered taps' mean gain over a fine grid of phases.
+            let n = 10_000;
+            let mean = (0..n).map(|k| gain(r, (k as f32 + 0.5) / n as f32 - 0.5)).sum::<f64>() / n as f64;
+            Tolerance::abs(1e-4).check(&format!("{filter:?} gain"), gain(b, 0.0), mean).unwrap();
+            assert!(gain(r, 0.0) > mean + 0.1, "{filter:?}: centred taps at the set width average less");
+        }
+        assert_eq!(Reconstruction::NONE.blind(), Reconstruction::NONE);
+    }
+
+    #[test]
+    fn a_frame_without_jitter_is_reconstructed_blind() {
+        let f = frame(9, 5);
+        let bh = Reconstruction::new(PixelFilter::BlackmanHarris, DEFAULT_FILTER_WIDTH);
+        let staged = |jitter: [f32; 2]| {
+            let mut rec = Recorder::new();
+            let mut inp = prepare(&f, ChannelSet::of(&[ChannelKind::Color]), &mut rec).unwrap();
+            bh.stage(&mut rec, &mut inp, jitter, &mut Scratch::default());
+            inp.color.into_owned()
+        };
+        let mut scratch = Scratch::default();
+        for (jitter, want) in [
+            ([0.0, 0.0], bh.blind().apply(f.color(), [0.0, 0.0], &mut scratch).0),
+            // One axis at 0 is a jitter like any other (Halton's first x, say).
+            ([0.0, 0.25], bh.apply(f.color(), [0.0, 0.25], &mut scratch).0),
+        ] {
+            let got = staged(jitter);
+            for c in 0..3 {
+                assert_eq!(got[c].data(), want[c].data(), "jitter {jitter:?} channel {c}");
+            }
+        }
+        let sharp = bh.apply(f.color(), [0.0, 0.0], &mut scratch).0;
+        assert_ne!(staged([0.0, 0.0])[0].data(), sharp[0].data());
     }
 }
