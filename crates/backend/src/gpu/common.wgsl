@@ -2,12 +2,8 @@
 // naming the CPU function it mirrors, and small numeric helpers. A filter's module source
 // is this file followed by the filter's own (`gpu::pipeline` joins them).
 
-// `TONEMAP_MAX` of `kernels/color.rs`.
-const TONEMAP_MAX: f32 = 0.9999999;
-const F32_MAX: f32 = 3.40282347e38;
-// `CLIP_EPS` and `CLIP_REL` of `kernels/clip.rs`.
-const CLIP_EPS: f32 = 1.0e-8;
-const CLIP_REL: f32 = 1.0e-4;
+// Declared before this file from Rust (`gpu::common_consts`): TONEMAP_MAX, F32_MAX,
+// CLIP_EPS, CLIP_REL.
 
 // kernels::tonemap: c / (1 + max c).
 fn tonemap(c: vec3<f32>) -> vec3<f32> {

@@ -52,10 +52,11 @@ impl GpuFxaa {
         upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let params: Params = build(Fxaa::NAME, values)?;
+        let consts = super::wgsl_consts![WORKGROUP];
         Ok(GpuFxaa {
             upload,
-            luma: pipeline(&gpu, "fxaa luma", SOURCE, "luma_pass"),
-            fxaa: pipeline(&gpu, "fxaa", SOURCE, "fxaa_pass"),
+            luma: pipeline(&gpu, "fxaa luma", &consts, SOURCE, "luma_pass"),
+            fxaa: pipeline(&gpu, "fxaa", &consts, SOURCE, "fxaa_pass"),
             gpu,
             params,
             buffers: None,

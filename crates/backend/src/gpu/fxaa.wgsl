@@ -29,7 +29,7 @@ fn plane_len() -> u32 {
 
 // fxaa::luma_of: sqrt of the Rec. 709 luma of the tonemapped colour (HDR) or of the
 // colour clamped to 1.
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WORKGROUP, WORKGROUP)
 fn luma_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= P.width || gid.y >= P.height {
         return;
@@ -186,7 +186,7 @@ fn fxaa_position(x: u32, y: u32) -> vec2<f32> {
     return vec2<f32>(pos_m.x + offset, pos_m.y);
 }
 
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WORKGROUP, WORKGROUP)
 fn fxaa_pass(@builtin(global_invocation_id) gid: vec3<u32>) {
     if gid.x >= P.width || gid.y >= P.height {
         return;

@@ -153,16 +153,75 @@ pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
 
 /// The WGSL every filter's shaders share (colour transforms, numeric helpers).
 const COMMON: &str = include_str!("common.wgsl");
+
+/// A value a shader shares with Rust, declared in WGSL from its Rust definition when the
+/// module is built ([`wgsl_consts!`]): each flag bit, buffer index and constant of the
+/// filters is written once, in Rust.
+pub(crate) trait WgslConst {
+    /// `const NAME: TYPE = VALUE;` and a newline.
+    fn declare(&self, name: &str) -> String;
+}
+
+impl WgslConst for u32 {
+    fn declare(&self, name: &str) -> String {
+        format!("const {name}: u32 = {self}u;\n")
+    }
+}
+
+impl WgslConst for usize {
+    fn declare(&self, name: &str) -> String {
+        u32::try_from(*self)
+            .expect("a shader constant fits u32")
+            .declare(name)
+    }
+}
+
+impl WgslConst for f32 {
+    fn declare(&self, name: &str) -> String {
+        // `{:?}` is the shortest decimal that reads back as the same f32 ("1e-8", "255.0").
+        format!("const {name}: f32 = {self:?};\n")
+    }
+}
+
+/// The WGSL declarations of Rust values: `wgsl_consts![A, B = expr]` declares `A` with the
+/// value of the Rust item `A` in scope and `B` with that of `expr`.
+macro_rules! wgsl_consts {
+    ($($name:ident $(= $value:expr)?),* $(,)?) => {
+        [$($crate::gpu::wgsl_consts!(@one $name $(= $value)?)),*].concat()
+    };
+    (@one $name:ident) => {
+        $crate::gpu::WgslConst::declare(&$name, stringify!($name))
+    };
+    (@one $name:ident = $value:expr) => {
+        $crate::gpu::WgslConst::declare(&$value, stringify!($name))
+    };
+}
+pub(crate) use wgsl_consts;
+
+/// What [`COMMON`] takes from Rust: `kernels::color`'s and `kernels::clip`'s constants.
+fn common_consts() -> String {
+    use crate::kernels::clip::{CLIP_EPS, CLIP_REL};
+    use crate::kernels::TONEMAP_MAX;
+    wgsl_consts![TONEMAP_MAX, F32_MAX = f32::MAX, CLIP_EPS, CLIP_REL]
+}
 /// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
 /// filters that reproject a history (`taa`'s resolve, `phlm`).
 const REPROJECT: &str = include_str!("reproject.wgsl");
 
-/// A compute pipeline from WGSL `source` (after [`COMMON`]), entry point `entry`, its bind
-/// group layout taken from the shader.
-pub(crate) fn pipeline(gpu: &Gpu, label: &str, source: &str, entry: &str) -> wgpu::ComputePipeline {
+/// A compute pipeline from WGSL `source` (after the Rust constants it shares,
+/// [`common_consts`] and the filter's `consts` from [`wgsl_consts!`], then [`COMMON`]),
+/// entry point `entry`, its bind group layout taken from the shader.
+pub(crate) fn pipeline(
+    gpu: &Gpu,
+    label: &str,
+    consts: &str,
+    source: &str,
+    entry: &str,
+) -> wgpu::ComputePipeline {
+    let common = common_consts();
     let module = gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(format!("{COMMON}\n{source}").into()),
+        source: wgpu::ShaderSource::Wgsl(format!("{common}{consts}{COMMON}\n{source}").into()),
     });
     gpu.device
         .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {

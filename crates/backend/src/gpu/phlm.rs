@@ -33,7 +33,7 @@ use std::sync::Arc;
 const SOURCE: &str = include_str!("phlm.wgsl");
 const WORKGROUP: usize = 8;
 
-// Bits of `Params.flags` (the FLAG_ constants of phlm.wgsl).
+// Bits of `Params.flags`, declared in phlm.wgsl from these ([`consts`]).
 const FLAG_TONEMAP: u32 = 1;
 const FLAG_REPROJECT: u32 = 2;
 const FLAG_HISTORY: u32 = 4;
@@ -46,16 +46,55 @@ const FLAG_DILATE: u32 = 256;
 const FLAG_CATMULL_ROM: u32 = 512;
 const FLAG_DEPTH: u32 = 1024;
 
-// Planes of the input buffer (IN_ constants of phlm.wgsl): r, g, b, motion x, y, depth,
+// Planes of the input buffer (the shader's IN_ constants): r, g, b, motion x, y, depth,
 // invalid.
 const INPUT_PLANES: usize = 7;
 const IN_MX: usize = 3;
+const IN_MY: usize = 4;
 const IN_DEPTH: usize = 5;
 const IN_INVALID: usize = 6;
 
-/// Words of the counters (C_ constants of phlm.wgsl): reset, clipped, off screen,
-/// repaired, the largest trace(P) as bits; padded.
+/// Words of the counters: reset, clipped, off screen, repaired, the largest trace(P) as
+/// bits (the `C_` indices); padded.
 const COUNTERS: usize = 8;
+const C_RESET: usize = 0;
+const C_CLIPPED: usize = 1;
+const C_OFFSCREEN: usize = 2;
+const C_REPAIRED: usize = 3;
+const C_TRACE: usize = 4;
+
+/// What phlm.wgsl takes from Rust: the flag bits, the input planes and counters above,
+/// the workgroup's side, and the CPU filter's constants it mirrors.
+fn consts() -> String {
+    use crate::filters::phlm::{feature, DEPTH_JUMP_SPEED, STRIKE_DECAY};
+    super::wgsl_consts![
+        FLAG_TONEMAP,
+        FLAG_REPROJECT,
+        FLAG_HISTORY,
+        FLAG_MOTION,
+        FLAG_INVALID,
+        FLAG_NEAREST,
+        FLAG_VARIANCE_BOX,
+        FLAG_SHIFT,
+        FLAG_DILATE,
+        FLAG_CATMULL_ROM,
+        FLAG_DEPTH,
+        IN_MX,
+        IN_MY,
+        IN_DEPTH,
+        IN_INVALID,
+        COUNTERS,
+        C_RESET,
+        C_CLIPPED,
+        C_OFFSCREEN,
+        C_REPAIRED,
+        C_TRACE,
+        WORKGROUP,
+        FEATURE_EPS = feature::EPS,
+        STRIKE_DECAY,
+        DEPTH_JUMP_SPEED,
+    ]
+}
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information
 /// matrix R, the feature z with the count of failed box tests, the speed and the depth; a
@@ -187,7 +226,7 @@ impl GpuPhlm {
         let params: Params = build(Phlm::NAME, values)?;
         Ok(GpuPhlm {
             upload,
-            pass: pipeline(&gpu, "phlm", &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
+            pass: pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
             gpu,
             params,
             buffers: None,
@@ -539,8 +578,8 @@ impl GpuPhlm {
     fn frame_record(&self, rec: Recorder, frame: &Frame, inp: &Inputs, c: &[u32]) -> FrameRecord {
         let n = (inp.width * inp.height) as f64;
         let pixels = PixelCounts {
-            history_reset: c[0] as u64,
-            history_clipped: c[1] as u64,
+            history_reset: c[C_RESET] as u64,
+            history_clipped: c[C_CLIPPED] as u64,
             history_rejected: 0,
         };
         let mut record = rec.finish(
@@ -552,10 +591,10 @@ impl GpuPhlm {
         );
         record.backend = Backend::Gpu;
         record.model = Some(ModelHealth {
-            reset_by_clip: c[1] as f64 / n,
-            reset_by_disocclusion: c[2] as f64 / n,
-            max_trace_p: f32::from_bits(c[4]) as f64,
-            p_repaired: c[3] as u64,
+            reset_by_clip: c[C_CLIPPED] as f64 / n,
+            reset_by_disocclusion: c[C_OFFSCREEN] as f64 / n,
+            max_trace_p: f32::from_bits(c[C_TRACE]) as f64,
+            p_repaired: c[C_REPAIRED] as u64,
         });
         record
     }

@@ -60,43 +60,21 @@ struct Params {
 @group(0) @binding(6) var<storage, read_write> next_info: array<f32>;
 @group(0) @binding(7) var<storage, read_write> next_feat: array<f32>;
 @group(0) @binding(8) var<storage, read_write> out: array<f32>;
-@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, 8>;
+@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
 
-const FLAG_TONEMAP: u32 = 1u;
-const FLAG_REPROJECT: u32 = 2u;
-const FLAG_HISTORY: u32 = 4u;
-const FLAG_MOTION: u32 = 8u;
-const FLAG_INVALID: u32 = 16u;
-const FLAG_NEAREST: u32 = 32u;
-const FLAG_VARIANCE_BOX: u32 = 64u;
-const FLAG_SHIFT: u32 = 128u;
-const FLAG_DILATE: u32 = 256u;
-const FLAG_CATMULL_ROM: u32 = 512u;
-// The frame has depth (uploaded; kept with the models, phlm::history_depth).
-const FLAG_DEPTH: u32 = 1024u;
-
-// Planes of `inp`, in units of width * height.
-const IN_MX: u32 = 3u;
-const IN_MY: u32 = 4u;
-const IN_DEPTH: u32 = 5u;
-const IN_INVALID: u32 = 6u;
+// Declared before this file from Rust (`gpu::phlm::consts`): the FLAG_ bits of `P.flags`
+// (FLAG_DEPTH: the frame has depth, uploaded and kept with the models,
+// phlm::history_depth), the IN_ planes of `inp` in units of width * height, COUNTERS and
+// the C_ counters (history reset, clipped, reset off screen, repaired, largest trace(P)
+// as bits), WORKGROUP, and FEATURE_EPS, STRIKE_DECAY and DEPTH_JUMP_SPEED of the CPU
+// filter.
 
 // The parts of the state (phlm::BETA, phlm::R, phlm::Z ranges, a buffer each).
 const BETA: u32 = 0u;
 const R: u32 = 1u;
 const Z: u32 = 2u;
 
-// Counters: history reset, clipped, reset off screen, repaired, largest trace(P) (bits).
-const C_RESET: u32 = 0u;
-const C_CLIPPED: u32 = 1u;
-const C_OFFSCREEN: u32 = 2u;
-const C_REPAIRED: u32 = 3u;
-const C_TRACE: u32 = 4u;
-
-// `EPS` of `phlm/feature.rs`.
-const FEATURE_EPS: f32 = 1.0e-6;
-
-var<workgroup> wg_counts: array<atomic<u32>, 5>;
+var<workgroup> wg_counts: array<atomic<u32>, C_TRACE + 1u>;
 
 fn has(f: u32) -> bool {
     return (P.flags & f) != 0u;
@@ -302,8 +280,6 @@ fn relax(m: ptr<function, Model>, k: f32) {
     }
 }
 
-// phlm::STRIKE_DECAY.
-const STRIKE_DECAY: f32 = 0.5;
 
 // phlm::strikes: the count of failed box tests after this frame (halved, + the miss).
 fn strikes(prev: f32, hit: f32) -> f32 {
@@ -364,8 +340,6 @@ fn depth_range(x: u32, y: u32) -> vec2<f32> {
     return vec2<f32>(lo, hi);
 }
 
-// phlm::DEPTH_JUMP_SPEED.
-const DEPTH_JUMP_SPEED: f32 = 1.0;
 
 // phlm::depth_share: how far (0 to 1) the history's depth lies outside the 3x3 range,
 // weighed by the speed v.
@@ -484,9 +458,9 @@ fn column(x: i32, y: i32) -> Column {
     return Column(min(min(u, v), t), max(max(u, v), t), u + v + t, u * u + v * v + t * t, v);
 }
 
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WORKGROUP, WORKGROUP)
 fn phlm(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    if li < 5u {
+    if li <= C_TRACE {
         atomicStore(&wg_counts[li], 0u);
     }
     workgroupBarrier();
@@ -494,12 +468,12 @@ fn phlm(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation
         phlm_pixel(gid.x, gid.y);
     }
     workgroupBarrier();
-    if li < 4u {
+    if li < C_TRACE {
         let c = atomicLoad(&wg_counts[li]);
         if c != 0u {
             atomicAdd(&counters[li], c);
         }
-    } else if li == 4u {
+    } else if li == C_TRACE {
         atomicMax(&counters[C_TRACE], atomicLoad(&wg_counts[C_TRACE]));
     }
 }

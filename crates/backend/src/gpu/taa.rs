@@ -25,7 +25,7 @@ use std::sync::Arc;
 const SHARED: &str = include_str!("taa.wgsl");
 const WORKGROUP: usize = 8;
 
-// Bits of `Params.flags` (the FLAG_ constants of taa.wgsl).
+// Bits of `Params.flags`, declared in taa.wgsl from these ([`consts`]).
 const FLAG_TONEMAP: u32 = 1;
 const FLAG_DILATE: u32 = 2;
 const FLAG_REPROJECT: u32 = 4;
@@ -38,15 +38,53 @@ const FLAG_SHARPEN: u32 = 256;
 const FLAG_KEEP_DEPTH: u32 = 512;
 const FLAG_TO_TONEMAPPED: u32 = 1024;
 
-// Planes of the input buffer (IN_ constants of taa.wgsl): r, g, b, motion x, y, depth,
+// Planes of the input buffer (the shaders' IN_ constants): r, g, b, motion x, y, depth,
 // invalid.
 const INPUT_PLANES: usize = 7;
+const IN_R: usize = 0;
 const IN_MX: usize = 3;
+const IN_MY: usize = 4;
 const IN_DEPTH: usize = 5;
 const IN_INVALID: usize = 6;
 
-/// Words of the counters (C_ constants of taa.wgsl): reset, clipped, rejected; padded.
+/// Words of the counters: reset, clipped, rejected (the `C_` indices); padded.
 const COUNTERS: usize = 4;
+const C_RESET: usize = 0;
+const C_CLIPPED: usize = 1;
+const C_REJECTED: usize = 2;
+/// Workgroup size of the `convert` pass (one texel an invocation).
+const CONVERT_GROUP: usize = 64;
+
+/// What taa's shaders take from Rust: the flag bits, input planes and counters above, the
+/// workgroup sizes, and the CPU filter's sample count bound.
+fn consts() -> String {
+    use crate::filters::taa::MAX_COUNT;
+    super::wgsl_consts![
+        FLAG_TONEMAP,
+        FLAG_DILATE,
+        FLAG_REPROJECT,
+        FLAG_DEPTH_REJECT,
+        FLAG_HISTORY,
+        FLAG_CATMULL_ROM,
+        FLAG_LUMA_WEIGHT,
+        FLAG_INVALID,
+        FLAG_SHARPEN,
+        FLAG_KEEP_DEPTH,
+        FLAG_TO_TONEMAPPED,
+        IN_R,
+        IN_MX,
+        IN_MY,
+        IN_DEPTH,
+        IN_INVALID,
+        COUNTERS,
+        C_RESET,
+        C_CLIPPED,
+        C_REJECTED,
+        WORKGROUP,
+        CONVERT_GROUP,
+        MAX_COUNT,
+    ]
+}
 
 /// The compiled passes.
 #[derive(Debug)]
@@ -58,23 +96,27 @@ struct Passes {
 
 impl Passes {
     fn new(gpu: &Gpu) -> Self {
+        let consts = consts();
         let with = |body: &str| format!("{SHARED}\n{body}");
         Passes {
             resolve: pipeline(
                 gpu,
                 "taa resolve",
+                &consts,
                 &with(&format!("{}\n{REPROJECT}", include_str!("taa_resolve.wgsl"))),
                 "resolve",
             ),
             sharpen: pipeline(
                 gpu,
                 "taa sharpen",
+                &consts,
                 &with(include_str!("taa_sharpen.wgsl")),
                 "sharpen",
             ),
             convert: pipeline(
                 gpu,
                 "taa convert",
+                &consts,
                 &with(include_str!("taa_convert.wgsl")),
                 "convert",
             ),
@@ -369,9 +411,9 @@ impl GpuTaa {
         self.tonemapped = hdr;
         let c = &back.counters;
         let pixels = PixelCounts {
-            history_reset: c[0] as u64,
-            history_clipped: c[1] as u64,
-            history_rejected: c[2] as u64,
+            history_reset: c[C_RESET] as u64,
+            history_clipped: c[C_CLIPPED] as u64,
+            history_rejected: c[C_REJECTED] as u64,
         };
         let mut record = rec.finish(
             Taa::NAME,
@@ -526,7 +568,7 @@ impl GpuTaa {
         let timer = b.timer.as_ref();
         let mut passes = 0;
         if convert {
-            let groups = (w * h).div_ceil(64);
+            let groups = (w * h).div_ceil(CONVERT_GROUP);
             let (gx, gy) = (groups.min(65535) as u32, groups.div_ceil(65535) as u32);
             let mut pass = timing::begin(enc, timer, passes);
             passes += 1;
@@ -556,7 +598,7 @@ impl GpuTaa {
 /// What the device gives back for a frame.
 struct FrameBack {
     color: Rgb,
-    /// The counters (C_ constants of taa.wgsl).
+    /// The counters (at the `C_` indices).
     counters: Vec<u32>,
     /// Each pass's time from its timestamps, where the device has them.
     pass_ms: Option<Vec<f64>>,

@@ -29,32 +29,10 @@ struct Params {
     top: f32,
 }
 
-const FLAG_TONEMAP: u32 = 1u;
-const FLAG_DILATE: u32 = 2u;
-const FLAG_REPROJECT: u32 = 4u;
-const FLAG_DEPTH_REJECT: u32 = 8u;
-const FLAG_HISTORY: u32 = 16u;
-const FLAG_CATMULL_ROM: u32 = 32u;
-const FLAG_LUMA_WEIGHT: u32 = 64u;
-const FLAG_INVALID: u32 = 128u;
-const FLAG_SHARPEN: u32 = 256u;
-const FLAG_KEEP_DEPTH: u32 = 512u;
-const FLAG_TO_TONEMAPPED: u32 = 1024u;
-
-// Planes of `inp`, in units of width * height.
-const IN_R: u32 = 0u;
-const IN_MX: u32 = 3u;
-const IN_MY: u32 = 4u;
-const IN_DEPTH: u32 = 5u;
-const IN_INVALID: u32 = 6u;
-
-// Counters: history reset, clipped, rejected by depth.
-const C_RESET: u32 = 0u;
-const C_CLIPPED: u32 = 1u;
-const C_REJECTED: u32 = 2u;
-
-// `MAX_COUNT` of `filters/taa/mod.rs`.
-const MAX_COUNT: f32 = 255.0;
+// Declared before the shaders from Rust (`gpu::taa::consts`): the FLAG_ bits of
+// `Params.flags`, the IN_ planes of `inp` in units of width * height, COUNTERS and the C_
+// counters (history reset, clipped, rejected by depth), WORKGROUP and CONVERT_GROUP, and
+// MAX_COUNT of the CPU filter.
 
 // kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
 fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {

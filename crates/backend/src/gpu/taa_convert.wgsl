@@ -2,9 +2,9 @@
 @group(0) @binding(0) var<storage, read> C: Params;
 @group(0) @binding(1) var<storage, read_write> texels: array<f32>;
 
-@compute @workgroup_size(64)
-fn convert(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let i = gid.x + gid.y * 65535u * 64u;
+@compute @workgroup_size(CONVERT_GROUP)
+fn convert(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = gid.x + gid.y * groups.x * CONVERT_GROUP;
     if i >= C.width * C.height {
         return;
     }

@@ -5,9 +5,9 @@
 @group(0) @binding(2) var<storage, read> hist: array<f32>;
 @group(0) @binding(3) var<storage, read_write> next: array<f32>;
 @group(0) @binding(4) var<storage, read_write> out: array<f32>;
-@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, 4>;
+@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
 
-var<workgroup> wg_counts: array<atomic<u32>, 4>;
+var<workgroup> wg_counts: array<atomic<u32>, COUNTERS>;
 
 fn has(f: u32) -> bool {
     return (P.flags & f) != 0u;
@@ -76,9 +76,9 @@ fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
     return vec4<f32>(acc, bilinear_texel(px, py).w);
 }
 
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WORKGROUP, WORKGROUP)
 fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    if li < 4u {
+    if li < COUNTERS {
         atomicStore(&wg_counts[li], 0u);
     }
     workgroupBarrier();
@@ -88,7 +88,7 @@ fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocat
         resolve_pixel(x, y);
     }
     workgroupBarrier();
-    if li < 3u {
+    if li <= C_REJECTED {
         let c = atomicLoad(&wg_counts[li]);
         if c != 0u {
             atomicAdd(&counters[li], c);

@@ -5,7 +5,7 @@
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
 
-@compute @workgroup_size(8, 8)
+@compute @workgroup_size(WORKGROUP, WORKGROUP)
 fn sharpen(@builtin(global_invocation_id) gid: vec3<u32>) {
     let x = gid.x;
     let y = gid.y;

@@ -21,8 +21,8 @@ use crate::BackendChoice;
 /// by the clip) carries single-precision differences from frame to frame.
 const GPU_TOLERANCE: Tolerance = Tolerance::abs(1e-4);
 
-/// Samples allowed past [`GPU_TOLERANCE`] per frame (a fraction of the samples, plus one),
-/// each still within [`GPU_OUTLIER_TOLERANCE`].
+/// Samples allowed past [`GPU_TOLERANCE`] per frame (a fraction of the samples, plus one
+/// pixel's three), each still within [`GPU_OUTLIER_TOLERANCE`].
 const GPU_OUTLIERS: f64 = 0.001;
 const GPU_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-3);
 
@@ -158,7 +158,8 @@ fn assert_agree_within(g: &Output, c: &Output, what: &str, bounds: Bounds) -> (f
             }
         }
     }
-    let allowed = (share * 3.0 * wg.len() as f64) as usize + 1;
+    // Plus one pixel: a decision that falls the other way moves its three channels.
+    let allowed = (share * 3.0 * wg.len() as f64) as usize + 3;
     assert!(
         outliers <= allowed,
         "{what}: {outliers} samples past {:?}, at most {allowed} allowed",

@@ -14,9 +14,8 @@ struct UnpackParams {
 @group(0) @binding(1) var<storage, read> packed: array<u32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;
 
-const UNPACK_GROUP: u32 = 64u;
-
-@compute @workgroup_size(64)
+// UNPACK_GROUP is declared before this file from Rust (`gpu::upload`).
+@compute @workgroup_size(UNPACK_GROUP)
 fn unpack(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let w = id.x + id.y * groups.x * UNPACK_GROUP;
     let at = 2u * w;

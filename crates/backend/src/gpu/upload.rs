@@ -159,5 +159,12 @@ impl ColorUpload {
 
 /// The unpack pass's pipeline (compiled once per device: [`Gpu::unpack`]).
 pub(crate) fn unpack_pipeline(gpu: &Gpu) -> wgpu::ComputePipeline {
-    pipeline(gpu, "unpack colour", include_str!("unpack.wgsl"), "unpack")
+    let consts = super::wgsl_consts![UNPACK_GROUP];
+    pipeline(
+        gpu,
+        "unpack colour",
+        &consts,
+        include_str!("unpack.wgsl"),
+        "unpack",
+    )
 }

@@ -279,16 +279,29 @@ mod tests {
     #[test]
     fn the_blind_width_averages_as_much_as_the_jittered_taps() {
         // Widths solved independently (numpy, bisection on the same filters).
-        for (filter, want) in [(PixelFilter::BlackmanHarris, 1.7303), (PixelFilter::Gaussian, 1.8369)] {
+        for (filter, want) in [
+            (PixelFilter::BlackmanHarris, 1.7303),
+            (PixelFilter::Gaussian, 1.8369),
+        ] {
             let r = Reconstruction::new(filter, DEFAULT_FILTER_WIDTH);
             let b = r.blind();
             assert_eq!(b.filter, filter);
-            Tolerance::abs(2e-3).check(&format!("{filter:?} blind width"), b.width as f64, want).unwrap();
+            Tolerance::abs(2e-3)
+                .check(&format!("{filter:?} blind width"), b.width as f64, want)
+                .unwrap();
             // The jittered taps' mean gain over a fine grid of phases.
             let n = 10_000;
-            let mean = (0..n).map(|k| gain(r, (k as f32 + 0.5) / n as f32 - 0.5)).sum::<f64>() / n as f64;
-            Tolerance::abs(1e-4).check(&format!("{filter:?} gain"), gain(b, 0.0), mean).unwrap();
-            assert!(gain(r, 0.0) > mean + 0.1, "{filter:?}: centred taps at the set width average less");
+            let mean = (0..n)
+                .map(|k| gain(r, (k as f32 + 0.5) / n as f32 - 0.5))
+                .sum::<f64>()
+                / n as f64;
+            Tolerance::abs(1e-4)
+                .check(&format!("{filter:?} gain"), gain(b, 0.0), mean)
+                .unwrap();
+            assert!(
+                gain(r, 0.0) > mean + 0.1,
+                "{filter:?}: centred taps at the set width average less"
+            );
         }
         assert_eq!(Reconstruction::NONE.blind(), Reconstruction::NONE);
     }
@@ -305,7 +318,10 @@ mod tests {
         };
         let mut scratch = Scratch::default();
         for (jitter, want) in [
-            ([0.0, 0.0], bh.blind().apply(f.color(), [0.0, 0.0], &mut scratch).0),
+            (
+                [0.0, 0.0],
+                bh.blind().apply(f.color(), [0.0, 0.0], &mut scratch).0,
+            ),
             // One axis at 0 is a jitter like any other (Halton's first x, say).
             ([0.0, 0.25], bh.apply(f.color(), [0.0, 0.25], &mut scratch).0),
         ] {

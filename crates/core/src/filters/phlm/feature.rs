@@ -38,7 +38,7 @@ pub const DEFAULT_B: f32 = 0.25;
 /// 0.06 29.15, 0.03 29.34 (thin-line 31.5 -> 35.5 dB).
 pub const DEFAULT_ALPHA_MIN: f32 = 0.08;
 /// Guard of the denominator `l + Delta(Y)` on flat neighbourhoods.
-const EPS: f32 = 1e-6;
+pub const EPS: f32 = 1e-6;
 
 /// YCgCo luma of an RGB colour (the Y of [`crate::kernels::rgb_to_ycocg`]).
 #[inline(always)]

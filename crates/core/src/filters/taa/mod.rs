@@ -87,7 +87,7 @@ pub const DEFAULT_ALPHA: f32 = 0.2;
 pub const DEFAULT_GAMMA: f32 = 1.0;
 /// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
 /// anyway, and a bounded count keeps the state bounded on endless still scenes.
-const MAX_COUNT: f32 = 255.0;
+pub const MAX_COUNT: f32 = 255.0;
 
 /// History planes of the reference (the filter itself keeps Y, Co, Cg and the count
 /// interleaved in one plane, and depth in a second).
