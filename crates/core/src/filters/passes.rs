@@ -497,6 +497,45 @@ impl TemporalState {
     }
 }
 
+/// A reference filter `$name` (tests only): the scalar statement of the filter `$kind`,
+/// stage by stage over whole planes, that its fused kernel is tested against. Its frame
+/// runs through [`TemporalState::run`] as the filter's does (with the parameters the
+/// method `$params` gives, as in [`history_filter`], and the history `$history` makes of
+/// the parameters `$p`), its own stages in the function `stages` of the module that
+/// declares it (given the parameters, the frame and the context).
+#[cfg(test)]
+macro_rules! reference_filter {
+    ($(#[$meta:meta])* $name:ident, $kind:ty, $params:ident, |$p:ident| $history:expr) => {
+        $(#[$meta])*
+        #[derive(Debug)]
+        pub struct $name {
+            params: <$kind as $crate::pipeline::FilterKind>::Params,
+            hist: $crate::filters::passes::TemporalState,
+        }
+
+        impl $name {
+            /// A fresh reference filter.
+            pub fn new(params: <$kind as $crate::pipeline::FilterKind>::Params) -> Self {
+                let $p = &params;
+                let hist = $history;
+                $name { params, hist }
+            }
+
+            /// Filters one frame.
+            pub fn process(
+                &mut self,
+                frame: &$crate::frame::Frame,
+            ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
+                let p = self.params.$params();
+                self.hist
+                    .run::<$kind>(p.reconstruction(), frame, |ctx| stages(&p, frame, ctx))
+            }
+        }
+    };
+}
+#[cfg(test)]
+pub(crate) use reference_filter;
+
 /// The `tonemap` stage as the references write it, over whole planes: the colour in the
 /// working space (tonemapped for HDR input), or the input's own where the stage is left out.
 #[cfg(test)]
