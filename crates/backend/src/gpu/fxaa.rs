@@ -7,10 +7,8 @@ use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, stateless_filter, stateless_output, Gpu, Readback, StorageBuffer};
 use crate::filters::fxaa::{Fxaa, Params};
 use crate::frame::Frame;
-use crate::pipeline::params::build;
 use crate::pipeline::{check_needs, prepare, FilterKind, Output, Recorder, UploadPrecision};
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::sync::Arc;
 
 const SOURCE: &str = include_str!("fxaa.wgsl");
@@ -44,15 +42,10 @@ pub struct GpuFxaa {
 }
 
 impl GpuFxaa {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Fxaa::NAME, values)?;
-        Ok(GpuFxaa {
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuFxaa {
             upload,
             luma: pipeline(&gpu, "fxaa luma", SOURCE, "luma_pass"),
             fxaa: pipeline(&gpu, "fxaa", SOURCE, "fxaa_pass"),
@@ -60,7 +53,7 @@ impl GpuFxaa {
             params,
             buffers: None,
             words: Vec::new(),
-        })
+        }
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {

@@ -26,6 +26,7 @@ mod upload;
 
 use super::{AdapterInfo, BackendError};
 use crate::frame::{Frame, Rgb};
+use crate::pipeline::params::build;
 use crate::pipeline::{
     Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
 };
@@ -135,9 +136,9 @@ pub fn create(
     let gpu = shared()?;
     match name {
         "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload))),
-        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values, upload)?)),
-        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values, upload)?)),
-        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, values, upload)?)),
+        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, build(name, values)?, upload))),
+        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, build(name, values)?, upload))),
+        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, build(name, values)?, upload))),
         _ => Err(known()),
     }
 }

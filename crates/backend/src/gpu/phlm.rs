@@ -18,14 +18,12 @@ use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
     check_needs, check_size, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output,
     PixelCounts, Recorder, Skip, UploadPrecision,
 };
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::borrow::Cow;
 use std::sync::Arc;
 
@@ -176,15 +174,10 @@ pub struct GpuPhlm {
 }
 
 impl GpuPhlm {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Phlm::NAME, values)?;
-        Ok(GpuPhlm {
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuPhlm {
             upload,
             pass: pipeline(&gpu, "phlm", &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
             gpu,
@@ -195,7 +188,7 @@ impl GpuPhlm {
             tonemapped: false,
             words: Vec::new(),
             scratch: Scratch::default(),
-        })
+        }
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the models).

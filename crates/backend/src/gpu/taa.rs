@@ -11,14 +11,12 @@ use super::{bind, groups, history_filter, pipeline, Gpu, Readback, StorageBuffer
 use crate::filters::passes::TemporalState;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
     check_needs, check_size, Backend, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder,
     UploadPrecision,
 };
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::borrow::Cow;
 use std::sync::Arc;
 
@@ -194,15 +192,10 @@ pub struct GpuTaa {
 }
 
 impl GpuTaa {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Taa::NAME, values)?;
-        Ok(GpuTaa {
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuTaa {
             upload,
             passes: Passes::new(&gpu),
             gpu,
@@ -213,7 +206,7 @@ impl GpuTaa {
             tonemapped: false,
             words: Vec::new(),
             scratch: Scratch::default(),
-        })
+        }
     }
 
     fn keeps_depth(&self) -> bool {
