@@ -698,9 +698,6 @@ impl FilterKind for Phlm {
         "untonemap",
     ];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
     }

@@ -167,9 +167,6 @@ impl FilterKind for Traa {
         "untonemap",
     ];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[
             ChannelKind::Color,

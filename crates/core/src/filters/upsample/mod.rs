@@ -332,9 +332,6 @@ impl FilterKind for Upsample {
     ];
     type Params = Params;
     const SPARSE_INPUT: bool = true;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[
             ChannelKind::Color,
