@@ -6,7 +6,7 @@ use afterimage::frame::{ChannelKind, Frame, Plane};
 use afterimage::io::{read_frame, write_exr, ReadOptions, Sequence, WriteOptions};
 use afterimage::metrics::{Evaluator, SpaceChoice};
 use afterimage::tolerance::Tolerance;
-use common::run;
+use common::{run, run_ok};
 use std::path::Path;
 
 /// The subcommands, as the top-level help lists them.
@@ -76,8 +76,7 @@ fn info_numbers_frames_as_offline_runs_do() {
         write_exr(p, &f, &WriteOptions::default()).unwrap();
     }
     let index = |p: &Path| -> u64 {
-        let (ok, out, err) = run(&["info", "--json", p.to_str().unwrap()]);
-        assert!(ok, "{err}");
+        let out = run_ok(&["info", "--json", p.to_str().unwrap()]);
         let v: serde_json::Value = serde_json::from_str(&out).unwrap();
         v["meta"]["index"].as_u64().unwrap()
     };
@@ -157,8 +156,7 @@ fn info_gives_windows_and_compression() {
     .to_file(&path)
     .unwrap();
     let p = path.to_str().unwrap();
-    let (ok, out, err) = run(&["info", p]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["info", p]);
     assert!(
         out.contains(
             "part 0 (beauty): data 140x80 at (10, 5), display 160x90 at (0, 0), PIZ compression, 3 channels"
@@ -191,8 +189,7 @@ fn info_describes_many_files_and_sequences() {
     let first = format!("{d}/frame_0001.exr");
     let second = format!("{d}/frame_0002.exr");
     let pattern = format!("{d}/frame_%04d.exr");
-    let (ok, out, err) = run(&["info", &first, &second]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["info", &first, &second]);
     let files: Vec<&str> = out.lines().filter(|l| l.starts_with("file:")).collect();
     assert_eq!(files.len(), 2, "{out}");
     assert!(files[1].ends_with("frame_0002.exr"), "{out}");
@@ -218,8 +215,7 @@ fn info_describes_many_files_and_sequences() {
 #[test]
 fn info_describes_a_blender_file() {
     let f = common::fixture("blender-motion/frame_0002.exr");
-    let (ok, out, err) = run(&["info", "--json", f.to_str().unwrap()]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["info", "--json", f.to_str().unwrap()]);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["width"], 320);
     assert_eq!(v["preset"], "blender");
@@ -252,8 +248,7 @@ fn info_reports_non_finite_counts_instead_of_failing() {
     c.set(2, 1, f32::NEG_INFINITY);
     let f = Frame::new([c, Plane::filled(6, 4, f32::NAN), Plane::filled(6, 4, 0.1)]).unwrap();
     write_exr(&path, &f, &WriteOptions::default()).unwrap();
-    let (ok, out, err) = run(&["info", "--json", path.to_str().unwrap()]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["info", "--json", path.to_str().unwrap()]);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["non_finite_total"], 26);
     let r = v["channels"]
@@ -285,8 +280,7 @@ fn eval_matches_the_library_and_writes_every_format() {
     let input = common::fixture("blender-fence/input");
     let reference = common::fixture("blender-fence/reference");
     let (i, r) = (input.to_str().unwrap(), reference.to_str().unwrap());
-    let (ok, out, err) = run(&["eval", "--input", i, "--reference", r, "--json"]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["eval", "--input", i, "--reference", r, "--json"]);
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     // The same figures in process.
     let mut e = Evaluator::new(SpaceChoice::Auto);
@@ -333,7 +327,7 @@ fn eval_matches_the_library_and_writes_every_format() {
     // The table, and an SSIM map that decodes as an image of the frame's size.
     let map = tempfile::tempdir().unwrap();
     let png = map.path().join("ssim.png");
-    let (ok, table, err) = run(&[
+    let table = run_ok(&[
         "eval",
         "--input",
         i,
@@ -344,7 +338,6 @@ fn eval_matches_the_library_and_writes_every_format() {
         "--ssim-map-out",
         png.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     assert!(
         table.contains("| frame | PSNR dB |") && table.contains("4 frames"),
         "{table}"
@@ -378,7 +371,7 @@ fn eval_uses_the_reference_channel_and_checks_sizes() {
     let brighter = f.color().clone().map(|p| p.map(|v| v + 0.1));
     f.set_f32(ChannelKind::Reference, brighter.to_vec()).unwrap();
     write_exr(&dir.path().join("f_0001.exr"), &f, &WriteOptions::default()).unwrap();
-    let (ok, out, err) = run(&[
+    let out = run_ok(&[
         "eval",
         "--input",
         dir.path().to_str().unwrap(),
@@ -386,7 +379,6 @@ fn eval_uses_the_reference_channel_and_checks_sizes() {
         "--space",
         "linear",
     ]);
-    assert!(ok, "{err}");
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let rmse = v["frames"][0]["rmse"].as_f64().unwrap();
     assert!(rmse > 0.05 && rmse <= 0.1 + 1e-6, "{rmse}");
@@ -418,10 +410,9 @@ fn filter_takes_the_f16_upload_as_a_backend() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");
     let d = input.to_str().unwrap();
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene", "flyover", "--frames", "2", "--size", "16x8", "--spp", "1", "-o", d,
     ]);
-    assert!(ok, "{err}");
     let (ok, _, err) = run(&["filter", "--filter", "taa", "--backend", "cuda", "-i", d, "-o", d]);
     assert!(!ok && err.contains("gpu-f16"), "{err}");
     let device = |backend: &str| -> Option<serde_json::Value> {
@@ -455,8 +446,7 @@ fn filter_takes_the_f16_upload_as_a_backend() {
         let bytes = |v: &serde_json::Value| v["upload_bytes"].as_u64().unwrap();
         assert_eq!(bytes(&f32) - bytes(&f16), 16 * 8 * 6, "{f32} {f16}");
     }
-    let (ok, out, err) = run(&["info", "--backends"]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["info", "--backends"]);
     assert_eq!(out.contains("f16"), afterimage::backend::GPU_BUILT, "{out}");
 }
 
@@ -465,17 +455,15 @@ fn filter_cuts_drop_history_at_the_frames_named() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");
     let d = input.to_str().unwrap();
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene", "flyover", "--frames", "4", "--size", "40x24", "--spp", "1", "-o", d,
     ]);
-    assert!(ok, "{err}");
     // History restarts per frame, with and without a cut at frame 2 (short flags).
     let resets = |cuts: &[&str]| -> Vec<u64> {
         let out = dir.path().join(format!("out{}", cuts.len()));
         let mut args = vec!["filter", "--filter", "taa", "-i", d, "-o", out.to_str().unwrap()];
         args.extend_from_slice(cuts);
-        let (ok, _, err) = run(&args);
-        assert!(ok, "{err}");
+        run_ok(&args);
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("records.json")).unwrap()).unwrap();
         v["frames"]
@@ -508,7 +496,7 @@ fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");
     let output = dir.path().join("out");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene",
         "moving-sphere",
         "--frames",
@@ -520,8 +508,7 @@ fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
         "--out",
         input.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
-    let (ok, out, err) = run(&[
+    let out = run_ok(&[
         "filter",
         "--filter",
         "traa",
@@ -535,7 +522,6 @@ fn filter_runs_over_a_rendered_sequence_and_matches_the_library() {
         output.to_str().unwrap(),
         "--png",
     ]);
-    assert!(ok, "{err}");
     assert!(
         out.contains("vs reference") && out.contains("resolve") && out.contains("left out"),
         "{out}"
@@ -632,7 +618,7 @@ fn sparse_shading_from_scene_to_upsample() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("ms2");
     let s = scene.to_str().unwrap();
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene",
         "moving-sphere",
         "--size",
@@ -648,14 +634,13 @@ fn sparse_shading_from_scene_to_upsample() {
         "--out",
         s,
     ]);
-    assert!(ok, "{err}");
     let (ok, text, _) = run(&["info", &format!("{s}/frame_0001.exr")]);
     assert!(
         ok && text.contains("shading: one pixel per 2x2 block, at (1, 1) of each"),
         "{text}"
     );
     let out = dir.path().join("up");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "filter",
         "--filter",
         "upsample",
@@ -664,7 +649,6 @@ fn sparse_shading_from_scene_to_upsample() {
         "--output",
         out.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     let f = read_frame(&out.join("frame_0003.exr"), &ReadOptions::default()).unwrap();
     assert_eq!((f.width(), f.height(), f.color_size()), (34, 20, (34, 20)));
     let (ok, _, err) = run(&[
@@ -853,7 +837,7 @@ fn filter_output_replaces_its_input_in_every_layout() {
     // Options: the colour part alone, recompressed, colour in half floats.
     let input = dir.path().join("in/multipart");
     let out = dir.path().join("options");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "filter",
         "--filter",
         "taa",
@@ -867,7 +851,6 @@ fn filter_output_replaces_its_input_in_every_layout() {
         "zips",
         "--half",
     ]);
-    assert!(ok, "{err}");
     let image = common::read_exr_all(&out.join("frame_0002.exr"));
     assert_eq!(image.layer_data.len(), 1);
     let l = &image.layer_data[0];
@@ -884,7 +867,7 @@ fn filter_output_replaces_its_input_in_every_layout() {
     ));
     // Nothing kept: R,G,B in f32, windows still the input's.
     let input = dir.path().join("in/overscan");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "filter",
         "--filter",
         "taa",
@@ -896,7 +879,6 @@ fn filter_output_replaces_its_input_in_every_layout() {
         "none",
         "--float",
     ]);
-    assert!(ok, "{err}");
     let image = common::read_exr_all(&out.join("none.0003.exr"));
     let l = &image.layer_data[0];
     let names: Vec<String> = l.channel_data.list.iter().map(|c| c.name.to_string()).collect();
@@ -937,10 +919,9 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("in");
     let d = input.to_str().unwrap();
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene", "fence", "--frames", "4", "--size", "40x24", "--spp", "1", "--jitter", "8", "-o", d,
     ]);
-    assert!(ok, "{err}");
     let filtered = |extra: &[&str], name: &str| -> Vec<Frame> {
         let out = dir.path().join(name);
         // pixel_trace places each sample at its pixel centre plus the frame's jitter.
@@ -956,8 +937,7 @@ fn jitter_from_halton_or_a_file_overrides_the_files() {
             out.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        let (ok, _, err) = run(&args);
-        assert!(ok, "{err}");
+        run_ok(&args);
         (0..4)
             .map(|i| read_frame(&out.join(format!("frame_{i:04}.exr")), &ReadOptions::default()).unwrap())
             .collect()
@@ -1041,7 +1021,7 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
     let mut manifest = String::from("filter = \"taa\"\nargs = [\"--keep\", \"filtered\"]\n");
     for (k, n) in lengths.iter().enumerate() {
         let input = d.join(format!("in/shot{k}"));
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "scene",
             "fence",
             "--frames",
@@ -1053,7 +1033,6 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
             "-o",
             input.to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         manifest += &format!(
             "[[shot]]\nname = \"shot{k}\"\ninput = \"{}\"\noutput = \"{}\"\n",
             input.display(),
@@ -1066,7 +1045,7 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
     let mut owners = vec![Vec::new(); 5];
     for i in 0..3 {
         let summary = d.join(format!("sum{i}.json"));
-        let (ok, out, err) = run(&[
+        let out = run_ok(&[
             "batch",
             path.to_str().unwrap(),
             "--shard",
@@ -1074,7 +1053,6 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
             "--summary",
             summary.to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         assert!(out.contains(&format!("shard {i}/3")), "{out}");
         let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&summary).unwrap()).unwrap();
         for s in v["shots"].as_array().unwrap() {
@@ -1094,7 +1072,7 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
         let got = colours_in(&out);
         assert_eq!(got.len(), *n, "shot{k}");
         let alone = d.join(format!("alone/shot{k}"));
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "filter",
             "--filter",
             "taa",
@@ -1105,7 +1083,6 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
             "-o",
             alone.join(format!("shot{k}_aa.####.exr")).to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         assert_eq!(got, colours_in(&alone), "shot{k}");
         assert!(out.join(format!("shot{k}.records.json")).exists());
     }
@@ -1168,7 +1145,7 @@ fn a_killed_batch_resumes_from_its_checkpoint_to_the_same_outputs() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let input = d.join("in/long");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene",
         "fence",
         "--frames",
@@ -1180,7 +1157,6 @@ fn a_killed_batch_resumes_from_its_checkpoint_to_the_same_outputs() {
         "-o",
         input.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     for filter in ["phlm", "pixel_trace"] {
         let batch = |out: &Path| -> std::process::Command {
             let mut c = common::bin();
@@ -1403,7 +1379,7 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
     let key = |k: &str| object_store::path::Path::from(k);
     for (shot, scene) in [("a", "fence"), ("b", "flyover"), ("c", "fence")] {
         let input = d.join("in").join(shot);
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "scene",
             scene,
             "--frames",
@@ -1415,7 +1391,6 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
             "-o",
             input.to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         for e in std::fs::read_dir(&input).unwrap() {
             let p = e.unwrap().path();
             let name = p.file_name().unwrap().to_string_lossy().into_owned();
@@ -1466,7 +1441,7 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
     };
     for shot in ["a", "b"] {
         let local = d.join("local").join(shot);
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "filter",
             "--filter",
             "taa",
@@ -1475,7 +1450,6 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
             "-o",
             local.to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         for k in 0..5 {
             let name = format!("frame_{k:04}.exr");
             let got = d.join("got").join(shot).join(&name);
@@ -1526,7 +1500,7 @@ fn batch_filters_shots_in_s3_as_filter_does_locally() {
 fn scene_frames(root: &Path, name: &str, frames: usize) -> std::path::PathBuf {
     let dir = root.join(name);
     let n = frames.to_string();
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene",
         "flyover",
         "--frames",
@@ -1538,7 +1512,6 @@ fn scene_frames(root: &Path, name: &str, frames: usize) -> std::path::PathBuf {
         "-o",
         dir.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     dir
 }
 
@@ -1562,7 +1535,7 @@ fn missing_motion_is_said_per_frame_and_require_refuses_it() {
         .unwrap();
     }
     let out = dir.path().join("out");
-    let (ok, stdout, err) = run(&[
+    let stdout = run_ok(&[
         "filter",
         "--filter",
         "taa",
@@ -1571,7 +1544,6 @@ fn missing_motion_is_said_per_frame_and_require_refuses_it() {
         "-o",
         out.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     let reproject = stdout
         .lines()
         .find(|l| l.trim_start().starts_with("reproject"))
@@ -1615,7 +1587,7 @@ fn missing_motion_is_said_per_frame_and_require_refuses_it() {
         err.contains("frame_0000.exr: no motion channel, which --require motion,depth asks for"),
         "{err}"
     );
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "filter",
         "--filter",
         "taa",
@@ -1626,7 +1598,6 @@ fn missing_motion_is_said_per_frame_and_require_refuses_it() {
         "--require",
         "motion,depth",
     ]);
-    assert!(ok, "{err}");
     let (ok, _, err) = run(&[
         "filter",
         "--filter",
@@ -1803,7 +1774,7 @@ fn output_formats_frame_ranges_and_missing_frames() {
 /// a bad one is refused naming the field.
 #[test]
 fn serve_takes_its_addresses_as_flags() {
-    let (ok, out, err) = run(&[
+    let out = run_ok(&[
         "serve",
         "--print-config",
         "--grpc-addr",
@@ -1811,7 +1782,6 @@ fn serve_takes_its_addresses_as_flags() {
         "--http-addr",
         "127.0.0.1:8099",
     ]);
-    assert!(ok, "{err}");
     assert!(out.contains("grpc_addr = \"0.0.0.0:50099\""), "{out}");
     assert!(out.contains("http_addr = \"127.0.0.1:8099\""), "{out}");
     let (ok, _, err) = run(&["serve", "--print-config", "--http-addr", "localhost"]);
@@ -1933,7 +1903,7 @@ fn batch_refilters_changed_shots_names_them_and_logs_plainly() {
 
 /// Renders `frames` frames of the fence scene at 24x16 into `dir`.
 fn fence_shot(dir: &std::path::Path, frames: u32) {
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "scene",
         "fence",
         "--frames",
@@ -1945,7 +1915,6 @@ fn fence_shot(dir: &std::path::Path, frames: u32) {
         "-o",
         dir.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
 }
 
 #[test]
@@ -2031,14 +2000,13 @@ fn a_manifest_writes_only_under_its_directory_unless_allowed() {
         "{err}"
     );
     assert!(!d.join("elsewhere").exists());
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "batch",
         manifest.to_str().unwrap(),
         "--summary",
         summary.to_str().unwrap(),
         "--allow-outside",
     ]);
-    assert!(ok, "{err}");
     let written = std::fs::read_dir(d.join("elsewhere"))
         .unwrap()
         .filter(|e| e.as_ref().unwrap().path().extension().is_some_and(|x| x == "exr"))
@@ -2056,7 +2024,7 @@ fn the_same_input_gives_the_same_output_files() {
     let mut outs = Vec::new();
     for k in 0..2 {
         let out = d.join(format!("out{k}"));
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "filter",
             "--filter",
             "phlm",
@@ -2065,7 +2033,6 @@ fn the_same_input_gives_the_same_output_files() {
             "-o",
             out.join("a.####.exr").to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
         let mut files: Vec<_> = std::fs::read_dir(&out)
             .unwrap()
             .map(|e| e.unwrap().path())

@@ -3,7 +3,7 @@
 
 mod common;
 
-use afterimage::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, SampleKind};
+use afterimage::frame::{ChannelKind, ChannelSet, Frame, MotionConvention, Plane, SampleKind};
 use afterimage::io::{read_frame, ChannelSpec, PresetChoice, ReadOptions, Sequence};
 use afterimage::kernels::bilinear;
 use afterimage::tolerance::Tolerance;
@@ -20,17 +20,9 @@ fn load(dir: &str) -> Vec<Frame> {
     seq.frames(&blender()).collect::<Result<_, _>>().unwrap()
 }
 
-/// Every channel the `blender` preset maps.
+/// Every channel the `blender` preset maps: all but the reference.
 fn blender_channels() -> ChannelSet {
-    ChannelSet::of(&[
-        ChannelKind::Color,
-        ChannelKind::Depth,
-        ChannelKind::Motion,
-        ChannelKind::MotionNext,
-        ChannelKind::Normal,
-        ChannelKind::ObjectId,
-        ChannelKind::Albedo,
-    ])
+    ChannelSet::of(&ChannelKind::ALL).minus(ChannelSet::of(&[ChannelKind::Reference]))
 }
 
 #[test]
@@ -66,6 +58,37 @@ fn fixtures_load_with_every_channel() {
     assert_eq!(r.channels(), ChannelSet::of(&[ChannelKind::Color]));
 }
 
+/// Checks the `motion` of frame `cur` in the `blender-motion` fixture: the 20x20 square
+/// (object 2) moves by `expect` (px, within Cycles' float error), following it lands on
+/// the square in `other` (the frame the motion points to), and the backdrop is still.
+/// `what` names the checks.
+fn assert_square_moves(cur: &Frame, motion: &[Plane<f32>; 2], other: &Frame, expect: [f64; 2], what: &str) {
+    let ids = cur.object_id().unwrap();
+    let [mx, my] = motion;
+    let mut square = 0;
+    for y in 0..cur.height() {
+        for x in 0..cur.width() {
+            let (vx, vy) = (mx.get(x, y), my.get(x, y));
+            if ids.get(x, y) == 2 {
+                square += 1;
+                // Cycles writes the vector through a float pipeline: -4.99998 for -5.
+                let t = Tolerance::abs(1e-4);
+                t.check(&format!("{what} x"), vx as f64, expect[0]).unwrap();
+                t.check(&format!("{what} y"), vy as f64, expect[1]).unwrap();
+                let (px, py) = ((x as f32 + vx) as usize, (y as f32 + vy) as usize);
+                assert_eq!(
+                    other.object_id().unwrap().get(px, py),
+                    2,
+                    "({x},{y}) -> ({px},{py})"
+                );
+            } else {
+                assert_eq!((vx, vy), (0.0, 0.0));
+            }
+        }
+    }
+    assert_eq!(square, 400, "a 20x20 square");
+}
+
 /// The square moves 5 px right and 3 px up per frame: internally its motion is
 /// (-5, +3) (previous position = left of and below the current one), the backdrop's 0,
 /// and following the motion lands on the square in the previous frame.
@@ -74,31 +97,7 @@ fn moving_square_motion_is_converted_and_reprojects() {
     let frames = load("blender-motion");
     for k in 1..frames.len() {
         let (cur, prev) = (&frames[k], &frames[k - 1]);
-        let ids = cur.object_id().unwrap();
-        let [mx, my] = cur.motion().unwrap();
-        let mut square = 0;
-        for y in 0..cur.height() {
-            for x in 0..cur.width() {
-                let id = ids.get(x, y);
-                let (vx, vy) = (mx.get(x, y), my.get(x, y));
-                if id == 2 {
-                    square += 1;
-                    // Cycles writes the vector through a float pipeline: -4.99998 for -5.
-                    let t = Tolerance::abs(1e-4);
-                    t.check("square mv x", vx as f64, -5.0).unwrap();
-                    t.check("square mv y", vy as f64, 3.0).unwrap();
-                    let (px, py) = ((x as f32 + vx) as usize, (y as f32 + vy) as usize);
-                    assert_eq!(
-                        prev.object_id().unwrap().get(px, py),
-                        2,
-                        "({x},{y}) -> ({px},{py})"
-                    );
-                } else {
-                    assert_eq!((vx, vy), (0.0, 0.0));
-                }
-            }
-        }
-        assert_eq!(square, 400, "a 20x20 square");
+        assert_square_moves(cur, cur.motion().unwrap(), prev, [-5.0, 3.0], "square mv");
     }
     // The README's centres: frame 2's square centre (160, 90) came from (155, 93).
     let f2 = &frames[1];
@@ -119,29 +118,8 @@ fn motion_to_next_is_converted_and_lands_on_the_next_frame() {
     let frames = load("blender-motion");
     for k in 0..frames.len() - 1 {
         let (cur, next) = (&frames[k], &frames[k + 1]);
-        let ids = cur.object_id().unwrap();
-        let [nx, ny] = cur.motion_next().expect("Vector.ZW is read as motion_next");
-        let mut square = 0;
-        for y in 0..cur.height() {
-            for x in 0..cur.width() {
-                let (vx, vy) = (nx.get(x, y), ny.get(x, y));
-                if ids.get(x, y) == 2 {
-                    square += 1;
-                    let t = Tolerance::abs(1e-4);
-                    t.check("square next x", vx as f64, 5.0).unwrap();
-                    t.check("square next y", vy as f64, -3.0).unwrap();
-                    let (px, py) = ((x as f32 + vx) as usize, (y as f32 + vy) as usize);
-                    assert_eq!(
-                        next.object_id().unwrap().get(px, py),
-                        2,
-                        "({x},{y}) -> ({px},{py})"
-                    );
-                } else {
-                    assert_eq!((vx, vy), (0.0, 0.0));
-                }
-            }
-        }
-        assert_eq!(square, 400);
+        let next_motion = cur.motion_next().expect("Vector.ZW is read as motion_next");
+        assert_square_moves(cur, next_motion, next, [5.0, -3.0], "square next");
     }
 }
 

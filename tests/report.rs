@@ -6,7 +6,7 @@ mod common;
 use afterimage::filters::list;
 use afterimage::scene::CATALOGUE;
 use afterimage::tolerance::Tolerance;
-use common::run;
+use common::{run, run_ok};
 use serde_json::Value;
 use std::path::Path;
 
@@ -33,8 +33,7 @@ fn assert_cell_is_eval(label: &str, cell: &Value, eval: &Value) {
 /// Runs the quick report once into `dir` and returns the parsed JSON and stdout.
 fn quick_report(dir: &Path) -> (Value, String) {
     // `-j 2`: the pool's size is what the command line asked for, whatever the machine.
-    let (ok, out, err) = run(&["report", "--quick", "-j", "2", "-o", dir.to_str().unwrap()]);
-    assert!(ok, "{err}");
+    let out = run_ok(&["report", "--quick", "-j", "2", "-o", dir.to_str().unwrap()]);
     let json = std::fs::read_to_string(dir.join("report.json")).unwrap();
     (serde_json::from_str(&json).unwrap(), out)
 }
@@ -195,7 +194,7 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
     let pass = filters.iter().position(|f| f == "passthrough").unwrap();
     for scene in ["thin-line", "hdr"] {
         let seq = dir.path().join(scene);
-        let (ok, _, err) = run(&[
+        run_ok(&[
             "scene",
             scene,
             "--size",
@@ -207,9 +206,7 @@ fn quick_report_covers_every_filter_on_every_scene_with_plots() {
             "--out",
             seq.to_str().unwrap(),
         ]);
-        assert!(ok, "{err}");
-        let (ok, out, err) = run(&["eval", "--input", seq.to_str().unwrap(), "--json"]);
-        assert!(ok, "{err}");
+        let out = run_ok(&["eval", "--input", seq.to_str().unwrap(), "--json"]);
         let eval: Value = serde_json::from_str(&out).unwrap();
         let cell = &scenes.iter().find(|s| s["scene"] == scene).unwrap()["cells"][pass];
         assert_cell_is_eval(scene, cell, &eval);
@@ -236,7 +233,7 @@ fn report_refuses_bad_specs_with_the_reason() {
     ]);
     assert!(!ok && err.contains("strip frame 9"), "{err}");
     // A variant label and a subset run.
-    let (ok, md, err) = run(&[
+    let md = run_ok(&[
         "report",
         "--quick",
         "--scenes",
@@ -248,7 +245,6 @@ fn report_refuses_bad_specs_with_the_reason() {
         "--out",
         out,
     ]);
-    assert!(ok, "{err}");
     assert!(
         md.contains("| traa:variant=baseline |") && !md.contains("## Timing"),
         "{md}"
@@ -275,8 +271,7 @@ fn report_noise_renders_noisy_input() {
         if noise {
             args.push("--noise");
         }
-        let (ok, _, err) = run(&args);
-        assert!(ok, "{err}");
+        run_ok(&args);
         let md = std::fs::read_to_string(out.join("report.md")).unwrap();
         assert_eq!(md.contains("noisy input"), noise, "{md}");
         let r: Value =
@@ -329,7 +324,7 @@ fn corpus(scene: &str, part: &str) -> String {
 fn report_on_blender_frames_matches_filter_then_eval() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("report");
-    let (ok, _, err) = run(&[
+    run_ok(&[
         "report",
         "--input",
         &format!("first={}", corpus("fence", "input")),
@@ -350,7 +345,6 @@ fn report_on_blender_frames_matches_filter_then_eval() {
         "-o",
         out.to_str().unwrap(),
     ]);
-    assert!(ok, "{err}");
     let r: Value = serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     let scenes = r["scenes"].as_array().unwrap();
     let names: Vec<&str> = scenes.iter().map(|s| s["scene"].as_str().unwrap()).collect();
@@ -367,7 +361,7 @@ fn report_on_blender_frames_matches_filter_then_eval() {
             assert_eq!(cell["filter"], *filter);
             assert_eq!(cell["psnr_per_frame"].as_array().unwrap().len(), 16);
             let filtered = dir.path().join(format!("{scene}-{filter}"));
-            let (ok, _, err) = run(&[
+            run_ok(&[
                 "filter",
                 "--filter",
                 filter,
@@ -377,8 +371,7 @@ fn report_on_blender_frames_matches_filter_then_eval() {
                 filtered.to_str().unwrap(),
                 "--float",
             ]);
-            assert!(ok, "{err}");
-            let (ok, text, err) = run(&[
+            let text = run_ok(&[
                 "eval",
                 "--input",
                 filtered.to_str().unwrap(),
@@ -386,7 +379,6 @@ fn report_on_blender_frames_matches_filter_then_eval() {
                 &corpus(scene, "reference"),
                 "--json",
             ]);
-            assert!(ok, "{err}");
             let eval: Value = serde_json::from_str(&text).unwrap();
             assert_cell_is_eval(&format!("{scene} {filter}"), cell, &eval);
         }
@@ -447,8 +439,7 @@ fn report_takes_the_jitter_as_unknown_and_upsamples_the_shots() {
             out.to_str().unwrap(),
         ];
         args.extend_from_slice(extra);
-        let (ok, _, err) = run(&args);
-        assert!(ok, "{err}");
+        run_ok(&args);
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
     };
     let known = report(&[], "known");

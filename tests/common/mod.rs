@@ -59,6 +59,14 @@ pub fn run(args: &[&str]) -> (bool, String, String) {
     )
 }
 
+/// Runs the `afterimage` binary with `args`, which must succeed (else the test fails with
+/// its stderr): its stdout.
+pub fn run_ok(args: &[&str]) -> String {
+    let (ok, out, err) = run(args);
+    assert!(ok, "{err}");
+    out
+}
+
 /// EXR images as the `exr` crate reads them: every part, channel and attribute.
 pub type ExrImage =
     exr::prelude::Image<exr::prelude::Layers<exr::prelude::AnyChannels<exr::prelude::FlatSamples>>>;

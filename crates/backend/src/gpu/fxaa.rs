@@ -7,10 +7,8 @@ use super::upload::ColorUpload;
 use super::{bind, groups, pipeline, stateless_filter, stateless_output, Gpu, Readback, StorageBuffer};
 use crate::filters::fxaa::{Fxaa, Params};
 use crate::frame::Frame;
-use crate::pipeline::params::build;
 use crate::pipeline::{check_needs, prepare, FilterKind, Output, Recorder, UploadPrecision};
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::sync::Arc;
 
 const SOURCE: &str = include_str!("fxaa.wgsl");
@@ -44,16 +42,11 @@ pub struct GpuFxaa {
 }
 
 impl GpuFxaa {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Fxaa::NAME, values)?;
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
         let consts = super::wgsl_consts![WORKGROUP];
-        Ok(GpuFxaa {
+        GpuFxaa {
             upload,
             luma: pipeline(&gpu, "fxaa luma", &consts, SOURCE, "luma_pass"),
             fxaa: pipeline(&gpu, "fxaa", &consts, SOURCE, "fxaa_pass"),
@@ -61,7 +54,7 @@ impl GpuFxaa {
             params,
             buffers: None,
             words: Vec::new(),
-        })
+        }
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {

@@ -26,6 +26,7 @@ mod upload;
 
 use super::{AdapterInfo, BackendError};
 use crate::frame::{Frame, Rgb};
+use crate::pipeline::params::build;
 use crate::pipeline::{
     Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
 };
@@ -135,9 +136,9 @@ pub fn create(
     let gpu = shared()?;
     match name {
         "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload))),
-        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, values, upload)?)),
-        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, values, upload)?)),
-        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, values, upload)?)),
+        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, build(name, values)?, upload))),
+        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, build(name, values)?, upload))),
+        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, build(name, values)?, upload))),
         _ => Err(known()),
     }
 }
@@ -271,32 +272,42 @@ pub(crate) fn stateless_output(
     Output { color, record }
 }
 
+/// The [`Filter`] methods every device filter `$ty` shares: named as the
+/// [`FilterKind`](crate::pipeline::FilterKind) `$kind`, its parameters `$params` (with
+/// `self` as `$s`), run on the GPU, its frames through its own `run`.
+macro_rules! device_filter_methods {
+    ($kind:ty, |$s:ident| $params:expr) => {
+        fn name(&self) -> &'static str {
+            <$kind as $crate::pipeline::FilterKind>::NAME
+        }
+
+        fn params(&self) -> serde_json::Value {
+            let $s = self;
+            serde_json::Value::Object($crate::pipeline::params::to_json($params))
+        }
+
+        fn backend(&self) -> $crate::pipeline::Backend {
+            $crate::pipeline::Backend::Gpu
+        }
+
+        fn process(
+            &mut self,
+            frame: &$crate::frame::Frame,
+        ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
+            self.run(frame)
+                .map_err(|e| e.into_filter_error(<$kind as $crate::pipeline::FilterKind>::NAME))
+        }
+    };
+}
+pub(crate) use device_filter_methods;
+
 /// [`Filter`] for a stateless device filter `$ty`: named and checked as the
 /// [`FilterKind`](crate::pipeline::FilterKind) `$kind`, its frames through its own `run`,
 /// its parameters `$params` (with `self` as `$s`).
 macro_rules! stateless_filter {
     ($ty:ty, $kind:ty, |$s:ident| $params:expr) => {
         impl $crate::pipeline::Filter for $ty {
-            fn name(&self) -> &'static str {
-                <$kind as $crate::pipeline::FilterKind>::NAME
-            }
-
-            fn params(&self) -> serde_json::Value {
-                let $s = self;
-                serde_json::Value::Object($crate::pipeline::params::to_json($params))
-            }
-
-            fn backend(&self) -> $crate::pipeline::Backend {
-                $crate::pipeline::Backend::Gpu
-            }
-
-            fn process(
-                &mut self,
-                frame: &$crate::frame::Frame,
-            ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
-                self.run(frame)
-                    .map_err(|e| e.into_filter_error(<$kind as $crate::pipeline::FilterKind>::NAME))
-            }
+            $crate::gpu::device_filter_methods!($kind, |$s| $params);
 
             fn reset(&mut self) {}
 
@@ -321,6 +332,67 @@ macro_rules! stateless_filter {
     };
 }
 pub(crate) use stateless_filter;
+
+/// [`Filter`] for a device filter `$ty` with history, named and checked as the
+/// [`FilterKind`](crate::pipeline::FilterKind) `$kind`: its state is saved and loaded in
+/// the CPU filter's layout, so states move between backends. `$ty` has the fields
+/// `params`, `gpu`, `buffers` (of `width` x `height`), `read` (the history buffer read
+/// next), `valid` (whether that holds a frame) and `tonemapped`, and the methods `run`,
+/// `sized` (buffers for a size), `empty_history` (the CPU filter's empty state),
+/// `history_bytes`, `download_history` (the history read next, in the CPU's planes) and
+/// `upload_history` (those planes into the history read next).
+macro_rules! history_filter {
+    ($ty:ty, $kind:ty) => {
+        impl $crate::pipeline::Filter for $ty {
+            $crate::gpu::device_filter_methods!($kind, |f| &f.params);
+
+            fn reset(&mut self) {
+                self.valid = false;
+            }
+
+            fn state_bytes(&self) -> usize {
+                self.history_bytes()
+            }
+
+            fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
+                use $crate::pipeline::StateError;
+                let mut st = self.empty_history();
+                if let (Some(b), true) = (&self.buffers, self.valid) {
+                    let planes = self
+                        .download_history()
+                        .map_err(|e| StateError::Device(e.to_string()))?;
+                    st.buffer
+                        .restore((b.width, b.height), planes)
+                        .map_err(StateError::Device)?;
+                }
+                st.set_tonemapped(self.tonemapped);
+                Ok(st.save(self.name(), self.params()))
+            }
+
+            fn load_state(
+                &mut self,
+                state: &$crate::pipeline::FilterState,
+            ) -> Result<(), $crate::pipeline::StateError> {
+                let mut st = self.empty_history();
+                st.load(state, self.name(), &self.params())?;
+                match st.buffer.history_size() {
+                    Some((w, h)) => {
+                        self.sized(w, h)
+                            .map_err(|e| $crate::pipeline::StateError::Device(e.to_string()))?;
+                        self.read = 0;
+                        self.upload_history(st.buffer.read());
+                        self.gpu.queue.submit([]);
+                        self.valid = true;
+                    }
+                    None => self.valid = false,
+                }
+                self.tonemapped = st.tonemapped();
+                Ok(())
+            }
+        }
+    };
+}
+pub(crate) use history_filter;
 
 /// Workgroups of `size` x `size` covering a `width` x `height` image.
 pub(crate) fn groups(width: usize, height: usize, size: usize) -> (u32, u32) {

@@ -12,21 +12,18 @@
 use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use crate::filters::passes::{dilate_skip, reproject_skip};
+use super::{bind, groups, history_filter, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
-use crate::filters::reconstruct::Reconstruction;
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, prepare, Backend, Filter, FilterError, FilterKind, FilterState, FrameRecord,
-    Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip, StateError, UploadPrecision,
+    check_needs, check_size, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output,
+    PixelCounts, Recorder, Skip, UploadPrecision,
 };
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::borrow::Cow;
 use std::sync::Arc;
 
@@ -216,15 +213,10 @@ pub struct GpuPhlm {
 }
 
 impl GpuPhlm {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Phlm::NAME, values)?;
-        Ok(GpuPhlm {
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuPhlm {
             upload,
             pass: pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
             gpu,
@@ -235,7 +227,7 @@ impl GpuPhlm {
             tonemapped: false,
             words: Vec::new(),
             scratch: Scratch::default(),
-        })
+        }
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the models).
@@ -308,60 +300,29 @@ impl GpuPhlm {
     }
 }
 
-impl Filter for GpuPhlm {
-    fn name(&self) -> &'static str {
-        Phlm::NAME
+history_filter!(GpuPhlm, Phlm);
+
+impl GpuPhlm {
+    /// The CPU filter's empty state, the layout the device models are saved and loaded in.
+    fn empty_history(&self) -> TemporalState {
+        Phlm::history()
     }
 
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn backend(&self) -> Backend {
-        Backend::Gpu
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        self.run(frame).map_err(|e| e.into_filter_error(Phlm::NAME))
-    }
-
-    fn reset(&mut self) {
-        self.valid = false;
-    }
-
-    fn state_bytes(&self) -> usize {
+    /// Bytes of the device models.
+    fn history_bytes(&self) -> usize {
         self.buffers
             .as_ref()
             .map_or(0, |b| b.state.iter().flatten().map(StorageBuffer::bytes).sum())
     }
 
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        let mut st = Phlm::history();
-        if let (Some(b), true) = (&self.buffers, self.valid) {
-            let planes = self.download().map_err(|e| StateError::Device(e.to_string()))?;
-            st.buffer
-                .restore((b.width, b.height), vec![to_texels(&planes)])
-                .map_err(StateError::Device)?;
-        }
-        st.set_tonemapped(self.tonemapped);
-        Ok(st.save(Phlm::NAME, self.params()))
+    /// The models read next as the CPU filter lays them out (one plane of texels).
+    fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
+        Ok(vec![to_texels(&self.download()?)])
     }
 
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        let mut st = Phlm::history();
-        st.load(state, Phlm::NAME, &self.params())?;
-        match st.buffer.history_size() {
-            Some((w, h)) => {
-                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
-                self.read = 0;
-                self.upload(&from_texels(&st.buffer.read()[0]));
-                self.gpu.queue.submit([]);
-                self.valid = true;
-            }
-            None => self.valid = false,
-        }
-        self.tonemapped = st.tonemapped();
-        Ok(())
+    /// Writes `planes` (the CPU filter's layout) into the models read next.
+    fn upload_history(&self, planes: &[Plane<f32>]) {
+        self.upload(&from_texels(&planes[0]));
     }
 }
 
@@ -484,19 +445,12 @@ impl GpuPhlm {
         })
     }
 
-    /// The frame's inputs: checked, repaired ([`prepare`]) and reconstructed. The
+    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
     /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
     fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
-        let mut inp = prepare(frame, Phlm::uses(), rec)?;
-        let eff = self.params.effective();
-        Reconstruction::new(eff.pixel_filter, eff.filter_width).stage(
-            rec,
-            &mut inp,
-            frame.meta.jitter,
-            &mut self.scratch,
-        );
-        Ok(inp)
+        let recon = self.params.effective().reconstruction();
+        Ok(recon.prepare(frame, Phlm::uses(), rec, &mut self.scratch)?)
     }
 
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the

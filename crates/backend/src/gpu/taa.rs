@@ -7,18 +7,16 @@
 use super::buffers::{download, params_buffer, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind, groups, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use crate::filters::reconstruct::Reconstruction;
+use super::{bind, groups, history_filter, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use crate::filters::passes::TemporalState;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::params::build;
 use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, prepare, Backend, DeviceTimes, Filter, FilterError, FilterKind, FilterState,
-    Inputs, Output, PixelCounts, Recorder, StateError, UploadPrecision,
+    check_needs, check_size, Backend, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder,
+    UploadPrecision,
 };
 use crate::BackendError;
-use serde_json::{Map, Value};
 use std::borrow::Cow;
 use std::sync::Arc;
 
@@ -236,15 +234,10 @@ pub struct GpuTaa {
 }
 
 impl GpuTaa {
-    /// The filter with `values` overriding the defaults, its colour uploaded at `upload`
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
-    pub fn new(
-        gpu: Arc<Gpu>,
-        values: &Map<String, Value>,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let params: Params = build(Taa::NAME, values)?;
-        Ok(GpuTaa {
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuTaa {
             upload,
             passes: Passes::new(&gpu),
             gpu,
@@ -255,7 +248,7 @@ impl GpuTaa {
             tonemapped: false,
             words: Vec::new(),
             scratch: Scratch::default(),
-        })
+        }
     }
 
     fn keeps_depth(&self) -> bool {
@@ -299,73 +292,24 @@ impl GpuTaa {
     }
 }
 
-impl Filter for GpuTaa {
-    fn name(&self) -> &'static str {
-        Taa::NAME
+history_filter!(GpuTaa, Taa);
+
+impl GpuTaa {
+    /// The CPU filter's empty state, the layout the device history is saved and loaded in.
+    fn empty_history(&self) -> TemporalState {
+        Taa::history(&self.params)
     }
 
-    fn params(&self) -> Value {
-        Value::Object(crate::pipeline::params::to_json(&self.params))
-    }
-
-    fn backend(&self) -> Backend {
-        Backend::Gpu
-    }
-
-    fn process(&mut self, frame: &Frame) -> Result<Output, FilterError> {
-        self.run(frame).map_err(|e| e.into_filter_error(Taa::NAME))
-    }
-
-    fn reset(&mut self) {
-        self.valid = false;
-    }
-
-    fn state_bytes(&self) -> usize {
+    /// Bytes of the device history.
+    fn history_bytes(&self) -> usize {
         self.buffers
             .as_ref()
             .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
     }
 
-    fn save_state(&self) -> Result<FilterState, StateError> {
-        let mut st = Taa::history(&self.params);
-        if let (Some(b), true) = (&self.buffers, self.valid) {
-            let planes = self
-                .download_history(b)
-                .map_err(|e| StateError::Device(e.to_string()))?;
-            st.buffer
-                .restore((b.width, b.height), planes)
-                .map_err(StateError::Device)?;
-        }
-        st.set_tonemapped(self.tonemapped);
-        Ok(st.save(Taa::NAME, self.params()))
-    }
-
-    fn load_state(&mut self, state: &FilterState) -> Result<(), StateError> {
-        let mut st = Taa::history(&self.params);
-        st.load(state, Taa::NAME, &self.params())?;
-        match st.buffer.history_size() {
-            Some((w, h)) => {
-                self.sized(w, h).map_err(|e| StateError::Device(e.to_string()))?;
-                let b = self.buffers.as_ref().expect("sized");
-                let mut at = 0;
-                for p in st.buffer.read() {
-                    b.hist[0].write(&self.gpu, at, p.data());
-                    at += p.data().len();
-                }
-                self.gpu.queue.submit([]);
-                self.read = 0;
-                self.valid = true;
-            }
-            None => self.valid = false,
-        }
-        self.tonemapped = st.tonemapped();
-        Ok(())
-    }
-}
-
-impl GpuTaa {
     /// The history planes as the CPU filter lays them out.
-    fn download_history(&self, b: &Buffers) -> Result<Vec<Plane<f32>>, BackendError> {
+    fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
+        let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
         let words = download(&self.gpu, "taa history readback", &[&b.hist[self.read]])?;
         let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
@@ -373,6 +317,16 @@ impl GpuTaa {
             planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
         }
         Ok(planes)
+    }
+
+    /// Writes `planes` (the CPU filter's layout) into the history read next.
+    fn upload_history(&self, planes: &[Plane<f32>]) {
+        let b = self.buffers.as_ref().expect("sized");
+        let mut at = 0;
+        for p in planes {
+            b.hist[self.read].write(&self.gpu, at, p.data());
+            at += p.data().len();
+        }
     }
 
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
@@ -430,18 +384,12 @@ impl GpuTaa {
         })
     }
 
-    /// The frame's inputs: checked, repaired ([`prepare`]) and reconstructed. The
+    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
     /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
     fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
         check_needs(Taa::NAME, Taa::needs(), frame)?;
-        let mut inp = prepare(frame, Taa::uses(), rec)?;
-        Reconstruction::new(self.params.pixel_filter, self.params.filter_width).stage(
-            rec,
-            &mut inp,
-            frame.meta.jitter,
-            &mut self.scratch,
-        );
-        Ok(inp)
+        let recon = self.params.reconstruction();
+        Ok(recon.prepare(frame, Taa::uses(), rec, &mut self.scratch)?)
     }
 
     /// The shader's flags for a frame with inputs `inp` under `plan`.

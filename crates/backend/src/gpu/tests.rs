@@ -703,18 +703,17 @@ fn f16_upload_halves_the_colour_bytes_in_the_records() {
 /// The `reconstruct` stage filter `name` runs with `set`, if it has one and it is not
 /// `box`.
 fn reconstruction_of(name: &str, set: &[&str]) -> Option<crate::filters::reconstruct::Reconstruction> {
-    use crate::filters::reconstruct::{PixelFilter, Reconstruction};
+    use crate::filters::reconstruct::PixelFilter;
     let set: Vec<String> = set.iter().map(|s| s.to_string()).collect();
     let values = parse_assignments(&set).unwrap();
     let recon = match name {
         "taa" => {
             let p: crate::filters::taa::Params = crate::pipeline::params::build("taa", &values).unwrap();
-            Reconstruction::new(p.pixel_filter, p.filter_width)
+            p.reconstruction()
         }
         "phlm" => {
             let p: crate::filters::phlm::Params = crate::pipeline::params::build("phlm", &values).unwrap();
-            let p = p.effective();
-            Reconstruction::new(p.pixel_filter, p.filter_width)
+            p.effective().reconstruction()
         }
         _ => return None,
     };

@@ -20,7 +20,7 @@
 
 use super::passes::{planes, slices_mut};
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Plane, Rgb};
+use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::{bilinear, fmax, fmin, luma, tonemap};
 use crate::pipeline::clean::{color_max, CleanMax};
 use crate::pipeline::exec::{for_rows, par_bands, StageClock, BAND_ROWS};
@@ -66,9 +66,6 @@ impl FilterKind for Fxaa {
         "FXAA 3.11 quality preset 12 (Lottes 2011): spatial edge anti-aliasing, no history";
     const STAGES: &'static [&'static str] = &["repair", "luma", "fxaa"];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn new(params: Params) -> Self {
         Fxaa {
             params,

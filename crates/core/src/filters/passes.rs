@@ -2,14 +2,14 @@
 //! on the crate's pool by rows.
 
 use super::reconstruct::Reconstruction;
-use crate::frame::{ChannelKind, ChannelSet};
+use crate::frame::ChannelKind;
 use crate::frame::{Frame, Plane, Rgb};
 use crate::kernels::lanes::{block, each, Lanes, IOTA, LANES};
 use crate::kernels::{rgb_to_ycocg, sharpen_cross, tonemap, tonemap_inverse, ycocg_to_rgb};
 use crate::pipeline::exec::for_rows;
 use crate::pipeline::{
-    bind_size, check_channels, check_needs, DoubleBuffer, FilterError, FilterState, Inputs, ModelHealth,
-    Output, PixelCounts, Recorder, Scratch, Skip, StateError,
+    bind_size, check_channels, check_needs, DoubleBuffer, FilterError, FilterKind, FilterState, Inputs,
+    ModelHealth, Output, PixelCounts, Recorder, Scratch, Skip, StateError,
 };
 use std::borrow::Cow;
 use wide::f32x8;
@@ -452,24 +452,21 @@ pub struct FrameResult {
 }
 
 impl TemporalState {
-    /// The frame every temporal filter runs: check that the frame has the channels `needs`
-    /// (and full-resolution colour unless `sparse`), repair and plan the channels it `uses`
-    /// (stage `repair`), reconstruct the colour with `recon` (stage `reconstruct`), size
-    /// the history and move it to this frame's working space, run `body` (the filter's own
-    /// stages, from tonemap to untonemap), make what it wrote the history, and finish the
-    /// record.
-    #[allow(clippy::too_many_arguments)] // each a fact of the filter, passed as the rest are
-    pub fn run(
+    /// The frame every temporal filter `K` runs (the fused filters through
+    /// [`history_filter`], and the references the tests hold them to): check that the
+    /// frame has the channels `K` needs (and full-resolution colour unless its input may be
+    /// sparse), repair and plan the channels it uses (stage `repair`), reconstruct the
+    /// colour with `recon` (stage `reconstruct`), size the history and move it to this
+    /// frame's working space, run `body` (the filter's own stages, from tonemap to
+    /// untonemap), make what it wrote the history, and finish the record.
+    pub fn run<K: FilterKind>(
         &mut self,
-        filter: &'static str,
-        needs: ChannelSet,
-        uses: ChannelSet,
-        sparse: bool,
         recon: Reconstruction,
         frame: &Frame,
         body: impl FnOnce(FrameContext<'_, '_>) -> Result<FrameResult, FilterError>,
     ) -> Result<Output, FilterError> {
-        if sparse {
+        let (filter, needs, uses) = (K::NAME, K::needs(), K::uses());
+        if K::SPARSE_INPUT {
             check_channels(filter, needs, frame)?;
         } else {
             check_needs(filter, needs, frame)?;
@@ -498,6 +495,55 @@ impl TemporalState {
             record,
         })
     }
+}
+
+/// A reference filter `$name` (tests only): the scalar statement of the filter `$kind`,
+/// stage by stage over whole planes, that its fused kernel is tested against. Its frame
+/// runs through [`TemporalState::run`] as the filter's does (with the parameters the
+/// method `$params` gives, as in [`history_filter`], and the history `$history` makes of
+/// the parameters `$p`), its own stages in the function `stages` of the module that
+/// declares it (given the parameters, the frame and the context).
+#[cfg(test)]
+macro_rules! reference_filter {
+    ($(#[$meta:meta])* $name:ident, $kind:ty, $params:ident, |$p:ident| $history:expr) => {
+        $(#[$meta])*
+        #[derive(Debug)]
+        pub struct $name {
+            params: <$kind as $crate::pipeline::FilterKind>::Params,
+            hist: $crate::filters::passes::TemporalState,
+        }
+
+        impl $name {
+            /// A fresh reference filter.
+            pub fn new(params: <$kind as $crate::pipeline::FilterKind>::Params) -> Self {
+                let $p = &params;
+                let hist = $history;
+                $name { params, hist }
+            }
+
+            /// Filters one frame.
+            pub fn process(
+                &mut self,
+                frame: &$crate::frame::Frame,
+            ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
+                let p = self.params.$params();
+                self.hist
+                    .run::<$kind>(p.reconstruction(), frame, |ctx| stages(&p, frame, ctx))
+            }
+        }
+    };
+}
+#[cfg(test)]
+pub(crate) use reference_filter;
+
+/// The `tonemap` stage as the references write it, over whole planes: the colour in the
+/// working space (tonemapped for HDR input), or the input's own where the stage is left out.
+#[cfg(test)]
+pub fn tonemap_stage<'a>(rec: &mut Recorder, inp: &'a Inputs, scratch: &mut Scratch) -> Cow<'a, Rgb> {
+    rec.stage("tonemap", inp.facts.tonemap(), || {
+        to_working(&inp.color, true, scratch)
+    })
+    .unwrap_or(Cow::Borrowed(&*inp.color))
 }
 
 /// Converts a history whose first plane holds texels `[Y, Co, Cg, count]` between linear
@@ -669,17 +715,9 @@ macro_rules! history_filter {
                 &mut self,
                 $frame: &$crate::frame::Frame,
             ) -> Result<$crate::pipeline::Output, $crate::pipeline::FilterError> {
-                use $crate::pipeline::FilterKind;
                 let $p = &self.params.$params();
-                self.hist.run(
-                    Self::NAME,
-                    Self::needs(),
-                    Self::uses(),
-                    Self::SPARSE_INPUT,
-                    $crate::filters::reconstruct::Reconstruction::new($p.pixel_filter, $p.filter_width),
-                    $frame,
-                    |$ctx| $body,
-                )
+                self.hist
+                    .run::<Self>($p.reconstruction(), $frame, |$ctx| $body)
             }
 
             fn reset(&mut self) {

@@ -8,7 +8,7 @@
 
 use super::passes::slices_mut;
 use crate::filter_params;
-use crate::frame::{ChannelKind, ChannelSet, Frame, Rgb};
+use crate::frame::{Frame, Rgb};
 use crate::pipeline::clean::CleanMax;
 use crate::pipeline::exec::par_bands;
 use crate::pipeline::input::REPAIR_STAGE;
@@ -35,9 +35,6 @@ impl FilterKind for Passthrough {
     const SUMMARY: &'static str = "the input colour, repaired: the no-AA baseline";
     const STAGES: &'static [&'static str] = &["repair", "copy"];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn new(_: Params) -> Self {
         Passthrough::default()
     }

@@ -20,8 +20,8 @@ pub use color::{
     luma, luma_v, rgb_to_ycocg, tonemap, tonemap_inverse, ycocg_to_rgb, LUMA_REC709, TONEMAP_MAX,
 };
 pub use neighborhood::{
-    box_from_columns, cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3, variance_box,
-    NeighborhoodStats, CROSS,
+    box_from_columns, column_stats, cross_and_box_stats, fmax, fmin, for_each_row_stats, gather3x3,
+    variance_box, NeighborhoodStats, CROSS,
 };
 pub use sample::{
     bilinear, bilinear_span, bilinear_texel_channel, bilinear_texels, catmull_rom, catmull_rom_span,

@@ -126,6 +126,19 @@ pub fn box_from_columns(cols: &[&[f32]; 12], xl: usize, x: usize, xr: usize, s: 
     }
 }
 
+/// The vertical pass of the separable 3x3 box: per column, the min, max, sum and sum of
+/// squares of the rows `a`, `b` and `c` of one channel (as many columns as `vmin` has).
+#[inline(always)]
+pub fn column_stats([a, b, c]: [&[f32]; 3], [vmin, vmax, vsum, vsq]: [&mut [f32]; 4]) {
+    for x in 0..vmin.len() {
+        let (u, v, t) = (a[x], b[x], c[x]);
+        vmin[x] = fmin(fmin(u, v), t);
+        vmax[x] = fmax(fmax(u, v), t);
+        vsum[x] = u + v + t;
+        vsq[x] = u * u + v * v + t * t;
+    }
+}
+
 /// The statistics of [`cross_and_box_stats`] for every pixel of row `y` of three planes,
 /// computed separably: 3-tap vertical min/max/sum/sum of squares per column (a pass the
 /// compiler vectorises), then 3-tap horizontal per pixel. Calls `f(x, &stats)` for each
@@ -148,13 +161,7 @@ pub fn for_each_row_stats(
             let (vmin, rest) = chunk.split_at_mut(w);
             let (vmax, rest) = rest.split_at_mut(w);
             let (vsum, vsq) = rest.split_at_mut(w);
-            for x in 0..w {
-                let (u, v, t) = (a[x], b[x], c[x]);
-                vmin[x] = fmin(fmin(u, v), t);
-                vmax[x] = fmax(fmax(u, v), t);
-                vsum[x] = u + v + t;
-                vsq[x] = u * u + v * v + t * t;
-            }
+            column_stats([a, b, c], [vmin, vmax, vsum, vsq]);
         }
         let columns: [&[f32]; 12] = std::array::from_fn(|i| &cols[i * w..(i + 1) * w]);
         let mut s = NeighborhoodStats::default();

@@ -210,8 +210,11 @@ pub trait FilterKind: Filter + Sized + 'static {
     const STAGES: &'static [&'static str];
     /// Its parameters.
     type Params: FilterParams;
-    /// Channels it cannot work without.
-    fn needs() -> ChannelSet;
+    /// Channels it cannot work without (by default the colour alone, as for every filter
+    /// but `pixel_trace`).
+    fn needs() -> ChannelSet {
+        ChannelSet::of(&[ChannelKind::Color])
+    }
     /// Channels it reads when present (a superset of `needs`; by default `needs` alone).
     fn uses() -> ChannelSet {
         Self::needs()

@@ -64,8 +64,43 @@ pub struct ParamSpec {
 /// assert_eq!(Params::default().alpha, 0.1);
 /// assert_eq!(Params::SPECS[0].name, "alpha");
 /// ```
+///
+/// A temporal filter ends its fields with `..reconstruct`: the `reconstruct` stage's
+/// `pixel_filter` and `filter_width`, declared here once for every filter that has the
+/// stage, and a `reconstruction()` that gives the two as a
+/// [`Reconstruction`](crate::filters::reconstruct::Reconstruction).
 #[macro_export]
 macro_rules! filter_params {
+    (
+        $(#[$meta:meta])*
+        pub struct $name:ident {
+            $( $field:ident : $ty:ty = $default:expr, $kind:expr, $doc:literal; )*
+            ..reconstruct
+        }
+    ) => {
+        $crate::filter_params! {
+            $(#[$meta])*
+            pub struct $name {
+                $( $field: $ty = $default, $kind, $doc; )*
+                pixel_filter: $crate::filters::reconstruct::PixelFilter =
+                    $crate::filters::reconstruct::PixelFilter::BlackmanHarris,
+                    $crate::pipeline::params::ParamKind::Choice {
+                        options: $crate::filters::reconstruct::PIXEL_FILTERS,
+                    },
+                    "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+                filter_width: f32 = $crate::filters::reconstruct::DEFAULT_FILTER_WIDTH,
+                    $crate::pipeline::params::ParamKind::Float { min: 0.5, max: 4.0 },
+                    "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
+            }
+        }
+
+        impl $name {
+            /// The `reconstruct` stage these parameters ask for.
+            pub fn reconstruction(&self) -> $crate::filters::reconstruct::Reconstruction {
+                $crate::filters::reconstruct::Reconstruction::new(self.pixel_filter, self.filter_width)
+            }
+        }
+    };
     (
         $(#[$meta:meta])*
         pub struct $name:ident {

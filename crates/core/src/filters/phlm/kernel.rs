@@ -14,8 +14,8 @@
 use super::feature::accumulate_lanes;
 use super::rls::{self, D, P_LEN};
 use super::{
-    history_depth, ModelFetch, OnClip, Params, TestBox, BETA, DEPTH, DEPTH_JUMP_SPEED, R, S, STATE_PLANES,
-    STRIKE_DECAY, V, Z,
+    history_depth, Counts, ModelFetch, OnClip, Params, TestBox, BETA, DEPTH, DEPTH_JUMP_SPEED, R, S,
+    STATE_PLANES, STRIKE_DECAY, V, Z,
 };
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
@@ -27,8 +27,8 @@ use crate::kernels::{
     bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes, SPAN,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, ModelHealth, PixelCounts};
-use std::ops::{AddAssign, Range};
+use crate::pipeline::FilterError;
+use std::ops::Range;
 use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
@@ -75,24 +75,6 @@ struct Plan<'a> {
     /// The prior `R0 = I / p0` that forgetting relaxes toward.
     prior: f32,
     p: &'a Params,
-}
-
-/// Per-row counters of the model stage.
-#[derive(Clone, Copy, Debug, Default)]
-struct Counts {
-    pixels: PixelCounts,
-    offscreen: u64,
-    repaired: u64,
-    max_trace: f32,
-}
-
-impl AddAssign for Counts {
-    fn add_assign(&mut self, o: Counts) {
-        self.pixels += o.pixels;
-        self.offscreen += o.offscreen;
-        self.repaired += o.repaired;
-        self.max_trace = self.max_trace.max(o.max_trace);
-    }
 }
 
 /// One band task's buffers, reused across the bands it runs.
@@ -216,17 +198,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         }
     }
     scratch.recycle(dilated.into_iter().flatten());
-    let n = (w * h) as f64;
-    Ok(FrameResult {
-        color: out,
-        pixels: counts.pixels,
-        model: Some(ModelHealth {
-            reset_by_clip: counts.pixels.history_clipped as f64 / n,
-            reset_by_disocclusion: counts.offscreen as f64 / n,
-            max_trace_p: counts.max_trace as f64,
-            p_repaired: counts.repaired,
-        }),
-    })
+    Ok(counts.result(out))
 }
 
 /// One band: its rows' working colour and YCoCg (and halo) into the band buffers, then row

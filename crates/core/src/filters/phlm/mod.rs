@@ -78,8 +78,8 @@ mod kernel;
 mod reference;
 pub mod rls;
 
-use super::passes::{Conversion, TemporalState};
-use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
+use super::passes::{Conversion, FrameResult, TemporalState};
+use super::reconstruct::PixelFilter;
 use crate::filter_params;
 use crate::filters::passes::history_filter;
 use crate::frame::{ChannelKind, ChannelSet, Plane};
@@ -87,12 +87,9 @@ use crate::kernels::tonemap;
 #[cfg(test)]
 use crate::kernels::{bilinear, catmull_rom};
 use crate::pipeline::exec::for_rows;
-#[cfg(test)]
-use crate::pipeline::PixelCounts;
-use crate::pipeline::{FilterKind, ParamKind, StateError};
+use crate::pipeline::{FilterKind, ModelHealth, ParamKind, PixelCounts, StateError};
 use rls::{D, P_LEN};
 use serde::{Deserialize, Serialize};
-#[cfg(test)]
 use std::ops::AddAssign;
 
 /// How the model state is read at a reprojected position.
@@ -214,12 +211,7 @@ filter_params! {
         clip_keep: f32 = DEFAULT_CLIP_KEEP,
             ParamKind::Float { min: 0.0, max: 1.0 },
             "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
-        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
-            ParamKind::Choice { options: PIXEL_FILTERS },
-            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
-        filter_width: f32 = DEFAULT_FILTER_WIDTH,
-            ParamKind::Float { min: 0.5, max: 4.0 },
-            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
+        ..reconstruct
     }
 }
 
@@ -646,8 +638,7 @@ pub(crate) fn fetch_model(planes: [&[f32]; Z], w: usize, h: usize, at: From, how
     s
 }
 
-/// Per-row counters of the model pass.
-#[cfg(test)]
+/// Per-row counters of the model pass (the kernel's and the reference's).
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct Counts {
     pub(crate) pixels: PixelCounts,
@@ -656,13 +647,31 @@ pub(crate) struct Counts {
     pub(crate) max_trace: f32,
 }
 
-#[cfg(test)]
 impl AddAssign for Counts {
     fn add_assign(&mut self, o: Counts) {
         self.pixels += o.pixels;
         self.offscreen += o.offscreen;
         self.repaired += o.repaired;
         self.max_trace = self.max_trace.max(o.max_trace);
+    }
+}
+
+impl Counts {
+    /// The frame's result: the output `color` (one value per pixel of it counted here) and
+    /// the models' health over the frame.
+    pub(crate) fn result(self, color: crate::frame::Rgb) -> FrameResult {
+        let (w, h) = color[0].size();
+        let n = (w * h) as f64;
+        FrameResult {
+            color,
+            pixels: self.pixels,
+            model: Some(ModelHealth {
+                reset_by_clip: self.pixels.history_clipped as f64 / n,
+                reset_by_disocclusion: self.offscreen as f64 / n,
+                max_trace_p: self.max_trace as f64,
+                p_repaired: self.repaired,
+            }),
+        }
     }
 }
 
@@ -689,9 +698,6 @@ impl FilterKind for Phlm {
         "untonemap",
     ];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
     }

@@ -12,8 +12,8 @@
 //! 2^22 pixels a side; larger images take the scalar code ([`LANE_MAX_SIDE`]).
 
 use super::trace::{
-    centre, dist, gather_frame, path_index, BoxKernel, Failed, Gathered, Grid, Pos, View, INVERSE_ITERATIONS,
-    LOST,
+    centre, dist, gather_frame, path_index, BoxKernel, Failed, Gathered, Grid, Pos, Scatter, View,
+    INVERSE_ITERATIONS, LOST,
 };
 use super::Params;
 
@@ -104,21 +104,23 @@ fn columns(x: usize) -> Fl {
 /// samples `x..x + LANES` of row `y` of frame `l` (their maps to l0 at `map`): the samples
 /// that fail the two-way test with the pixel they fall in, in order, into `list`. A lane
 /// whose footprint holds more than one pixel takes the scalar code.
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn scatter_lanes(
-    g: &Grid,
-    f: &View,
-    l: usize,
-    n: usize,
-    params: &Params,
-    paths: &[Pos],
+    sc: &Scatter,
     map: &[Pos; LANES],
     x: usize,
     y: usize,
     list: &mut Vec<Failed>,
     scalar: impl Fn(usize, Pos, &mut Vec<Failed>),
 ) {
+    let Scatter {
+        g,
+        f,
+        l,
+        n,
+        params,
+        paths,
+    } = *sc;
     let d_th = params.threshold();
     let [j0, j1] = f.jitter;
     let (w, h) = (g.w as i32, g.h as i32);

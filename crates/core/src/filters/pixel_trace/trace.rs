@@ -1341,12 +1341,20 @@ fn scatter_missed<K: Weight>(
     let mut dropped = 0u64;
     for l in (0..n).filter(|&l| l != c) {
         let f = &views[l];
+        let sc = Scatter {
+            g,
+            f,
+            l,
+            n,
+            params,
+            paths,
+        };
         let map = &maps[l * px..(l + 1) * px];
         for first in (0..h.div_ceil(BAND_ROWS)).step_by(bands_per_pass) {
             let bands = bands_per_pass.min(h.div_ceil(BAND_ROWS) - first);
             failed[..bands].par_iter_mut().enumerate().for_each(|(b, list)| {
                 let y0 = (first + b) * BAND_ROWS;
-                scatter_band::<K>(g, f, l, n, params, paths, map, y0..(y0 + BAND_ROWS).min(h), list);
+                scatter_band::<K>(&sc, map, y0..(y0 + BAND_ROWS).min(h), list);
             });
             for e in failed[..bands].iter().flatten() {
                 let k = e.k as usize;
@@ -1364,26 +1372,26 @@ fn scatter_missed<K: Weight>(
     dropped
 }
 
-/// The samples of rows `rows` of frame `l` (map to l0 `map`) that fail the two-way test
+/// What the scatter test of frame `l`'s samples reads (eq. 13-15): the grid, the frame's
+/// view, `l` and the number of frames `n`, the parameters and the paths of every frame.
+#[derive(Clone, Copy)]
+pub(super) struct Scatter<'a> {
+    pub(super) g: &'a Grid,
+    pub(super) f: &'a View<'a>,
+    pub(super) l: usize,
+    pub(super) n: usize,
+    pub(super) params: &'a Params,
+    pub(super) paths: &'a [Pos],
+}
+
+/// The samples of rows `rows` of frame `sc.l` (map to l0 `map`) that fail the two-way test
 /// with a pixel whose reconstruction area they fall in (eq. 13-15), into `list`.
-#[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn scatter_band<K: Weight>(
-    g: &Grid,
-    f: &View,
-    l: usize,
-    n: usize,
-    params: &Params,
-    paths: &[Pos],
-    map: &[Pos],
-    rows: std::ops::Range<usize>,
-    list: &mut Vec<Failed>,
-) {
+fn scatter_band<K: Weight>(sc: &Scatter, map: &[Pos], rows: std::ops::Range<usize>, list: &mut Vec<Failed>) {
+    let g = sc.g;
     let w = g.w;
     list.clear();
-    let scalar = |x: usize, y: usize, m: Pos, list: &mut Vec<Failed>| {
-        scatter_sample::<K>(g, f, l, n, params, paths, x, y, m, list)
-    };
+    let scalar = |x: usize, y: usize, m: Pos, list: &mut Vec<Failed>| scatter_sample::<K>(sc, x, y, m, list);
     for y in rows {
         let row = &map[y * w..(y + 1) * w];
         let mut x0 = 0;
@@ -1391,7 +1399,7 @@ fn scatter_band<K: Weight>(
             for (x, m) in row.chunks_exact(LANES).enumerate() {
                 let m = m.try_into().expect("LANES maps");
                 let one = |x: usize, m: Pos, list: &mut Vec<Failed>| scalar(x, y, m, list);
-                lanes::scatter_lanes(g, f, l, n, params, paths, m, x * LANES, y, list, one);
+                lanes::scatter_lanes(sc, m, x * LANES, y, list, one);
                 x0 = (x + 1) * LANES;
             }
         }
@@ -1403,20 +1411,16 @@ fn scatter_band<K: Weight>(
 
 /// The scatter test of sample `(x, y)` of frame `l`, whose map to l0 is `m` (see
 /// [`scatter_band`]).
-#[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn scatter_sample<K: Weight>(
-    g: &Grid,
-    f: &View,
-    l: usize,
-    n: usize,
-    params: &Params,
-    paths: &[Pos],
-    x: usize,
-    y: usize,
-    m: Pos,
-    list: &mut Vec<Failed>,
-) {
+fn scatter_sample<K: Weight>(sc: &Scatter, x: usize, y: usize, m: Pos, list: &mut Vec<Failed>) {
+    let Scatter {
+        g,
+        f,
+        l,
+        n,
+        params,
+        paths,
+    } = *sc;
     let (r, d_th) = (params.support, params.threshold());
     // The sample's own position at l0 (its jitter carried along the flow).
     let q = add(m, f.jitter);

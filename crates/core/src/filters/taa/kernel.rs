@@ -21,8 +21,8 @@ use crate::filters::passes::{
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
 use crate::kernels::{
-    bilinear, bilinear_texels, box_from_columns, clip_toward_center, fmax, fmin, rgb_to_ycocg, variance_box,
-    ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
+    bilinear, bilinear_texels, box_from_columns, clip_toward_center, column_stats, rgb_to_ycocg,
+    variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
 use crate::pipeline::{FilterError, PixelCounts};
@@ -649,13 +649,7 @@ fn resolve_row(
             let (z, u) = rest.split_at_mut(1);
             [&mut x[0][..w], &mut y[0][..w], &mut z[0][..w], &mut u[0][..w]]
         };
-        for x in 0..w {
-            let (u, v, s) = (a[x], b[x], t[x]);
-            vmin[x] = fmin(fmin(u, v), s);
-            vmax[x] = fmax(fmax(u, v), s);
-            vsum[x] = u + v + s;
-            vsq[x] = u * u + v * v + s * s;
-        }
+        column_stats([a, b, t], [vmin, vmax, vsum, vsq]);
     }
     let cols = cols.each_ref().map(|c| &c[..w]);
     let hist = hist.map(|h| &h[..w]);

@@ -25,7 +25,6 @@ mod kernel;
 mod reference;
 
 use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
-use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filter_params;
 use crate::filters::passes::history_filter;
 use crate::frame::{ChannelKind, ChannelSet};
@@ -66,12 +65,7 @@ filter_params! {
         sharpen: f32 = 0.0,
             ParamKind::Float { min: 0.0, max: 4.0 },
             "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
-        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
-            ParamKind::Choice { options: PIXEL_FILTERS },
-            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
-        filter_width: f32 = DEFAULT_FILTER_WIDTH,
-            ParamKind::Float { min: 0.5, max: 4.0 },
-            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
+        ..reconstruct
     }
 }
 
@@ -166,9 +160,6 @@ impl FilterKind for Taa {
         "untonemap",
     ];
     type Params = Params;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
     }

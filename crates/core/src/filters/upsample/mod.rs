@@ -75,7 +75,6 @@ mod reference;
 mod spatial;
 mod temporal;
 
-use super::reconstruct::{PixelFilter, DEFAULT_FILTER_WIDTH, PIXEL_FILTERS};
 use crate::filters::passes::history_filter;
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
@@ -191,12 +190,7 @@ filter_params! {
         taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA,
             ParamKind::Float { min: 0.01, max: 1.0 },
             "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)";
-        pixel_filter: PixelFilter = PixelFilter::BlackmanHarris,
-            ParamKind::Choice { options: PIXEL_FILTERS },
-            "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres when the jitter is unknown). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
-        filter_width: f32 = DEFAULT_FILTER_WIDTH,
-            ParamKind::Float { min: 0.5, max: 4.0 },
-            "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default). Wider: softer, less aliasing and noise";
+        ..reconstruct
     }
 }
 
@@ -338,9 +332,6 @@ impl FilterKind for Upsample {
     ];
     type Params = Params;
     const SPARSE_INPUT: bool = true;
-    fn needs() -> ChannelSet {
-        ChannelSet::of(&[ChannelKind::Color])
-    }
     fn uses() -> ChannelSet {
         ChannelSet::of(&[
             ChannelKind::Color,
