@@ -199,6 +199,20 @@ macro_rules! wgsl_consts {
 }
 pub(crate) use wgsl_consts;
 
+/// Planes of the history filters' (`taa`, `phlm`) input buffer, in units of width x
+/// height: r, g, b, motion x and y, depth, the invalid mask.
+pub(crate) const INPUT_PLANES: usize = 7;
+pub(crate) const IN_R: usize = 0;
+pub(crate) const IN_MX: usize = 3;
+pub(crate) const IN_MY: usize = 4;
+pub(crate) const IN_DEPTH: usize = 5;
+pub(crate) const IN_INVALID: usize = 6;
+
+/// The input planes as the shaders' `IN_` constants.
+pub(crate) fn input_consts() -> String {
+    wgsl_consts![IN_R, IN_MX, IN_MY, IN_DEPTH, IN_INVALID]
+}
+
 /// What [`COMMON`] takes from Rust: `kernels::color`'s and `kernels::clip`'s constants.
 fn common_consts() -> String {
     use crate::kernels::clip::{CLIP_EPS, CLIP_REL};

@@ -12,7 +12,8 @@
 use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind, groups, history_filter, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
@@ -43,14 +44,6 @@ const FLAG_DILATE: u32 = 256;
 const FLAG_CATMULL_ROM: u32 = 512;
 const FLAG_DEPTH: u32 = 1024;
 
-// Planes of the input buffer (the shader's IN_ constants): r, g, b, motion x, y, depth,
-// invalid.
-const INPUT_PLANES: usize = 7;
-const IN_MX: usize = 3;
-const IN_MY: usize = 4;
-const IN_DEPTH: usize = 5;
-const IN_INVALID: usize = 6;
-
 /// Words of the counters: reset, clipped, off screen, repaired, the largest trace(P) as
 /// bits (the `C_` indices); padded.
 const COUNTERS: usize = 8;
@@ -60,37 +53,34 @@ const C_OFFSCREEN: usize = 2;
 const C_REPAIRED: usize = 3;
 const C_TRACE: usize = 4;
 
-/// What phlm.wgsl takes from Rust: the flag bits, the input planes and counters above,
-/// the workgroup's side, and the CPU filter's constants it mirrors.
+/// What phlm.wgsl takes from Rust: the input planes ([`input_consts`]), the flag bits and
+/// counters above, the workgroup's side, and the CPU filter's constants it mirrors.
 fn consts() -> String {
     use crate::filters::phlm::{feature, DEPTH_JUMP_SPEED, STRIKE_DECAY};
-    super::wgsl_consts![
-        FLAG_TONEMAP,
-        FLAG_REPROJECT,
-        FLAG_HISTORY,
-        FLAG_MOTION,
-        FLAG_INVALID,
-        FLAG_NEAREST,
-        FLAG_VARIANCE_BOX,
-        FLAG_SHIFT,
-        FLAG_DILATE,
-        FLAG_CATMULL_ROM,
-        FLAG_DEPTH,
-        IN_MX,
-        IN_MY,
-        IN_DEPTH,
-        IN_INVALID,
-        COUNTERS,
-        C_RESET,
-        C_CLIPPED,
-        C_OFFSCREEN,
-        C_REPAIRED,
-        C_TRACE,
-        WORKGROUP,
-        FEATURE_EPS = feature::EPS,
-        STRIKE_DECAY,
-        DEPTH_JUMP_SPEED,
-    ]
+    input_consts()
+        + &super::wgsl_consts![
+            FLAG_TONEMAP,
+            FLAG_REPROJECT,
+            FLAG_HISTORY,
+            FLAG_MOTION,
+            FLAG_INVALID,
+            FLAG_NEAREST,
+            FLAG_VARIANCE_BOX,
+            FLAG_SHIFT,
+            FLAG_DILATE,
+            FLAG_CATMULL_ROM,
+            FLAG_DEPTH,
+            COUNTERS,
+            C_RESET,
+            C_CLIPPED,
+            C_OFFSCREEN,
+            C_REPAIRED,
+            C_TRACE,
+            WORKGROUP,
+            FEATURE_EPS = feature::EPS,
+            STRIKE_DECAY,
+            DEPTH_JUMP_SPEED,
+        ]
 }
 
 /// Planes of each part of the models (phlm's BETA, R and Z ranges): beta, the information

@@ -7,7 +7,8 @@
 use super::buffers::{download, params_buffer, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind, groups, history_filter, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::TemporalState;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::{Frame, Plane, Rgb};
@@ -36,15 +37,6 @@ const FLAG_SHARPEN: u32 = 256;
 const FLAG_KEEP_DEPTH: u32 = 512;
 const FLAG_TO_TONEMAPPED: u32 = 1024;
 
-// Planes of the input buffer (the shaders' IN_ constants): r, g, b, motion x, y, depth,
-// invalid.
-const INPUT_PLANES: usize = 7;
-const IN_R: usize = 0;
-const IN_MX: usize = 3;
-const IN_MY: usize = 4;
-const IN_DEPTH: usize = 5;
-const IN_INVALID: usize = 6;
-
 /// Words of the counters: reset, clipped, rejected (the `C_` indices); padded.
 const COUNTERS: usize = 4;
 const C_RESET: usize = 0;
@@ -53,35 +45,31 @@ const C_REJECTED: usize = 2;
 /// Workgroup size of the `convert` pass (one texel an invocation).
 const CONVERT_GROUP: usize = 64;
 
-/// What taa's shaders take from Rust: the flag bits, input planes and counters above, the
-/// workgroup sizes, and the CPU filter's sample count bound.
+/// What taa's shaders take from Rust: the input planes ([`input_consts`]), the flag bits
+/// and counters above, the workgroup sizes, and the CPU filter's sample count bound.
 fn consts() -> String {
     use crate::filters::taa::MAX_COUNT;
-    super::wgsl_consts![
-        FLAG_TONEMAP,
-        FLAG_DILATE,
-        FLAG_REPROJECT,
-        FLAG_DEPTH_REJECT,
-        FLAG_HISTORY,
-        FLAG_CATMULL_ROM,
-        FLAG_LUMA_WEIGHT,
-        FLAG_INVALID,
-        FLAG_SHARPEN,
-        FLAG_KEEP_DEPTH,
-        FLAG_TO_TONEMAPPED,
-        IN_R,
-        IN_MX,
-        IN_MY,
-        IN_DEPTH,
-        IN_INVALID,
-        COUNTERS,
-        C_RESET,
-        C_CLIPPED,
-        C_REJECTED,
-        WORKGROUP,
-        CONVERT_GROUP,
-        MAX_COUNT,
-    ]
+    input_consts()
+        + &super::wgsl_consts![
+            FLAG_TONEMAP,
+            FLAG_DILATE,
+            FLAG_REPROJECT,
+            FLAG_DEPTH_REJECT,
+            FLAG_HISTORY,
+            FLAG_CATMULL_ROM,
+            FLAG_LUMA_WEIGHT,
+            FLAG_INVALID,
+            FLAG_SHARPEN,
+            FLAG_KEEP_DEPTH,
+            FLAG_TO_TONEMAPPED,
+            COUNTERS,
+            C_RESET,
+            C_CLIPPED,
+            C_REJECTED,
+            WORKGROUP,
+            CONVERT_GROUP,
+            MAX_COUNT,
+        ]
 }
 
 /// The compiled passes.
