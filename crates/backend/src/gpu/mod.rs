@@ -179,7 +179,9 @@ impl WgslConst for usize {
 
 impl WgslConst for f32 {
     fn declare(&self, name: &str) -> String {
-        // `{:?}` is the shortest decimal that reads back as the same f32 ("1e-8", "255.0").
+        // `{:?}` is the shortest decimal that reads back as the same f32 ("1e-8", "255.0");
+        // WGSL has no literal for NaN or infinity.
+        assert!(self.is_finite(), "the shader constant {name} is {self}");
         format!("const {name}: f32 = {self:?};\n")
     }
 }
@@ -207,6 +209,8 @@ pub(crate) const IN_MX: usize = 3;
 pub(crate) const IN_MY: usize = 4;
 pub(crate) const IN_DEPTH: usize = 5;
 pub(crate) const IN_INVALID: usize = 6;
+// The host writes the colour from plane 0 and motion y right after motion x.
+const _: () = assert!(IN_R == 0 && IN_MY == IN_MX + 1);
 
 /// The input planes as the shaders' `IN_` constants.
 pub(crate) fn input_consts() -> String {

@@ -318,7 +318,7 @@ fn jump(v: f32, v_prev: f32) -> f32 {
 // phlm::history_depth: a positive depth (infinity as f32::MAX), else 0 (unknown).
 fn history_depth(d: f32) -> f32 {
     if d > 0.0 {
-        return min(d, 3.40282347e38);
+        return min(d, F32_MAX);
     }
     return 0.0;
 }
@@ -326,7 +326,7 @@ fn history_depth(d: f32) -> f32 {
 // The 3x3 range of history depths around (x, y), edges clamped (kernel::depth_range_row).
 fn depth_range(x: u32, y: u32) -> vec2<f32> {
     let n = plane_len();
-    var lo = 3.40282347e38;
+    var lo = F32_MAX;
     var hi = 0.0;
     for (var dy = -1; dy <= 1; dy++) {
         let yy = u32(clamp(i32(y) + dy, 0, i32(P.height) - 1));

@@ -4,8 +4,8 @@
 //!
 //! With the jitter known (the file's `afterimage.jitter`, `--jitter-from`, or the
 //! session's per-frame field) the 3x3 samples are weighted where they fell; with it
-//! unknown (0 on both axes) they are weighted at the pixel centres, a fixed blur a little
-//! wider ([`Reconstruction::blind`]).
+//! unknown (0 on both axes) they are weighted at the pixel centres, a fixed blur at least
+//! as wide ([`Reconstruction::blind`]).
 //! `box` leaves the colour as it is: each pixel's own sample, which converges to the box
 //! integral over the pixel (what our procedural references are).
 //!
@@ -75,7 +75,10 @@ impl Reconstruction {
     /// The reconstruction of a frame whose jitter is unknown: at the pixel centres, with the
     /// width at which the centred taps average as much of the samples' noise (the same sum
     /// of squared weights, per axis) as this filter's taps do on average over uniformly
-    /// jittered positions. Blackman-Harris 1.5 px gives 1.73 px. At the same width the
+    /// jittered positions, never narrower. Blackman-Harris 1.5 px gives 1.73 px; from about
+    /// 2.3 px (2.7 for the Gaussian) the centred taps already average as much and the width
+    /// stays; a narrow filter widens most (Blackman-Harris 0.6 px to 1.23: its jittered taps
+    /// split a sample between two pixels, its centred ones keep it whole). At 1.5 px the
     /// centred taps are nearly the pixel's own sample (Blackman-Harris weighs a neighbour
     /// a pixel away at 0.06 of the centre), so a blind frame would average less than a
     /// jittered one, and its aliasing and noise pass through. On the Blender corpus with
@@ -304,6 +307,14 @@ mod tests {
             );
         }
         assert_eq!(Reconstruction::NONE.blind(), Reconstruction::NONE);
+        // Never narrower; the parameter's bounds and a narrow filter (numpy as above).
+        for (width, want) in [(0.6, 1.2277), (1.0, 1.4417), (2.5, 2.5), (4.0, 4.0)] {
+            let b = Reconstruction::new(PixelFilter::BlackmanHarris, width).blind();
+            Tolerance::abs(2e-3)
+                .check(&format!("blind width of {width}"), b.width as f64, want)
+                .unwrap();
+            assert!(b.width >= width, "{width}: {}", b.width);
+        }
     }
 
     #[test]

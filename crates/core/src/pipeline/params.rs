@@ -87,10 +87,10 @@ macro_rules! filter_params {
                     $crate::pipeline::params::ParamKind::Choice {
                         options: $crate::filters::reconstruct::PIXEL_FILTERS,
                     },
-                    "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres, and a little wider, when the jitter is unknown: 0 on both axes). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+                    "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres, and wider, when the jitter is unknown: 0 on both axes). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
                 filter_width: f32 = $crate::filters::reconstruct::DEFAULT_FILTER_WIDTH,
                     $crate::pipeline::params::ParamKind::Float { min: 0.5, max: 4.0 },
-                    "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default; a frame with unknown jitter is weighed with the width whose centred taps average as much, 1.73 for 1.5). Wider: softer, less aliasing and noise";
+                    "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default; a frame with unknown jitter is weighed with the width, never narrower, whose centred taps average as much, 1.73 for 1.5). Wider: softer, less aliasing and noise";
             }
         }
 
