@@ -1033,7 +1033,9 @@ async fn the_stream_command_filters_a_scene_remotely() {
         assert!(
             stdout.contains("3 frames of 64x36")
                 && stdout.contains("mean PSNR")
-                && stdout.contains("in process"),
+                && stdout.contains("in process")
+                && stdout.contains("client CPU:")
+                && stdout.contains("cores busy while filtering"),
             "{transport}: {stdout}"
         );
         // What it wrote is what filtering in process gives.

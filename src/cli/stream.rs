@@ -9,7 +9,7 @@ use afterimage::frame::Frame;
 use afterimage::io::{
     refuse_overwrite, write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, OutputOptions, Sequence,
 };
-use afterimage::metrics::Timing;
+use afterimage::metrics::{process_cpu_ms, Timing};
 use afterimage::pipeline::params::parse_assignments;
 use afterimage::scene::{Jitter, Scene, Settings};
 use afterimage::server::client::{Client, ConnectOptions, Reply, SendOptions};
@@ -211,7 +211,7 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     );
     bar.set_message(args.filter.clone());
     let wall = Instant::now();
-    let (replies, recreated, streaming_s) = send_shot(&args, &values, &frames, &bar)?;
+    let (replies, recreated, streaming_s, client_cpu_ms) = send_shot(&args, &values, &frames, &bar)?;
     let wall_s = wall.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(naming) = &naming {
@@ -233,27 +233,38 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
         1e3 / period_ms,
         args.in_flight
     );
+    if let Some(ms) = client_cpu_ms {
+        outln!(
+            "client CPU: {:.2} ms per frame (encoding, sending, reading and decoding replies)",
+            ms / replies.len().max(1) as f64
+        );
+    }
     if args.compare {
-        let local = in_process_ms(&args.filter, &values, &frames)?;
+        let (local, cpu) = in_process_ms(&args.filter, &values, &frames)?;
         outln!(
             "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x",
             rtt_ms - local,
             rtt_ms / local,
             period_ms / local
         );
+        if let Some((cpu_ms, busy)) = cpu {
+            outln!("in process: {cpu_ms:.2} ms of CPU per frame ({busy:.2} cores busy while filtering)");
+        }
     }
     Ok(())
 }
 
 /// Sends `frames` through one session (a new one after each loss, up to `--retries`) and
-/// returns the replies in order, the sessions that were lost, and the seconds spent
-/// streaming (from each session's first frame sent to its last reply).
+/// returns the replies in order, the sessions that were lost, the seconds spent streaming
+/// (from each session's first frame sent to its last reply), and this process's CPU ms
+/// (read before the runtime's threads end, since only live threads are counted).
 fn send_shot(
     args: &StreamArgs,
     values: &serde_json::Map<String, serde_json::Value>,
     frames: &[Frame],
     bar: &ProgressBar,
-) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>, f64)> {
+) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>, f64, Option<f64>)> {
+    let cpu = process_cpu_ms();
     let (w, h) = (frames[0].width() as u32, frames[0].height() as u32);
     let params = params_from_json(values);
     let opts = SendOptions {
@@ -351,7 +362,8 @@ fn send_shot(
         }
         anyhow::Ok(())
     })?;
-    Ok((replies, recreated, streaming_s))
+    let cpu_ms = cpu.zip(process_cpu_ms()).map(|(a, b)| b - a);
+    Ok((replies, recreated, streaming_s, cpu_ms))
 }
 
 /// Writes each reply's colour into a copy of its input file (`--output`).
@@ -415,14 +427,16 @@ fn print_figures(args: &StreamArgs, first: &Frame, replies: &[Reply], wall_s: f6
     Ok(Timing::of(&rtt).median_ms)
 }
 
-/// `--compare`: the same filter over the same frames in this process, median ms/frame.
+/// `--compare`: the same filter over the same frames in this process: median ms/frame,
+/// and (where the CPU time can be read) the mean CPU ms/frame and the cores it kept busy.
 fn in_process_ms(
     filter: &str,
     values: &serde_json::Map<String, serde_json::Value>,
     frames: &[Frame],
-) -> anyhow::Result<f64> {
+) -> anyhow::Result<(f64, Option<(f64, f64)>)> {
     let mut f = create(filter, values)?;
     let mut ms = Vec::new();
+    let cpu = process_cpu_ms();
     for fr in frames {
         let t = Instant::now();
         let outs = f.push(fr)?;
@@ -431,6 +445,9 @@ fn in_process_ms(
             f.recycle(out.color);
         }
     }
+    let cpu_ms = cpu.zip(process_cpu_ms()).map(|(a, b)| b - a);
     f.finish()?;
-    Ok(Timing::of(&ms).median_ms)
+    let wall_ms: f64 = ms.iter().sum();
+    let per_frame = cpu_ms.map(|c| (c / ms.len().max(1) as f64, c / wall_ms));
+    Ok((Timing::of(&ms).median_ms, per_frame))
 }

@@ -88,10 +88,10 @@ impl SharedRegion {
         })
     }
 
-    /// Reads a reply's `len` bytes of colour from `offset`.
-    pub fn read(&self, offset: u64, len: u64) -> io::Result<Vec<u8>> {
-        let mut buf = vec![0u8; len as usize];
-        self.file.read_exact_at(&mut buf, offset)?;
-        Ok(buf)
+    /// Reads a reply's `len` bytes of colour from `offset` into `buf` (resized to `len`;
+    /// a buffer kept from one reply to the next is neither cleared nor faulted in again).
+    pub fn read_into(&self, offset: u64, len: u64, buf: &mut Vec<u8>) -> io::Result<()> {
+        buf.resize(len as usize, 0);
+        self.file.read_exact_at(buf, offset)
     }
 }

@@ -109,7 +109,9 @@ pub async fn stream_through(
         Ok(())
     };
     let receive = async {
-        while let Some(reply) = read_reply(&mut replies, &sent_at, region).await? {
+        // The replies' bytes out of the region, one buffer for them all.
+        let mut from_region = Vec::new();
+        while let Some(reply) = read_reply(&mut replies, &sent_at, region, &mut from_region).await? {
             permits.add_permits(1);
             on_reply(reply);
         }
@@ -139,13 +141,14 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Reads one reply (header, then the colour's chunks), matched to the oldest frame in
-/// flight; None when the stream ended cleanly (read to its end, so the server has let go
-/// of the session by then).
+/// Reads one reply (header, then the colour's chunks, or its colour from `region` into
+/// `from_region`), matched to the oldest frame in flight; None when the stream ended
+/// cleanly (read to its end, so the server has let go of the session by then).
 async fn read_reply(
     replies: &mut tonic::Streaming<pb::FilteredChunk>,
     sent_at: &Mutex<VecDeque<(Instant, u64)>>,
     region: Option<&SharedRegion>,
+    from_region: &mut Vec<u8>,
 ) -> Result<Option<Reply>, Status> {
     let head = match replies.next().await {
         Some(Ok(pb::FilteredChunk {
@@ -162,13 +165,12 @@ async fn read_reply(
     // The chunks as they came (views of the receive buffers): decoding reads across them.
     let mut chunks = Vec::new();
     let mut received = 0u64;
+    let in_region = head.shared_memory.is_some();
     if let Some(at) = &head.shared_memory {
         let r = region
             .ok_or_else(|| Status::internal("a reply in shared memory on a stream without a region"))?;
-        let colour = r
-            .read(at.reply_offset, color_h.byte_length)
+        r.read_into(at.reply_offset, color_h.byte_length, from_region)
             .map_err(|e| Status::internal(format!("shared memory region: reading the reply: {e}")))?;
-        chunks.push(colour.into());
         received = color_h.byte_length;
     }
     while received < color_h.byte_length {
@@ -183,7 +185,10 @@ async fn read_reply(
             _ => return Err(Status::internal("reply ended before its colour")),
         }
     }
-    let pieces: Vec<&[u8]> = chunks.iter().map(|c| &c[..]).collect();
+    let pieces: Vec<&[u8]> = match in_region {
+        true => vec![&from_region[..]],
+        false => chunks.iter().map(|c: &bytes::Bytes| &c[..]).collect(),
+    };
     let color = decode_color(&color_h, &pieces, head.width, head.height)
         .map_err(|e| Status::internal(e.to_string()))?;
     let (t, sent) = lock(sent_at)

@@ -6,7 +6,7 @@ mod ssim;
 mod timing;
 
 pub use ssim::{ssim, SsimResult, SSIM_C1_K, SSIM_C2_K, SSIM_RADIUS, SSIM_SIGMA};
-pub use timing::{quantile, Timing};
+pub use timing::{process_cpu_ms, quantile, Timing};
 
 use crate::frame::{Plane, Rgb};
 use serde::{Deserialize, Serialize};
