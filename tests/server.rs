@@ -3263,7 +3263,8 @@ async fn shared_memory_streams_match_the_socket_and_leave_nothing_behind() {
         shared_memory: true,
         ..F32
     };
-    for filter in ["taa", "phlm"] {
+    // traa sends object ids (u32): f32 frames and ids are read in place from the region.
+    for filter in ["taa", "phlm", "traa"] {
         for in_flight in [1, 2] {
             let s = open(&mut c, filter).await;
             let mut payload = 0;

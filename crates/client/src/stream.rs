@@ -141,8 +141,8 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Reads one reply (header, then the colour's chunks, or its colour from `region` into
-/// `from_region`), matched to the oldest frame in flight; None when the stream ended
+/// Reads one reply (header, then the colour's chunks, or its colour from `region`, through
+/// `from_region` where it needs converting), matched to the oldest frame in flight; None when the stream ended
 /// cleanly (read to its end, so the server has let go of the session by then).
 async fn read_reply(
     replies: &mut tonic::Streaming<pb::FilteredChunk>,
@@ -162,35 +162,38 @@ async fn read_reply(
         .color
         .clone()
         .ok_or_else(|| Status::internal("reply without colour"))?;
-    // The chunks as they came (views of the receive buffers): decoding reads across them.
-    let mut chunks = Vec::new();
-    let mut received = 0u64;
-    let in_region = head.shared_memory.is_some();
-    if let Some(at) = &head.shared_memory {
-        let r = region
-            .ok_or_else(|| Status::internal("a reply in shared memory on a stream without a region"))?;
-        r.read_into(at.reply_offset, color_h.byte_length, from_region)
-            .map_err(|e| Status::internal(format!("shared memory region: reading the reply: {e}")))?;
-        received = color_h.byte_length;
-    }
-    while received < color_h.byte_length {
-        match replies.next().await {
-            Some(Ok(pb::FilteredChunk {
-                part: Some(filtered_chunk::Part::Data(d)),
-            })) => {
-                received += d.data.len() as u64;
-                chunks.push(d.data);
-            }
-            Some(Err(s)) => return Err(s),
-            _ => return Err(Status::internal("reply ended before its colour")),
+    let color = match (&head.shared_memory, region) {
+        (Some(at), Some(r)) => r
+            .read_color(at.reply_offset, &color_h, (head.width, head.height), from_region)
+            .map_err(|e| Status::internal(format!("shared memory region: reading the reply: {e}")))?,
+        (Some(_), None) => {
+            return Err(Status::internal(
+                "a reply in shared memory on a stream without a region",
+            ))
         }
-    }
-    let pieces: Vec<&[u8]> = match in_region {
-        true => vec![&from_region[..]],
-        false => chunks.iter().map(|c: &bytes::Bytes| &c[..]).collect(),
+        (None, _) => {
+            // The chunks as they came (views of the receive buffers): decoding reads
+            // across them.
+            let mut chunks = Vec::new();
+            let mut received = 0u64;
+            while received < color_h.byte_length {
+                match replies.next().await {
+                    Some(Ok(pb::FilteredChunk {
+                        part: Some(filtered_chunk::Part::Data(d)),
+                    })) => {
+                        received += d.data.len() as u64;
+                        chunks.push(d.data);
+                    }
+                    Some(Err(s)) => return Err(s),
+                    _ => return Err(Status::internal("reply ended before its colour")),
+                }
+            }
+            let pieces: Vec<&[u8]> = chunks.iter().map(|c| &c[..]).collect();
+            decode_color(&color_h, &pieces, head.width, head.height)
+                .map_err(|e| Status::internal(e.to_string()))?
+        }
     };
-    let color = decode_color(&color_h, &pieces, head.width, head.height)
-        .map_err(|e| Status::internal(e.to_string()))?;
+    let received = color_h.byte_length;
     let (t, sent) = lock(sent_at)
         .pop_front()
         .ok_or_else(|| Status::internal("a reply to no frame sent"))?;

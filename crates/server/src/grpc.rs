@@ -132,6 +132,18 @@ pub fn reply(
     let planes = f.color.each_ref().map(|p| p.data());
     let place = region.zip(req.shared_memory.as_ref());
     let (bytes, byte_length) = match place {
+        Some((r, at)) if sample == pb::SampleType::F32 && cfg!(target_endian = "little") => {
+            // The planes' bytes are the wire's samples: written without a staging copy.
+            let plane_bytes = (w * h * 4) as u64;
+            for (k, p) in (0..).zip(planes) {
+                r.write_from(
+                    f.index,
+                    at.reply_offset + k * plane_bytes,
+                    bytemuck::cast_slice(p),
+                )?;
+            }
+            (Vec::new(), 3 * plane_bytes as usize)
+        }
         Some((r, at)) => {
             let len = 3 * w * h * sample_bytes(sample);
             r.write(f.index, at.reply_offset, len, |buf| {
@@ -449,12 +461,15 @@ fn filter_job(
                     let region = region
                         .as_deref()
                         .filter(|_| frame.assembly.region_offset().is_some());
-                    if let (Some(r), Some(at)) = (region, frame.assembly.region_offset()) {
+                    // f32 straight from the region into the planes; else through a buffer.
+                    let in_place = region.filter(|_| wire::reads_in_place(&req));
+                    let staged = region.filter(|_| in_place.is_none());
+                    if let (Some(r), Some(at)) = (staged, frame.assembly.region_offset()) {
                         let len = frame.assembly.plan.wire_bytes as usize;
                         frame.assembly.fill(r.read(req.index, at, len)?);
                     }
-                    let decoded = wire::decode(&frame.assembly, shape, co.input_planes()?);
-                    if let Some(r) = region {
+                    let decoded = wire::decode(&frame.assembly, shape, co.input_planes()?, in_place);
+                    if let Some(r) = staged {
                         r.recycle(frame.assembly.take_buffer());
                     }
                     drop(frame);

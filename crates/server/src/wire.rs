@@ -6,7 +6,7 @@
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
 use crate::pipeline::Scratch;
-use crate::session::{clip, FrameShape, SessionError};
+use crate::session::{clip, FrameShape, Region, SessionError};
 pub use afterimage_client::codec::chunks;
 use afterimage_client::codec::{joined, sample_bytes, Samples};
 use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
@@ -388,6 +388,26 @@ fn decode_planes(
         .collect()
 }
 
+/// `planes` planes of `w x h` f32 samples read from `region` at `offset`, each straight
+/// into its memory.
+fn read_planes(
+    region: &Region,
+    index: u64,
+    offset: u64,
+    (w, h): (usize, usize),
+    planes: usize,
+    spare: &mut Scratch,
+) -> Result<Vec<Plane<f32>>, SessionError> {
+    (0..planes)
+        .map(|k| {
+            let mut plane = spare.plane(w, h);
+            let at = offset + (k * w * h * 4) as u64;
+            region.read_into(index, at, bytemuck::cast_slice_mut(plane.data_mut()))?;
+            Ok(plane)
+        })
+        .collect()
+}
+
 fn decompress<'a>(
     name: &str,
     ch: &ChannelHeader,
@@ -404,10 +424,39 @@ fn decompress<'a>(
     }
 }
 
+/// Whether a frame with header `h` can be read from a shared memory region straight into
+/// its planes ([`decode`] with a region): every float channel f32 and every channel
+/// uncompressed, on a little-endian machine (the wire's byte order), so the bytes are the
+/// samples.
+pub fn reads_in_place(h: &FrameHeader) -> bool {
+    cfg!(target_endian = "little")
+        && h.channels.iter().all(|c| {
+            c.compression == Compression::None as i32
+                && (c.sample == SampleType::F32 as i32 || c.sample == SampleType::U32 as i32)
+        })
+}
+
 /// Decodes an assembled frame for a session of `shape` (its header passed
 /// [`FramePlan::check`] against the same shape), into planes taken from `spare` where it
-/// has them (the session's last input, [`crate::session::Checkout::input_planes`]).
-pub fn decode(a: &Assembly, shape: FrameShape, spare: &mut Scratch) -> Result<Frame, SessionError> {
+/// has them (the session's last input, [`crate::session::Checkout::input_planes`]). With
+/// `region`, the frame's bytes are read from it into the planes, channel by channel (a
+/// frame in the region whose header [`reads_in_place`]); without, they are the chunks
+/// received (or filled from the region).
+pub fn decode(
+    a: &Assembly,
+    shape: FrameShape,
+    spare: &mut Scratch,
+    region: Option<&Region>,
+) -> Result<Frame, SessionError> {
+    let in_place = match (region, a.region_offset()) {
+        (Some(r), Some(base)) if reads_in_place(&a.header) => Some((r, base)),
+        (None, _) => None,
+        _ => {
+            return Err(SessionError::Internal(
+                "a frame read in place that is not in the region, or not f32".into(),
+            ))
+        }
+    };
     let (w, h) = (shape.width as usize, shape.height as usize);
     let n = w * h;
     let mut at = 0usize;
@@ -432,6 +481,30 @@ pub fn decode(a: &Assembly, shape: FrameShape, spare: &mut Scratch) -> Result<Fr
         seen = seen.with(kind);
         let name = kind.name();
         let len = usize::try_from(ch.byte_length).map_err(|_| invalid("channels.byte_length", "too long"))?;
+        if let Some((r, base)) = in_place {
+            // The plan checked the lengths and the region check the span.
+            let offset = base + at as u64;
+            at += len;
+            if kind == ChannelKind::ObjectId {
+                let mut v = vec![0u32; n];
+                r.read_into(hd.index, offset, bytemuck::cast_slice_mut(&mut v))?;
+                ids = Some(Plane::from_vec(w, h, v).expect("length checked"));
+                continue;
+            }
+            let size = if kind == ChannelKind::Color {
+                (cw, chh)
+            } else {
+                (w, h)
+            };
+            let planes = read_planes(r, hd.index, offset, size, kind.components(), spare)?;
+            if kind == ChannelKind::Color {
+                let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
+                color = Some([r, g, b]);
+            } else {
+                rest.push((kind, planes));
+            }
+            continue;
+        }
         let pieces = a.span(at, len).ok_or_else(|| {
             invalid(
                 format!("channels[{name}]"),
@@ -647,7 +720,7 @@ mod tests {
                 assert_eq!(a.chunks.len(), 1, "{sample:?} cut {c}");
                 let mut spare = Scratch::default();
                 spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
-                let got = decode(&a, shape, &mut spare).unwrap();
+                let got = decode(&a, shape, &mut spare, None).unwrap();
                 let bits = |f: &Frame, k: ChannelKind| -> Vec<u32> {
                     f.planes(k)
                         .unwrap()
@@ -663,6 +736,72 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// A frame in a shared memory region whose channels are f32 (and u32 ids) decodes
+    /// from the region straight into its planes, bit for bit what was sent, without its
+    /// bytes ever being filled into the assembly; an f16 frame cannot be read in place.
+    #[test]
+    fn a_region_frame_of_f32_decodes_in_place() {
+        use crate::session::{Budget, Reservation};
+        use std::os::unix::fs::FileExt;
+        let (w, h) = (7, 5);
+        let n = w * h;
+        let plane = |k: usize| Plane::from_vec(w, h, adversarial(n + k)[k..].to_vec()).unwrap();
+        let mut frame = Frame::new([plane(0), plane(1), plane(2)]).unwrap();
+        frame.set_f32(ChannelKind::Depth, vec![plane(3)]).unwrap();
+        frame
+            .set_f32(ChannelKind::Motion, vec![plane(4), plane(5)])
+            .unwrap();
+        let ids: Vec<u32> = (0..n as u32).map(|i| i.wrapping_mul(2654435761)).collect();
+        frame.set_object_id(Plane::from_vec(w, h, ids).unwrap()).unwrap();
+        let channels = [
+            ChannelKind::Color,
+            ChannelKind::Depth,
+            ChannelKind::Motion,
+            ChannelKind::ObjectId,
+        ]
+        .into_iter()
+        .fold(ChannelSet::EMPTY, ChannelSet::with);
+        let shape = FrameShape {
+            width: w as u32,
+            height: h as u32,
+            channels,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        for sample in [SampleType::F32, SampleType::F16] {
+            let (header, chunks) = encode_frame(&frame, "s", channels, sample, Compression::None, 1 << 20);
+            let data: Vec<u8> = chunks.iter().flat_map(|c| c.data.to_vec()).collect();
+            let bytes = data.len() as u64 + 13;
+            let hold = Reservation::take(&[&Budget::new("test", 1 << 30)], bytes, "region").unwrap();
+            let region = Region::create(dir.path(), bytes, hold).unwrap();
+            std::fs::File::options()
+                .write(true)
+                .open(region.path())
+                .unwrap()
+                .write_all_at(&data, 13)
+                .unwrap();
+            let plan = FramePlan::check(&header, shape, 1 << 30).unwrap();
+            let a = Assembly::in_region(header.clone(), plan, 13);
+            let got = decode(&a, shape, &mut Scratch::default(), Some(&region));
+            if sample == SampleType::F16 {
+                assert!(matches!(got, Err(SessionError::Internal(_))), "{got:?}");
+                assert!(!reads_in_place(&header));
+                continue;
+            }
+            let got = got.unwrap();
+            let bits = |f: &Frame, k: ChannelKind| -> Vec<u32> {
+                f.planes(k)
+                    .unwrap()
+                    .iter()
+                    .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+                    .collect()
+            };
+            for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
+                assert_eq!(bits(&got, k), bits(&frame, k), "{k}");
+            }
+            assert_eq!(got.object_id().unwrap().data(), frame.object_id().unwrap().data());
         }
     }
 

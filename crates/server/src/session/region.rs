@@ -113,10 +113,23 @@ impl Region {
     pub fn read(&self, index: u64, offset: u64, len: usize) -> Result<Vec<u8>, SessionError> {
         let mut buf = std::mem::take(&mut *lock(&self.inbound));
         buf.resize(len, 0);
-        match self.file.read_exact_at(&mut buf, offset) {
-            Ok(()) => Ok(buf),
-            Err(e) => Err(self.io_error(index, "read", offset, len, e)),
-        }
+        self.read_into(index, offset, &mut buf)?;
+        Ok(buf)
+    }
+
+    /// Fills `dst` with frame `index`'s bytes from `offset`: straight into a plane's
+    /// memory where its samples need no conversion, which saves a copy of the frame.
+    pub fn read_into(&self, index: u64, offset: u64, dst: &mut [u8]) -> Result<(), SessionError> {
+        self.file
+            .read_exact_at(dst, offset)
+            .map_err(|e| self.io_error(index, "read", offset, dst.len(), e))
+    }
+
+    /// Writes `src` (a reply's plane, say) at `offset`.
+    pub fn write_from(&self, index: u64, offset: u64, src: &[u8]) -> Result<(), SessionError> {
+        self.file
+            .write_all_at(src, offset)
+            .map_err(|e| self.io_error(index, "write", offset, src.len(), e))
     }
 
     /// Takes back the buffer [`Region::read`] gave, for the next frame.
@@ -135,9 +148,9 @@ impl Region {
         let mut buf = std::mem::take(&mut *lock(&self.outbound));
         buf.resize(len, 0);
         fill(&mut buf);
-        let r = self.file.write_all_at(&buf, offset);
+        let r = self.write_from(index, offset, &buf);
         *lock(&self.outbound) = buf;
-        r.map_err(|e| self.io_error(index, "write", offset, len, e))
+        r
     }
 
     fn io_error(&self, index: u64, what: &str, offset: u64, len: usize, e: std::io::Error) -> SessionError {
