@@ -78,6 +78,7 @@ mod temporal;
 use crate::filters::passes::history_filter;
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
+pub use kernel::{geometry, skips};
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{
     confidence, filter_gradients, relative_gradient, reproject, seen_before, signed_gradient, surface_nearby,
