@@ -338,6 +338,26 @@ fn upsample_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
     }
 }
 
+/// The shading factor may change from frame to frame, and the colour's size with it: the
+/// GPU filter follows the CPU's through 2x2, 4x4 and full shading and back, with f32
+/// colour and with f16 colour (whose packed upload is made again for each size).
+#[test]
+fn upsample_on_the_gpu_follows_the_cpu_when_the_shading_changes() {
+    let frames: Vec<Frame> = [2, 4, 1, 2]
+        .into_iter()
+        .enumerate()
+        .flat_map(|(k, s)| shaded_scene("flyover", s).into_iter().skip(8 * k).take(8))
+        .collect();
+    compare("upsample", &[], &frames, "shading 2, 4, 1, 2");
+    let mut gpu = make("upsample", &[], BackendChoice::GpuF16);
+    let mut cpu = make("upsample", &[], BackendChoice::Cpu);
+    for (i, f) in frames.iter().enumerate() {
+        let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
+        let what = format!("upsample f16, shading 2, 4, 1, 2, frame {i}");
+        assert_agree_within(&g, &c, &what, f16_bounds("upsample"));
+    }
+}
+
 /// `upsample` on the adversarial sequences, fully shaded and sparse (2x2, 4x4: with
 /// G-buffers without normals and ids, near and far planes, NaN and negative samples in
 /// the sparse colour), at odd sizes down to one pixel.
