@@ -448,6 +448,8 @@ fn filter_takes_the_f16_upload_as_a_backend() {
     }
     let out = run_ok(&["info", "--backends"]);
     assert_eq!(out.contains("f16"), afterimage::backend::GPU_BUILT, "{out}");
+    // The GPU filters are listed (the CPU line names none).
+    assert_eq!(out.contains("upsample"), afterimage::backend::GPU_BUILT, "{out}");
 }
 
 #[test]

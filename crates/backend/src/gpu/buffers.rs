@@ -1,6 +1,7 @@
 //! Device buffers of f32 samples: storage the shaders read and write, and the mappable
 //! buffers results come back through.
 
+use super::timing::{FrameClock, PassTimer};
 use super::{wait, Gpu};
 use crate::BackendError;
 
@@ -182,5 +183,73 @@ impl Readback {
         }
         self.buffer.unmap();
         Ok(())
+    }
+}
+
+/// What a filter's frame gives back from the device.
+pub(crate) struct FrameBack {
+    /// The colour.
+    pub(crate) color: crate::frame::Rgb,
+    /// The counters (at the filter's `C_` indices).
+    pub(crate) counters: Vec<u32>,
+    /// Each pass's time from its timestamps, where the device has them.
+    pub(crate) pass_ms: Option<Vec<f64>>,
+}
+
+/// Where a frame's results come back: its colour, its `counters` words and the timestamps
+/// of its passes.
+#[derive(Debug)]
+pub(crate) struct FrameReadback {
+    /// Timestamps of the frame's passes, where the device has them.
+    pub(crate) timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
+    counters: usize,
+}
+
+impl FrameReadback {
+    /// Room for the colour of `pixels` pixels, `counters` words and the timestamps of up
+    /// to `passes` passes.
+    pub(crate) fn new(gpu: &Gpu, label: &str, pixels: usize, counters: usize, passes: u32) -> Self {
+        let timer = PassTimer::new(gpu, passes);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
+        FrameReadback {
+            back: Readback::new(gpu, label, 3 * pixels + counters + timer_words),
+            timer,
+            counters,
+        }
+    }
+
+    /// Ends a `width` x `height` frame whose encoder `enc` holds its first `passes` passes:
+    /// encodes the copies of the colour in `out` and of the `counters`, submits, and reads
+    /// them back through `words`, marking `clock` at the submission and the readback.
+    pub(crate) fn frame(
+        &self,
+        gpu: &Gpu,
+        (mut enc, passes): (wgpu::CommandEncoder, u32),
+        (out, counters): (&wgpu::Buffer, &wgpu::Buffer),
+        (width, height): (usize, usize),
+        clock: &mut FrameClock,
+        words: &mut Vec<f32>,
+    ) -> Result<FrameBack, BackendError> {
+        let n = width * height;
+        let back = &self.back;
+        back.copy_from(&mut enc, out, 0, 3 * n);
+        let at = (3 * n * 4) as u64;
+        enc.copy_buffer_to_buffer(counters, 0, &back.buffer, at, (self.counters * 4) as u64);
+        let timer_at = 3 * n + self.counters;
+        if let Some(t) = &self.timer {
+            t.resolve(&mut enc, passes, back, timer_at);
+        }
+        gpu.queue.submit([enc.finish()]);
+        clock.submitted();
+        let len = timer_at + self.timer.as_ref().map_or(0, PassTimer::words);
+        back.read(gpu, len, words)?;
+        clock.back();
+        Ok(FrameBack {
+            color: planes_from(words, width, height)?,
+            counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
+            pass_ms: self.timer.as_ref().map(|t| t.pass_ms(&words[timer_at..], passes)),
+        })
     }
 }

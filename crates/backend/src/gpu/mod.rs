@@ -12,9 +12,9 @@
 //! The colour goes up as f32 or, at the caller's choice ([`UploadPrecision::F16`]), as f16
 //! widened on the device (`upload`); motion, depth and the invalid mask always as f32.
 //!
-//! Filters here: `passthrough`, `fxaa`, `taa` and `phlm` (its per-pixel 4x4 solve in f32:
-//! [`crate::filters::phlm::rls::update_information_f32`]). Left for later: `traa`,
-//! `upsample`, `pixel_trace`.
+//! Filters here: `passthrough`, `fxaa`, `taa`, `phlm` (its per-pixel 4x4 solve in f32:
+//! [`crate::filters::phlm::rls::update_information_f32`]) and `upsample` (every method and
+//! shading factor). Left for later: `traa`, `pixel_trace`.
 
 mod buffers;
 mod fxaa;
@@ -23,12 +23,13 @@ mod phlm;
 mod taa;
 mod timing;
 mod upload;
+mod upsample;
 
 use super::{AdapterInfo, BackendError};
 use crate::frame::{Frame, Rgb};
 use crate::pipeline::params::build;
 use crate::pipeline::{
-    Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
+    Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, Scratch, UploadPrecision,
 };
 use serde_json::{Map, Value};
 use std::sync::{Arc, OnceLock};
@@ -36,7 +37,7 @@ use std::sync::{Arc, OnceLock};
 pub(crate) use buffers::{Readback, StorageBuffer};
 
 /// The filters this backend implements.
-pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa", "phlm"];
+pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa", "phlm", "upsample"];
 
 /// An open device: what every GPU filter runs on.
 #[derive(Debug)]
@@ -139,6 +140,11 @@ pub fn create(
         "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, build(name, values)?, upload))),
         "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, build(name, values)?, upload))),
         "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, build(name, values)?, upload))),
+        "upsample" => Ok(Box::new(upsample::GpuUpsample::new(
+            gpu,
+            build(name, values)?,
+            upload,
+        ))),
         _ => Err(known()),
     }
 }
@@ -259,11 +265,21 @@ pub(crate) fn bind(
     pipeline: &wgpu::ComputePipeline,
     buffers: &[&wgpu::Buffer],
 ) -> wgpu::BindGroup {
+    let at: Vec<(u32, &wgpu::Buffer)> = (0..).zip(buffers.iter().copied()).collect();
+    bind_at(gpu, pipeline, &at)
+}
+
+/// A bind group of `pipeline`'s group 0 with each buffer at its binding (for passes that
+/// declare the same bindings, each layout holding the ones its entry point uses).
+pub(crate) fn bind_at(
+    gpu: &Gpu,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[(u32, &wgpu::Buffer)],
+) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry> = buffers
         .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
+        .map(|&(binding, b)| wgpu::BindGroupEntry {
+            binding,
             resource: b.as_entire_binding(),
         })
         .collect();
@@ -284,7 +300,22 @@ pub(crate) fn stateless_output(
     color: Rgb,
     device: DeviceTimes,
 ) -> Output {
-    let mut record = rec.finish(filter, frame.meta.index, PixelCounts::default(), input, 0);
+    let counts = (PixelCounts::default(), input, 0);
+    history_output(filter, frame, rec, counts, color, device)
+}
+
+/// The output of a history filter's frame on the device: `color`, and `rec` finished with
+/// the frame's `(pixel counts, input counts, state bytes)` as run on the GPU with the
+/// `device` times.
+pub(crate) fn history_output(
+    filter: &'static str,
+    frame: &Frame,
+    rec: Recorder,
+    (pixels, input, state_bytes): (PixelCounts, InputCounts, usize),
+    color: Rgb,
+    device: DeviceTimes,
+) -> Output {
+    let mut record = rec.finish(filter, frame.meta.index, pixels, input, state_bytes);
     record.backend = Backend::Gpu;
     record.device = Some(device);
     Output { color, record }
@@ -354,9 +385,8 @@ pub(crate) use stateless_filter;
 /// [`Filter`] for a device filter `$ty` with history, named and checked as the
 /// [`FilterKind`](crate::pipeline::FilterKind) `$kind`: its state is saved and loaded in
 /// the CPU filter's layout, so states move between backends. `$ty` has the fields
-/// `params`, `gpu`, `buffers` (of `width` x `height`), `read` (the history buffer read
-/// next), `valid` (whether that holds a frame) and `tonemapped`, and the methods `run`,
-/// `sized` (buffers for a size), `empty_history` (the CPU filter's empty state),
+/// `params` and `dev` (a [`DeviceHistory`]), and the methods `run`, `sized` (buffers for
+/// a size), `empty_history` (the CPU filter's empty state),
 /// `history_bytes`, `download_history` (the history read next, in the CPU's planes) and
 /// `upload_history` (those planes into the history read next).
 macro_rules! history_filter {
@@ -365,7 +395,7 @@ macro_rules! history_filter {
             $crate::gpu::device_filter_methods!($kind, |f| &f.params);
 
             fn reset(&mut self) {
-                self.valid = false;
+                self.dev.valid = false;
             }
 
             fn state_bytes(&self) -> usize {
@@ -375,15 +405,15 @@ macro_rules! history_filter {
             fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
                 use $crate::pipeline::StateError;
                 let mut st = self.empty_history();
-                if let (Some(b), true) = (&self.buffers, self.valid) {
+                if self.dev.buffers.is_some() && self.dev.valid {
                     let planes = self
                         .download_history()
                         .map_err(|e| StateError::Device(e.to_string()))?;
                     st.buffer
-                        .restore((b.width, b.height), planes)
+                        .restore(self.dev.size, planes)
                         .map_err(StateError::Device)?;
                 }
-                st.set_tonemapped(self.tonemapped);
+                st.set_tonemapped(self.dev.tonemapped);
                 Ok(st.save(self.name(), self.params()))
             }
 
@@ -397,20 +427,83 @@ macro_rules! history_filter {
                     Some((w, h)) => {
                         self.sized(w, h)
                             .map_err(|e| $crate::pipeline::StateError::Device(e.to_string()))?;
-                        self.read = 0;
+                        self.dev.read = 0;
                         self.upload_history(st.buffer.read());
-                        self.gpu.queue.submit([]);
-                        self.valid = true;
+                        self.dev.gpu.queue.submit([]);
+                        self.dev.valid = true;
                     }
-                    None => self.valid = false,
+                    None => self.dev.valid = false,
                 }
-                self.tonemapped = st.tonemapped();
+                self.dev.tonemapped = st.tonemapped();
                 Ok(())
             }
         }
     };
 }
 pub(crate) use history_filter;
+
+/// What every device filter with history keeps besides its parameters and passes.
+#[derive(Debug)]
+pub(crate) struct DeviceHistory<B> {
+    pub(crate) gpu: Arc<Gpu>,
+    /// The precision of the colour's upload.
+    pub(crate) upload: UploadPrecision,
+    /// The buffers of the frame size in use, and that size.
+    pub(crate) buffers: Option<B>,
+    pub(crate) size: (usize, usize),
+    /// Which history buffer holds the previous frame.
+    pub(crate) read: usize,
+    /// Whether it does (not on the first frame or after a reset).
+    pub(crate) valid: bool,
+    /// Whether its colour is tonemapped.
+    pub(crate) tonemapped: bool,
+    /// Readback staging, reused.
+    pub(crate) words: Vec<f32>,
+    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
+    pub(crate) scratch: Scratch,
+}
+
+impl<B> DeviceHistory<B> {
+    /// No buffers yet, on `gpu`, the colour uploaded at `upload` precision.
+    pub(crate) fn new(gpu: Arc<Gpu>, upload: UploadPrecision) -> Self {
+        DeviceHistory {
+            gpu,
+            upload,
+            buffers: None,
+            size: (0, 0),
+            read: 0,
+            valid: false,
+            tonemapped: false,
+            words: Vec::new(),
+            scratch: Scratch::default(),
+        }
+    }
+
+    /// The buffers for a `width` x `height` frame: the ones held when they are of that
+    /// size, else new ones from `make`, which drops the history.
+    pub(crate) fn sized(
+        &mut self,
+        (width, height): (usize, usize),
+        make: impl FnOnce(&Gpu, UploadPrecision) -> Result<B, BackendError>,
+    ) -> Result<&mut B, BackendError> {
+        if self.buffers.is_none() || self.size != (width, height) {
+            // Dropped first: the old buffers and the new never take the device's memory
+            // together.
+            self.buffers = None;
+            self.valid = false;
+            self.read = 0;
+            self.buffers = Some(make(&self.gpu, self.upload)?);
+            self.size = (width, height);
+        }
+        Ok(self.buffers.as_mut().expect("just made"))
+    }
+
+    /// The CPU filters' rule for a `frame` of another size than the history's
+    /// ([`crate::pipeline::check_size`]).
+    pub(crate) fn check_size(&self, frame: &Frame) -> Result<(), crate::pipeline::FilterError> {
+        crate::pipeline::check_size(self.buffers.as_ref().map(|_| self.size), self.valid, frame)
+    }
+}
 
 /// Workgroups of `size` x `size` covering a `width` x `height` image.
 pub(crate) fn groups(width: usize, height: usize, size: usize) -> (u32, u32) {

@@ -13,19 +13,17 @@ use super::buffers::{download, params_buffer, planes_from, write_words};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
 use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
+use super::{DeviceHistory, INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output,
-    PixelCounts, Recorder, Skip, UploadPrecision,
+    check_needs, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output, PixelCounts,
+    Recorder, Skip, UploadPrecision,
 };
 use crate::BackendError;
-use std::borrow::Cow;
 use std::sync::Arc;
 
 const SOURCE: &str = include_str!("phlm.wgsl");
@@ -184,22 +182,10 @@ impl Buffers {
 /// `phlm` with its models on the device.
 #[derive(Debug)]
 pub struct GpuPhlm {
-    gpu: Arc<Gpu>,
     params: Params,
-    /// The precision of the colour's upload.
-    upload: UploadPrecision,
+    /// The device, its buffers and the history's place in them.
+    dev: DeviceHistory<Buffers>,
     pass: wgpu::ComputePipeline,
-    buffers: Option<Buffers>,
-    /// Which of `buffers.state` holds the previous frame's models.
-    read: usize,
-    /// Whether it does (not on the first frame or after a reset).
-    valid: bool,
-    /// Whether its models are in tonemapped working space.
-    tonemapped: bool,
-    /// Readback staging, reused.
-    words: Vec<f32>,
-    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
-    scratch: Scratch,
 }
 
 impl GpuPhlm {
@@ -207,29 +193,18 @@ impl GpuPhlm {
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
         GpuPhlm {
-            upload,
             pass: pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
-            gpu,
+            dev: DeviceHistory::new(gpu, upload),
             params,
-            buffers: None,
-            read: 0,
-            valid: false,
-            tonemapped: false,
-            words: Vec::new(),
-            scratch: Scratch::default(),
         }
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the models).
     fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
-        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            // Dropped first: the old buffers and the new never take the device's memory
-            // together.
-            self.buffers = None;
-            self.valid = false;
-            self.read = 0;
-            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height, self.upload)?);
-        }
+        let pass = &self.pass;
+        self.dev.sized((width, height), |gpu, upload| {
+            Buffers::new(gpu, pass, width, height, upload)
+        })?;
         Ok(())
     }
 
@@ -263,11 +238,11 @@ impl GpuPhlm {
     /// The previous frame's models as [`STATE_PLANES`] planes (the CPU reference's planar
     /// layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.dev.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
         let n = w * h;
-        let parts: Vec<&StorageBuffer> = b.state[self.read].iter().collect();
-        let words = download(&self.gpu, "phlm model readback", &parts)?;
+        let parts: Vec<&StorageBuffer> = b.state[self.dev.read].iter().collect();
+        let words = download(&self.dev.gpu, "phlm model readback", &parts)?;
         (0..STATE_PLANES)
             .map(|k| {
                 Plane::from_vec(w, h, words[k * n..(k + 1) * n].to_vec())
@@ -278,12 +253,12 @@ impl GpuPhlm {
 
     /// Writes [`STATE_PLANES`] model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.dev.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
         let mut k = 0;
-        for (part, (_, count)) in b.state[self.read].iter().zip(PARTS) {
+        for (part, (_, count)) in b.state[self.dev.read].iter().zip(PARTS) {
             for j in 0..count {
-                part.write(&self.gpu, j * n, planes[k].data());
+                part.write(&self.dev.gpu, j * n, planes[k].data());
                 k += 1;
             }
         }
@@ -300,7 +275,8 @@ impl GpuPhlm {
 
     /// Bytes of the device models.
     fn history_bytes(&self) -> usize {
-        self.buffers
+        self.dev
+            .buffers
             .as_ref()
             .map_or(0, |b| b.state.iter().flatten().map(StorageBuffer::bytes).sum())
     }
@@ -391,15 +367,11 @@ impl GpuPhlm {
         let mut inp = self.prepared(frame, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        check_size(
-            self.buffers.as_ref().map(|b| (b.width, b.height)),
-            self.valid,
-            frame,
-        )?;
+        self.dev.check_size(frame)?;
         self.sized(w, h)?;
-        let has_history = self.valid && !frame.meta.reset;
+        let has_history = self.dev.valid && !frame.meta.reset;
         let mut clock = FrameClock::start();
-        if has_history && self.tonemapped != hdr {
+        if has_history && self.dev.tonemapped != hdr {
             // A stream moving between LDR and HDR frames: the models move to the new working
             // space on the CPU (rare; `phlm::convert_state`, the CPU filter's conversion).
             let mut planes = self.download()?;
@@ -409,6 +381,7 @@ impl GpuPhlm {
         let p = &self.params.effective();
         let plan = FramePlan::new(p, &inp, has_history);
         let hi = self
+            .dev
             .buffers
             .as_ref()
             .expect("sized")
@@ -417,16 +390,16 @@ impl GpuPhlm {
         let words = Self::param_words(p, w, h, plan.flags, hi);
         let bytes = self.upload_frame(frame, &mut inp, &words);
         let back = self.dispatch(w, h, &mut clock)?;
-        let device = clock.times(back.shaders_ms, self.upload, bytes);
+        let device = clock.times(back.shaders_ms, self.dev.upload, bytes);
         // Without timestamps, the stages share the frame's round trip.
         plan.record(
             &mut rec,
             back.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
         );
 
-        self.read = 1 - self.read;
-        self.valid = true;
-        self.tonemapped = hdr;
+        self.dev.read = 1 - self.dev.read;
+        self.dev.valid = true;
+        self.dev.tonemapped = hdr;
         let mut record = self.frame_record(rec, frame, &inp, &back.counters);
         record.device = Some(device);
         Ok(Output {
@@ -440,7 +413,7 @@ impl GpuPhlm {
     fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
         check_needs(Phlm::NAME, Phlm::needs(), frame)?;
         let recon = self.params.effective().reconstruction();
-        Ok(recon.prepare(frame, Phlm::uses(), rec, &mut self.scratch)?)
+        Ok(recon.prepare(frame, Phlm::uses(), rec, &mut self.dev.scratch)?)
     }
 
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
@@ -454,13 +427,12 @@ impl GpuPhlm {
         words: &[u32; PARAM_WORDS],
     ) -> u64 {
         let n = inp.width * inp.height;
-        let gpu = &self.gpu;
-        let b = self.buffers.as_mut().expect("sized");
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_mut().expect("sized");
         let mut bytes = write_words(gpu, &b.params, words);
-        bytes += b.upload.write(gpu, &b.input, &inp.color);
-        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
-            self.scratch.recycle(rgb);
-        }
+        bytes += b
+            .upload
+            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
         let b = &*b;
         if let Some(m) = inp.motion.as_deref() {
             for (k, plane) in m.iter().enumerate() {
@@ -482,15 +454,15 @@ impl GpuPhlm {
     /// the readback.
     fn dispatch(&mut self, w: usize, h: usize, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
         let n = w * h;
-        let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_ref().expect("sized");
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         b.upload.encode(gpu, &mut enc);
         {
             let (gx, gy) = groups(w, h, WORKGROUP);
             let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
             pass.set_pipeline(&self.pass);
-            pass.set_bind_group(0, &b.bound[self.read], &[]);
+            pass.set_bind_group(0, &b.bound[self.dev.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
@@ -508,12 +480,18 @@ impl GpuPhlm {
         gpu.queue.submit([enc.finish()]);
         clock.submitted();
         let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
-        b.back.read(gpu, words, &mut self.words)?;
+        b.back.read(gpu, words, &mut self.dev.words)?;
         clock.back();
         Ok(FrameBack {
-            color: planes_from(&self.words, w, h)?,
-            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            shaders_ms: b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]),
+            color: planes_from(&self.dev.words, w, h)?,
+            counters: self.dev.words[3 * n..timer_at]
+                .iter()
+                .map(|v| v.to_bits())
+                .collect(),
+            shaders_ms: b
+                .timer
+                .as_ref()
+                .map(|t| t.pass_ms(&self.dev.words[timer_at..], 1)[0]),
         })
     }
 

@@ -4,21 +4,20 @@
 //! its colour (and the motion and depth its plan needs), and reads back the colour and the
 //! pixel counts.
 
-use super::buffers::{download, params_buffer, write_words};
-use super::timing::{self, FrameClock, PassTimer};
+use super::buffers::{download, params_buffer, write_words, FrameBack, FrameReadback};
+use super::timing::{self, FrameClock};
 use super::upload::ColorUpload;
-use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
+use super::{
+    bind, groups, history_filter, history_output, input_consts, pipeline, Gpu, StorageBuffer, REPROJECT,
+};
+use super::{DeviceHistory, INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::TemporalState;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
-use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::Scratch;
+use crate::frame::{Frame, Plane};
 use crate::pipeline::{
-    check_needs, check_size, Backend, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder,
-    UploadPrecision,
+    check_needs, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
 };
 use crate::BackendError;
-use std::borrow::Cow;
 use std::sync::Arc;
 
 const SHARED: &str = include_str!("taa.wgsl");
@@ -132,11 +131,9 @@ struct Buffers {
     convert: [wgpu::BindGroup; 2],
     /// The resolved colour (working space when a sharpen follows), then the sharpened one.
     out: [StorageBuffer; 2],
-    /// Timestamps of the frame's passes (convert, resolve, sharpen), where the device has
-    /// them.
-    timer: Option<PassTimer>,
-    /// The colour (3 planes), the counters, then the timestamps.
-    back: Readback,
+    /// The colour, the counters and the timestamps of the frame's passes (convert,
+    /// resolve, sharpen).
+    back: FrameReadback,
 }
 
 impl Buffers {
@@ -179,8 +176,6 @@ impl Buffers {
         });
         let sharpen = bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]);
         let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
-        let timer = PassTimer::new(gpu, 3);
-        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
         Ok(Buffers {
             width,
             height,
@@ -194,8 +189,7 @@ impl Buffers {
             sharpen,
             convert,
             out,
-            back: Readback::new(gpu, "taa readback", 3 * n + COUNTERS + timer_words),
-            timer,
+            back: FrameReadback::new(gpu, "taa readback", n, COUNTERS, 3),
         })
     }
 }
@@ -203,22 +197,10 @@ impl Buffers {
 /// `taa` with its history on the device.
 #[derive(Debug)]
 pub struct GpuTaa {
-    gpu: Arc<Gpu>,
     params: Params,
-    /// The precision of the colour's upload.
-    upload: UploadPrecision,
+    /// The device, its buffers and the history's place in them.
+    dev: DeviceHistory<Buffers>,
     passes: Passes,
-    buffers: Option<Buffers>,
-    /// Which of `buffers.hist` holds the previous frame.
-    read: usize,
-    /// Whether it does (not on the first frame or after a reset).
-    valid: bool,
-    /// Whether its colour is tonemapped.
-    tonemapped: bool,
-    /// Readback staging, reused.
-    words: Vec<f32>,
-    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
-    scratch: Scratch,
 }
 
 impl GpuTaa {
@@ -226,16 +208,9 @@ impl GpuTaa {
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
         GpuTaa {
-            upload,
             passes: Passes::new(&gpu),
-            gpu,
+            dev: DeviceHistory::new(gpu, upload),
             params,
-            buffers: None,
-            read: 0,
-            valid: false,
-            tonemapped: false,
-            words: Vec::new(),
-            scratch: Scratch::default(),
         }
     }
 
@@ -244,24 +219,11 @@ impl GpuTaa {
     }
 
     /// The buffers for a `width` x `height` frame (new ones drop the history).
-    fn sized(&mut self, width: usize, height: usize) -> Result<&Buffers, BackendError> {
-        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            let depth = self.keeps_depth();
-            // Dropped first: the old buffers and the new never take the device's memory
-            // together.
-            self.buffers = None;
-            self.valid = false;
-            self.read = 0;
-            self.buffers = Some(Buffers::new(
-                &self.gpu,
-                &self.passes,
-                width,
-                height,
-                depth,
-                self.upload,
-            )?);
-        }
-        Ok(self.buffers.as_ref().expect("just made"))
+    fn sized(&mut self, width: usize, height: usize) -> Result<&mut Buffers, BackendError> {
+        let (depth, passes) = (self.keeps_depth(), &self.passes);
+        self.dev.sized((width, height), |gpu, upload| {
+            Buffers::new(gpu, passes, width, height, depth, upload)
+        })
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32, top: f32) -> [u32; 9] {
@@ -290,16 +252,17 @@ impl GpuTaa {
 
     /// Bytes of the device history.
     fn history_bytes(&self) -> usize {
-        self.buffers
+        self.dev
+            .buffers
             .as_ref()
             .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
     }
 
     /// The history planes as the CPU filter lays them out.
     fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.dev.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
-        let words = download(&self.gpu, "taa history readback", &[&b.hist[self.read]])?;
+        let words = download(&self.dev.gpu, "taa history readback", &[&b.hist[self.dev.read]])?;
         let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
         if self.keeps_depth() {
             planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
@@ -309,10 +272,10 @@ impl GpuTaa {
 
     /// Writes `planes` (the CPU filter's layout) into the history read next.
     fn upload_history(&self, planes: &[Plane<f32>]) {
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.dev.buffers.as_ref().expect("sized");
         let mut at = 0;
         for p in planes {
-            b.hist[self.read].write(&self.gpu, at, p.data());
+            b.hist[self.dev.read].write(&self.dev.gpu, at, p.data());
             at += p.data().len();
         }
     }
@@ -322,18 +285,15 @@ impl GpuTaa {
         let mut inp = self.prepared(frame, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        check_size(
-            self.buffers.as_ref().map(|b| (b.width, b.height)),
-            self.valid,
-            frame,
-        )?;
+        self.dev.check_size(frame)?;
         self.sized(w, h)?;
-        let has_history = self.valid && !frame.meta.reset;
+        let has_history = self.dev.valid && !frame.meta.reset;
         let plan = StagePlan::new(&self.params, &inp, has_history);
         let flags = self.flags(&plan, &inp, has_history);
 
         let mut clock = FrameClock::start();
         let top = self
+            .dev
             .buffers
             .as_ref()
             .expect("sized")
@@ -341,35 +301,28 @@ impl GpuTaa {
             .output_ceiling(&inp.facts);
         let words = self.param_words(w, h, flags, top);
         // The history goes to the working space of this frame's colour first.
-        let convert = (has_history && self.tonemapped != hdr)
+        let convert = (has_history && self.dev.tonemapped != hdr)
             .then(|| self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top));
         let bytes = self.upload_frame(frame, &mut inp, &plan, flags, &words, convert.as_ref());
         let back = self.dispatch(w, h, convert.is_some(), plan.sharpen.is_none(), &mut clock)?;
-        let device = clock.times(back.pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
+        let device = clock.times(
+            back.pass_ms.as_ref().map(|v| v.iter().sum()),
+            self.dev.upload,
+            bytes,
+        );
         record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
 
-        self.read = 1 - self.read;
-        self.valid = true;
-        self.tonemapped = hdr;
+        self.dev.read = 1 - self.dev.read;
+        self.dev.valid = true;
+        self.dev.tonemapped = hdr;
         let c = &back.counters;
         let pixels = PixelCounts {
             history_reset: c[C_RESET] as u64,
             history_clipped: c[C_CLIPPED] as u64,
             history_rejected: c[C_REJECTED] as u64,
         };
-        let mut record = rec.finish(
-            Taa::NAME,
-            frame.meta.index,
-            pixels,
-            inp.counts,
-            self.state_bytes(),
-        );
-        record.backend = Backend::Gpu;
-        record.device = Some(device);
-        Ok(Output {
-            color: back.color,
-            record,
-        })
+        let counts = (pixels, inp.counts, self.state_bytes());
+        Ok(history_output(Taa::NAME, frame, rec, counts, back.color, device))
     }
 
     /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
@@ -377,7 +330,7 @@ impl GpuTaa {
     fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
         check_needs(Taa::NAME, Taa::needs(), frame)?;
         let recon = self.params.reconstruction();
-        Ok(recon.prepare(frame, Taa::uses(), rec, &mut self.scratch)?)
+        Ok(recon.prepare(frame, Taa::uses(), rec, &mut self.dev.scratch)?)
     }
 
     /// The shader's flags for a frame with inputs `inp` under `plan`.
@@ -416,12 +369,11 @@ impl GpuTaa {
         convert: Option<&[u32; 9]>,
     ) -> u64 {
         let n = inp.width * inp.height;
-        let gpu = &self.gpu;
-        let b = self.buffers.as_mut().expect("sized");
-        let mut bytes = b.upload.write(gpu, &b.input, &inp.color);
-        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
-            self.scratch.recycle(rgb);
-        }
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_mut().expect("sized");
+        let mut bytes = b
+            .upload
+            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
         let b = &*b;
         if plan.reproject.is_none() {
             let m = inp.motion.as_deref().expect("reprojection needs motion");
@@ -456,37 +408,14 @@ impl GpuTaa {
         sharpen: bool,
         clock: &mut FrameClock,
     ) -> Result<FrameBack, BackendError> {
-        let n = w * h;
-        let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        enc.clear_buffer(&b.counters, 0, None);
-        b.upload.encode(gpu, &mut enc);
-        let timer = b.timer.as_ref();
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_ref().expect("sized");
+        let mut enc = b.upload.frame_encoder(gpu, &b.counters);
         let passes = self.encode_passes(&mut enc, b, w, h, convert, sharpen);
-        let result = sharpen as usize;
-        b.back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
-        enc.copy_buffer_to_buffer(
-            &b.counters,
-            0,
-            b.back.buffer(),
-            (3 * n * 4) as u64,
-            (COUNTERS * 4) as u64,
-        );
-        let timer_at = 3 * n + COUNTERS;
-        if let Some(t) = timer {
-            t.resolve(&mut enc, passes, &b.back, timer_at);
-        }
-        gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        let words = timer_at + timer.map_or(0, PassTimer::words);
-        b.back.read(gpu, words, &mut self.words)?;
-        clock.back();
-        Ok(FrameBack {
-            color: super::buffers::planes_from(&self.words, w, h)?,
-            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            pass_ms: timer.map(|t| t.pass_ms(&self.words[timer_at..], passes)),
-        })
+        let out = &b.out[sharpen as usize].buffer;
+        let words = &mut self.dev.words;
+        b.back
+            .frame(gpu, (enc, passes), (out, &b.counters), (w, h), clock, words)
     }
 
     /// Encodes the compute passes (each timed where the device has timestamps): the
@@ -501,7 +430,7 @@ impl GpuTaa {
         convert: bool,
         sharpen: bool,
     ) -> u32 {
-        let timer = b.timer.as_ref();
+        let timer = b.back.timer.as_ref();
         let mut passes = 0;
         if convert {
             let groups = (w * h).div_ceil(CONVERT_GROUP);
@@ -509,7 +438,7 @@ impl GpuTaa {
             let mut pass = timing::begin(enc, timer, passes);
             passes += 1;
             pass.set_pipeline(&self.passes.convert);
-            pass.set_bind_group(0, &b.convert[self.read], &[]);
+            pass.set_bind_group(0, &b.convert[self.dev.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         let (gx, gy) = groups(w, h, WORKGROUP);
@@ -517,7 +446,7 @@ impl GpuTaa {
             let mut pass = timing::begin(enc, timer, passes);
             passes += 1;
             pass.set_pipeline(&self.passes.resolve);
-            pass.set_bind_group(0, &b.resolve[self.read], &[]);
+            pass.set_bind_group(0, &b.resolve[self.dev.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         if sharpen {
@@ -529,15 +458,6 @@ impl GpuTaa {
         }
         passes
     }
-}
-
-/// What the device gives back for a frame.
-struct FrameBack {
-    color: Rgb,
-    /// The counters (at the `C_` indices).
-    counters: Vec<u32>,
-    /// Each pass's time from its timestamps, where the device has them.
-    pass_ms: Option<Vec<f64>>,
 }
 
 /// Records the same stages as the CPU filter's record, run or left out for the same

@@ -20,12 +20,13 @@
 use super::buffers::params_buffer;
 use super::{bind, pipeline, Gpu, StorageBuffer};
 use crate::filters::passes::output_ceiling;
-use crate::frame::Rgb;
-use crate::pipeline::{FrameFacts, UploadPrecision};
+use crate::frame::{Frame, Rgb};
+use crate::pipeline::{FrameFacts, Inputs, Scratch, UploadPrecision};
 use crate::BackendError;
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// f16's largest finite value: colour is clamped to +-this before conversion.
 pub(crate) const F16_MAX: f32 = 65504.0;
@@ -141,6 +142,31 @@ impl ColorUpload {
                 bytes.len() as u64
             }
         }
+    }
+
+    /// [`Self::write`] of a frame's colour `inp.color`, after which planes of the host's own
+    /// (a reconstruction) go back to `scratch`.
+    pub(crate) fn write_frame<'f>(
+        &mut self,
+        gpu: &Gpu,
+        dst: &StorageBuffer,
+        frame: &'f Frame,
+        inp: &mut Inputs<'f>,
+        scratch: &mut Scratch,
+    ) -> u64 {
+        let bytes = self.write(gpu, dst, &inp.color);
+        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
+            scratch.recycle(rgb);
+        }
+        bytes
+    }
+
+    /// A frame's command encoder: its `counters` cleared, then the colour's unpacking.
+    pub(crate) fn frame_encoder(&self, gpu: &Gpu, counters: &wgpu::Buffer) -> wgpu::CommandEncoder {
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(counters, 0, None);
+        self.encode(gpu, &mut enc);
+        enc
     }
 
     /// Encodes the pass widening the halves into `dst`'s colour planes (nothing with f32).

@@ -30,7 +30,7 @@ use crate::frame::{ChannelKind, Plane, Rgb, Sampling};
 use crate::kernels::lanes::{self, each, Lanes, Mask, LANES};
 use crate::kernels::{fmax, fmin, LUMA_REC709};
 use crate::pipeline::exec::{par_bands_strided, pool, sized, StageClock};
-use crate::pipeline::{FilterError, Inputs, PixelCounts, Skip};
+use crate::pipeline::{FilterError, Inputs, PixelCounts, Recorder, Skip};
 use std::ops::Range;
 use wide::{f32x8, i32x8};
 
@@ -644,37 +644,18 @@ pub(super) fn frame(
     let (w, h) = (inp.width, inp.height);
     let stateful = method != Method::Spatial;
     let has_history = stateful && has_history;
-    let variant = Skip::Variant {
-        variant: method.name(),
-    };
     let (cw, ch) = inp.color[0].size();
     let sparse = Sparse::new(inp.color_slices(), cw, ch, sampling, inp.invalid.as_deref());
-    let range = rec.stage(
-        "geometry",
-        (method == Method::Taa)
-            .then_some(variant.clone())
-            .or_else(|| inp.require(ChannelKind::Depth)),
-        || {
-            let ids = inp.object_id.map(Plane::data);
-            depth_range(
-                inp.depth.as_deref().map(Plane::data).expect("required"),
-                ids,
-                near_far,
-            )
-        },
-    );
+    let range = geometry(method, &inp, near_far, rec);
     let fr = setup(p, &inp, &sparse, sampling, range);
 
     let mut pixels = PixelCounts::default();
     let mut out: Rgb = scratch.planes(w, h);
     let hist = has_history.then(|| read[0].data());
-    let reproject_skip = (!stateful)
-        .then_some(variant.clone())
-        .or_else(|| (!has_history).then_some(Skip::NoHistory));
+    let [reproject_skip, gradient_skip] = skips(method, has_history);
     if stateful && !has_history {
         pixels.history_reset += (w * h) as u64;
     }
-    let gradient_skip = (method != Method::Spatiotemporal).then_some(variant);
     let clock = StageClock::<3>::default();
     let mut timed = 0.0;
     // `spatiotemporal`: the reprojection as a pass of its own (the box of gradients reads
@@ -717,6 +698,43 @@ pub(super) fn frame(
         pixels,
         model: None,
     })
+}
+
+/// Stage `geometry` of a frame with inputs `inp` (left out for `taa`, whose splat weighs
+/// no geometry, and without depth): the depth range of [`super::spatial::depth_range`].
+pub fn geometry(method: Method, inp: &Inputs, near_far: Option<[f32; 2]>, rec: &mut Recorder) -> Option<f32> {
+    let variant = Skip::Variant {
+        variant: method.name(),
+    };
+    rec.stage(
+        "geometry",
+        (method == Method::Taa)
+            .then_some(variant)
+            .or_else(|| inp.require(ChannelKind::Depth)),
+        || {
+            let ids = inp.object_id.map(Plane::data);
+            depth_range(
+                inp.depth.as_deref().map(Plane::data).expect("required"),
+                ids,
+                near_far,
+            )
+        },
+    )
+}
+
+/// Why stages `reproject` and `gradient` are left out of a frame of `method` (`None`:
+/// they run): `spatial` keeps no history, only `spatiotemporal` has gradients, and
+/// without history (`has_history`) there is nothing to reproject.
+pub fn skips(method: Method, has_history: bool) -> [Option<Skip>; 2] {
+    let variant = Skip::Variant {
+        variant: method.name(),
+    };
+    [
+        (method == Method::Spatial)
+            .then_some(variant.clone())
+            .or_else(|| (!has_history).then_some(Skip::NoHistory)),
+        (method != Method::Spatiotemporal).then_some(variant),
+    ]
 }
 
 /// What the passes read for a frame with inputs `inp`, its sparse colour `sparse` and the

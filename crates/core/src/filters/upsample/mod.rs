@@ -78,6 +78,7 @@ mod temporal;
 use crate::filters::passes::history_filter;
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
+pub use kernel::{geometry, skips};
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
 pub use temporal::{
     confidence, filter_gradients, relative_gradient, reproject, seen_before, signed_gradient, surface_nearby,
@@ -105,7 +106,8 @@ pub enum Method {
 }
 
 impl Method {
-    fn name(self) -> &'static str {
+    /// The method's parameter value.
+    pub fn name(self) -> &'static str {
         match self {
             Method::Spatiotemporal => "spatiotemporal",
             Method::Spatial => "spatial",
@@ -115,7 +117,7 @@ impl Method {
     }
 
     /// History planes the method keeps.
-    fn planes(self) -> usize {
+    pub fn planes(self) -> usize {
         match self {
             Method::Spatiotemporal => 13,
             Method::Temporal => 5,
@@ -128,19 +130,24 @@ impl Method {
 /// History planes of the reference (the filter keeps them as the channels of one plane of
 /// interleaved texels, in this order): colour, weight (spatiotemporal) or sample count
 /// (taa), then the previous frame's depth and ids for the validity test, then three past
-/// gradients.
-const R: usize = 0;
-const W: usize = 3;
-/// Depth and ids of `temporal` (which has no weight plane).
-const T_DEPTH: usize = 3;
-const T_ID: usize = 4;
-const DEPTH: usize = 4;
-const ID: usize = 5;
-const G1: usize = 6;
+/// gradients. Public for the GPU backend, whose shaders read the same texels.
+pub const R: usize = 0;
+/// The accumulated weight (`spatiotemporal`) or sample count (`taa`).
+pub const W: usize = 3;
+/// Depth of `temporal` (which has no weight plane).
+pub const T_DEPTH: usize = 3;
+/// Object id of `temporal`.
+pub const T_ID: usize = 4;
+/// Depth of `spatiotemporal`.
+pub const DEPTH: usize = 4;
+/// Object id of `spatiotemporal`.
+pub const ID: usize = 5;
+/// The newest of the three past gradients of `spatiotemporal`.
+pub const G1: usize = 6;
 /// Luma of the pixel's last shaded sample times `K`, and `K`: 1 where that sample is known
 /// (both carried along the motion; their ratio survives bilinear fetches across unknowns);
 /// then the same two for the shaded sample before it (`gradient_lag` 2).
-const LK: usize = 9;
+pub const LK: usize = 9;
 
 filter_params! {
     /// Parameters of `upsample`.
@@ -267,10 +274,10 @@ pub const NEIGHBOUR_MOTION: f32 = 0.1;
 /// Fit of the Blackman-Harris reconstruction kernel, `exp(-2.29 d^2)` with `d` in output
 /// pixels (Karis 2014, "High quality temporal supersampling", used by Unreal's temporal
 /// upscale that Yang, Liu and Salvi 2020 cite for scaling-aware accumulation).
-const TAA_KERNEL: f32 = 2.29;
+pub const TAA_KERNEL: f32 = 2.29;
 /// Sample counts of the `taa` method are held here (as in `taa`): past 1/alpha the blend is
 /// alpha anyway.
-const TAA_MAX_COUNT: f32 = 255.0;
+pub const TAA_MAX_COUNT: f32 = 255.0;
 
 /// The upsampling filter with its history.
 #[derive(Debug)]
@@ -345,21 +352,27 @@ impl FilterKind for Upsample {
         2 * 4 * p.method.planes()
     }
     fn new(params: Params) -> Self {
-        // One plane of texels holding the reference's planes side by side (one load per
-        // tap of the history fetch); none for `spatial`.
-        let n = params.method.planes();
-        let layout: &[usize] = if n > 0 { &[n] } else { &[] };
         Upsample {
-            hist: TemporalState::with_components(layout, Conversion::Custom(keep_history))
-                .checked_by(check_history),
+            hist: Upsample::history(&params),
             params,
         }
     }
 }
 
+impl Upsample {
+    /// The filter's empty state: one plane of texels holding the reference's planes side by
+    /// side (one load per tap of the history fetch); none for `spatial`. The GPU backend
+    /// saves and loads its device state through the same layout.
+    pub fn history(p: &Params) -> TemporalState {
+        let n = p.method.planes();
+        let layout: &[usize] = if n > 0 { &[n] } else { &[] };
+        TemporalState::with_components(layout, Conversion::Custom(keep_history)).checked_by(check_history)
+    }
+}
+
 /// The decay in effect for a pattern: `decay`, or when 0 `1 - 1 / (2 x period)`, for sparse
 /// shading at least `min_decay` (fully shaded frames keep 0.5: not measured with the floor).
-fn decay_for(p: &Params, sampling: Sampling) -> f32 {
+pub fn decay_for(p: &Params, sampling: Sampling) -> f32 {
     if p.decay > 0.0 {
         p.decay
     } else {

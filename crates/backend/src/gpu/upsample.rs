@@ -1,0 +1,512 @@
+//! `upsample` on the GPU: the CPU filter's parameters, stages and state format, with its
+//! per-pixel stages in WGSL (`upsample*.wgsl`: reprojection, raw gradient, blend), every
+//! method (`spatiotemporal`, `spatial`, `temporal`, `taa`) and shading factor. The history
+//! (the CPU's interleaved texels) stays on the device, double-buffered; a frame uploads its
+//! colour at the colour's own size and the G-buffer at full resolution, and reads back the
+//! colour and the pixel counts. The host runs what the CPU filter runs on whole planes
+//! before and after: `repair` and `reconstruct` (full shading) before the upload, the depth
+//! range (`geometry`), and `reconstruct` on the output after the readback (sparse
+//! shading), so both backends filter the same numbers.
+
+use super::buffers::{download, params_buffer, write_words, FrameBack, FrameReadback};
+use super::timing::{self, FrameClock};
+use super::upload::ColorUpload;
+use super::{bind_at, groups, history_filter, history_output, input_consts, pipeline, Gpu, StorageBuffer};
+use super::{DeviceHistory, IN_DEPTH, IN_INVALID, IN_MX};
+use crate::filters::passes::TemporalState;
+use crate::filters::upsample::{
+    decay_for, falloff, geometry, skips, Method, Params, Sparse, Upsample, DEPTH, G1, GRADIENT_WEIGHTS, ID,
+    LK, LUMA_FLOOR, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W, WEIGHT_EPSILON,
+};
+use crate::frame::{Frame, Plane, Sampling};
+use crate::kernels::LUMA_REC709;
+use crate::pipeline::{
+    check_channels, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
+};
+use crate::BackendError;
+use std::sync::Arc;
+
+const REPROJECT: &str = include_str!("upsample_reproject.wgsl");
+const GRADIENT: &str = include_str!("upsample_gradient.wgsl");
+const BLEND: &str = include_str!("upsample_blend.wgsl");
+const WORKGROUP: usize = 8;
+
+/// Input planes past the shared ones ([`super::INPUT_PLANES`]): normal x, y, z and the
+/// object id (as the f32 the CPU compares, `id as f32`), in units of width x height.
+const IN_NX: usize = super::INPUT_PLANES;
+const IN_ID: usize = IN_NX + 3;
+const INPUT_PLANES: usize = IN_ID + 1;
+
+// Bits of `Params.flags`, declared in upsample.wgsl from these ([`consts`]).
+const FLAG_HISTORY: u32 = 1;
+const FLAG_GEO_DEPTH: u32 = 2;
+const FLAG_DEPTH: u32 = 4;
+const FLAG_NORMAL: u32 = 8;
+const FLAG_IDS: u32 = 16;
+const FLAG_MOTION: u32 = 32;
+const FLAG_INVALID: u32 = 64;
+const FLAG_SKY: u32 = 128;
+const FLAG_VALIDITY: u32 = 256;
+const FLAG_SUB_GRADIENT: u32 = 512;
+
+// The methods as `Params.method`.
+const M_SPATIOTEMPORAL: u32 = 0;
+const M_SPATIAL: u32 = 1;
+const M_TEMPORAL: u32 = 2;
+const M_TAA: u32 = 3;
+
+/// Words of the counters: holes filled (`temporal`), clipped (`taa`), pixels that lost
+/// their history in the reprojection (the `C_` indices); padded.
+const COUNTERS: usize = 4;
+const C_RESET: usize = 0;
+const C_CLIPPED: usize = 1;
+const C_LOST: usize = 2;
+
+/// Footprint offsets of the largest factor, `(2 x 4 + 1)^2`: the image-space table.
+const OFFSETS: usize = 81;
+/// Words of `Params` before the table.
+const HEADER: usize = 24;
+/// Floats of the largest history texel.
+const MAX_TEXEL: usize = 13;
+const _: () = assert!(MAX_TEXEL >= LK + 4);
+
+/// What upsample's shaders take from Rust: the input planes, the flag bits, methods,
+/// history channels and counters above, the workgroup size, and the CPU filter's
+/// constants.
+fn consts() -> String {
+    let [luma_r, luma_g, luma_b] = LUMA_REC709;
+    let [gw0, gw1, gw2, gw3] = GRADIENT_WEIGHTS;
+    let flags = super::wgsl_consts![FLAG_HISTORY, FLAG_GEO_DEPTH, FLAG_DEPTH, FLAG_NORMAL]
+        + &super::wgsl_consts![FLAG_IDS, FLAG_MOTION, FLAG_INVALID, FLAG_SKY]
+        + &super::wgsl_consts![FLAG_VALIDITY, FLAG_SUB_GRADIENT];
+    let methods = super::wgsl_consts![M_SPATIOTEMPORAL, M_SPATIAL, M_TEMPORAL, M_TAA];
+    let channels = super::wgsl_consts![R, W, T_DEPTH, T_ID, DEPTH, ID, G1, LK, MAX_TEXEL];
+    let counters = super::wgsl_consts![COUNTERS, C_RESET, C_CLIPPED, C_LOST, WORKGROUP, OFFSETS];
+    let cpu = super::wgsl_consts![WEIGHT_EPSILON, LUMA_FLOOR, TAA_MAX_COUNT]
+        + &super::wgsl_consts![LUMA_R = luma_r, LUMA_G = luma_g, LUMA_B = luma_b]
+        + &super::wgsl_consts![GW0 = gw0, GW1 = gw1, GW2 = gw2, GW3 = gw3];
+    let inputs = input_consts() + &super::wgsl_consts![IN_NX, IN_ID];
+    [inputs, flags, methods, channels, counters, cpu].concat()
+}
+
+/// The compiled passes.
+#[derive(Debug)]
+struct Passes {
+    reproject: wgpu::ComputePipeline,
+    gradient: wgpu::ComputePipeline,
+    blend: wgpu::ComputePipeline,
+}
+
+impl Passes {
+    fn new(gpu: &Gpu) -> Self {
+        let consts = consts();
+        let make = |label: &str, body: &str, entry: &str| {
+            let source = format!("{}\n{body}", include_str!("upsample.wgsl"));
+            pipeline(gpu, label, &consts, &source, entry)
+        };
+        Passes {
+            reproject: make("upsample reproject", REPROJECT, "reproject_pass"),
+            gradient: make("upsample gradient", GRADIENT, "gradient_pass"),
+            blend: make("upsample blend", BLEND, "blend_pass"),
+        }
+    }
+}
+
+/// Device buffers for one frame size, and the bind groups that use them (made once: the
+/// history alternates between two).
+#[derive(Debug)]
+struct Buffers {
+    params: wgpu::Buffer,
+    input: StorageBuffer,
+    /// The colour's way into `input`, for colour planes of `color_len` samples.
+    upload: ColorUpload,
+    color_len: usize,
+    /// The history: `hist[read]` is the previous frame's, the other is written.
+    hist: [StorageBuffer; 2],
+    counters: wgpu::Buffer,
+    /// `reproject[k]` reads `hist[k]`; `blend[k]` writes `hist[1 - k]`.
+    reproject: [wgpu::BindGroup; 2],
+    gradient: wgpu::BindGroup,
+    blend: [wgpu::BindGroup; 2],
+    out: StorageBuffer,
+    /// Held for the bind groups: the reprojected texels (with their tap weights) and the
+    /// raw gradients, which the passes hand on within a frame.
+    _between: [StorageBuffer; 2],
+    /// The colour, the counters and the timestamps of the frame's passes (reproject,
+    /// gradient, blend).
+    back: FrameReadback,
+}
+
+impl Buffers {
+    fn new(
+        gpu: &Gpu,
+        passes: &Passes,
+        (width, height): (usize, usize),
+        texel: usize,
+        upload: UploadPrecision,
+    ) -> Result<Self, BackendError> {
+        let n = width * height;
+        // `spatial` keeps no history: one-float stand-ins for the bindings.
+        let hist_len = (texel * n).max(1);
+        let params = params_buffer(gpu, "upsample params", &[0; HEADER + OFFSETS]);
+        let input = StorageBuffer::new(gpu, "upsample input", INPUT_PLANES * n)?;
+        let hist = [
+            StorageBuffer::new(gpu, "upsample history", hist_len)?,
+            StorageBuffer::new(gpu, "upsample history", hist_len)?,
+        ];
+        let rp = StorageBuffer::new(gpu, "upsample reprojected", ((texel + 2) * n).max(1))?;
+        let now = StorageBuffer::new(gpu, "upsample gradients", n)?;
+        let out = StorageBuffer::new(gpu, "upsample colour", 3 * n)?;
+        let counters = StorageBuffer::new(gpu, "upsample counters", COUNTERS)?.buffer;
+        let (p, i, r) = (&params, &input.buffer, &rp.buffer);
+        let reproject = [0, 1].map(|k| {
+            bind_at(
+                gpu,
+                &passes.reproject,
+                &[(0, p), (1, i), (2, &hist[k].buffer), (3, r), (7, &counters)],
+            )
+        });
+        let gradient = bind_at(gpu, &passes.gradient, &[(0, p), (1, i), (3, r), (4, &now.buffer)]);
+        let blend = [0, 1].map(|k| {
+            bind_at(
+                gpu,
+                &passes.blend,
+                &[
+                    (0, p),
+                    (1, i),
+                    (3, r),
+                    (4, &now.buffer),
+                    (5, &hist[1 - k].buffer),
+                    (6, &out.buffer),
+                    (7, &counters),
+                ],
+            )
+        });
+        Ok(Buffers {
+            params,
+            upload: ColorUpload::new(gpu, upload, &input, n)?,
+            color_len: n,
+            input,
+            hist,
+            counters,
+            reproject,
+            gradient,
+            blend,
+            out,
+            _between: [rp, now],
+            back: FrameReadback::new(gpu, "upsample readback", n, COUNTERS, 3),
+        })
+    }
+}
+
+/// `upsample` with its history on the device.
+#[derive(Debug)]
+pub struct GpuUpsample {
+    params: Params,
+    /// The device, its buffers and the history's place in them.
+    dev: DeviceHistory<Buffers>,
+    passes: Passes,
+}
+
+impl GpuUpsample {
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
+        GpuUpsample {
+            passes: Passes::new(&gpu),
+            dev: DeviceHistory::new(gpu, upload),
+            params,
+        }
+    }
+
+    /// Floats of a history texel.
+    fn texel(&self) -> usize {
+        self.params.method.planes()
+    }
+
+    /// The buffers for a `width` x `height` frame (new ones drop the history).
+    fn sized(&mut self, width: usize, height: usize) -> Result<&mut Buffers, BackendError> {
+        let (passes, texel) = (&self.passes, self.texel());
+        self.dev.sized((width, height), |gpu, upload| {
+            Buffers::new(gpu, passes, (width, height), texel, upload)
+        })
+    }
+
+    /// The CPU filter's empty state, the layout the device history is saved and loaded in.
+    fn empty_history(&self) -> TemporalState {
+        Upsample::history(&self.params)
+    }
+
+    /// Bytes of the device history.
+    fn history_bytes(&self) -> usize {
+        match (&self.dev.buffers, self.texel()) {
+            (Some(b), t) if t > 0 => b.hist.iter().map(StorageBuffer::bytes).sum(),
+            _ => 0,
+        }
+    }
+
+    /// The history planes as the CPU filter lays them out: one plane of texels.
+    fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
+        let b = self.dev.buffers.as_ref().expect("sized");
+        let t = self.texel();
+        if t == 0 {
+            return Ok(Vec::new());
+        }
+        let words = download(
+            &self.dev.gpu,
+            "upsample history readback",
+            &[&b.hist[self.dev.read]],
+        )?;
+        let (w, h) = self.dev.size;
+        let plane = Plane::from_vec(t * w, h, words).map_err(|e| BackendError::Device(e.to_string()))?;
+        Ok(vec![plane])
+    }
+
+    /// Writes `planes` (the CPU filter's layout) into the history read next.
+    fn upload_history(&self, planes: &[Plane<f32>]) {
+        let b = self.dev.buffers.as_ref().expect("sized");
+        if let Some(p) = planes.first() {
+            b.hist[self.dev.read].write(&self.dev.gpu, 0, p.data());
+        }
+    }
+
+    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let recon = self.params.reconstruction();
+        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.dev.scratch)?;
+        let (w, h) = (inp.width, inp.height);
+        self.dev.check_size(frame)?;
+        self.sized(w, h)?;
+        let method = self.params.method;
+        let stateful = method != Method::Spatial;
+        let has_history = stateful && self.dev.valid && !frame.meta.reset;
+        let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
+        let sampling = frame.sampling();
+        let words = self.param_words(&inp, sampling, range, has_history);
+
+        let mut clock = FrameClock::start();
+        let bytes = self.upload_frame(frame, &mut inp, &words)?;
+        let gradient = method == Method::Spatiotemporal;
+        let back = self.dispatch(w, h, has_history, gradient, &mut clock)?;
+        let device = clock.times(back.pass_ms.map(|v| v.iter().sum()), self.dev.upload, bytes);
+        let [reproject_skip, gradient_skip] = skips(method, has_history);
+        let stages = vec![
+            ("reproject", reproject_skip),
+            ("gradient", gradient_skip),
+            ("blend", None),
+        ];
+        timing::share(
+            &mut rec,
+            stages,
+            device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
+        );
+        let mut color = back.color;
+        recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut self.dev.scratch);
+
+        if stateful {
+            self.dev.read = 1 - self.dev.read;
+            self.dev.valid = true;
+        }
+        self.dev.tonemapped = inp.facts.hdr;
+        let c = &back.counters;
+        let lost = c[C_LOST] as u64;
+        let mut pixels = PixelCounts {
+            history_reset: c[C_RESET] as u64,
+            history_clipped: c[C_CLIPPED] as u64,
+            history_rejected: 0,
+        };
+        match method {
+            Method::Taa => pixels.history_reset += lost,
+            _ => pixels.history_rejected += lost,
+        }
+        if stateful && !has_history {
+            pixels.history_reset += (w * h) as u64;
+        }
+        let counts = (pixels, inp.counts, self.state_bytes());
+        Ok(history_output(Upsample::NAME, frame, rec, counts, color, device))
+    }
+
+    /// The shader's parameters for a frame with inputs `inp` shaded with `sampling`,
+    /// its depth range `range` (`None`: stage `geometry` was left out).
+    fn param_words(
+        &self,
+        inp: &Inputs,
+        sampling: Sampling,
+        range: Option<f32>,
+        has_history: bool,
+    ) -> Vec<u32> {
+        let p = &self.params;
+        let method = p.method;
+        let st = method == Method::Spatiotemporal;
+        let flags = [
+            (has_history, FLAG_HISTORY),
+            (range.is_some() && inp.depth.is_some(), FLAG_GEO_DEPTH),
+            (inp.depth.is_some(), FLAG_DEPTH),
+            (inp.normal.is_some() && method != Method::Taa, FLAG_NORMAL),
+            (inp.object_id.is_some(), FLAG_IDS),
+            (inp.motion.is_some(), FLAG_MOTION),
+            (inp.invalid.is_some(), FLAG_INVALID),
+            (p.sky_depth_only, FLAG_SKY),
+            (
+                matches!(method, Method::Spatiotemporal | Method::Temporal),
+                FLAG_VALIDITY,
+            ),
+            (p.subpixel_keep > 0.0, FLAG_SUB_GRADIENT),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |flags, (_, bit)| flags | bit);
+        let (cw, ch) = inp.color[0].size();
+        let m = match method {
+            Method::Spatiotemporal => M_SPATIOTEMPORAL,
+            Method::Spatial => M_SPATIAL,
+            Method::Temporal => M_TEMPORAL,
+            Method::Taa => M_TAA,
+        };
+        let only_st = |v: f32| if st { v } else { 0.0 };
+        let mut words = vec![
+            inp.width as u32,
+            inp.height as u32,
+            flags,
+            m,
+            sampling.factor,
+            sampling.phase[0],
+            sampling.phase[1],
+            cw as u32,
+            ch as u32,
+            self.texel() as u32,
+            p.gradient_lag,
+            0,
+        ];
+        words.extend(
+            [
+                p.kernel_sharp,
+                p.kernel_wide,
+                1.0 / (p.depth_sigma * range.unwrap_or(1.0)),
+                p.normal_sigma,
+                p.depth_tolerance,
+                only_st(p.neighbour_motion),
+                only_st(p.subpixel_keep),
+                p.gradient_scale,
+                p.gradient_cancel,
+                decay_for(p, sampling),
+                p.taa_alpha,
+                0.0,
+            ]
+            .map(f32::to_bits),
+        );
+        debug_assert_eq!(words.len(), HEADER);
+        words.extend(image_table(p, sampling).map(f32::to_bits));
+        words
+    }
+
+    /// Uploads the colour (as f32 or f16, at its own size; planes of the host's own go
+    /// back to the scratch), then the G-buffer and the invalid mask as f32, then the
+    /// shader's parameter `words`. Returns the bytes written.
+    fn upload_frame<'f>(
+        &mut self,
+        frame: &'f Frame,
+        inp: &mut Inputs<'f>,
+        words: &[u32],
+    ) -> Result<u64, BackendError> {
+        let n = inp.width * inp.height;
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_mut().expect("sized");
+        let color_len = inp.color[0].data().len();
+        if b.color_len != color_len {
+            b.upload = ColorUpload::new(gpu, self.dev.upload, &b.input, color_len)?;
+            b.color_len = color_len;
+        }
+        let mut bytes = b
+            .upload
+            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
+        let b = &*b;
+        let mut put = |at: usize, data: &[f32]| bytes += b.input.write(gpu, at * n, data);
+        if let Some(m) = inp.motion.as_deref() {
+            put(IN_MX, m[0].data());
+            put(IN_MX + 1, m[1].data());
+        }
+        if let Some(d) = inp.depth.as_deref() {
+            put(IN_DEPTH, d.data());
+        }
+        if let Some(nrm) = inp.normal.as_deref() {
+            for (k, plane) in nrm.iter().enumerate() {
+                put(IN_NX + k, plane.data());
+            }
+        }
+        if let Some(ids) = inp.object_id {
+            // As the CPU compares them.
+            let ids: Vec<f32> = ids.data().iter().map(|&v| v as f32).collect();
+            put(IN_ID, &ids);
+        }
+        if let Some(invalid) = &inp.invalid {
+            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+            put(IN_INVALID, &mask);
+        }
+        bytes += write_words(gpu, &b.params, words);
+        Ok(bytes)
+    }
+
+    /// Runs the frame's passes (the colour's unpacking; the reprojection when `reproject`;
+    /// the raw gradient when `gradient`; the blend) and reads back the colour, the counters
+    /// and the timestamps, marking `clock` at the submission and the readback.
+    fn dispatch(
+        &mut self,
+        w: usize,
+        h: usize,
+        reproject: bool,
+        gradient: bool,
+        clock: &mut FrameClock,
+    ) -> Result<FrameBack, BackendError> {
+        let gpu = &self.dev.gpu;
+        let b = self.dev.buffers.as_ref().expect("sized");
+        let mut enc = b.upload.frame_encoder(gpu, &b.counters);
+        let timer = b.back.timer.as_ref();
+        let (gx, gy) = groups(w, h, WORKGROUP);
+        let mut passes = 0;
+        let chosen = [
+            (reproject, &self.passes.reproject, &b.reproject[self.dev.read]),
+            (gradient, &self.passes.gradient, &b.gradient),
+            (true, &self.passes.blend, &b.blend[self.dev.read]),
+        ];
+        for (run, pipeline, group) in chosen {
+            if run {
+                let mut pass = timing::begin(&mut enc, timer, passes);
+                passes += 1;
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+        }
+        let words = &mut self.dev.words;
+        b.back.frame(
+            gpu,
+            (enc, passes),
+            (&b.out.buffer, &b.counters),
+            (w, h),
+            clock,
+            words,
+        )
+    }
+}
+
+history_filter!(GpuUpsample, Upsample);
+
+/// The image-space term per footprint offset (`Params.table`), as the CPU computes it:
+/// the distance in block diagonals for `spatiotemporal` (its kernel width varies per
+/// pixel), `taa`'s Gaussian of the squared distance, else the falloff at `kernel_wide`.
+fn image_table(p: &Params, sampling: Sampling) -> [f32; OFFSETS] {
+    let sparse = Sparse::new([&[]; 3], 0, 0, sampling, None);
+    let side = 2 * sampling.factor as usize + 1;
+    std::array::from_fn(|o| {
+        if o >= side * side {
+            return 0.0;
+        }
+        match p.method {
+            Method::Spatiotemporal => sparse.dist(o),
+            Method::Taa => (-TAA_KERNEL * sparse.dist2(o)).exp(),
+            _ => falloff(sparse.dist(o), p.kernel_wide),
+        }
+    })
+}
