@@ -44,27 +44,26 @@ pub enum HistoryFilter {
 filter_params! {
     /// Parameters of `taa`.
     pub struct Params {
-        alpha: f32 = DEFAULT_ALPHA,
-            ParamKind::Float { min: 0.01, max: 1.0 },
-            "weight of the current frame (default 0.2, chosen on the Blender corpus; Karis 2014 and Bevy: 0.1, Unreal: 0.04). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer";
-        gamma: f32 = DEFAULT_GAMMA,
-            ParamKind::Float { min: 0.25, max: 4.0 },
-            "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting";
-        history_filter: HistoryFilter = HistoryFilter::CatmullRom,
-            ParamKind::Choice { options: &["catmull_rom", "bilinear"], },
-            "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it";
-        dilation: bool = true,
-            ParamKind::Bool,
-            "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history";
-        luminance_weighting: bool = true,
-            ParamKind::Bool,
-            "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias";
-        depth_rejection: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 10.0 },
-            "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry";
-        sharpen: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 4.0 },
-            "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
+        /// weight of the current frame (default 0.2, chosen on the Blender corpus; Karis 2014 and Bevy: 0.1,
+        /// Unreal: 0.04). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper
+        /// response, more jitter shimmer
+        alpha: f32 = DEFAULT_ALPHA, ParamKind::Float { min: 0.01, max: 1.0 };
+        /// variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more
+        /// flicker; higher: stabler, more ghosting
+        gamma: f32 = DEFAULT_GAMMA, ParamKind::Float { min: 0.25, max: 4.0 };
+        /// history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it
+        history_filter: HistoryFilter = HistoryFilter::CatmullRom, ParamKind::Choice { options: &["catmull_rom", "bilinear"] };
+        /// take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history
+        dilation: bool = true, ParamKind::Bool;
+        /// weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker
+        /// bias
+        luminance_weighting: bool = true, ParamKind::Bool;
+        /// restart history whose reprojected depth differs from the current by more than this fraction (0 =
+        /// off); catches disocclusion the colour box misses, can reject on thin geometry
+        depth_rejection: f32 = 0.0, ParamKind::Float { min: 0.0, max: 10.0 };
+        /// strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of
+        /// resampling, amplifies noise
+        sharpen: f32 = 0.0, ParamKind::Float { min: 0.0, max: 4.0 };
         ..reconstruct
     }
 }
