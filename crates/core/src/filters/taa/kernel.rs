@@ -13,7 +13,7 @@
 //! float operations in the same order, so the outputs are the same bits; the tests compare
 //! them frame by frame.
 
-use super::{HistoryFilter, Params, StagePlan, MAX_COUNT};
+use super::{HistoryFilter, Params, StagePlan, Taa, MAX_COUNT};
 use crate::filters::passes::{
     dilate_row, from_working, on_screen_bits, output_ceiling, previous_positions, sharpen, tonemap_row,
     untonemap_row, FrameContext, FrameResult,
@@ -25,20 +25,16 @@ use crate::kernels::{
     variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
 use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, PixelCounts};
+use crate::pipeline::{FilterError, FilterKind, PixelCounts};
 use std::ops::Range;
 use wide::f32x8;
 
-/// Stages of the fused pass, in order (indices into its [`StageClock`]).
-const STAGES: [&str; 7] = [
-    "tonemap",
-    "ycocg",
-    "dilate",
-    "reproject",
-    "depth_reject",
-    "resolve",
-    "untonemap",
-];
+/// Stages of the fused pass, in order (indices into its [`StageClock`]): the filter's
+/// stages less `repair` and `reconstruct` (run before it) and `sharpen` (a pass of its own).
+const STAGES: [&str; 7] = {
+    let s = <Taa as FilterKind>::STAGES;
+    [s[2], s[3], s[4], s[5], s[6], s[7], s[9]]
+};
 const TONEMAP: usize = 0;
 const YCOCG: usize = 1;
 const DILATE: usize = 2;
