@@ -748,3 +748,17 @@ macro_rules! history_filter {
     };
 }
 pub(crate) use history_filter;
+
+/// The `STAGES` of a history filter's [`FilterKind`](crate::pipeline::FilterKind) impl (an
+/// item of it): `repair` and `reconstruct`, which [`TemporalState::run`] runs before the
+/// filter's own stages, declared here once, then the filter's own `$stage`s.
+macro_rules! temporal_stages {
+    ($($stage:literal),* $(,)?) => {
+        const STAGES: &'static [&'static str] = &[
+            $crate::pipeline::input::REPAIR_STAGE,
+            $crate::filters::reconstruct::STAGE,
+            $($stage),*
+        ];
+    };
+}
+pub(crate) use temporal_stages;

@@ -81,7 +81,7 @@ pub mod rls;
 use super::passes::{Conversion, FrameResult, TemporalState};
 use super::reconstruct::PixelFilter;
 use crate::filter_params;
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::tonemap;
 #[cfg(test)]
@@ -714,17 +714,7 @@ impl FilterKind for Phlm {
     const NAME: &'static str = "phlm";
     const SUMMARY: &'static str =
         "Pixel History Linear Models (Iglesias-Guitian et al. 2016): per-pixel RLS linear models over a temporal feature, box-clipped, with bounded (regularized) forgetting";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "ycocg",
-        "dilate",
-        "reproject",
-        "feature",
-        "model",
-        "untonemap",
-    ];
+    temporal_stages! { "tonemap", "ycocg", "dilate", "reproject", "feature", "model", "untonemap" }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])

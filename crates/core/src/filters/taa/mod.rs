@@ -26,7 +26,7 @@ mod reference;
 
 use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
 use crate::filter_params;
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet};
 use crate::pipeline::{FilterKind, Inputs, ParamKind, Skip};
 use serde::{Deserialize, Serialize};
@@ -146,18 +146,9 @@ impl FilterKind for Taa {
     const NAME: &'static str = "taa";
     const SUMMARY: &'static str =
         "industry TAA: velocity dilation, Catmull-Rom history, YCoCg variance clipping, luminance-weighted blend";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "ycocg",
-        "dilate",
-        "reproject",
-        "depth_reject",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
+    temporal_stages! {
+        "tonemap", "ycocg", "dilate", "reproject", "depth_reject", "resolve", "sharpen", "untonemap"
+    }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])

@@ -52,7 +52,7 @@ mod reference;
 
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::{lanes, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
@@ -150,21 +150,10 @@ impl FilterKind for Traa {
     const NAME: &'static str = "traa";
     const SUMMARY: &'static str =
         "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "dilate",
-        "reproject",
-        "sobel",
-        "sobel_history",
-        "model_average",
-        "depth_variance",
-        "aliased",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
+    temporal_stages! {
+        "tonemap", "dilate", "reproject", "sobel", "sobel_history", "model_average", "depth_variance",
+        "aliased", "resolve", "sharpen", "untonemap"
+    }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[

@@ -75,7 +75,7 @@ mod reference;
 mod spatial;
 mod temporal;
 
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
 pub use spatial::{depth_range, falloff, Gathered, Geometry, Sparse, WEIGHT_EPSILON};
@@ -341,14 +341,7 @@ impl FilterKind for Upsample {
     const NAME: &'static str = "upsample";
     const SUMMARY: &'static str =
         "spatio-temporal upsampling of sparse shading (Herzog et al. 2010), with spatial, temporal and TAA-style baselines";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "geometry",
-        "reproject",
-        "gradient",
-        "blend",
-    ];
+    temporal_stages! { "geometry", "reproject", "gradient", "blend" }
     type Params = Params;
     const SPARSE_INPUT: bool = true;
     fn uses() -> ChannelSet {
