@@ -531,6 +531,16 @@ macro_rules! reference_filter {
                     .run::<$kind>(p.reconstruction(), frame, |ctx| stages(&p, frame, ctx))
             }
         }
+
+        impl $crate::filters::check::Reference<$kind> for $name {
+            fn with_params(params: <$kind as $crate::pipeline::FilterKind>::Params) -> Self {
+                Self::new(params)
+            }
+
+            fn filter(&mut self, frame: &$crate::frame::Frame) -> $crate::pipeline::Output {
+                self.process(frame).unwrap()
+            }
+        }
     };
 }
 #[cfg(test)]

@@ -861,7 +861,7 @@ mod tests {
     use super::reference::ReferencePhlm;
     use super::*;
     use crate::filters::check::prelude::*;
-    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
+    use crate::filters::check::{assert_filter_matches, assert_variants_match, sequences, ODD_SIZES};
     use crate::kernels::clip::guard;
     use crate::pipeline::params::{build, parse_assignments};
     use crate::tolerance::Tolerance;
@@ -908,16 +908,7 @@ mod tests {
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
             for (name, frames) in sequences(w, h, 6, (w * 37 + h) as u64) {
-                for set in variants {
-                    let params: Params = build("phlm", &parse_assignments(set).unwrap()).unwrap();
-                    let mut slow = ReferencePhlm::new(params.clone());
-                    assert_filter_matches(
-                        &mut Phlm::new(params),
-                        |f| slow.process(f).unwrap(),
-                        &frames,
-                        &format!("{w}x{h} {name} {set:?}"),
-                    );
-                }
+                assert_variants_match::<Phlm, ReferencePhlm>(variants, &frames, &format!("{w}x{h} {name}"));
             }
         }
     }

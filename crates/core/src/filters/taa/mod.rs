@@ -189,8 +189,7 @@ history_filter!(Taa, |p, frame, ctx| kernel::frame(p, ctx));
 mod tests {
     use super::reference::ReferenceTaa;
     use super::*;
-    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
-    use crate::pipeline::params::{build, parse_assignments};
+    use crate::filters::check::{assert_variants_match, sequences, ODD_SIZES};
 
     /// The fused kernel gives the reference's output, bit for bit, with every option, on
     /// every kind of sequence, at odd sizes.
@@ -207,16 +206,7 @@ mod tests {
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
             for (name, frames) in sequences(w, h, 6, (w * 31 + h) as u64) {
-                for set in variants {
-                    let params: Params = build("taa", &parse_assignments(set).unwrap()).unwrap();
-                    let mut slow = ReferenceTaa::new(params.clone());
-                    assert_filter_matches(
-                        &mut Taa::new(params),
-                        |f| slow.process(f).unwrap(),
-                        &frames,
-                        &format!("{w}x{h} {name} {set:?}"),
-                    );
-                }
+                assert_variants_match::<Taa, ReferenceTaa>(variants, &frames, &format!("{w}x{h} {name}"));
             }
         }
     }

@@ -404,10 +404,20 @@ mod tests {
     use super::reference::ReferenceUpsample;
     use super::*;
     use crate::filters::check::prelude::*;
-    use crate::filters::check::{assert_filter_matches, sparse_sequences, ODD_SIZES};
+    use crate::filters::check::{assert_variants_match, sparse_sequences, Reference, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
+
+    impl Reference<Upsample> for ReferenceUpsample {
+        fn with_params(params: Params) -> Self {
+            Self::new(params)
+        }
+
+        fn filter(&mut self, frame: &Frame) -> Output {
+            self.process(frame).unwrap()
+        }
+    }
 
     #[test]
     fn a_loaded_history_out_of_range_is_refused() {
@@ -486,16 +496,8 @@ mod tests {
                 let sky = sky_without_normals(&seqs[0].1);
                 seqs.push(("sky without normals", sky));
                 for (name, frames) in seqs {
-                    for set in variants {
-                        let params: Params = build("upsample", &parse_assignments(set).unwrap()).unwrap();
-                        let mut slow = ReferenceUpsample::new(params.clone());
-                        assert_filter_matches(
-                            &mut Upsample::new(params),
-                            |f| slow.process(f).unwrap(),
-                            &frames,
-                            &format!("{w}x{h} {factor}x{factor} {name} {set:?}"),
-                        );
-                    }
+                    let what = format!("{w}x{h} {factor}x{factor} {name}");
+                    assert_variants_match::<Upsample, ReferenceUpsample>(variants, &frames, &what);
                 }
             }
         }
