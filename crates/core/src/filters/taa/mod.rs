@@ -82,19 +82,6 @@ pub const DEFAULT_GAMMA: f32 = 1.0;
 /// anyway, and a bounded count keeps the state bounded on endless still scenes.
 pub const MAX_COUNT: f32 = 255.0;
 
-/// History planes of the reference (the filter itself keeps Y, Co, Cg and the count
-/// interleaved in one plane, and depth in a second).
-#[cfg(test)]
-const Y: usize = 0;
-#[cfg(test)]
-const CO: usize = 1;
-#[cfg(test)]
-const CG: usize = 2;
-#[cfg(test)]
-const COUNT: usize = 3;
-#[cfg(test)]
-const DEPTH: usize = 4;
-
 /// Which of `taa`'s optional stages run on a frame, and why each of the others is left out
 /// (`None`: it runs). Pure planning from the frame's facts and the parameters: the CPU
 /// kernel and the GPU backend (`crate::backend`) follow the same plan, so their records
