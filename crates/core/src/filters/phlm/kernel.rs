@@ -187,15 +187,9 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     for (k, skip) in skips.into_iter().enumerate() {
         if k == REPROJECT {
             // `dilate` runs before the fused pass and is recorded in its place.
-            match dilate_skip.clone() {
-                Some(why) => rec.skip("dilate", why),
-                None => rec.ran_for("dilate", dilate_ms),
-            }
+            rec.ran_unless("dilate", dilate_skip.clone(), dilate_ms);
         }
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
+        rec.ran_unless(STAGES[k], skip, ms * shares[k]);
     }
     scratch.recycle(dilated.into_iter().flatten());
     Ok(counts.result(out))

@@ -179,10 +179,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         },
     ];
     for (k, skip) in skips.into_iter().enumerate().take(RESOLVE + 1) {
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
+        rec.ran_unless(STAGES[k], skip, ms * shares[k]);
     }
     if let Some(s) = rec.stage("sharpen", sharpen_skip, || {
         sharpen(&out, p.sharpen, output_ceiling(&facts), scratch)
@@ -190,10 +187,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         scratch.recycle(std::mem::replace(&mut out, s));
         rec.stage("untonemap", tonemap_skip, || from_working(&mut out, true));
     } else {
-        match tonemap_skip {
-            Some(why) => rec.skip("untonemap", why),
-            None => rec.ran_for("untonemap", ms * shares[UNTONEMAP]),
-        }
+        rec.ran_unless("untonemap", tonemap_skip, ms * shares[UNTONEMAP]);
     }
     Ok(FrameResult {
         color: out,
