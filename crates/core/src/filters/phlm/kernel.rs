@@ -169,9 +169,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
             [o0, o1, o2, next[0].data_mut()],
             [w, w, w, TEXEL * w],
             h,
-            |band: &mut Band, rows, [or, og, ob, texels]| {
-                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
-            },
+            |band: &mut Band, rows, planes| run_band(&src, &plan, &clock, band, rows, planes),
         )
     };
     let ms = t.elapsed().as_secs_f64() * 1e3;
@@ -203,8 +201,7 @@ fn run_band(
     clock: &StageClock<6>,
     band: &mut Band,
     rows: Range<usize>,
-    out: [&mut [f32]; 3],
-    next: &mut [f32],
+    [or, og, ob, next]: [&mut [f32]; 4],
 ) -> Counts {
     let (w, h) = (src.w, src.h);
     let r0 = rows.start.saturating_sub(1);
@@ -247,7 +244,6 @@ fn run_band(
     }
     // Row buffers hold whole blocks: `wp` pixels, the last ones padding.
     let wp = w.div_ceil(LANES) * LANES;
-    let [or, og, ob] = out;
     let mut counts = Counts::default();
     for y in rows.clone() {
         let at = y * w..(y + 1) * w;

@@ -155,9 +155,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
             [o0, o1, o2, next[0].data_mut()],
             [w, w, w, 4 * w],
             h,
-            |band: &mut Band, rows, [or, og, ob, texels]| {
-                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
-            },
+            |band: &mut Band, rows, planes| run_band(&src, &plan, &clock, band, rows, planes),
         )
     };
     let ms = t.elapsed().as_secs_f64() * 1e3;
@@ -205,8 +203,7 @@ fn run_band(
     clock: &StageClock<7>,
     band: &mut Band,
     rows: Range<usize>,
-    out: [&mut [f32]; 3],
-    next: &mut [f32],
+    [or, og, ob, next]: [&mut [f32]; 4],
 ) -> PixelCounts {
     let (w, h) = (src.w, src.h);
     let r0 = rows.start.saturating_sub(1);
@@ -233,7 +230,6 @@ fn run_band(
             clock.time(YCOCG, || ycocg_row(input, [c0, c1, c2]));
         }
     }
-    let [or, og, ob] = out;
     let mut counts = PixelCounts::default();
     for y in rows.clone() {
         let k = y - rows.start;
