@@ -26,19 +26,14 @@ use crate::kernels::lanes::{self, Lanes, LANES};
 use crate::kernels::{
     bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes, SPAN,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
 use crate::pipeline::FilterError;
 use std::ops::Range;
 use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
 const STAGES: [&str; 6] = ["tonemap", "ycocg", "reproject", "feature", "model", "untonemap"];
-const TONEMAP: usize = 0;
-const YCOCG: usize = 1;
-const REPROJECT: usize = 2;
-const FEATURE: usize = 3;
-const MODEL: usize = 4;
-const UNTONEMAP: usize = 5;
+stage_indices!(STAGES: TONEMAP, YCOCG, REPROJECT, FEATURE, MODEL, UNTONEMAP);
 
 /// Every lane of a block, as bits.
 const ALL: u32 = (1 << LANES) - 1;

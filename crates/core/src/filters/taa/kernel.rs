@@ -24,7 +24,7 @@ use crate::kernels::{
     bilinear, bilinear_texels, box_from_columns, clip_toward_center, column_stats, rgb_to_ycocg,
     variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
 use crate::pipeline::{FilterError, FilterKind, PixelCounts};
 use std::ops::Range;
 use wide::f32x8;
@@ -35,13 +35,7 @@ const STAGES: [&str; 7] = {
     let s = <Taa as FilterKind>::STAGES;
     [s[2], s[3], s[4], s[5], s[6], s[7], s[9]]
 };
-const TONEMAP: usize = 0;
-const YCOCG: usize = 1;
-const DILATE: usize = 2;
-const REPROJECT: usize = 3;
-const DEPTH_REJECT: usize = 4;
-const RESOLVE: usize = 5;
-const UNTONEMAP: usize = 6;
+stage_indices!(STAGES: TONEMAP, YCOCG, DILATE, REPROJECT, DEPTH_REJECT, RESOLVE, UNTONEMAP);
 
 /// What the pass reads for one frame.
 struct Sources<'a> {
