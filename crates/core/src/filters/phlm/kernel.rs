@@ -19,7 +19,7 @@ use super::{
 };
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
-    FrameResult,
+    FrameResult, FrameSlices,
 };
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, LANES};
@@ -48,13 +48,9 @@ const _: () = assert!(BETA == 0 && R - BETA == SPAN);
 
 /// What the pass reads for one frame.
 struct Sources<'a> {
-    w: usize,
-    h: usize,
-    color: [&'a [f32]; 3],
-    motion: Option<[&'a [f32]; 2]>,
-    invalid: Option<&'a [bool]>,
-    /// The depth, where the frame has it (kept with the models, [`super::depth_share`]).
-    depth: Option<&'a [f32]>,
+    /// The frame, its motion dilated where dilation runs (its depth is kept with the
+    /// models, [`super::depth_share`]).
+    frame: FrameSlices<'a>,
     /// The previous frame's state texels, when there is history.
     state: Option<&'a [f32]>,
 }
@@ -144,15 +140,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         p,
     };
     let src = Sources {
-        w,
-        h,
-        color: inp.color_slices(),
-        motion: dilated
-            .as_ref()
-            .or(inp.motion.as_deref())
-            .map(|m| m.each_ref().map(|p| p.data())),
-        invalid: inp.invalid.as_deref(),
-        depth: inp.depth.as_deref().map(|d| d.data()),
+        frame: FrameSlices::of(&inp, dilated.as_ref()),
         state: has_history.then(|| read[0].data()),
     };
     let mut out: Rgb = scratch.planes(w, h);
@@ -198,7 +186,7 @@ fn run_band(
     rows: Range<usize>,
     [or, og, ob, next]: [&mut [f32]; 4],
 ) -> Counts {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let r0 = rows.start.saturating_sub(1);
     let r1 = (rows.end + 1).min(h);
     let Band {
@@ -215,7 +203,7 @@ fn run_band(
     for r in r0..r1 {
         let at = r * w..(r + 1) * w;
         let dst = (r - r0) * w..(r - r0 + 1) * w;
-        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
         let [w0, w1, w2] = work.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
             clock.time(TONEMAP, || {
@@ -254,7 +242,7 @@ fn run_band(
         let z = sized(z, wp / LANES);
         let working = work.each_ref().map(|c| &c[centre.clone()]);
         let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
-        let invalid = src.invalid.map(|v| &v[at.clone()]);
+        let invalid = src.frame.invalid.map(|v| &v[at.clone()]);
         clock.time(FEATURE, || {
             feature_row(&stats, working, fetched, invalid, plan.p, w, z)
         });
@@ -263,7 +251,7 @@ fn run_band(
         let row_out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
         let texels = &mut next[TEXEL * o.start..TEXEL * o.end];
         counts += clock.time(MODEL, || {
-            let depths = src.depth.map(|d| {
+            let depths = src.frame.depth.map(|d| {
                 let range = (plan.p.depth_jump > 0.0).then(|| depth_range_row(d, w, h, y, wp, depth));
                 (&d[at.clone()], range)
             });
@@ -295,9 +283,9 @@ fn fetch_row(
     blocks: &mut [Fetched],
     texels: &mut [[f32; TEXEL]; LANES],
 ) {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let row = y * w..(y + 1) * w;
-    let moving = match (plan.reproject, src.motion) {
+    let moving = match (plan.reproject, src.frame.motion) {
         (true, Some(m)) => Some(m),
         _ => None,
     };
@@ -305,7 +293,7 @@ fn fetch_row(
         let x0 = b * LANES;
         blk.none = ALL;
         blk.speed = [0.0; LANES];
-        if let Some([mx, my]) = src.motion {
+        if let Some([mx, my]) = src.frame.motion {
             let (mx, my) = (
                 lanes_of(&mx[row.clone()], x0, w, 0.0),
                 lanes_of(&my[row.clone()], x0, w, 0.0),

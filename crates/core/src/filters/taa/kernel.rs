@@ -16,7 +16,7 @@
 use super::{HistoryFilter, Params, StagePlan, Taa, MAX_COUNT};
 use crate::filters::passes::{
     dilate_row, from_working, on_screen_bits, output_ceiling, previous_positions, sharpen, tonemap_row,
-    untonemap_row, FrameContext, FrameResult,
+    untonemap_row, FrameContext, FrameResult, FrameSlices,
 };
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
@@ -39,12 +39,7 @@ stage_indices!(STAGES: TONEMAP, YCOCG, DILATE, REPROJECT, DEPTH_REJECT, RESOLVE,
 
 /// What the pass reads for one frame.
 struct Sources<'a> {
-    w: usize,
-    h: usize,
-    color: [&'a [f32]; 3],
-    motion: Option<[&'a [f32]; 2]>,
-    depth: Option<&'a [f32]>,
-    invalid: Option<&'a [bool]>,
+    frame: FrameSlices<'a>,
     /// The history, when there is one.
     hist: Option<History<'a>>,
 }
@@ -129,12 +124,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         },
     };
     let src = Sources {
-        w,
-        h,
-        color: inp.color_slices(),
-        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
-        depth: inp.depth.as_deref().map(|d| d.data()),
-        invalid: inp.invalid.as_deref(),
+        frame: FrameSlices::of(&inp, None),
         hist: has_history.then(|| History {
             texels: read[0].data(),
             depth: read.get(1).map(|p| p.data()),
@@ -153,7 +143,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         )
     };
     let ms = t.elapsed().as_secs_f64() * 1e3;
-    if let (Some(d), Some(nd)) = (src.depth, next.get_mut(1)) {
+    if let (Some(d), Some(nd)) = (src.frame.depth, next.get_mut(1)) {
         nd.data_mut().copy_from_slice(d);
     }
     let shares = clock.shares();
@@ -199,7 +189,7 @@ fn run_band(
     rows: Range<usize>,
     [or, og, ob, next]: [&mut [f32]; 4],
 ) -> PixelCounts {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let r0 = rows.start.saturating_sub(1);
     let r1 = (rows.end + 1).min(h);
     let Band {
@@ -213,7 +203,7 @@ fn run_band(
     let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
     for r in r0..r1 {
         let at = r * w..(r + 1) * w;
-        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
         let dst = (r - r0) * w..(r - r0 + 1) * w;
         let [c0, c1, c2] = cur.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
@@ -233,11 +223,16 @@ fn run_band(
             None
         } else if plan.dilate {
             let [mx, my] = motion.each_mut().map(|v| sized(v, w));
-            let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
+            let (d, mv) = (
+                src.frame.depth.expect("planned"),
+                src.frame.motion.expect("planned"),
+            );
             clock.time(DILATE, || dilate_row(d, mv, w, h, y, mx, my));
             Some([&*mx, &*my])
         } else {
-            src.motion.map(|mv| [&mv[0][at.clone()], &mv[1][at.clone()]])
+            src.frame
+                .motion
+                .map(|mv| [&mv[0][at.clone()], &mv[1][at.clone()]])
         };
         // This row's history: reprojected, or in place when nothing moves.
         let hrow: Option<[&[f32]; 4]> = match src.hist {
@@ -260,7 +255,7 @@ fn run_band(
         let rej: Option<&[f32]> = if plan.depth_reject {
             let prev = src.hist.and_then(|hs| hs.depth).expect("planned");
             let rj = sized(reject, w);
-            let d = &src.depth.expect("planned")[at.clone()];
+            let d = &src.frame.depth.expect("planned")[at.clone()];
             counts.history_rejected += clock.time(DEPTH_REJECT, || {
                 depth_reject_row(prev, d, m, w, h, y, plan.knobs.depth_rejection, rj)
             });
@@ -283,7 +278,7 @@ fn run_band(
                 [cy, ca, cb],
                 hrow,
                 rej,
-                src.invalid.map(|v| &v[at.clone()]),
+                src.frame.invalid.map(|v| &v[at.clone()]),
                 &plan.knobs,
                 cl,
                 [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]],
