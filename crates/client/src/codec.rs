@@ -12,6 +12,16 @@ pub fn sample_bytes(s: SampleType) -> usize {
     }
 }
 
+/// Whether samples sent as `sample` with `compression` (the protocol's enum values) are,
+/// byte for byte, the host's own f32 or u32 values: 4-byte, uncompressed, and the host
+/// little-endian (the wire's order). Such samples are read and written in place of a
+/// plane's memory, with no conversion.
+pub fn in_host_order(sample: i32, compression: i32) -> bool {
+    cfg!(target_endian = "little")
+        && compression == Compression::None as i32
+        && (sample == SampleType::F32 as i32 || sample == SampleType::U32 as i32)
+}
+
 /// Samples per parallel block of the sample conversions: large enough that rayon's
 /// overhead is nil, small enough that a 720p plane splits over every core.
 pub const BLOCK: usize = 1 << 16;

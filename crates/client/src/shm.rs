@@ -8,8 +8,9 @@
 //! Positioned reads and writes (`pread`/`pwrite`), as the server: no mapping, no
 //! `unsafe`.
 
+use crate::codec::in_host_order;
 use crate::frame::{decode_color, Encoded, ReplyError};
-use crate::proto::{ChannelHeader, Compression, Region, SampleType, SharedMemory};
+use crate::proto::{ChannelHeader, Region, SampleType, SharedMemory};
 use std::fs::{File, OpenOptions};
 use std::io;
 use std::os::unix::fs::FileExt;
@@ -99,8 +100,7 @@ impl SharedRegion {
         buf: &mut Vec<u8>,
     ) -> Result<[Vec<f32>; 3], ReplyError> {
         let n = width as usize * height as usize;
-        let raw_f32 = ch.sample == SampleType::F32 as i32 && ch.compression == Compression::None as i32;
-        if raw_f32 && cfg!(target_endian = "little") {
+        if ch.sample == SampleType::F32 as i32 && in_host_order(ch.sample, ch.compression) {
             if ch.byte_length != (3 * n * 4) as u64 {
                 return Err(ReplyError::Header(format!(
                     "expected {} bytes (3 x {width}x{height} f32 samples), got {}",
@@ -126,6 +126,7 @@ impl SharedRegion {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::proto::Compression;
 
     /// A reply's f32 colour is read from the region straight into its planes (the staging
     /// buffer stays empty); an f16 one goes through the buffer and is widened; both give

@@ -141,9 +141,9 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Reads one reply (header, then the colour's chunks, or its colour from `region`, through
-/// `from_region` where it needs converting), matched to the oldest frame in flight; None when the stream ended
-/// cleanly (read to its end, so the server has let go of the session by then).
+/// Reads one reply (header, then the colour's chunks, or its colour from `region` through
+/// `from_region` where it needs converting), matched to the oldest frame in flight; None
+/// when the stream ended cleanly (read to its end, so the server has let go of the session).
 async fn read_reply(
     replies: &mut tonic::Streaming<pb::FilteredChunk>,
     sent_at: &Mutex<VecDeque<(Instant, u64)>>,

@@ -16,7 +16,7 @@ use crate::session::{
     clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Region, Reservation, SessionError, SessionInfo,
     SessionRequest, StreamClaim,
 };
-use afterimage_client::codec::{put_samples, sample_bytes};
+use afterimage_client::codec::{in_host_order, put_samples, sample_bytes};
 use std::future::Future;
 use std::pin::Pin;
 use std::time::{Duration, Instant};
@@ -132,7 +132,7 @@ pub fn reply(
     let planes = f.color.each_ref().map(|p| p.data());
     let place = region.zip(req.shared_memory.as_ref());
     let (bytes, byte_length) = match place {
-        Some((r, at)) if sample == pb::SampleType::F32 && cfg!(target_endian = "little") => {
+        Some((r, at)) if in_host_order(sample as i32, pb::Compression::None as i32) => {
             // The planes' bytes are the wire's samples: written without a staging copy.
             let plane_bytes = (w * h * 4) as u64;
             for (k, p) in (0..).zip(planes) {

@@ -8,7 +8,7 @@ use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampli
 use crate::pipeline::Scratch;
 use crate::session::{clip, FrameShape, Region, SessionError};
 pub use afterimage_client::codec::chunks;
-use afterimage_client::codec::{joined, sample_bytes, Samples};
+use afterimage_client::codec::{in_host_order, joined, sample_bytes, Samples};
 use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
 pub use afterimage_client::frame::{encode_ids, encode_planes};
 use bytes::Bytes;
@@ -426,14 +426,9 @@ fn decompress<'a>(
 
 /// Whether a frame with header `h` can be read from a shared memory region straight into
 /// its planes ([`decode`] with a region): every float channel f32 and every channel
-/// uncompressed, on a little-endian machine (the wire's byte order), so the bytes are the
-/// samples.
+/// uncompressed ([`in_host_order`]), so the bytes are the samples.
 pub fn reads_in_place(h: &FrameHeader) -> bool {
-    cfg!(target_endian = "little")
-        && h.channels.iter().all(|c| {
-            c.compression == Compression::None as i32
-                && (c.sample == SampleType::F32 as i32 || c.sample == SampleType::U32 as i32)
-        })
+    h.channels.iter().all(|c| in_host_order(c.sample, c.compression))
 }
 
 /// Decodes an assembled frame for a session of `shape` (its header passed
