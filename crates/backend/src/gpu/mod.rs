@@ -35,8 +35,39 @@ use std::sync::{Arc, OnceLock};
 
 pub(crate) use buffers::{Readback, StorageBuffer};
 
-/// The filters this backend implements.
-pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa", "phlm"];
+/// How a device filter is made: on the device, with the parameter values (checked by the
+/// registry) and the colour's upload precision.
+type Make = fn(Arc<Gpu>, &Map<String, Value>, UploadPrecision) -> Result<Box<dyn Filter>, BackendError>;
+
+/// Every device filter, by name: [`create`] makes them, [`FILTERS`] lists them.
+const DEVICE_FILTERS: [(&str, Make); 4] = [
+    ("passthrough", |gpu, _, upload| {
+        Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload)))
+    }),
+    ("fxaa", |gpu, values, upload| {
+        Ok(Box::new(fxaa::GpuFxaa::new(gpu, build("fxaa", values)?, upload)))
+    }),
+    ("taa", |gpu, values, upload| {
+        Ok(Box::new(taa::GpuTaa::new(gpu, build("taa", values)?, upload)))
+    }),
+    ("phlm", |gpu, values, upload| {
+        Ok(Box::new(phlm::GpuPhlm::new(gpu, build("phlm", values)?, upload)))
+    }),
+];
+
+/// The names of a table of device filters.
+const fn names<const N: usize>(table: &[(&'static str, Make); N]) -> [&'static str; N] {
+    let mut out = [""; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = table[i].0;
+        i += 1;
+    }
+    out
+}
+
+/// The filters this backend implements (those [`create`] can make).
+pub const FILTERS: &[&str] = &names(&DEVICE_FILTERS);
 
 /// An open device: what every GPU filter runs on.
 #[derive(Debug)]
@@ -126,21 +157,15 @@ pub fn create(
     values: &Map<String, Value>,
     upload: UploadPrecision,
 ) -> Result<Box<dyn Filter>, BackendError> {
-    let known = || BackendError::FilterNotOnGpu {
-        filter: name.to_string(),
-        have: FILTERS.join(", "),
-    };
-    if !FILTERS.contains(&name) {
-        return Err(known());
-    }
-    let gpu = shared()?;
-    match name {
-        "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload))),
-        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, build(name, values)?, upload))),
-        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, build(name, values)?, upload))),
-        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, build(name, values)?, upload))),
-        _ => Err(known()),
-    }
+    let make = DEVICE_FILTERS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|&(_, make)| make)
+        .ok_or_else(|| BackendError::FilterNotOnGpu {
+            filter: name.to_string(),
+            have: FILTERS.join(", "),
+        })?;
+    make(shared()?, values, upload)
 }
 
 /// Waits for the device to finish what was submitted; a device error becomes a
@@ -220,8 +245,16 @@ pub(crate) fn input_consts() -> String {
 /// What [`COMMON`] takes from Rust: `kernels::color`'s and `kernels::clip`'s constants.
 fn common_consts() -> String {
     use crate::kernels::clip::{CLIP_EPS, CLIP_REL};
-    use crate::kernels::TONEMAP_MAX;
-    wgsl_consts![TONEMAP_MAX, F32_MAX = f32::MAX, CLIP_EPS, CLIP_REL]
+    use crate::kernels::{LUMA_REC709, TONEMAP_MAX};
+    wgsl_consts![
+        TONEMAP_MAX,
+        F32_MAX = f32::MAX,
+        CLIP_EPS,
+        CLIP_REL,
+        LUMA_R = LUMA_REC709[0],
+        LUMA_G = LUMA_REC709[1],
+        LUMA_B = LUMA_REC709[2],
+    ]
 }
 /// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
 /// filters that reproject a history (`taa`'s resolve, `phlm`).
@@ -259,11 +292,21 @@ pub(crate) fn bind(
     pipeline: &wgpu::ComputePipeline,
     buffers: &[&wgpu::Buffer],
 ) -> wgpu::BindGroup {
+    let at: Vec<(u32, &wgpu::Buffer)> = buffers.iter().enumerate().map(|(i, b)| (i as u32, *b)).collect();
+    bind_at(gpu, pipeline, &at)
+}
+
+/// A bind group of `pipeline`'s group 0 with each buffer at its binding: the bindings its
+/// entry point uses, where a module's entry points share some of their bindings.
+pub(crate) fn bind_at(
+    gpu: &Gpu,
+    pipeline: &wgpu::ComputePipeline,
+    buffers: &[(u32, &wgpu::Buffer)],
+) -> wgpu::BindGroup {
     let entries: Vec<wgpu::BindGroupEntry> = buffers
         .iter()
-        .enumerate()
-        .map(|(i, b)| wgpu::BindGroupEntry {
-            binding: i as u32,
+        .map(|&(binding, b)| wgpu::BindGroupEntry {
+            binding,
             resource: b.as_entire_binding(),
         })
         .collect();
