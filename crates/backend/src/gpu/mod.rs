@@ -12,8 +12,8 @@
 //! The colour goes up as f32 or, at the caller's choice ([`UploadPrecision::F16`]), as f16
 //! widened on the device (`upload`); motion, depth and the invalid mask always as f32.
 //!
-//! Filters here: `passthrough`, `fxaa`, `taa` and `phlm` (its per-pixel 4x4 solve in f32:
-//! [`crate::filters::phlm::rls::update_information_f32`]). Left for later: `traa`,
+//! Filters here: `passthrough`, `fxaa`, `taa`, `traa` and `phlm` (its per-pixel 4x4 solve
+//! in f32: [`crate::filters::phlm::rls::update_information_f32`]). Left for later:
 //! `upsample`, `pixel_trace`.
 
 mod buffers;
@@ -22,6 +22,7 @@ mod passthrough;
 mod phlm;
 mod taa;
 mod timing;
+mod traa;
 mod upload;
 
 use super::{AdapterInfo, BackendError};
@@ -40,7 +41,7 @@ pub(crate) use buffers::{Readback, StorageBuffer};
 type Make = fn(Arc<Gpu>, &Map<String, Value>, UploadPrecision) -> Result<Box<dyn Filter>, BackendError>;
 
 /// Every device filter, by name: [`create`] makes them, [`FILTERS`] lists them.
-const DEVICE_FILTERS: [(&str, Make); 4] = [
+const DEVICE_FILTERS: [(&str, Make); 5] = [
     ("passthrough", |gpu, _, upload| {
         Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload)))
     }),
@@ -49,6 +50,9 @@ const DEVICE_FILTERS: [(&str, Make); 4] = [
     }),
     ("taa", |gpu, values, upload| {
         Ok(Box::new(taa::GpuTaa::new(gpu, build("taa", values)?, upload)))
+    }),
+    ("traa", |gpu, values, upload| {
+        Ok(Box::new(traa::GpuTraa::new(gpu, build("traa", values)?, upload)))
     }),
     ("phlm", |gpu, values, upload| {
         Ok(Box::new(phlm::GpuPhlm::new(gpu, build("phlm", values)?, upload)))
