@@ -18,6 +18,7 @@
 
 mod buffers;
 mod fxaa;
+mod history;
 mod passthrough;
 mod phlm;
 mod taa;
@@ -230,6 +231,32 @@ macro_rules! wgsl_consts {
 }
 pub(crate) use wgsl_consts;
 
+/// Declares the bits of a shader's `Params.flags`: each name a `u32` constant of its own
+/// bit, in order from 1, and `$consts()` their WGSL declarations ([`wgsl_consts!`]).
+macro_rules! flag_bits {
+    ($consts:ident: $($name:ident),* $(,)?) => {
+        $crate::gpu::flag_bits!(@at 0; $($name),*);
+
+        /// The flag bits as WGSL constants.
+        fn $consts() -> String {
+            $crate::gpu::wgsl_consts![$($name),*]
+        }
+    };
+    (@at $n:expr; $name:ident $(, $rest:ident)*) => {
+        const $name: u32 = 1 << ($n);
+        $crate::gpu::flag_bits!(@at $n + 1; $($rest),*);
+    };
+    (@at $n:expr;) => {};
+}
+pub(crate) use flag_bits;
+
+/// The flags whose condition holds, or'ed together.
+pub(crate) fn flags_of(set: &[(bool, u32)]) -> u32 {
+    set.iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |flags, (_, bit)| flags | bit)
+}
+
 /// Planes of the history filters' (`taa`, `phlm`) input buffer, in units of width x
 /// height: r, g, b, motion x and y, depth, the invalid mask.
 pub(crate) const INPUT_PLANES: usize = 7;
@@ -405,8 +432,37 @@ pub(crate) use stateless_filter;
 /// next), `valid` (whether that holds a frame) and `tonemapped`, and the methods `run`,
 /// `sized` (buffers for a size), `empty_history` (the CPU filter's empty state),
 /// `history_bytes`, `download_history` (the history read next, in the CPU's planes) and
-/// `upload_history` (those planes into the history read next).
+/// `upload_history` (those planes into the history read next). With `texels` the macro
+/// writes those four for a history `buffers.hist` ([`buffers::TexelHistory`]) and a
+/// `$kind::history(&params)`.
 macro_rules! history_filter {
+    ($ty:ty, $kind:ty, texels) => {
+        impl $ty {
+            /// The CPU filter's empty state, the layout the device history is saved and
+            /// loaded in.
+            fn empty_history(&self) -> $crate::filters::passes::TemporalState {
+                <$kind>::history(&self.params)
+            }
+
+            /// Bytes of the device history.
+            fn history_bytes(&self) -> usize {
+                self.buffers.as_ref().map_or(0, |b| b.hist.bytes())
+            }
+
+            /// The history read next, in the CPU filter's planes.
+            fn download_history(&self) -> Result<Vec<$crate::frame::Plane<f32>>, $crate::BackendError> {
+                let b = self.buffers.as_ref().expect("sized");
+                b.hist.download(&self.gpu, self.read)
+            }
+
+            /// Writes `planes` (the CPU filter's layout) into the history read next.
+            fn upload_history(&self, planes: &[$crate::frame::Plane<f32>]) {
+                let b = self.buffers.as_ref().expect("sized");
+                b.hist.upload(&self.gpu, self.read, planes)
+            }
+        }
+        $crate::gpu::history_filter!($ty, $kind);
+    };
     ($ty:ty, $kind:ty) => {
         impl $crate::pipeline::Filter for $ty {
             $crate::gpu::device_filter_methods!($kind, |f| &f.params);

@@ -10,22 +10,21 @@
 //! held at or above the prior. The CPU solves in f64.
 
 use super::buffers::{download, params_buffer, planes_from, write_words};
+use super::history::{DeviceHistory, FrameBuffers};
 use super::timing::{self, FrameClock, PassTimer};
-use super::upload::ColorUpload;
+use super::upload::{upload_inputs, ColorUpload};
+use super::INPUT_PLANES;
 use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::Scratch;
 use crate::pipeline::{
-    check_needs, check_size, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output,
-    PixelCounts, Recorder, Skip, UploadPrecision,
+    Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip,
+    UploadPrecision,
 };
 use crate::BackendError;
-use std::borrow::Cow;
 use std::sync::Arc;
 
 const SOURCE: &str = include_str!("phlm.wgsl");
@@ -105,7 +104,7 @@ const PARAM_WORDS: usize = 21;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
-struct Buffers {
+pub(crate) struct Buffers {
     width: usize,
     height: usize,
     params: wgpu::Buffer,
@@ -181,56 +180,25 @@ impl Buffers {
     }
 }
 
-/// `phlm` with its models on the device.
-#[derive(Debug)]
-pub struct GpuPhlm {
-    gpu: Arc<Gpu>,
-    params: Params,
-    /// The precision of the colour's upload.
-    upload: UploadPrecision,
-    pass: wgpu::ComputePipeline,
-    buffers: Option<Buffers>,
-    /// Which of `buffers.state` holds the previous frame's models.
-    read: usize,
-    /// Whether it does (not on the first frame or after a reset).
-    valid: bool,
-    /// Whether its models are in tonemapped working space.
-    tonemapped: bool,
-    /// Readback staging, reused.
-    words: Vec<f32>,
-    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
-    scratch: Scratch,
+/// `phlm` with its models on the device (its passes: the one compiled pass).
+pub(crate) type GpuPhlm = DeviceHistory<Params, wgpu::ComputePipeline, Buffers>;
+
+impl FrameBuffers<Params, wgpu::ComputePipeline> for Buffers {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn make(f: &GpuPhlm, (width, height): (usize, usize)) -> Result<Self, BackendError> {
+        Buffers::new(&f.gpu, &f.passes, width, height, f.upload)
+    }
 }
 
 impl GpuPhlm {
     /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        GpuPhlm {
-            upload,
-            pass: pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
-            gpu,
-            params,
-            buffers: None,
-            read: 0,
-            valid: false,
-            tonemapped: false,
-            words: Vec::new(),
-            scratch: Scratch::default(),
-        }
-    }
-
-    /// The buffers for a `width` x `height` frame (new ones drop the models).
-    fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
-        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            // Dropped first: the old buffers and the new never take the device's memory
-            // together.
-            self.buffers = None;
-            self.valid = false;
-            self.read = 0;
-            self.buffers = Some(Buffers::new(&self.gpu, &self.pass, width, height, self.upload)?);
-        }
-        Ok(())
+        let pass = pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm");
+        DeviceHistory::with(gpu, params, upload, pass)
     }
 
     /// The shader's `Params` words for settings `p` (the effective ones).
@@ -388,16 +356,11 @@ struct FrameBack {
 impl GpuPhlm {
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         let mut rec = Recorder::new();
-        let mut inp = self.prepared(frame, &mut rec)?;
+        let recon = self.params.effective().reconstruction();
+        let mut inp = self.prepared::<Phlm>(frame, recon, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        check_size(
-            self.buffers.as_ref().map(|b| (b.width, b.height)),
-            self.valid,
-            frame,
-        )?;
-        self.sized(w, h)?;
-        let has_history = self.valid && !frame.meta.reset;
+        let has_history = self.started(frame, &inp)?;
         let mut clock = FrameClock::start();
         if has_history && self.tonemapped != hdr {
             // A stream moving between LDR and HDR frames: the models move to the new working
@@ -435,14 +398,6 @@ impl GpuPhlm {
         })
     }
 
-    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
-    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
-        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
-        let recon = self.params.effective().reconstruction();
-        Ok(recon.prepare(frame, Phlm::uses(), rec, &mut self.scratch)?)
-    }
-
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
     /// host's own go back to the scratch), then motion, depth (for the dilation and the
     /// models' depth) and the invalid mask as f32, and clears the counters. Returns the
@@ -453,27 +408,12 @@ impl GpuPhlm {
         inp: &mut Inputs<'f>,
         words: &[u32; PARAM_WORDS],
     ) -> u64 {
-        let n = inp.width * inp.height;
         let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
+        let motion = inp.motion.is_some();
         let mut bytes = write_words(gpu, &b.params, words);
-        bytes += b.upload.write(gpu, &b.input, &inp.color);
-        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
-            self.scratch.recycle(rgb);
-        }
-        let b = &*b;
-        if let Some(m) = inp.motion.as_deref() {
-            for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
-            }
-        }
-        if let Some(d) = inp.depth.as_deref() {
-            bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
-        }
-        if let Some(invalid) = &inp.invalid {
-            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
-        }
+        let scratch = &mut self.scratch;
+        bytes += upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, true);
         bytes + write_words(gpu, &b.counters, &[0; COUNTERS])
     }
 
@@ -489,7 +429,7 @@ impl GpuPhlm {
         {
             let (gx, gy) = groups(w, h, WORKGROUP);
             let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
-            pass.set_pipeline(&self.pass);
+            pass.set_pipeline(&self.passes);
             pass.set_bind_group(0, &b.bound[self.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }

@@ -4,21 +4,18 @@
 //! its colour (and the motion and depth its plan needs), and reads back the colour and the
 //! pixel counts.
 
-use super::buffers::{download, params_buffer, write_words};
+use super::buffers::{params_buffer, submit_and_read, write_words, FrameBack, TexelHistory};
+use super::history::{DeviceHistory, FrameBuffers};
 use super::timing::{self, FrameClock, PassTimer};
-use super::upload::ColorUpload;
+use super::upload::{upload_inputs, ColorUpload};
+use super::INPUT_PLANES;
 use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use super::{INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
-use crate::filters::passes::TemporalState;
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
-use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::Scratch;
+use crate::frame::Frame;
 use crate::pipeline::{
-    check_needs, check_size, Backend, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder,
-    UploadPrecision,
+    DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
 };
 use crate::BackendError;
-use std::borrow::Cow;
 use std::sync::Arc;
 
 const SHARED: &str = include_str!("taa.wgsl");
@@ -74,7 +71,7 @@ fn consts() -> String {
 
 /// The compiled passes.
 #[derive(Debug)]
-struct Passes {
+pub(crate) struct Passes {
     resolve: wgpu::ComputePipeline,
     sharpen: wgpu::ComputePipeline,
     convert: wgpu::ComputePipeline,
@@ -113,7 +110,7 @@ impl Passes {
 /// Device buffers for one frame size, and the bind groups that use them (made once: the
 /// history alternates between two).
 #[derive(Debug)]
-struct Buffers {
+pub(crate) struct Buffers {
     width: usize,
     height: usize,
     params: wgpu::Buffer,
@@ -121,8 +118,8 @@ struct Buffers {
     input: StorageBuffer,
     /// The colour's way into `input`.
     upload: ColorUpload,
-    /// The history: `hist[read]` is the previous frame's, the other is written.
-    hist: [StorageBuffer; 2],
+    /// The history: `hist.buffer(read)` is the previous frame's, the other is written.
+    hist: TexelHistory,
     counters: wgpu::Buffer,
     /// `resolve[k]` reads `hist[k]` and writes `hist[1 - k]` and the colour `out[0]`.
     resolve: [wgpu::BindGroup; 2],
@@ -149,15 +146,11 @@ impl Buffers {
         upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let n = width * height;
-        let hist_len = n * (4 + depth as usize);
         let params = params_buffer(gpu, "taa params", &[0; 9]);
         let convert_params = params_buffer(gpu, "taa convert params", &[0; 9]);
         let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
         let upload = ColorUpload::new(gpu, upload, &input, n)?;
-        let hist = [
-            StorageBuffer::new(gpu, "taa history", hist_len)?,
-            StorageBuffer::new(gpu, "taa history", hist_len)?,
-        ];
+        let hist = TexelHistory::new(gpu, "taa history", (width, height), 4, depth)?;
         let out = [
             StorageBuffer::new(gpu, "taa colour", 3 * n)?,
             StorageBuffer::new(gpu, "taa colour", 3 * n)?,
@@ -170,15 +163,15 @@ impl Buffers {
                 &[
                     &params,
                     &input.buffer,
-                    &hist[k].buffer,
-                    &hist[1 - k].buffer,
+                    hist.buffer(k),
+                    hist.buffer(1 - k),
                     &out[0].buffer,
                     &counters,
                 ],
             )
         });
         let sharpen = bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]);
-        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
+        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, hist.buffer(k)]));
         let timer = PassTimer::new(gpu, 3);
         let timer_words = timer.as_ref().map_or(0, PassTimer::words);
         Ok(Buffers {
@@ -201,67 +194,28 @@ impl Buffers {
 }
 
 /// `taa` with its history on the device.
-#[derive(Debug)]
-pub struct GpuTaa {
-    gpu: Arc<Gpu>,
-    params: Params,
-    /// The precision of the colour's upload.
-    upload: UploadPrecision,
-    passes: Passes,
-    buffers: Option<Buffers>,
-    /// Which of `buffers.hist` holds the previous frame.
-    read: usize,
-    /// Whether it does (not on the first frame or after a reset).
-    valid: bool,
-    /// Whether its colour is tonemapped.
-    tonemapped: bool,
-    /// Readback staging, reused.
-    words: Vec<f32>,
-    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
-    scratch: Scratch,
+pub(crate) type GpuTaa = DeviceHistory<Params, Passes, Buffers>;
+
+impl FrameBuffers<Params, Passes> for Buffers {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn make(f: &GpuTaa, (width, height): (usize, usize)) -> Result<Self, BackendError> {
+        Buffers::new(&f.gpu, &f.passes, width, height, f.keeps_depth(), f.upload)
+    }
 }
 
 impl GpuTaa {
     /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        GpuTaa {
-            upload,
-            passes: Passes::new(&gpu),
-            gpu,
-            params,
-            buffers: None,
-            read: 0,
-            valid: false,
-            tonemapped: false,
-            words: Vec::new(),
-            scratch: Scratch::default(),
-        }
+        let passes = Passes::new(&gpu);
+        DeviceHistory::with(gpu, params, upload, passes)
     }
 
     fn keeps_depth(&self) -> bool {
         self.params.depth_rejection > 0.0
-    }
-
-    /// The buffers for a `width` x `height` frame (new ones drop the history).
-    fn sized(&mut self, width: usize, height: usize) -> Result<&Buffers, BackendError> {
-        if self.buffers.as_ref().map(|b| (b.width, b.height)) != Some((width, height)) {
-            let depth = self.keeps_depth();
-            // Dropped first: the old buffers and the new never take the device's memory
-            // together.
-            self.buffers = None;
-            self.valid = false;
-            self.read = 0;
-            self.buffers = Some(Buffers::new(
-                &self.gpu,
-                &self.passes,
-                width,
-                height,
-                depth,
-                self.upload,
-            )?);
-        }
-        Ok(self.buffers.as_ref().expect("just made"))
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32, top: f32) -> [u32; 9] {
@@ -280,55 +234,16 @@ impl GpuTaa {
     }
 }
 
-history_filter!(GpuTaa, Taa);
+history_filter!(GpuTaa, Taa, texels);
 
 impl GpuTaa {
-    /// The CPU filter's empty state, the layout the device history is saved and loaded in.
-    fn empty_history(&self) -> TemporalState {
-        Taa::history(&self.params)
-    }
-
-    /// Bytes of the device history.
-    fn history_bytes(&self) -> usize {
-        self.buffers
-            .as_ref()
-            .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
-    }
-
-    /// The history planes as the CPU filter lays them out.
-    fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.buffers.as_ref().expect("sized");
-        let n = b.width * b.height;
-        let words = download(&self.gpu, "taa history readback", &[&b.hist[self.read]])?;
-        let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
-        if self.keeps_depth() {
-            planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
-        }
-        Ok(planes)
-    }
-
-    /// Writes `planes` (the CPU filter's layout) into the history read next.
-    fn upload_history(&self, planes: &[Plane<f32>]) {
-        let b = self.buffers.as_ref().expect("sized");
-        let mut at = 0;
-        for p in planes {
-            b.hist[self.read].write(&self.gpu, at, p.data());
-            at += p.data().len();
-        }
-    }
-
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         let mut rec = Recorder::new();
-        let mut inp = self.prepared(frame, &mut rec)?;
+        let recon = self.params.reconstruction();
+        let mut inp = self.prepared::<Taa>(frame, recon, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        check_size(
-            self.buffers.as_ref().map(|b| (b.width, b.height)),
-            self.valid,
-            frame,
-        )?;
-        self.sized(w, h)?;
-        let has_history = self.valid && !frame.meta.reset;
+        let has_history = self.started(frame, &inp)?;
         let plan = StagePlan::new(&self.params, &inp, has_history);
         let flags = self.flags(&plan, &inp, has_history);
 
@@ -347,37 +262,14 @@ impl GpuTaa {
         let back = self.dispatch(w, h, convert.is_some(), plan.sharpen.is_none(), &mut clock)?;
         let device = clock.times(back.pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
         record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
-
-        self.read = 1 - self.read;
-        self.valid = true;
-        self.tonemapped = hdr;
         let c = &back.counters;
         let pixels = PixelCounts {
             history_reset: c[C_RESET] as u64,
             history_clipped: c[C_CLIPPED] as u64,
             history_rejected: c[C_REJECTED] as u64,
         };
-        let mut record = rec.finish(
-            Taa::NAME,
-            frame.meta.index,
-            pixels,
-            inp.counts,
-            self.state_bytes(),
-        );
-        record.backend = Backend::Gpu;
-        record.device = Some(device);
-        Ok(Output {
-            color: back.color,
-            record,
-        })
-    }
-
-    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
-    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
-        check_needs(Taa::NAME, Taa::needs(), frame)?;
-        let recon = self.params.reconstruction();
-        Ok(recon.prepare(frame, Taa::uses(), rec, &mut self.scratch)?)
+        let counts = (pixels, self.state_bytes());
+        Ok(self.finished(Taa::NAME, frame, &inp, rec, counts, device, back.color))
     }
 
     /// The shader's flags for a frame with inputs `inp` under `plan`.
@@ -415,29 +307,12 @@ impl GpuTaa {
         words: &[u32; 9],
         convert: Option<&[u32; 9]>,
     ) -> u64 {
-        let n = inp.width * inp.height;
         let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
-        let mut bytes = b.upload.write(gpu, &b.input, &inp.color);
-        if let Cow::Owned(rgb) = std::mem::replace(&mut inp.color, Cow::Borrowed(frame.color())) {
-            self.scratch.recycle(rgb);
-        }
-        let b = &*b;
-        if plan.reproject.is_none() {
-            let m = inp.motion.as_deref().expect("reprojection needs motion");
-            for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
-            }
-        }
-        if let Some(d) = inp.depth.as_deref() {
-            if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
-                bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
-            }
-        }
-        if let Some(invalid) = &inp.invalid {
-            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
-        }
+        let motion = plan.reproject.is_none();
+        let depth = flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0;
+        let scratch = &mut self.scratch;
+        let mut bytes = upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, depth);
         bytes += write_words(gpu, &b.params, words);
         if let Some(convert) = convert {
             bytes += write_words(gpu, &b.convert_params, convert);
@@ -456,7 +331,6 @@ impl GpuTaa {
         sharpen: bool,
         clock: &mut FrameClock,
     ) -> Result<FrameBack, BackendError> {
-        let n = w * h;
         let gpu = &self.gpu;
         let b = self.buffers.as_ref().expect("sized");
         let mut enc = gpu.device.create_command_encoder(&Default::default());
@@ -464,29 +338,9 @@ impl GpuTaa {
         b.upload.encode(gpu, &mut enc);
         let timer = b.timer.as_ref();
         let passes = self.encode_passes(&mut enc, b, w, h, convert, sharpen);
-        let result = sharpen as usize;
-        b.back.copy_from(&mut enc, &b.out[result].buffer, 0, 3 * n);
-        enc.copy_buffer_to_buffer(
-            &b.counters,
-            0,
-            b.back.buffer(),
-            (3 * n * 4) as u64,
-            (COUNTERS * 4) as u64,
-        );
-        let timer_at = 3 * n + COUNTERS;
-        if let Some(t) = timer {
-            t.resolve(&mut enc, passes, &b.back, timer_at);
-        }
-        gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        let words = timer_at + timer.map_or(0, PassTimer::words);
-        b.back.read(gpu, words, &mut self.words)?;
-        clock.back();
-        Ok(FrameBack {
-            color: super::buffers::planes_from(&self.words, w, h)?,
-            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            pass_ms: timer.map(|t| t.pass_ms(&self.words[timer_at..], passes)),
-        })
+        let outputs = (&b.out[sharpen as usize].buffer, &b.counters, COUNTERS);
+        let timed = (timer, passes);
+        submit_and_read(gpu, enc, &b.back, outputs, timed, (w, h), &mut self.words, clock)
     }
 
     /// Encodes the compute passes (each timed where the device has timestamps): the
@@ -531,15 +385,6 @@ impl GpuTaa {
     }
 }
 
-/// What the device gives back for a frame.
-struct FrameBack {
-    color: Rgb,
-    /// The counters (at the `C_` indices).
-    counters: Vec<u32>,
-    /// Each pass's time from its timestamps, where the device has them.
-    pass_ms: Option<Vec<f64>>,
-}
-
 /// Records the same stages as the CPU filter's record, run or left out for the same
 /// reasons. With timestamps `sharpen` gets its pass's time (the last of `pass_ms`) and the
 /// others share the rest (one pass fuses them); without, all share the frame's round trip.
@@ -578,9 +423,4 @@ fn record_stages(rec: &mut Recorder, plan: &StagePlan, device: &DeviceTimes, pas
             shaders.unwrap_or(device.upload_ms + device.readback_ms),
         ),
     }
-}
-
-/// A plane of samples read back (their count is the plane's by construction).
-fn plane(width: usize, height: usize, data: Vec<f32>) -> Result<Plane<f32>, BackendError> {
-    Plane::from_vec(width, height, data).map_err(|e| BackendError::Device(e.to_string()))
 }
