@@ -27,8 +27,10 @@ const SHARED: &str = include_str!("traa.wgsl");
 const WORKGROUP: usize = 8;
 
 // Bits of `Params.flags`, declared in the shaders ([`consts`]).
-super::flag_bits! { flag_consts: FLAG_TONEMAP, FLAG_HISTORY, FLAG_REPROJECT, FLAG_DILATE, FLAG_IMPROVED,
-FLAG_ALBEDO, FLAG_DEPTH, FLAG_MODEL, FLAG_INVALID, FLAG_SHARPEN }
+super::flag_bits! {
+    flag_consts: FLAG_TONEMAP, FLAG_HISTORY, FLAG_REPROJECT, FLAG_DILATE, FLAG_IMPROVED, FLAG_ALBEDO,
+    FLAG_DEPTH, FLAG_MODEL, FLAG_INVALID, FLAG_SHARPEN
+}
 
 /// Words of the counters: reset, clipped (the `C_` indices); padded.
 const COUNTERS: usize = 4;
@@ -44,8 +46,10 @@ const PASSES: u32 = 4;
 /// What traa's shaders take from Rust: the input planes ([`input_consts`]), the flag bits
 /// and counters above, the workgroup size, and the CPU filter's constants.
 fn consts() -> String {
-    let ours = super::wgsl_consts! { COUNTERS, C_RESET, C_CLIPPED, SOBEL_TEXEL, WORKGROUP,
-    FEEDBACK_LUMA_FLOOR, SOBEL_UNLIT_WEIGHT, SOBEL_LIT_WEIGHT, DEPTH_DISTANCE_MIN };
+    let ours = super::wgsl_consts! {
+        COUNTERS, C_RESET, C_CLIPPED, SOBEL_TEXEL, WORKGROUP,
+        FEEDBACK_LUMA_FLOOR, SOBEL_UNLIT_WEIGHT, SOBEL_LIT_WEIGHT, DEPTH_DISTANCE_MIN
+    };
     input_consts() + &flag_consts() + &ours
 }
 
