@@ -706,7 +706,7 @@ mod fuzz {
                 if !a.complete() {
                     return Ok(false);
                 }
-                wire::decode(&a, shape, &mut Default::default()).map(|_| true)
+                wire::decode(&a, shape, &mut Default::default(), None).map(|_| true)
             });
             let r = r.unwrap_or_else(|| panic!("case {case} (seed {seed}) panicked; header {head:?}"));
             assert!(

@@ -211,7 +211,12 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     );
     bar.set_message(args.filter.clone());
     let wall = Instant::now();
-    let (replies, recreated, streaming_s, client_cpu_ms) = send_shot(&args, &values, &frames, &bar)?;
+    let Shot {
+        replies,
+        recreated,
+        streaming_s,
+        client_cpu_ms,
+    } = send_shot(&args, &values, &frames, &bar)?;
     let wall_s = wall.elapsed().as_secs_f64();
     bar.finish_and_clear();
     if let Some(naming) = &naming {
@@ -254,16 +259,27 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// What [`send_shot`] gives back.
+struct Shot {
+    /// The replies, in order.
+    replies: Vec<Reply>,
+    /// The sessions that were lost and created again.
+    recreated: Vec<Recreated>,
+    /// Seconds spent streaming (from each session's first frame sent to its last reply).
+    streaming_s: f64,
+    /// This process's CPU ms meanwhile (read before the runtime's threads end, since only
+    /// live threads are counted).
+    client_cpu_ms: Option<f64>,
+}
+
 /// Sends `frames` through one session (a new one after each loss, up to `--retries`) and
-/// returns the replies in order, the sessions that were lost, the seconds spent streaming
-/// (from each session's first frame sent to its last reply), and this process's CPU ms
-/// (read before the runtime's threads end, since only live threads are counted).
+/// returns the replies and figures.
 fn send_shot(
     args: &StreamArgs,
     values: &serde_json::Map<String, serde_json::Value>,
     frames: &[Frame],
     bar: &ProgressBar,
-) -> anyhow::Result<(Vec<Reply>, Vec<Recreated>, f64, Option<f64>)> {
+) -> anyhow::Result<Shot> {
     let cpu = process_cpu_ms();
     let (w, h) = (frames[0].width() as u32, frames[0].height() as u32);
     let params = params_from_json(values);
@@ -362,8 +378,12 @@ fn send_shot(
         }
         anyhow::Ok(())
     })?;
-    let cpu_ms = cpu.zip(process_cpu_ms()).map(|(a, b)| b - a);
-    Ok((replies, recreated, streaming_s, cpu_ms))
+    Ok(Shot {
+        replies,
+        recreated,
+        streaming_s,
+        client_cpu_ms: cpu.zip(process_cpu_ms()).map(|(a, b)| b - a),
+    })
 }
 
 /// Writes each reply's colour into a copy of its input file (`--output`).

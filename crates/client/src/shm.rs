@@ -137,13 +137,8 @@ mod tests {
         let want: Vec<f32> = (0..3 * n).map(|i| i as f32 * 0.25 - 2.0).collect();
         let path = std::env::temp_dir().join(format!("afterimage-shm-test-{}", std::process::id()));
         for sample in [SampleType::F32, SampleType::F16] {
-            let bytes: Vec<u8> = match sample {
-                SampleType::F16 => want
-                    .iter()
-                    .flat_map(|&v| half::f16::from_f32(v).to_le_bytes())
-                    .collect(),
-                _ => want.iter().flat_map(|v| v.to_le_bytes()).collect(),
-            };
+            let mut bytes = vec![0u8; want.len() * crate::codec::sample_bytes(sample)];
+            crate::codec::put_samples(&want, sample, &mut bytes);
             let offset = 8;
             std::fs::write(&path, [vec![0u8; offset], bytes.clone()].concat()).unwrap();
             let region = Region {

@@ -675,12 +675,8 @@ mod tests {
             .collect()
     }
 
-    /// A frame decodes to the same bits however its data is cut into chunks: one chunk,
-    /// single bytes, cuts inside samples and across channels, random sizes; and f32 gives
-    /// back exactly what was sent. Odd sizes, adversarial values, planes reused from a
-    /// scratch that already holds other samples.
-    #[test]
-    fn decoding_reads_across_any_chunking() {
+    /// A 7x5 frame of adversarial colour, depth and motion, and its size.
+    fn test_frame() -> (Frame, (usize, usize)) {
         let (w, h) = (7, 5);
         let n = w * h;
         let plane = |k: usize| Plane::from_vec(w, h, adversarial(n + k)[k..].to_vec()).unwrap();
@@ -689,6 +685,26 @@ mod tests {
         frame
             .set_f32(ChannelKind::Motion, vec![plane(4), plane(5)])
             .unwrap();
+        (frame, (w, h))
+    }
+
+    /// The bits of `f`'s channel `k`, plane after plane.
+    fn bits(f: &Frame, k: ChannelKind) -> Vec<u32> {
+        f.planes(k)
+            .unwrap()
+            .iter()
+            .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
+    /// A frame decodes to the same bits however its data is cut into chunks: one chunk,
+    /// single bytes, cuts inside samples and across channels, random sizes; and f32 gives
+    /// back exactly what was sent. Odd sizes, adversarial values, planes reused from a
+    /// scratch that already holds other samples.
+    #[test]
+    fn decoding_reads_across_any_chunking() {
+        let (frame, (w, h)) = test_frame();
+        let n = w * h;
         let channels = ChannelSet::EMPTY
             .with(ChannelKind::Color)
             .with(ChannelKind::Depth)
@@ -721,13 +737,6 @@ mod tests {
                 let mut spare = Scratch::default();
                 spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
                 let got = decode(&a, shape, &mut spare, None).unwrap();
-                let bits = |f: &Frame, k: ChannelKind| -> Vec<u32> {
-                    f.planes(k)
-                        .unwrap()
-                        .iter()
-                        .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
-                        .collect()
-                };
                 let want = first.get_or_insert_with(|| got.clone());
                 for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
                     assert_eq!(bits(&got, k), bits(want, k), "{sample:?} cut {c}, {k}");
@@ -746,14 +755,8 @@ mod tests {
     fn a_region_frame_of_f32_decodes_in_place() {
         use crate::session::{Budget, Reservation};
         use std::os::unix::fs::FileExt;
-        let (w, h) = (7, 5);
+        let (mut frame, (w, h)) = test_frame();
         let n = w * h;
-        let plane = |k: usize| Plane::from_vec(w, h, adversarial(n + k)[k..].to_vec()).unwrap();
-        let mut frame = Frame::new([plane(0), plane(1), plane(2)]).unwrap();
-        frame.set_f32(ChannelKind::Depth, vec![plane(3)]).unwrap();
-        frame
-            .set_f32(ChannelKind::Motion, vec![plane(4), plane(5)])
-            .unwrap();
         let ids: Vec<u32> = (0..n as u32).map(|i| i.wrapping_mul(2654435761)).collect();
         frame.set_object_id(Plane::from_vec(w, h, ids).unwrap()).unwrap();
         let channels = [
@@ -791,13 +794,6 @@ mod tests {
                 continue;
             }
             let got = got.unwrap();
-            let bits = |f: &Frame, k: ChannelKind| -> Vec<u32> {
-                f.planes(k)
-                    .unwrap()
-                    .iter()
-                    .flat_map(|p| p.data().iter().map(|v| v.to_bits()))
-                    .collect()
-            };
             for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
                 assert_eq!(bits(&got, k), bits(&frame, k), "{k}");
             }

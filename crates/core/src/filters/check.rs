@@ -12,7 +12,8 @@ pub mod prelude {
 }
 
 use crate::frame::{ChannelKind, Frame, Plane};
-use crate::pipeline::{Filter, Output};
+use crate::pipeline::params::{build, parse_assignments};
+use crate::pipeline::{Filter, FilterKind, Output};
 use crate::rng::SplitMix64;
 use crate::tolerance::Tolerance;
 
@@ -259,5 +260,34 @@ pub fn assert_filter_matches(
         assert_same_output(&a, &b, Tolerance::EXACT, &what);
         assert_eq!(a.record.model, b.record.model, "{what}: model health");
         fast.recycle(a.color);
+    }
+}
+
+/// The reference of a fused filter `F`: the scalar statement of the same function that the
+/// fast one is tested against, one frame at a time.
+pub trait Reference<F: FilterKind> {
+    /// A fresh reference with the parameters `params`.
+    fn with_params(params: F::Params) -> Self;
+    /// Filters one frame (panics on an error: tests only).
+    fn filter(&mut self, frame: &Frame) -> Output;
+}
+
+/// Runs `frames` through the fused filter `F` and its reference `R` with each parameter set
+/// of `variants` (`key=value` strings) in turn, as [`assert_filter_matches`] does; `what`
+/// names the sequence (the parameter set is added).
+pub fn assert_variants_match<F: FilterKind + Filter, R: Reference<F>>(
+    variants: &[&[&str]],
+    frames: &[Frame],
+    what: &str,
+) {
+    for set in variants {
+        let params: F::Params = build(F::NAME, &parse_assignments(set).unwrap()).unwrap();
+        let mut slow = R::with_params(params.clone());
+        assert_filter_matches(
+            &mut F::new(params),
+            |f| slow.filter(f),
+            frames,
+            &format!("{what} {set:?}"),
+        );
     }
 }

@@ -34,15 +34,14 @@ use serde_json::Value;
 filter_params! {
     /// Parameters of `fxaa` (the three tunables of `FxaaPixelShader`, defaults as in the header).
     pub struct Params {
-        subpix: f32 = 0.75,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "sub-pixel aliasing removal (Fxaa3_11.h: 1.0 upper limit softer, 0.75 default, 0.5 sharper, 0 off)";
-        edge_threshold: f32 = 0.166,
-            ParamKind::Float { min: 0.063, max: 0.333 },
-            "minimum local contrast to process (0.333 too little, 0.25 low quality, 0.166 default, 0.125 high, 0.063 overkill)";
-        edge_threshold_min: f32 = 0.0833,
-            ParamKind::Float { min: 0.0, max: 0.0833 },
-            "darkness threshold below which edges are skipped (0.0833 upper limit/default, 0.0625 high quality, 0.0312 visible limit)";
+        /// sub-pixel aliasing removal (Fxaa3_11.h: 1.0 upper limit softer, 0.75 default, 0.5 sharper, 0 off)
+        subpix: f32 = 0.75, ParamKind::Float { min: 0.0, max: 1.0 };
+        /// minimum local contrast to process (0.333 too little, 0.25 low quality, 0.166 default, 0.125 high,
+        /// 0.063 overkill)
+        edge_threshold: f32 = 0.166, ParamKind::Float { min: 0.063, max: 0.333 };
+        /// darkness threshold below which edges are skipped (0.0833 upper limit/default, 0.0625 high quality,
+        /// 0.0312 visible limit)
+        edge_threshold_min: f32 = 0.0833, ParamKind::Float { min: 0.0, max: 0.0833 };
     }
 }
 

@@ -399,6 +399,41 @@ impl TemporalState {
     }
 }
 
+/// A frame's inputs as the slices a fused pass reads: its size, colour, motion, depth and
+/// the pixels the repair replaced.
+#[derive(Clone, Copy)]
+pub struct FrameSlices<'a> {
+    /// Width in pixels.
+    pub w: usize,
+    /// Height in pixels.
+    pub h: usize,
+    /// The colour planes.
+    pub color: [&'a [f32]; 3],
+    /// The motion planes, where the frame has motion.
+    pub motion: Option<[&'a [f32]; 2]>,
+    /// The depth, where the frame has it.
+    pub depth: Option<&'a [f32]>,
+    /// The pixels the repair replaced, where there were any.
+    pub invalid: Option<&'a [bool]>,
+}
+
+impl<'a> FrameSlices<'a> {
+    /// The slices of `inp`, with `motion` (a pass's own, e.g. dilated) read in place of the
+    /// frame's where given.
+    pub fn of(inp: &'a Inputs, motion: Option<&'a [Plane<f32>; 2]>) -> Self {
+        FrameSlices {
+            w: inp.width,
+            h: inp.height,
+            color: inp.color_slices(),
+            motion: motion
+                .or(inp.motion.as_deref())
+                .map(|m| m.each_ref().map(|p| p.data())),
+            depth: inp.depth.as_deref().map(|d| d.data()),
+            invalid: inp.invalid.as_deref(),
+        }
+    }
+}
+
 /// What a temporal filter's own stages work with for one frame (see
 /// [`TemporalState::run`]).
 pub struct FrameContext<'f, 's> {
@@ -529,6 +564,16 @@ macro_rules! reference_filter {
                 let p = self.params.$params();
                 self.hist
                     .run::<$kind>(p.reconstruction(), frame, |ctx| stages(&p, frame, ctx))
+            }
+        }
+
+        impl $crate::filters::check::Reference<$kind> for $name {
+            fn with_params(params: <$kind as $crate::pipeline::FilterKind>::Params) -> Self {
+                Self::new(params)
+            }
+
+            fn filter(&mut self, frame: &$crate::frame::Frame) -> $crate::pipeline::Output {
+                self.process(frame).unwrap()
             }
         }
     };
@@ -748,3 +793,17 @@ macro_rules! history_filter {
     };
 }
 pub(crate) use history_filter;
+
+/// The `STAGES` of a history filter's [`FilterKind`](crate::pipeline::FilterKind) impl (an
+/// item of it): `repair` and `reconstruct`, which [`TemporalState::run`] runs before the
+/// filter's own stages, declared here once, then the filter's own `$stage`s.
+macro_rules! temporal_stages {
+    ($($stage:literal),* $(,)?) => {
+        const STAGES: &'static [&'static str] = &[
+            $crate::pipeline::input::REPAIR_STAGE,
+            $crate::filters::reconstruct::STAGE,
+            $($stage),*
+        ];
+    };
+}
+pub(crate) use temporal_stages;

@@ -188,6 +188,22 @@ where
     })
 }
 
+/// Names the stages of a fused pass: `$name`s become the indices 0, 1, ... into its stage
+/// list `$stages` (and its [`StageClock`]), one name for each of its stages, checked at
+/// compile time, so an index cannot skip or repeat.
+macro_rules! stage_indices {
+    ($stages:ident: $($name:ident),+ $(,)?) => {
+        $crate::pipeline::exec::stage_indices!(@next 0usize; $($name),+);
+        const _: () = assert!([$(stringify!($name)),+].len() == $stages.len());
+    };
+    (@next $k:expr; $name:ident $(, $rest:ident)*) => {
+        const $name: usize = $k;
+        $crate::pipeline::exec::stage_indices!(@next $k + 1; $($rest),*);
+    };
+    (@next $k:expr;) => {};
+}
+pub(crate) use stage_indices;
+
 /// CPU time per stage of a fused pass, added up over the threads that ran its bands: a
 /// band times each of its stages with [`StageClock::time`], and the record then shares the
 /// pass's wall time among the stages in proportion ([`super::Recorder::fused`]).

@@ -45,10 +45,11 @@ pub struct ParamSpec {
     pub kind: ParamKind,
 }
 
-/// Declares a filter's parameter struct once: each field with its type, default, kind and
-/// bounds, and the text that documents it (what it does and what raising or lowering it
-/// trades). Generates the struct (serde, every field defaulted, unknown fields refused),
-/// its `Default`, and its [`FilterParams`] specs in field order.
+/// Declares a filter's parameter struct once: each field with its doc comment (what it does
+/// and what raising or lowering it trades), type, default, kind and bounds, one line of code
+/// a parameter. Generates the struct (serde, every field defaulted, unknown fields refused),
+/// its `Default`, and its [`FilterParams`] specs in field order, each spec's `doc` the field's
+/// doc comment joined into one line ([`doc_text`]).
 ///
 /// ```
 /// use afterimage_core::filter_params;
@@ -56,13 +57,14 @@ pub struct ParamSpec {
 /// filter_params! {
 ///     /// Parameters of an example.
 ///     pub struct Params {
-///         alpha: f32 = 0.1,
-///             ParamKind::Float { min: 0.0, max: 1.0 },
-///             "weight of the current frame";
+///         /// weight of the current
+///         /// frame
+///         alpha: f32 = 0.1, ParamKind::Float { min: 0.0, max: 1.0 };
 ///     }
 /// }
 /// assert_eq!(Params::default().alpha, 0.1);
 /// assert_eq!(Params::SPECS[0].name, "alpha");
+/// assert_eq!(Params::SPECS[0].doc, "weight of the current frame");
 /// ```
 ///
 /// A temporal filter ends its fields with `..reconstruct`: the `reconstruct` stage's
@@ -74,23 +76,30 @@ macro_rules! filter_params {
     (
         $(#[$meta:meta])*
         pub struct $name:ident {
-            $( $field:ident : $ty:ty = $default:expr, $kind:expr, $doc:literal; )*
+            $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:expr; )*
             ..reconstruct
         }
     ) => {
         $crate::filter_params! {
             $(#[$meta])*
             pub struct $name {
-                $( $field: $ty = $default, $kind, $doc; )*
+                $( $(#[doc = $doc])* $field: $ty = $default, $kind; )*
+                /// pixel filter of the image the output converges to (stage reconstruct): the current
+                /// frame enters as its 3x3 samples weighted at their jittered positions (at the pixel
+                /// centres, and wider, when the jitter is unknown: 0 on both axes). blackman_harris
+                /// (Cycles' default) or gaussian match a renderer's converged image; box keeps each
+                /// pixel's own sample (the box integral: sharper, more aliasing)
                 pixel_filter: $crate::filters::reconstruct::PixelFilter =
                     $crate::filters::reconstruct::PixelFilter::BlackmanHarris,
                     $crate::pipeline::params::ParamKind::Choice {
                         options: $crate::filters::reconstruct::PIXEL_FILTERS,
-                    },
-                    "pixel filter of the image the output converges to (stage reconstruct): the current frame enters as its 3x3 samples weighted at their jittered positions (at the pixel centres, and wider, when the jitter is unknown: 0 on both axes). blackman_harris (Cycles' default) or gaussian match a renderer's converged image; box keeps each pixel's own sample (the box integral: sharper, more aliasing)";
+                    };
+                /// pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width,
+                /// gaussian has sigma width/4; default 1.5, Cycles' default; a frame with unknown
+                /// jitter is weighed with the width, never narrower, whose centred taps average as
+                /// much, 1.73 for 1.5). Wider: softer, less aliasing and noise
                 filter_width: f32 = $crate::filters::reconstruct::DEFAULT_FILTER_WIDTH,
-                    $crate::pipeline::params::ParamKind::Float { min: 0.5, max: 4.0 },
-                    "pixel filter width in pixels, Cycles' convention (blackman_harris reaches +-width, gaussian has sigma width/4; default 1.5, Cycles' default; a frame with unknown jitter is weighed with the width, never narrower, whose centred taps average as much, 1.73 for 1.5). Wider: softer, less aliasing and noise";
+                    $crate::pipeline::params::ParamKind::Float { min: 0.5, max: 4.0 };
             }
         }
 
@@ -104,14 +113,14 @@ macro_rules! filter_params {
     (
         $(#[$meta:meta])*
         pub struct $name:ident {
-            $( $field:ident : $ty:ty = $default:expr, $kind:expr, $doc:literal; )*
+            $( $(#[doc = $doc:literal])* $field:ident : $ty:ty = $default:expr, $kind:expr; )*
         }
     ) => {
         $(#[$meta])*
         #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
         #[serde(default, deny_unknown_fields)]
         pub struct $name {
-            $( #[doc = $doc] pub $field: $ty, )*
+            $( $(#[doc = $doc])* pub $field: $ty, )*
         }
 
         impl Default for $name {
@@ -124,12 +133,24 @@ macro_rules! filter_params {
             const SPECS: &'static [$crate::pipeline::params::ParamSpec] = &[
                 $( $crate::pipeline::params::ParamSpec {
                     name: stringify!($field),
-                    doc: $doc,
+                    doc: $crate::pipeline::params::doc_text(concat!($($doc),*)),
                     kind: $kind,
                 }, )*
             ];
         }
     };
+}
+
+/// A parameter's doc text from its doc comment's lines concatenated: each line starts with
+/// the space after `///`, so the lines join with one space and only the first one's is cut.
+pub const fn doc_text(doc: &'static str) -> &'static str {
+    match doc.as_bytes() {
+        [b' ', rest @ ..] => match std::str::from_utf8(rest) {
+            Ok(text) => text,
+            Err(_) => doc,
+        },
+        _ => doc,
+    }
 }
 
 /// A filter's parameter set: serde (every field has a default), plus the declared specs.

@@ -312,6 +312,15 @@ impl Recorder {
         });
     }
 
+    /// Notes stage `name`, timed by the caller: left out where `skip` says why, else run for
+    /// `ms` milliseconds (a fused pass's stages, each with its own reason to be left out).
+    pub fn ran_unless(&mut self, name: &'static str, skip: Option<Skip>, ms: f64) {
+        match skip {
+            Some(why) => self.skip(name, why),
+            None => self.ran_for(name, ms),
+        }
+    }
+
     /// Notes the stages `names` of one fused pass that took `ms` of wall time: each gets
     /// the share of it that its clock measured (see [`super::exec::StageClock`]).
     pub fn fused<const N: usize>(

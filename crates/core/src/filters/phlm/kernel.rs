@@ -19,26 +19,21 @@ use super::{
 };
 use crate::filters::passes::{
     dilate_motion_rows, dilate_skip, on_screen_bits, previous_positions, reproject_skip, FrameContext,
-    FrameResult,
+    FrameResult, FrameSlices,
 };
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, Lanes, LANES};
 use crate::kernels::{
     bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes, SPAN,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
 use crate::pipeline::FilterError;
 use std::ops::Range;
 use wide::f32x8;
 
 /// Stages of the fused pass, in order (indices into its [`StageClock`]).
 const STAGES: [&str; 6] = ["tonemap", "ycocg", "reproject", "feature", "model", "untonemap"];
-const TONEMAP: usize = 0;
-const YCOCG: usize = 1;
-const REPROJECT: usize = 2;
-const FEATURE: usize = 3;
-const MODEL: usize = 4;
-const UNTONEMAP: usize = 5;
+stage_indices!(STAGES: TONEMAP, YCOCG, REPROJECT, FEATURE, MODEL, UNTONEMAP);
 
 /// Every lane of a block, as bits.
 const ALL: u32 = (1 << LANES) - 1;
@@ -53,13 +48,9 @@ const _: () = assert!(BETA == 0 && R - BETA == SPAN);
 
 /// What the pass reads for one frame.
 struct Sources<'a> {
-    w: usize,
-    h: usize,
-    color: [&'a [f32]; 3],
-    motion: Option<[&'a [f32]; 2]>,
-    invalid: Option<&'a [bool]>,
-    /// The depth, where the frame has it (kept with the models, [`super::depth_share`]).
-    depth: Option<&'a [f32]>,
+    /// The frame, its motion dilated where dilation runs (its depth is kept with the
+    /// models, [`super::depth_share`]).
+    frame: FrameSlices<'a>,
     /// The previous frame's state texels, when there is history.
     state: Option<&'a [f32]>,
 }
@@ -149,15 +140,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         p,
     };
     let src = Sources {
-        w,
-        h,
-        color: inp.color_slices(),
-        motion: dilated
-            .as_ref()
-            .or(inp.motion.as_deref())
-            .map(|m| m.each_ref().map(|p| p.data())),
-        invalid: inp.invalid.as_deref(),
-        depth: inp.depth.as_deref().map(|d| d.data()),
+        frame: FrameSlices::of(&inp, dilated.as_ref()),
         state: has_history.then(|| read[0].data()),
     };
     let mut out: Rgb = scratch.planes(w, h);
@@ -169,9 +152,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
             [o0, o1, o2, next[0].data_mut()],
             [w, w, w, TEXEL * w],
             h,
-            |band: &mut Band, rows, [or, og, ob, texels]| {
-                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
-            },
+            |band: &mut Band, rows, planes| run_band(&src, &plan, &clock, band, rows, planes),
         )
     };
     let ms = t.elapsed().as_secs_f64() * 1e3;
@@ -187,15 +168,9 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
     for (k, skip) in skips.into_iter().enumerate() {
         if k == REPROJECT {
             // `dilate` runs before the fused pass and is recorded in its place.
-            match dilate_skip.clone() {
-                Some(why) => rec.skip("dilate", why),
-                None => rec.ran_for("dilate", dilate_ms),
-            }
+            rec.ran_unless("dilate", dilate_skip.clone(), dilate_ms);
         }
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
+        rec.ran_unless(STAGES[k], skip, ms * shares[k]);
     }
     scratch.recycle(dilated.into_iter().flatten());
     Ok(counts.result(out))
@@ -209,10 +184,9 @@ fn run_band(
     clock: &StageClock<6>,
     band: &mut Band,
     rows: Range<usize>,
-    out: [&mut [f32]; 3],
-    next: &mut [f32],
+    [or, og, ob, next]: [&mut [f32]; 4],
 ) -> Counts {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let r0 = rows.start.saturating_sub(1);
     let r1 = (rows.end + 1).min(h);
     let Band {
@@ -229,7 +203,7 @@ fn run_band(
     for r in r0..r1 {
         let at = r * w..(r + 1) * w;
         let dst = (r - r0) * w..(r - r0 + 1) * w;
-        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
         let [w0, w1, w2] = work.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
             clock.time(TONEMAP, || {
@@ -253,7 +227,6 @@ fn run_band(
     }
     // Row buffers hold whole blocks: `wp` pixels, the last ones padding.
     let wp = w.div_ceil(LANES) * LANES;
-    let [or, og, ob] = out;
     let mut counts = Counts::default();
     for y in rows.clone() {
         let at = y * w..(y + 1) * w;
@@ -269,7 +242,7 @@ fn run_band(
         let z = sized(z, wp / LANES);
         let working = work.each_ref().map(|c| &c[centre.clone()]);
         let ycocg = cur.each_ref().map(|c| &c[centre.clone()]);
-        let invalid = src.invalid.map(|v| &v[at.clone()]);
+        let invalid = src.frame.invalid.map(|v| &v[at.clone()]);
         clock.time(FEATURE, || {
             feature_row(&stats, working, fetched, invalid, plan.p, w, z)
         });
@@ -278,7 +251,7 @@ fn run_band(
         let row_out = [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]];
         let texels = &mut next[TEXEL * o.start..TEXEL * o.end];
         counts += clock.time(MODEL, || {
-            let depths = src.depth.map(|d| {
+            let depths = src.frame.depth.map(|d| {
                 let range = (plan.p.depth_jump > 0.0).then(|| depth_range_row(d, w, h, y, wp, depth));
                 (&d[at.clone()], range)
             });
@@ -310,9 +283,9 @@ fn fetch_row(
     blocks: &mut [Fetched],
     texels: &mut [[f32; TEXEL]; LANES],
 ) {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let row = y * w..(y + 1) * w;
-    let moving = match (plan.reproject, src.motion) {
+    let moving = match (plan.reproject, src.frame.motion) {
         (true, Some(m)) => Some(m),
         _ => None,
     };
@@ -320,7 +293,7 @@ fn fetch_row(
         let x0 = b * LANES;
         blk.none = ALL;
         blk.speed = [0.0; LANES];
-        if let Some([mx, my]) = src.motion {
+        if let Some([mx, my]) = src.frame.motion {
             let (mx, my) = (
                 lanes_of(&mx[row.clone()], x0, w, 0.0),
                 lanes_of(&my[row.clone()], x0, w, 0.0),

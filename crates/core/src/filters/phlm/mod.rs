@@ -81,7 +81,7 @@ pub mod rls;
 use super::passes::{Conversion, FrameResult, TemporalState};
 use super::reconstruct::PixelFilter;
 use crate::filter_params;
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::tonemap;
 #[cfg(test)]
@@ -148,69 +148,97 @@ pub enum OnClip {
 filter_params! {
     /// Parameters of `phlm`.
     pub struct Params {
-        lambda: f32 = DEFAULT_LAMBDA,
-            ParamKind::Float { min: 0.5, max: 0.99999 },
-            "RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more supersampling on still content, slower to follow slow shading changes; lower: follows changes, keeps more flicker";
-        variant: Variant = Variant::Tuned,
-            ParamKind::Choice { options: &["tuned", "paper"], },
-            "tuned (the parameters as given; defaults measured on the Blender corpus and the scene catalogue) or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false, model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp = fail_ramp_box = 0, speed_jump = depth_jump = 0, pixel_filter = box)";
-        p0: f32 = DEFAULT_P0,
-            ParamKind::Float { min: 1e-3, max: 1e6 },
-            "diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model follows the input at once; low: it trusts its initial value";
-        clip_p: f32 = DEFAULT_CLIP_P,
-            ParamKind::Float { min: 1e-3, max: 1e6 },
-            "diagonal of P after a clip reset (default 1; paper: 1000 like p0, the model restarts from the input and the pixel shows its raw input). Lower keeps the clipped colour longer: less flicker on thin features, more lag";
-        feature_a: f32 = feature::DEFAULT_A,
-            ParamKind::Float { min: 0.0, max: 100.0 },
-            "feature convergence phi = a l^2 + b v l^3 (paper: a = 0.125): how fast the feature catches up when its luma leaves the neighbourhood range";
-        feature_b: f32 = feature::DEFAULT_B,
-            ParamKind::Float { min: 0.0, max: 100.0 },
-            "feature convergence, motion term (paper: b = 0.25): faster catch-up for moving pixels";
-        feature_alpha_min: f32 = feature::DEFAULT_ALPHA_MIN,
-            ParamKind::Float { min: 0.001, max: 1.0 },
-            "smallest weight of the current low-pass sample in the feature (our choice, 0.08 = a 12-frame memory): lower gives a smoother feature that lags more (a change of shading with no motion shows later)";
-        model_fetch: ModelFetch = ModelFetch::CatmullRom,
-            ParamKind::Choice { options: &["catmull_rom", "bilinear", "nearest"], },
-            "reprojected model read: catmull_rom (beta by Catmull-Rom, R and the feature bilinear: sharp under motion, 12 taps), bilinear (paper's texture fetch, smooth, blurs moving detail) or nearest (4x fewer reads, blocky)";
-        dilation: bool = true,
-            ParamKind::Bool,
-            "take the motion of the nearest pixel of the 3x3 (needs depth; as taa): pixels beside a thin moving edge follow the edge's models (off: the paper's own motion per pixel)";
-        lambda_moving: f32 = DEFAULT_LAMBDA_MOVING,
-            ParamKind::Float { min: 0.0, max: 0.99999 },
-            "forgetting factor of moving pixels (default 0.8; 0 = off: the paper's lambda everywhere): lambda falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed px/frame and faster). Still content keeps the long memory that supersamples it, moving content follows its changes (0.8 from the lambda sweep of docs/phlm-ablations.md, table 4)";
-        lambda_speed: f32 = DEFAULT_LAMBDA_SPEED,
-            ParamKind::Float { min: 0.01, max: 100.0 },
-            "speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only; default 0.25): lower treats slow motion as moving (follows a slow dolly or a moving object sooner, keeps a little more flicker), higher keeps the still pixels' long memory for slow motion too";
-        test_box: TestBox = TestBox::Minmax,
-            ParamKind::Choice { options: &["minmax", "variance"], },
-            "box the prediction is tested against: minmax (paper's 3x3 AABB) or variance (mean +- test_gamma sigma within it, as taa): tighter catches more ghosting and jitter-driven drift, but clips (and resets) more models, which shows more raw input";
-        test_gamma: f32 = DEFAULT_TEST_GAMMA,
-            ParamKind::Float { min: 0.25, max: 4.0 },
-            "half-width in sigmas of the variance test box (test_box = variance only; taa's 1.0): lower clips more, higher approaches the min/max box";
-        on_clip: OnClip = OnClip::Reset,
-            ParamKind::Choice { options: &["reset", "shift"], },
-            "what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0) or shift (the intercept moves so the model predicts the clipped colour, slopes kept)";
-        clip_after: f32 = DEFAULT_CLIP_AFTER,
-            ParamKind::Float { min: 0.0, max: 2.0 },
-            "how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev / 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise; a miss by less than fail_ramp adds less, one where the speed jumped up to 2: speed_jump), and a failure clips and resets only when s >= clip_after (default 1.75: three frames in a row; 1.875: four; 1.5: two; 1 or less: every failure, the paper; 2: only after 24 in a row, where f32 rounds the count to 2). Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content converges); a real change shows its old colour longer (fail_keep makes the model follow it meanwhile)";
-        fail_keep: f32 = DEFAULT_FAIL_KEEP,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "confidence kept by a model whose prediction left the box without clipping yet (clip_after > 1): R = fail_keep R + (1 - fail_keep) I / clip_p, beta kept (default 0.25; 1 = untouched). Lower: the RLS update follows a real change at once; higher: still detail keeps more of what it accumulated";
-        fail_ramp: f32 = DEFAULT_FAIL_RAMP,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "how far outside its box (the largest YCoCg channel of the working space) a prediction must be to count as a whole failure: a miss by d adds h = min(1, d / fail_ramp) to the count of clip_after and relaxes R with 1 - h (1 - fail_keep) (default 0.002; 0: every miss counts whole, the paper). Higher: misses by a sliver hardly count (still detail keeps its model, and the GPU and CPU agree at the box's edge); a slow real change (a moving light) is followed later";
-        fail_ramp_box: f32 = DEFAULT_FAIL_RAMP_BOX,
-            ParamKind::Float { min: 0.0, max: 4.0 },
-            "the ramp of a miss grows with the box: a miss counts whole from max(fail_ramp, fail_ramp_box * the box's extent) on (the largest YCoCg channel of its max - min). Where the 3x3 is noisy (a path tracer's 1 spp) or jittered detail spans it, a converged model's misses are small against the box and hardly count; where it is flat, a small real change (a moving light) counts at once (0: the fixed fail_ramp alone)";
-        speed_jump: f32 = DEFAULT_SPEED_JUMP,
-            ParamKind::Float { min: 0.0, max: 1000.0 },
-            "change of a pixel's speed (px/frame) at which a failed box test counts twice, so that it clips at once: a miss counts 1 + min(1, |v - v_prev| / speed_jump) times, v_prev the speed stored with the fetched history (default 1; 0: off). Lower: a surface that leaves a pixel (a spoke passing, a disocclusion) is cut sooner; higher: still content under a moving neighbour keeps its model";
-        depth_jump: f32 = DEFAULT_DEPTH_JUMP,
-            ParamKind::Float { min: 0.0, max: 100.0 },
-            "how far outside this frame's 3x3 depth range (relative to the depth) the depth stored with the fetched history must lie for a failed box test to count twice, so that it clips at once: a miss counts 1 + min(1, d / depth_jump) times, d = (lo - d_prev) / d_prev below the range, (d_prev - hi) / hi above it (default 0.25; 0: off; needs depth). Lower: a background uncovered behind a thin post sheds the post's colour sooner; higher: only clear disocclusions count";
-        clip_keep: f32 = DEFAULT_CLIP_KEEP,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 = the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker), the model follows the new input more slowly (more lag)";
+        /// RLS forgetting factor (paper: 0.998, memory ~1/(1-lambda) = 500 frames). Higher: more
+        /// supersampling on still content, slower to follow slow shading changes; lower: follows changes,
+        /// keeps more flicker
+        lambda: f32 = DEFAULT_LAMBDA, ParamKind::Float { min: 0.5, max: 0.99999 };
+        /// tuned (the parameters as given; defaults measured on the Blender corpus and the scene catalogue)
+        /// or paper (Iglesias-Guitian et al. 2016's settings: overrides lambda_moving = 0, dilation = false,
+        /// model_fetch = bilinear, p0 = clip_p = 1000, clip_keep = 0, clip_after = 1, fail_ramp =
+        /// fail_ramp_box = 0, speed_jump = depth_jump = 0, pixel_filter = box)
+        variant: Variant = Variant::Tuned, ParamKind::Choice { options: &["tuned", "paper"] };
+        /// diagonal of P at initialisation and off-screen reset (default 100; paper: 1000). High: a new model
+        /// follows the input at once; low: it trusts its initial value
+        p0: f32 = DEFAULT_P0, ParamKind::Float { min: 1e-3, max: 1e6 };
+        /// diagonal of P after a clip reset (default 1; paper: 1000 like p0, the model restarts from the
+        /// input and the pixel shows its raw input). Lower keeps the clipped colour longer: less flicker on
+        /// thin features, more lag
+        clip_p: f32 = DEFAULT_CLIP_P, ParamKind::Float { min: 1e-3, max: 1e6 };
+        /// feature convergence phi = a l^2 + b v l^3 (paper: a = 0.125): how fast the feature catches up when
+        /// its luma leaves the neighbourhood range
+        feature_a: f32 = feature::DEFAULT_A, ParamKind::Float { min: 0.0, max: 100.0 };
+        /// feature convergence, motion term (paper: b = 0.25): faster catch-up for moving pixels
+        feature_b: f32 = feature::DEFAULT_B, ParamKind::Float { min: 0.0, max: 100.0 };
+        /// smallest weight of the current low-pass sample in the feature (our choice, 0.08 = a 12-frame
+        /// memory): lower gives a smoother feature that lags more (a change of shading with no motion shows
+        /// later)
+        feature_alpha_min: f32 = feature::DEFAULT_ALPHA_MIN, ParamKind::Float { min: 0.001, max: 1.0 };
+        /// reprojected model read: catmull_rom (beta by Catmull-Rom, R and the feature bilinear: sharp under
+        /// motion, 12 taps), bilinear (paper's texture fetch, smooth, blurs moving detail) or nearest (4x
+        /// fewer reads, blocky)
+        model_fetch: ModelFetch = ModelFetch::CatmullRom, ParamKind::Choice { options: &["catmull_rom", "bilinear", "nearest"] };
+        /// take the motion of the nearest pixel of the 3x3 (needs depth; as taa): pixels beside a thin moving
+        /// edge follow the edge's models (off: the paper's own motion per pixel)
+        dilation: bool = true, ParamKind::Bool;
+        /// forgetting factor of moving pixels (default 0.8; 0 = off: the paper's lambda everywhere): lambda
+        /// falls linearly with the pixel's speed from lambda (still) to lambda_moving (at lambda_speed
+        /// px/frame and faster). Still content keeps the long memory that supersamples it, moving content
+        /// follows its changes (0.8 from the lambda sweep of docs/phlm-ablations.md, table 4)
+        lambda_moving: f32 = DEFAULT_LAMBDA_MOVING, ParamKind::Float { min: 0.0, max: 0.99999 };
+        /// speed (px/frame) at which the forgetting factor reaches lambda_moving (lambda_moving > 0 only;
+        /// default 0.25): lower treats slow motion as moving (follows a slow dolly or a moving object sooner,
+        /// keeps a little more flicker), higher keeps the still pixels' long memory for slow motion too
+        lambda_speed: f32 = DEFAULT_LAMBDA_SPEED, ParamKind::Float { min: 0.01, max: 100.0 };
+        /// box the prediction is tested against: minmax (paper's 3x3 AABB) or variance (mean +- test_gamma
+        /// sigma within it, as taa): tighter catches more ghosting and jitter-driven drift, but clips (and
+        /// resets) more models, which shows more raw input
+        test_box: TestBox = TestBox::Minmax, ParamKind::Choice { options: &["minmax", "variance"] };
+        /// half-width in sigmas of the variance test box (test_box = variance only; taa's 1.0): lower clips
+        /// more, higher approaches the min/max box
+        test_gamma: f32 = DEFAULT_TEST_GAMMA, ParamKind::Float { min: 0.25, max: 4.0 };
+        /// what a clipped prediction does to its model: reset (paper: intercept = clipped colour, slopes 0)
+        /// or shift (the intercept moves so the model predicts the clipped colour, slopes kept)
+        on_clip: OnClip = OnClip::Reset, ParamKind::Choice { options: &["reset", "shift"] };
+        /// how persistent a failed box test must be before it clips the model: each pixel counts s = s_prev /
+        /// 2 + 1 in a frame whose prediction left the box (s_prev / 2 otherwise; a miss by less than
+        /// fail_ramp adds less, one where the speed jumped up to 2: speed_jump), and a failure clips and
+        /// resets only when s >= clip_after (default 1.75: three frames in a row; 1.875: four; 1.5: two; 1 or
+        /// less: every failure, the paper; 2: only after 24 in a row, where f32 rounds the count to 2).
+        /// Higher: detail that one jittered frame's 3x3 box misses keeps its accumulated model (still content
+        /// converges); a real change shows its old colour longer (fail_keep makes the model follow it
+        /// meanwhile)
+        clip_after: f32 = DEFAULT_CLIP_AFTER, ParamKind::Float { min: 0.0, max: 2.0 };
+        /// confidence kept by a model whose prediction left the box without clipping yet (clip_after > 1): R
+        /// = fail_keep R + (1 - fail_keep) I / clip_p, beta kept (default 0.25; 1 = untouched). Lower: the
+        /// RLS update follows a real change at once; higher: still detail keeps more of what it accumulated
+        fail_keep: f32 = DEFAULT_FAIL_KEEP, ParamKind::Float { min: 0.0, max: 1.0 };
+        /// how far outside its box (the largest YCoCg channel of the working space) a prediction must be to
+        /// count as a whole failure: a miss by d adds h = min(1, d / fail_ramp) to the count of clip_after
+        /// and relaxes R with 1 - h (1 - fail_keep) (default 0.002; 0: every miss counts whole, the paper).
+        /// Higher: misses by a sliver hardly count (still detail keeps its model, and the GPU and CPU agree
+        /// at the box's edge); a slow real change (a moving light) is followed later
+        fail_ramp: f32 = DEFAULT_FAIL_RAMP, ParamKind::Float { min: 0.0, max: 1.0 };
+        /// the ramp of a miss grows with the box: a miss counts whole from max(fail_ramp, fail_ramp_box * the
+        /// box's extent) on (the largest YCoCg channel of its max - min). Where the 3x3 is noisy (a path
+        /// tracer's 1 spp) or jittered detail spans it, a converged model's misses are small against the box
+        /// and hardly count; where it is flat, a small real change (a moving light) counts at once (0: the
+        /// fixed fail_ramp alone)
+        fail_ramp_box: f32 = DEFAULT_FAIL_RAMP_BOX, ParamKind::Float { min: 0.0, max: 4.0 };
+        /// change of a pixel's speed (px/frame) at which a failed box test counts twice, so that it clips at
+        /// once: a miss counts 1 + min(1, |v - v_prev| / speed_jump) times, v_prev the speed stored with the
+        /// fetched history (default 1; 0: off). Lower: a surface that leaves a pixel (a spoke passing, a
+        /// disocclusion) is cut sooner; higher: still content under a moving neighbour keeps its model
+        speed_jump: f32 = DEFAULT_SPEED_JUMP, ParamKind::Float { min: 0.0, max: 1000.0 };
+        /// how far outside this frame's 3x3 depth range (relative to the depth) the depth stored with the
+        /// fetched history must lie for a failed box test to count twice, so that it clips at once: a miss
+        /// counts 1 + min(1, d / depth_jump) times, d = (lo - d_prev) / d_prev below the range, (d_prev - hi)
+        /// / hi above it (default 0.25; 0: off; needs depth). Lower: a background uncovered behind a thin
+        /// post sheds the post's colour sooner; higher: only clear disocclusions count
+        depth_jump: f32 = DEFAULT_DEPTH_JUMP, ParamKind::Float { min: 0.0, max: 100.0 };
+        /// confidence kept by a clipped model: R = clip_keep R + (1 - clip_keep) I / clip_p (default 0.5; 0 =
+        /// the paper's hard reset of P to clip_p I; 1 = keep R). Higher: a clip disturbs less (less flicker),
+        /// the model follows the new input more slowly (more lag)
+        clip_keep: f32 = DEFAULT_CLIP_KEEP, ParamKind::Float { min: 0.0, max: 1.0 };
         ..reconstruct
     }
 }
@@ -686,17 +714,7 @@ impl FilterKind for Phlm {
     const NAME: &'static str = "phlm";
     const SUMMARY: &'static str =
         "Pixel History Linear Models (Iglesias-Guitian et al. 2016): per-pixel RLS linear models over a temporal feature, box-clipped, with bounded (regularized) forgetting";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "ycocg",
-        "dilate",
-        "reproject",
-        "feature",
-        "model",
-        "untonemap",
-    ];
+    temporal_stages! { "tonemap", "ycocg", "dilate", "reproject", "feature", "model", "untonemap" }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
@@ -843,7 +861,7 @@ mod tests {
     use super::reference::ReferencePhlm;
     use super::*;
     use crate::filters::check::prelude::*;
-    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
+    use crate::filters::check::{assert_filter_matches, assert_variants_match, sequences, ODD_SIZES};
     use crate::kernels::clip::guard;
     use crate::pipeline::params::{build, parse_assignments};
     use crate::tolerance::Tolerance;
@@ -890,16 +908,7 @@ mod tests {
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
             for (name, frames) in sequences(w, h, 6, (w * 37 + h) as u64) {
-                for set in variants {
-                    let params: Params = build("phlm", &parse_assignments(set).unwrap()).unwrap();
-                    let mut slow = ReferencePhlm::new(params.clone());
-                    assert_filter_matches(
-                        &mut Phlm::new(params),
-                        |f| slow.process(f).unwrap(),
-                        &frames,
-                        &format!("{w}x{h} {name} {set:?}"),
-                    );
-                }
+                assert_variants_match::<Phlm, ReferencePhlm>(variants, &frames, &format!("{w}x{h} {name}"));
             }
         }
     }

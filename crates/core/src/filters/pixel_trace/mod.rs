@@ -57,24 +57,25 @@ pub enum Kernel {
 filter_params! {
     /// Parameters of `pixel_trace`.
     pub struct Params {
-        window: u32 = DEFAULT_WINDOW,
-            ParamKind::Int { min: 1, max: 256 },
-            "frames T in the window t-T/2..=t+T/2 (Shinya: 16 for a walk-through, 32 for non-uniform motion, 128 for his thin line). Larger: more sub-pixel detail recovered, cost and memory grow as T, latency T/2 frames";
-        kernel: Kernel = Kernel::Box,
-            ParamKind::Choice { options: &["box", "gaussian"], },
-            "filter kernel w: box (Shinya's, sharpest; support 0.5 = one pixel area) or gaussian (smoother, less aliasing left at small T, softer)";
-        support: f32 = DEFAULT_SUPPORT,
-            ParamKind::Float { min: 0.25, max: 4.0 },
-            "kernel support radius in pixels. Larger: softer and more samples per frame (cost grows as its square)";
-        d_th: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 16.0 },
-            "two-way flow test threshold in pixels (eq. 14-15); 0 = the support's diameter. Smaller: objects separate sooner but paths with motion error lose samples; larger: different motions merge";
-        flow_separation: bool = true,
-            ParamKind::Bool,
-            "separate differently moving objects (eq. 13-17). Off: one flow per pixel, cheaper, smears objects into what moves behind them";
-        max_flows: u32 = 3,
-            ParamKind::Int { min: 1, max: 8 },
-            "most missed flows (other objects) kept per pixel, the A-buffer list; more cost memory only where objects overlap";
+        /// frames T in the window t-T/2..=t+T/2 (Shinya: 16 for a walk-through, 32 for non-uniform motion,
+        /// 128 for his thin line). Larger: more sub-pixel detail recovered, cost and memory grow as T,
+        /// latency T/2 frames
+        window: u32 = DEFAULT_WINDOW, ParamKind::Int { min: 1, max: 256 };
+        /// filter kernel w: box (Shinya's, sharpest; support 0.5 = one pixel area) or gaussian (smoother,
+        /// less aliasing left at small T, softer)
+        kernel: Kernel = Kernel::Box, ParamKind::Choice { options: &["box", "gaussian"] };
+        /// kernel support radius in pixels. Larger: softer and more samples per frame (cost grows as its
+        /// square)
+        support: f32 = DEFAULT_SUPPORT, ParamKind::Float { min: 0.25, max: 4.0 };
+        /// two-way flow test threshold in pixels (eq. 14-15); 0 = the support's diameter. Smaller: objects
+        /// separate sooner but paths with motion error lose samples; larger: different motions merge
+        d_th: f32 = 0.0, ParamKind::Float { min: 0.0, max: 16.0 };
+        /// separate differently moving objects (eq. 13-17). Off: one flow per pixel, cheaper, smears objects
+        /// into what moves behind them
+        flow_separation: bool = true, ParamKind::Bool;
+        /// most missed flows (other objects) kept per pixel, the A-buffer list; more cost memory only where
+        /// objects overlap
+        max_flows: u32 = 3, ParamKind::Int { min: 1, max: 8 };
     }
 }
 

@@ -13,10 +13,10 @@
 //! float operations in the same order, so the outputs are the same bits; the tests compare
 //! them frame by frame.
 
-use super::{HistoryFilter, Params, StagePlan, MAX_COUNT};
+use super::{HistoryFilter, Params, StagePlan, Taa, MAX_COUNT};
 use crate::filters::passes::{
     dilate_row, from_working, on_screen_bits, output_ceiling, previous_positions, sharpen, tonemap_row,
-    untonemap_row, FrameContext, FrameResult,
+    untonemap_row, FrameContext, FrameResult, FrameSlices,
 };
 use crate::frame::Rgb;
 use crate::kernels::lanes::{self, block, Lanes, Mask, LANES};
@@ -24,37 +24,22 @@ use crate::kernels::{
     bilinear, bilinear_texels, box_from_columns, clip_toward_center, column_stats, rgb_to_ycocg,
     variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, StageClock};
-use crate::pipeline::{FilterError, PixelCounts};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
+use crate::pipeline::{FilterError, FilterKind, PixelCounts};
 use std::ops::Range;
 use wide::f32x8;
 
-/// Stages of the fused pass, in order (indices into its [`StageClock`]).
-const STAGES: [&str; 7] = [
-    "tonemap",
-    "ycocg",
-    "dilate",
-    "reproject",
-    "depth_reject",
-    "resolve",
-    "untonemap",
-];
-const TONEMAP: usize = 0;
-const YCOCG: usize = 1;
-const DILATE: usize = 2;
-const REPROJECT: usize = 3;
-const DEPTH_REJECT: usize = 4;
-const RESOLVE: usize = 5;
-const UNTONEMAP: usize = 6;
+/// Stages of the fused pass, in order (indices into its [`StageClock`]): the filter's
+/// stages less `repair` and `reconstruct` (run before it) and `sharpen` (a pass of its own).
+const STAGES: [&str; 7] = {
+    let s = <Taa as FilterKind>::STAGES;
+    [s[2], s[3], s[4], s[5], s[6], s[7], s[9]]
+};
+stage_indices!(STAGES: TONEMAP, YCOCG, DILATE, REPROJECT, DEPTH_REJECT, RESOLVE, UNTONEMAP);
 
 /// What the pass reads for one frame.
 struct Sources<'a> {
-    w: usize,
-    h: usize,
-    color: [&'a [f32]; 3],
-    motion: Option<[&'a [f32]; 2]>,
-    depth: Option<&'a [f32]>,
-    invalid: Option<&'a [bool]>,
+    frame: FrameSlices<'a>,
     /// The history, when there is one.
     hist: Option<History<'a>>,
 }
@@ -139,12 +124,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         },
     };
     let src = Sources {
-        w,
-        h,
-        color: inp.color_slices(),
-        motion: inp.motion.as_deref().map(|m| m.each_ref().map(|p| p.data())),
-        depth: inp.depth.as_deref().map(|d| d.data()),
-        invalid: inp.invalid.as_deref(),
+        frame: FrameSlices::of(&inp, None),
         hist: has_history.then(|| History {
             texels: read[0].data(),
             depth: read.get(1).map(|p| p.data()),
@@ -159,13 +139,11 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
             [o0, o1, o2, next[0].data_mut()],
             [w, w, w, 4 * w],
             h,
-            |band: &mut Band, rows, [or, og, ob, texels]| {
-                run_band(&src, &plan, &clock, band, rows, [or, og, ob], texels)
-            },
+            |band: &mut Band, rows, planes| run_band(&src, &plan, &clock, band, rows, planes),
         )
     };
     let ms = t.elapsed().as_secs_f64() * 1e3;
-    if let (Some(d), Some(nd)) = (src.depth, next.get_mut(1)) {
+    if let (Some(d), Some(nd)) = (src.frame.depth, next.get_mut(1)) {
         nd.data_mut().copy_from_slice(d);
     }
     let shares = clock.shares();
@@ -183,10 +161,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         },
     ];
     for (k, skip) in skips.into_iter().enumerate().take(RESOLVE + 1) {
-        match skip {
-            Some(why) => rec.skip(STAGES[k], why),
-            None => rec.ran_for(STAGES[k], ms * shares[k]),
-        }
+        rec.ran_unless(STAGES[k], skip, ms * shares[k]);
     }
     if let Some(s) = rec.stage("sharpen", sharpen_skip, || {
         sharpen(&out, p.sharpen, output_ceiling(&facts), scratch)
@@ -194,10 +169,7 @@ pub(super) fn frame(p: &Params, ctx: FrameContext<'_, '_>) -> Result<FrameResult
         scratch.recycle(std::mem::replace(&mut out, s));
         rec.stage("untonemap", tonemap_skip, || from_working(&mut out, true));
     } else {
-        match tonemap_skip {
-            Some(why) => rec.skip("untonemap", why),
-            None => rec.ran_for("untonemap", ms * shares[UNTONEMAP]),
-        }
+        rec.ran_unless("untonemap", tonemap_skip, ms * shares[UNTONEMAP]);
     }
     Ok(FrameResult {
         color: out,
@@ -215,10 +187,9 @@ fn run_band(
     clock: &StageClock<7>,
     band: &mut Band,
     rows: Range<usize>,
-    out: [&mut [f32]; 3],
-    next: &mut [f32],
+    [or, og, ob, next]: [&mut [f32]; 4],
 ) -> PixelCounts {
-    let (w, h) = (src.w, src.h);
+    let (w, h) = (src.frame.w, src.frame.h);
     let r0 = rows.start.saturating_sub(1);
     let r1 = (rows.end + 1).min(h);
     let Band {
@@ -232,7 +203,7 @@ fn run_band(
     let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
     for r in r0..r1 {
         let at = r * w..(r + 1) * w;
-        let input = [0, 1, 2].map(|k| &src.color[k][at.clone()]);
+        let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
         let dst = (r - r0) * w..(r - r0 + 1) * w;
         let [c0, c1, c2] = cur.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
@@ -243,7 +214,6 @@ fn run_band(
             clock.time(YCOCG, || ycocg_row(input, [c0, c1, c2]));
         }
     }
-    let [or, og, ob] = out;
     let mut counts = PixelCounts::default();
     for y in rows.clone() {
         let k = y - rows.start;
@@ -253,11 +223,16 @@ fn run_band(
             None
         } else if plan.dilate {
             let [mx, my] = motion.each_mut().map(|v| sized(v, w));
-            let (d, mv) = (src.depth.expect("planned"), src.motion.expect("planned"));
+            let (d, mv) = (
+                src.frame.depth.expect("planned"),
+                src.frame.motion.expect("planned"),
+            );
             clock.time(DILATE, || dilate_row(d, mv, w, h, y, mx, my));
             Some([&*mx, &*my])
         } else {
-            src.motion.map(|mv| [&mv[0][at.clone()], &mv[1][at.clone()]])
+            src.frame
+                .motion
+                .map(|mv| [&mv[0][at.clone()], &mv[1][at.clone()]])
         };
         // This row's history: reprojected, or in place when nothing moves.
         let hrow: Option<[&[f32]; 4]> = match src.hist {
@@ -280,7 +255,7 @@ fn run_band(
         let rej: Option<&[f32]> = if plan.depth_reject {
             let prev = src.hist.and_then(|hs| hs.depth).expect("planned");
             let rj = sized(reject, w);
-            let d = &src.depth.expect("planned")[at.clone()];
+            let d = &src.frame.depth.expect("planned")[at.clone()];
             counts.history_rejected += clock.time(DEPTH_REJECT, || {
                 depth_reject_row(prev, d, m, w, h, y, plan.knobs.depth_rejection, rj)
             });
@@ -303,7 +278,7 @@ fn run_band(
                 [cy, ca, cb],
                 hrow,
                 rej,
-                src.invalid.map(|v| &v[at.clone()]),
+                src.frame.invalid.map(|v| &v[at.clone()]),
                 &plan.knobs,
                 cl,
                 [&mut or[o.clone()], &mut og[o.clone()], &mut ob[o.clone()]],

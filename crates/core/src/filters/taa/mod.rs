@@ -26,7 +26,7 @@ mod reference;
 
 use super::passes::{convert_texel_history, dilate_skip, reproject_skip, Conversion, TemporalState};
 use crate::filter_params;
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet};
 use crate::pipeline::{FilterKind, Inputs, ParamKind, Skip};
 use serde::{Deserialize, Serialize};
@@ -44,27 +44,26 @@ pub enum HistoryFilter {
 filter_params! {
     /// Parameters of `taa`.
     pub struct Params {
-        alpha: f32 = DEFAULT_ALPHA,
-            ParamKind::Float { min: 0.01, max: 1.0 },
-            "weight of the current frame (default 0.2, chosen on the Blender corpus; Karis 2014 and Bevy: 0.1, Unreal: 0.04). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper response, more jitter shimmer";
-        gamma: f32 = DEFAULT_GAMMA,
-            ParamKind::Float { min: 0.25, max: 4.0 },
-            "variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more flicker; higher: stabler, more ghosting";
-        history_filter: HistoryFilter = HistoryFilter::CatmullRom,
-            ParamKind::Choice { options: &["catmull_rom", "bilinear"], },
-            "history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it";
-        dilation: bool = true,
-            ParamKind::Bool,
-            "take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history";
-        luminance_weighting: bool = true,
-            ParamKind::Bool,
-            "weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker bias";
-        depth_rejection: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 10.0 },
-            "restart history whose reprojected depth differs from the current by more than this fraction (0 = off); catches disocclusion the colour box misses, can reject on thin geometry";
-        sharpen: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 4.0 },
-            "strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of resampling, amplifies noise";
+        /// weight of the current frame (default 0.2, chosen on the Blender corpus; Karis 2014 and Bevy: 0.1,
+        /// Unreal: 0.04). Lower: smoother, more supersampling, more ghosting and lag; higher: sharper
+        /// response, more jitter shimmer
+        alpha: f32 = DEFAULT_ALPHA, ParamKind::Float { min: 0.01, max: 1.0 };
+        /// variance-box half-width in sigmas (Salvi 2016; survey: 0.75-1.25). Lower: less ghosting, more
+        /// flicker; higher: stabler, more ghosting
+        gamma: f32 = DEFAULT_GAMMA, ParamKind::Float { min: 0.25, max: 4.0 };
+        /// history resampling: catmull_rom keeps moving history sharp; bilinear is cheaper and blurs it
+        history_filter: HistoryFilter = HistoryFilter::CatmullRom, ParamKind::Choice { options: &["catmull_rom", "bilinear"] };
+        /// take the motion of the nearest pixel of the 3x3 (needs depth): moving edges carry their history
+        dilation: bool = true, ParamKind::Bool;
+        /// weight samples by 1/(1 + luma) (Karis 2014): fewer bright flickering pixels, a slightly darker
+        /// bias
+        luminance_weighting: bool = true, ParamKind::Bool;
+        /// restart history whose reprojected depth differs from the current by more than this fraction (0 =
+        /// off); catches disocclusion the colour box misses, can reject on thin geometry
+        depth_rejection: f32 = 0.0, ParamKind::Float { min: 0.0, max: 10.0 };
+        /// strength of the output cross sharpen (0 = off; 1 = thesis eq. 4.17); counters the blur of
+        /// resampling, amplifies noise
+        sharpen: f32 = 0.0, ParamKind::Float { min: 0.0, max: 4.0 };
         ..reconstruct
     }
 }
@@ -82,19 +81,6 @@ pub const DEFAULT_GAMMA: f32 = 1.0;
 /// Sample counts are held at this many frames: past 1/alpha the blend weight is `alpha`
 /// anyway, and a bounded count keeps the state bounded on endless still scenes.
 pub const MAX_COUNT: f32 = 255.0;
-
-/// History planes of the reference (the filter itself keeps Y, Co, Cg and the count
-/// interleaved in one plane, and depth in a second).
-#[cfg(test)]
-const Y: usize = 0;
-#[cfg(test)]
-const CO: usize = 1;
-#[cfg(test)]
-const CG: usize = 2;
-#[cfg(test)]
-const COUNT: usize = 3;
-#[cfg(test)]
-const DEPTH: usize = 4;
 
 /// Which of `taa`'s optional stages run on a frame, and why each of the others is left out
 /// (`None`: it runs). Pure planning from the frame's facts and the parameters: the CPU
@@ -147,18 +133,9 @@ impl FilterKind for Taa {
     const NAME: &'static str = "taa";
     const SUMMARY: &'static str =
         "industry TAA: velocity dilation, Catmull-Rom history, YCoCg variance clipping, luminance-weighted blend";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "ycocg",
-        "dilate",
-        "reproject",
-        "depth_reject",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
+    temporal_stages! {
+        "tonemap", "ycocg", "dilate", "reproject", "depth_reject", "resolve", "sharpen", "untonemap"
+    }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[ChannelKind::Color, ChannelKind::Motion, ChannelKind::Depth])
@@ -199,8 +176,7 @@ history_filter!(Taa, |p, frame, ctx| kernel::frame(p, ctx));
 mod tests {
     use super::reference::ReferenceTaa;
     use super::*;
-    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
-    use crate::pipeline::params::{build, parse_assignments};
+    use crate::filters::check::{assert_variants_match, sequences, ODD_SIZES};
 
     /// The fused kernel gives the reference's output, bit for bit, with every option, on
     /// every kind of sequence, at odd sizes.
@@ -217,16 +193,7 @@ mod tests {
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
             for (name, frames) in sequences(w, h, 6, (w * 31 + h) as u64) {
-                for set in variants {
-                    let params: Params = build("taa", &parse_assignments(set).unwrap()).unwrap();
-                    let mut slow = ReferenceTaa::new(params.clone());
-                    assert_filter_matches(
-                        &mut Taa::new(params),
-                        |f| slow.process(f).unwrap(),
-                        &frames,
-                        &format!("{w}x{h} {name} {set:?}"),
-                    );
-                }
+                assert_variants_match::<Taa, ReferenceTaa>(variants, &frames, &format!("{w}x{h} {name}"));
             }
         }
     }

@@ -7,13 +7,21 @@ use super::super::passes::{
     from_working, on_screen, output_ceiling, reference_filter, sharpen, slices_mut, to_ycocg, tonemap_stage,
     FrameContext, FrameResult, Reprojection, TemporalState,
 };
-use super::{HistoryFilter, Params, Taa, CG, CO, COUNT, DEPTH, MAX_COUNT, Y};
+use super::{HistoryFilter, Params, Taa, MAX_COUNT};
 use crate::frame::{ChannelKind, Frame, Plane, Rgb};
 use crate::kernels::{
     bilinear, catmull_rom, clip_toward_center, for_each_row_stats, variance_box, ycocg_to_rgb,
 };
 use crate::pipeline::exec::{for_rows, par_rows};
 use crate::pipeline::{FilterError, PixelCounts, Skip};
+
+/// History planes of the reference (the filter itself keeps Y, Co, Cg and the count
+/// interleaved in one plane, and depth in a second).
+const Y: usize = 0;
+const CO: usize = 1;
+const CG: usize = 2;
+const COUNT: usize = 3;
+const DEPTH: usize = 4;
 
 reference_filter!(
     /// `taa` computed stage by stage over whole planes.

@@ -52,8 +52,7 @@ mod reference;
 
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
-use crate::filters::passes::history_filter;
-use crate::filters::passes::reproject_skip;
+use crate::filters::passes::{history_filter, reproject_skip, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::{lanes, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
@@ -83,18 +82,17 @@ impl Variant {
 filter_params! {
     /// Parameters of `traa`.
     pub struct Params {
-        variant: Variant = Variant::Improved,
-            ParamKind::Choice { options: &["baseline", "improved"], },
-            "baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids, depth pseudo-variance and the adaptive box (sec. 4.3)";
-        feedback_min: f32 = FEEDBACK_MIN,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more ghosting";
-        feedback_max: f32 = FEEDBACK_MAX,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower response";
-        sharpen: bool = true,
-            ParamKind::Bool,
-            "sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved";
+        /// baseline: INSIDE / Uncharted 4 TRAA (thesis sec. 3.6); improved: with Sobel history, object ids,
+        /// depth pseudo-variance and the adaptive box (sec. 4.3)
+        variant: Variant = Variant::Improved, ParamKind::Choice { options: &["baseline", "improved"] };
+        /// history weight where current and history luma differ most (INSIDE 0.88). Higher: smoother, more
+        /// ghosting
+        feedback_min: f32 = FEEDBACK_MIN, ParamKind::Float { min: 0.0, max: 0.999 };
+        /// history weight where they agree (INSIDE 0.97). Higher: more supersampling on still content, slower
+        /// response
+        feedback_max: f32 = FEEDBACK_MAX, ParamKind::Float { min: 0.0, max: 0.999 };
+        /// sharpen the output: eq. 3.1 (strength 4) for baseline, the normalised eq. 4.17 for improved
+        sharpen: bool = true, ParamKind::Bool;
         ..reconstruct
     }
 }
@@ -248,21 +246,10 @@ impl FilterKind for Traa {
     const NAME: &'static str = "traa";
     const SUMMARY: &'static str =
         "the thesis's TRAA: INSIDE / Uncharted 4 baseline, or improved with Sobel history, object ids and depth pseudo-variance";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "tonemap",
-        "dilate",
-        "reproject",
-        "sobel",
-        "sobel_history",
-        "model_average",
-        "depth_variance",
-        "aliased",
-        "resolve",
-        "sharpen",
-        "untonemap",
-    ];
+    temporal_stages! {
+        "tonemap", "dilate", "reproject", "sobel", "sobel_history", "model_average", "depth_variance",
+        "aliased", "resolve", "sharpen", "untonemap"
+    }
     type Params = Params;
     fn uses() -> ChannelSet {
         ChannelSet::of(&[

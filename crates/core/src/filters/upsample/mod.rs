@@ -75,7 +75,7 @@ mod reference;
 mod spatial;
 mod temporal;
 
-use crate::filters::passes::history_filter;
+use crate::filters::passes::{history_filter, temporal_stages};
 #[cfg(test)]
 use kernel::depth_range as depth_range_fast;
 pub use kernel::{geometry, skips};
@@ -152,51 +152,70 @@ pub const LK: usize = 9;
 filter_params! {
     /// Parameters of `upsample`.
     pub struct Params {
-        method: Method = Method::Spatiotemporal,
-            ParamKind::Choice { options: &["spatiotemporal", "spatial", "temporal", "taa"], },
-            "spatiotemporal (Herzog et al. 2010), or a baseline: spatial (joint bilateral only), temporal (reprojection with hole filling), taa (scaling-aware accumulation)";
-        decay: f32 = 0.0,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "history weight kept per frame (0 = auto: 1 - 1/(2 x pattern period), 0.875 for 2x2 and 0.969 for 4x4, at least min_decay). Higher: smoother, more lag on changes the gradient misses; lower: faster, noisier";
-        min_decay: f32 = MIN_DECAY,
-            ParamKind::Float { min: 0.0, max: 0.999 },
-            "the least decay the automatic one (decay = 0) takes with sparse shading: 0.93 lengthens 2x2's history (0.875) and leaves 4x4's (0.969); 0: the automatic rule alone. Higher: jitter and noise average over more frames, slower convergence, more lag on changes the gradient misses";
-        gradient_scale: f32 = 1.0,
-            ParamKind::Float { min: 0.01, max: 100.0 },
-            "relative luma gradient at which history is no longer trusted (Herzog et al. 2010, eq. 8: 1). Lower: reacts to smaller changes, blurrier; higher: sharper, more lag";
-        gradient_lag: u32 = GRADIENT_LAG,
-            ParamKind::Int { min: 1, max: 2 },
-            "which of the pixel's past shaded samples the temporal gradient compares its new sample with: 1, the last (Herzog et al. 2010, sec. 3.4), or 2, the one before it (1 where that is unknown). With 8-phase jitter and 2x2 shading (period 4) that sample had the same jitter offset, so the sub-pixel offset stops reading as change; a change of the shading is measured over twice the time";
-        gradient_cancel: f32 = GRADIENT_CANCEL,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "share of the gradient that changes of random sign may cancel: the confidence reads the filtered magnitudes (Herzog et al. 2010, sec. 3.4; 0) less this share of what the same filters cancel on the signed gradients (1). Higher: Monte Carlo noise and jittered samples of sub-pixel detail stop reading as change and history is kept; lower: history resampled under motion, blurred, is caught and replaced sooner";
-        kernel_sharp: f32 = 0.1,
-            ParamKind::Float { min: 0.01, max: 4.0 },
-            "image-space kernel width at full confidence, in block diagonals: below 1/(factor x 1.41) (0.18 for 4x4) no other sample reaches it, so a still image converges to its own samples; higher blurs converged detail";
-        kernel_wide: f32 = 1.0,
-            ParamKind::Float { min: 0.01, max: 4.0 },
-            "image-space kernel width at no confidence and for the spatial method, in block diagonals (1: the block footprint). Higher: smoother fill, blurrier";
-        depth_sigma: f32 = 0.03,
-            ParamKind::Float { min: 1e-4, max: 10.0 },
-            "depth difference (fraction of the frame's depth range) at which a sample stops counting (Herzog et al. 2010: 3%). Lower: sharper silhouettes, grazing surfaces fill worse";
-        normal_sigma: f32 = 0.5,
-            ParamKind::Float { min: 1e-3, max: 2.0 },
-            "normal difference (1 - cos) at which a sample stops counting. Lower: sharper creases, curved surfaces fill worse";
-        depth_tolerance: f32 = 0.1,
-            ParamKind::Float { min: 1e-3, max: 10.0 },
-            "relative depth difference a history tap may have and still count as the same surface. Lower: catches more disocclusion, also rejects valid history under fast motion in depth";
-        neighbour_motion: f32 = NEIGHBOUR_MOTION,
-            ParamKind::Float { min: 0.0, max: 100.0 },
-            "spatiotemporal: a history tap that fails the validity test (Herzog et al. 2010, sec. 3.2: same object id, same depth) is still accepted when one of the pixel's eight neighbours this frame shows its surface (id and depth) and moves within this many pixels of the pixel (0: off, the paper's test). Higher: a jittered G-buffer's edges and sub-pixel objects keep their history; too high: history of an object that moved away survives next to it (ghosting at disocclusions)";
-        sky_depth_only: bool = SKY_DEPTH_ONLY,
-            ParamKind::Bool,
-            "a pixel whose normal is zero (the sky: the ray hit nothing) weighs samples by depth alone. false: the normal term as for a surface, 1 - n.n' = 1 against every sample, so the sky's samples and history weigh the clamp 1e-5 and any surface's sample or history outweighs them (a jittered edge against the sky takes the object's full colour, a sub-pixel object over the sky its full colour). true leaves two sky directions, which have no geometry, to the image-space kernel";
-        subpixel_keep: f32 = SUBPIXEL_KEEP,
-            ParamKind::Float { min: 0.0, max: 1.0 },
-            "spatiotemporal: share of its weight a history tap keeps when it fails the validity test because a sub-pixel surface, caught by this frame's jittered G-buffer sample, covers the pixel: the tap's surface is next to the pixel this frame (any motion) and the pixel's surface was nowhere within a pixel of the tap in the previous frame. The new surface's sample then blends into the history as one sample of partial coverage, and its gradient is 0 (nothing of that surface to compare with). 0: off (Herzog et al. 2010, sec. 3.2: rejected, the pixel takes the sub-pixel surface's full colour). Higher: thin objects converge toward their coverage; an object uncovered faster than a pixel per frame from behind another blends in over a few frames";
-        taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA,
-            ParamKind::Float { min: 0.01, max: 1.0 },
-            "taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)";
+        /// spatiotemporal (Herzog et al. 2010), or a baseline: spatial (joint bilateral only), temporal
+        /// (reprojection with hole filling), taa (scaling-aware accumulation)
+        method: Method = Method::Spatiotemporal, ParamKind::Choice { options: &["spatiotemporal", "spatial", "temporal", "taa"] };
+        /// history weight kept per frame (0 = auto: 1 - 1/(2 x pattern period), 0.875 for 2x2 and 0.969 for
+        /// 4x4, at least min_decay). Higher: smoother, more lag on changes the gradient misses; lower:
+        /// faster, noisier
+        decay: f32 = 0.0, ParamKind::Float { min: 0.0, max: 0.999 };
+        /// the least decay the automatic one (decay = 0) takes with sparse shading: 0.93 lengthens 2x2's
+        /// history (0.875) and leaves 4x4's (0.969); 0: the automatic rule alone. Higher: jitter and noise
+        /// average over more frames, slower convergence, more lag on changes the gradient misses
+        min_decay: f32 = MIN_DECAY, ParamKind::Float { min: 0.0, max: 0.999 };
+        /// relative luma gradient at which history is no longer trusted (Herzog et al. 2010, eq. 8: 1).
+        /// Lower: reacts to smaller changes, blurrier; higher: sharper, more lag
+        gradient_scale: f32 = 1.0, ParamKind::Float { min: 0.01, max: 100.0 };
+        /// which of the pixel's past shaded samples the temporal gradient compares its new sample with: 1,
+        /// the last (Herzog et al. 2010, sec. 3.4), or 2, the one before it (1 where that is unknown). With
+        /// 8-phase jitter and 2x2 shading (period 4) that sample had the same jitter offset, so the sub-pixel
+        /// offset stops reading as change; a change of the shading is measured over twice the time
+        gradient_lag: u32 = GRADIENT_LAG, ParamKind::Int { min: 1, max: 2 };
+        /// share of the gradient that changes of random sign may cancel: the confidence reads the filtered
+        /// magnitudes (Herzog et al. 2010, sec. 3.4; 0) less this share of what the same filters cancel on
+        /// the signed gradients (1). Higher: Monte Carlo noise and jittered samples of sub-pixel detail stop
+        /// reading as change and history is kept; lower: history resampled under motion, blurred, is caught
+        /// and replaced sooner
+        gradient_cancel: f32 = GRADIENT_CANCEL, ParamKind::Float { min: 0.0, max: 1.0 };
+        /// image-space kernel width at full confidence, in block diagonals: below 1/(factor x 1.41) (0.18 for
+        /// 4x4) no other sample reaches it, so a still image converges to its own samples; higher blurs
+        /// converged detail
+        kernel_sharp: f32 = 0.1, ParamKind::Float { min: 0.01, max: 4.0 };
+        /// image-space kernel width at no confidence and for the spatial method, in block diagonals (1: the
+        /// block footprint). Higher: smoother fill, blurrier
+        kernel_wide: f32 = 1.0, ParamKind::Float { min: 0.01, max: 4.0 };
+        /// depth difference (fraction of the frame's depth range) at which a sample stops counting (Herzog et
+        /// al. 2010: 3%). Lower: sharper silhouettes, grazing surfaces fill worse
+        depth_sigma: f32 = 0.03, ParamKind::Float { min: 1e-4, max: 10.0 };
+        /// normal difference (1 - cos) at which a sample stops counting. Lower: sharper creases, curved
+        /// surfaces fill worse
+        normal_sigma: f32 = 0.5, ParamKind::Float { min: 1e-3, max: 2.0 };
+        /// relative depth difference a history tap may have and still count as the same surface. Lower:
+        /// catches more disocclusion, also rejects valid history under fast motion in depth
+        depth_tolerance: f32 = 0.1, ParamKind::Float { min: 1e-3, max: 10.0 };
+        /// spatiotemporal: a history tap that fails the validity test (Herzog et al. 2010, sec. 3.2: same
+        /// object id, same depth) is still accepted when one of the pixel's eight neighbours this frame shows
+        /// its surface (id and depth) and moves within this many pixels of the pixel (0: off, the paper's
+        /// test). Higher: a jittered G-buffer's edges and sub-pixel objects keep their history; too high:
+        /// history of an object that moved away survives next to it (ghosting at disocclusions)
+        neighbour_motion: f32 = NEIGHBOUR_MOTION, ParamKind::Float { min: 0.0, max: 100.0 };
+        /// a pixel whose normal is zero (the sky: the ray hit nothing) weighs samples by depth alone. false:
+        /// the normal term as for a surface, 1 - n.n' = 1 against every sample, so the sky's samples and
+        /// history weigh the clamp 1e-5 and any surface's sample or history outweighs them (a jittered edge
+        /// against the sky takes the object's full colour, a sub-pixel object over the sky its full colour).
+        /// true leaves two sky directions, which have no geometry, to the image-space kernel
+        sky_depth_only: bool = SKY_DEPTH_ONLY, ParamKind::Bool;
+        /// spatiotemporal: share of its weight a history tap keeps when it fails the validity test because a
+        /// sub-pixel surface, caught by this frame's jittered G-buffer sample, covers the pixel: the tap's
+        /// surface is next to the pixel this frame (any motion) and the pixel's surface was nowhere within a
+        /// pixel of the tap in the previous frame. The new surface's sample then blends into the history as
+        /// one sample of partial coverage, and its gradient is 0 (nothing of that surface to compare with).
+        /// 0: off (Herzog et al. 2010, sec. 3.2: rejected, the pixel takes the sub-pixel surface's full
+        /// colour). Higher: thin objects converge toward their coverage; an object uncovered faster than a
+        /// pixel per frame from behind another blends in over a few frames
+        subpixel_keep: f32 = SUBPIXEL_KEEP, ParamKind::Float { min: 0.0, max: 1.0 };
+        /// taa method: blend weight of a sample at its own pixel (Karis 2014: 0.1)
+        taa_alpha: f32 = crate::filters::taa::DEFAULT_ALPHA, ParamKind::Float { min: 0.01, max: 1.0 };
         ..reconstruct
     }
 }
@@ -329,14 +348,7 @@ impl FilterKind for Upsample {
     const NAME: &'static str = "upsample";
     const SUMMARY: &'static str =
         "spatio-temporal upsampling of sparse shading (Herzog et al. 2010), with spatial, temporal and TAA-style baselines";
-    const STAGES: &'static [&'static str] = &[
-        "repair",
-        "reconstruct",
-        "geometry",
-        "reproject",
-        "gradient",
-        "blend",
-    ];
+    temporal_stages! { "geometry", "reproject", "gradient", "blend" }
     type Params = Params;
     const SPARSE_INPUT: bool = true;
     fn uses() -> ChannelSet {
@@ -405,10 +417,20 @@ mod tests {
     use super::reference::ReferenceUpsample;
     use super::*;
     use crate::filters::check::prelude::*;
-    use crate::filters::check::{assert_filter_matches, sparse_sequences, ODD_SIZES};
+    use crate::filters::check::{assert_variants_match, sparse_sequences, Reference, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
     use crate::tolerance::Tolerance;
+
+    impl Reference<Upsample> for ReferenceUpsample {
+        fn with_params(params: Params) -> Self {
+            Self::new(params)
+        }
+
+        fn filter(&mut self, frame: &Frame) -> Output {
+            self.process(frame).unwrap()
+        }
+    }
 
     #[test]
     fn a_loaded_history_out_of_range_is_refused() {
@@ -487,16 +509,8 @@ mod tests {
                 let sky = sky_without_normals(&seqs[0].1);
                 seqs.push(("sky without normals", sky));
                 for (name, frames) in seqs {
-                    for set in variants {
-                        let params: Params = build("upsample", &parse_assignments(set).unwrap()).unwrap();
-                        let mut slow = ReferenceUpsample::new(params.clone());
-                        assert_filter_matches(
-                            &mut Upsample::new(params),
-                            |f| slow.process(f).unwrap(),
-                            &frames,
-                            &format!("{w}x{h} {factor}x{factor} {name} {set:?}"),
-                        );
-                    }
+                    let what = format!("{w}x{h} {factor}x{factor} {name}");
+                    assert_variants_match::<Upsample, ReferenceUpsample>(variants, &frames, &what);
                 }
             }
         }
