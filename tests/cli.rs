@@ -448,8 +448,12 @@ fn filter_takes_the_f16_upload_as_a_backend() {
     }
     let out = run_ok(&["info", "--backends"]);
     assert_eq!(out.contains("f16"), afterimage::backend::GPU_BUILT, "{out}");
-    // The GPU filters are listed (the CPU line names none).
-    assert_eq!(out.contains("upsample"), afterimage::backend::GPU_BUILT, "{out}");
+    // The GPU's filters as the backend's table lists them (the CPU line names none).
+    assert_eq!(
+        out.contains("gpu filters: passthrough, fxaa, taa, traa, phlm, upsample"),
+        afterimage::backend::GPU_BUILT,
+        "{out}"
+    );
 }
 
 #[test]

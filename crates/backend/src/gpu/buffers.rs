@@ -113,6 +113,127 @@ pub(crate) fn download(gpu: &Gpu, label: &str, parts: &[&StorageBuffer]) -> Resu
     Ok(words)
 }
 
+/// The history of `taa` and `traa` on the device, double-buffered: texels of `texel`
+/// channels, then (with `extra`) one plane more (`taa`'s depth, `traa`'s depth / far), as
+/// the CPU filter lays them out in its planes.
+#[derive(Debug)]
+pub(crate) struct TexelHistory {
+    planes: [StorageBuffer; 2],
+    width: usize,
+    height: usize,
+    texel: usize,
+    extra: bool,
+}
+
+impl TexelHistory {
+    /// Two zeroed histories of a `width` x `height` frame.
+    pub(crate) fn new(
+        gpu: &Gpu,
+        label: &str,
+        (width, height): (usize, usize),
+        texel: usize,
+        extra: bool,
+    ) -> Result<Self, BackendError> {
+        let len = width * height * (texel + extra as usize);
+        Ok(TexelHistory {
+            planes: [
+                StorageBuffer::new(gpu, label, len)?,
+                StorageBuffer::new(gpu, label, len)?,
+            ],
+            width,
+            height,
+            texel,
+            extra,
+        })
+    }
+
+    /// History `k`'s buffer.
+    pub(crate) fn buffer(&self, k: usize) -> &wgpu::Buffer {
+        &self.planes[k].buffer
+    }
+
+    /// Bytes of both on the device.
+    pub(crate) fn bytes(&self) -> usize {
+        self.planes.iter().map(StorageBuffer::bytes).sum()
+    }
+
+    /// History `k` in the CPU filter's planes.
+    pub(crate) fn download(
+        &self,
+        gpu: &Gpu,
+        k: usize,
+    ) -> Result<Vec<crate::frame::Plane<f32>>, BackendError> {
+        let (w, h, t) = (self.width, self.height, self.texel);
+        let n = w * h;
+        let words = download(gpu, "history readback", &[&self.planes[k]])?;
+        let mut planes = vec![plane(t * w, h, words[..t * n].to_vec())?];
+        if self.extra {
+            planes.push(plane(w, h, words[t * n..(t + 1) * n].to_vec())?);
+        }
+        Ok(planes)
+    }
+
+    /// Writes `planes` (the CPU filter's layout) into history `k`.
+    pub(crate) fn upload(&self, gpu: &Gpu, k: usize, planes: &[crate::frame::Plane<f32>]) {
+        let mut at = 0;
+        for p in planes {
+            self.planes[k].write(gpu, at, p.data());
+            at += p.data().len();
+        }
+    }
+}
+
+/// What the device gives back for a frame of a history filter.
+pub(crate) struct FrameBack {
+    pub(crate) color: crate::frame::Rgb,
+    /// The filter's counters.
+    pub(crate) counters: Vec<u32>,
+    /// Each pass's time from its timestamps, where the device has them.
+    pub(crate) pass_ms: Option<Vec<f64>>,
+}
+
+/// Ends a frame of `w` x `h` pixels: encodes the copies of its colour (3 planes from
+/// `color`), its `counters` (`count` words) and the timestamps of the `used` passes `timer`
+/// timed into `back`, submits `enc`, and reads them back through `words`, marking `clock`
+/// at the submission and the readback.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn submit_and_read(
+    gpu: &Gpu,
+    mut enc: wgpu::CommandEncoder,
+    back: &Readback,
+    (color, counters, count): (&wgpu::Buffer, &wgpu::Buffer, usize),
+    (timer, used): (Option<&PassTimer>, u32),
+    (w, h): (usize, usize),
+    words: &mut Vec<f32>,
+    clock: &mut FrameClock,
+) -> Result<FrameBack, BackendError> {
+    let n = w * h;
+    back.copy_from(&mut enc, color, 0, 3 * n);
+    enc.copy_buffer_to_buffer(counters, 0, &back.buffer, (3 * n * 4) as u64, (count * 4) as u64);
+    let timer_at = 3 * n + count;
+    if let Some(t) = timer {
+        t.resolve(&mut enc, used, back, timer_at);
+    }
+    gpu.queue.submit([enc.finish()]);
+    clock.submitted();
+    back.read(gpu, timer_at + timer.map_or(0, |t| t.words()), words)?;
+    clock.back();
+    Ok(FrameBack {
+        color: planes_from(words, w, h)?,
+        counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
+        pass_ms: timer.map(|t| t.pass_ms(&words[timer_at..], used)),
+    })
+}
+
+/// A plane of samples read back (their count is the plane's by construction).
+pub(crate) fn plane(
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+) -> Result<crate::frame::Plane<f32>, BackendError> {
+    crate::frame::Plane::from_vec(width, height, data).map_err(|e| BackendError::Device(e.to_string()))
+}
+
 /// A mappable buffer that results are copied into and read back from.
 #[derive(Debug)]
 pub(crate) struct Readback {
@@ -183,73 +304,5 @@ impl Readback {
         }
         self.buffer.unmap();
         Ok(())
-    }
-}
-
-/// What a filter's frame gives back from the device.
-pub(crate) struct FrameBack {
-    /// The colour.
-    pub(crate) color: crate::frame::Rgb,
-    /// The counters (at the filter's `C_` indices).
-    pub(crate) counters: Vec<u32>,
-    /// Each pass's time from its timestamps, where the device has them.
-    pub(crate) pass_ms: Option<Vec<f64>>,
-}
-
-/// Where a frame's results come back: its colour, its `counters` words and the timestamps
-/// of its passes.
-#[derive(Debug)]
-pub(crate) struct FrameReadback {
-    /// Timestamps of the frame's passes, where the device has them.
-    pub(crate) timer: Option<PassTimer>,
-    /// The colour (3 planes), the counters, then the timestamps.
-    back: Readback,
-    counters: usize,
-}
-
-impl FrameReadback {
-    /// Room for the colour of `pixels` pixels, `counters` words and the timestamps of up
-    /// to `passes` passes.
-    pub(crate) fn new(gpu: &Gpu, label: &str, pixels: usize, counters: usize, passes: u32) -> Self {
-        let timer = PassTimer::new(gpu, passes);
-        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        FrameReadback {
-            back: Readback::new(gpu, label, 3 * pixels + counters + timer_words),
-            timer,
-            counters,
-        }
-    }
-
-    /// Ends a `width` x `height` frame whose encoder `enc` holds its first `passes` passes:
-    /// encodes the copies of the colour in `out` and of the `counters`, submits, and reads
-    /// them back through `words`, marking `clock` at the submission and the readback.
-    pub(crate) fn frame(
-        &self,
-        gpu: &Gpu,
-        (mut enc, passes): (wgpu::CommandEncoder, u32),
-        (out, counters): (&wgpu::Buffer, &wgpu::Buffer),
-        (width, height): (usize, usize),
-        clock: &mut FrameClock,
-        words: &mut Vec<f32>,
-    ) -> Result<FrameBack, BackendError> {
-        let n = width * height;
-        let back = &self.back;
-        back.copy_from(&mut enc, out, 0, 3 * n);
-        let at = (3 * n * 4) as u64;
-        enc.copy_buffer_to_buffer(counters, 0, &back.buffer, at, (self.counters * 4) as u64);
-        let timer_at = 3 * n + self.counters;
-        if let Some(t) = &self.timer {
-            t.resolve(&mut enc, passes, back, timer_at);
-        }
-        gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        let len = timer_at + self.timer.as_ref().map_or(0, PassTimer::words);
-        back.read(gpu, len, words)?;
-        clock.back();
-        Ok(FrameBack {
-            color: planes_from(words, width, height)?,
-            counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            pass_ms: self.timer.as_ref().map(|t| t.pass_ms(&words[timer_at..], passes)),
-        })
     }
 }

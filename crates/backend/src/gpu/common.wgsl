@@ -3,7 +3,7 @@
 // is this file followed by the filter's own (`gpu::pipeline` joins them).
 
 // Declared before this file from Rust (`gpu::common_consts`): TONEMAP_MAX, F32_MAX,
-// CLIP_EPS, CLIP_REL.
+// CLIP_EPS, CLIP_REL, and LUMA_R, LUMA_G, LUMA_B.
 
 // kernels::tonemap: c / (1 + max c).
 fn tonemap(c: vec3<f32>) -> vec3<f32> {
@@ -14,6 +14,11 @@ fn tonemap(c: vec3<f32>) -> vec3<f32> {
 fn tonemap_inverse(t: vec3<f32>) -> vec3<f32> {
     let m = min(max(max(t.x, t.y), t.z), TONEMAP_MAX);
     return t * (1.0 / (1.0 - m));
+}
+
+// kernels::luma: Rec. 709 luma of linear RGB (`luma_of`: fxaa binds a buffer `luma`).
+fn luma_of(c: vec3<f32>) -> f32 {
+    return LUMA_R * c.x + LUMA_G * c.y + LUMA_B * c.z;
 }
 
 // kernels::rgb_to_ycocg (Malvar and Sullivan 2003).
@@ -84,4 +89,17 @@ fn finite(v: f32) -> bool {
 fn clip_guard(lo: vec3<f32>, hi: vec3<f32>) -> f32 {
     let m = max(abs(lo), abs(hi));
     return CLIP_EPS + CLIP_REL * max(max(m.x, m.y), m.z);
+}
+
+// kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
+fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
+    let center = 0.5 * (hi + lo);
+    let extent = 0.5 * (hi - lo) + vec3<f32>(clip_guard(lo, hi));
+    let v = q - center;
+    let r = abs(v / extent);
+    let worst = max(max(r.x, r.y), r.z);
+    if worst > 1.0 {
+        return vec4<f32>(center + v * (1.0 / worst), 1.0);
+    }
+    return vec4<f32>(q, 0.0);
 }

@@ -12,16 +12,18 @@
 //! The colour goes up as f32 or, at the caller's choice ([`UploadPrecision::F16`]), as f16
 //! widened on the device (`upload`); motion, depth and the invalid mask always as f32.
 //!
-//! Filters here: `passthrough`, `fxaa`, `taa`, `phlm` (its per-pixel 4x4 solve in f32:
-//! [`crate::filters::phlm::rls::update_information_f32`]) and `upsample` (every method and
-//! shading factor). Left for later: `traa`, `pixel_trace`.
+//! Filters here: `passthrough`, `fxaa`, `taa`, `traa`, `phlm` (its per-pixel 4x4 solve in
+//! f32: [`crate::filters::phlm::rls::update_information_f32`]) and `upsample` (every method
+//! and shading factor). Left for later: `pixel_trace`.
 
 mod buffers;
 mod fxaa;
+mod history;
 mod passthrough;
 mod phlm;
 mod taa;
 mod timing;
+mod traa;
 mod upload;
 mod upsample;
 
@@ -29,15 +31,56 @@ use super::{AdapterInfo, BackendError};
 use crate::frame::{Frame, Rgb};
 use crate::pipeline::params::build;
 use crate::pipeline::{
-    Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, Scratch, UploadPrecision,
+    Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
 };
 use serde_json::{Map, Value};
 use std::sync::{Arc, OnceLock};
 
 pub(crate) use buffers::{Readback, StorageBuffer};
 
-/// The filters this backend implements.
-pub const FILTERS: &[&str] = &["passthrough", "fxaa", "taa", "phlm", "upsample"];
+/// How a device filter is made: on the device, with the parameter values (checked by the
+/// registry) and the colour's upload precision.
+type Make = fn(Arc<Gpu>, &Map<String, Value>, UploadPrecision) -> Result<Box<dyn Filter>, BackendError>;
+
+/// Every device filter, by name: [`create`] makes them, [`FILTERS`] lists them.
+const DEVICE_FILTERS: [(&str, Make); 6] = [
+    ("passthrough", |gpu, _, upload| {
+        Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload)))
+    }),
+    ("fxaa", |gpu, values, upload| {
+        Ok(Box::new(fxaa::GpuFxaa::new(gpu, build("fxaa", values)?, upload)))
+    }),
+    ("taa", |gpu, values, upload| {
+        Ok(Box::new(taa::GpuTaa::new(gpu, build("taa", values)?, upload)))
+    }),
+    ("traa", |gpu, values, upload| {
+        Ok(Box::new(traa::GpuTraa::new(gpu, build("traa", values)?, upload)))
+    }),
+    ("phlm", |gpu, values, upload| {
+        Ok(Box::new(phlm::GpuPhlm::new(gpu, build("phlm", values)?, upload)))
+    }),
+    ("upsample", |gpu, values, upload| {
+        Ok(Box::new(upsample::GpuUpsample::new(
+            gpu,
+            build("upsample", values)?,
+            upload,
+        )))
+    }),
+];
+
+/// The names of a table of device filters.
+const fn names<const N: usize>(table: &[(&'static str, Make); N]) -> [&'static str; N] {
+    let mut out = [""; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = table[i].0;
+        i += 1;
+    }
+    out
+}
+
+/// The filters this backend implements (those [`create`] can make).
+pub const FILTERS: &[&str] = &names(&DEVICE_FILTERS);
 
 /// An open device: what every GPU filter runs on.
 #[derive(Debug)]
@@ -127,26 +170,15 @@ pub fn create(
     values: &Map<String, Value>,
     upload: UploadPrecision,
 ) -> Result<Box<dyn Filter>, BackendError> {
-    let known = || BackendError::FilterNotOnGpu {
-        filter: name.to_string(),
-        have: FILTERS.join(", "),
-    };
-    if !FILTERS.contains(&name) {
-        return Err(known());
-    }
-    let gpu = shared()?;
-    match name {
-        "passthrough" => Ok(Box::new(passthrough::GpuPassthrough::new(gpu, upload))),
-        "fxaa" => Ok(Box::new(fxaa::GpuFxaa::new(gpu, build(name, values)?, upload))),
-        "taa" => Ok(Box::new(taa::GpuTaa::new(gpu, build(name, values)?, upload))),
-        "phlm" => Ok(Box::new(phlm::GpuPhlm::new(gpu, build(name, values)?, upload))),
-        "upsample" => Ok(Box::new(upsample::GpuUpsample::new(
-            gpu,
-            build(name, values)?,
-            upload,
-        ))),
-        _ => Err(known()),
-    }
+    let make = DEVICE_FILTERS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|&(_, make)| make)
+        .ok_or_else(|| BackendError::FilterNotOnGpu {
+            filter: name.to_string(),
+            have: FILTERS.join(", "),
+        })?;
+    make(shared()?, values, upload)
 }
 
 /// Waits for the device to finish what was submitted; a device error becomes a
@@ -207,6 +239,32 @@ macro_rules! wgsl_consts {
 }
 pub(crate) use wgsl_consts;
 
+/// Declares the bits of a shader's `Params.flags`: each name a `u32` constant of its own
+/// bit, in order from 1, and `$consts()` their WGSL declarations ([`wgsl_consts!`]).
+macro_rules! flag_bits {
+    ($consts:ident: $($name:ident),* $(,)?) => {
+        $crate::gpu::flag_bits!(@at 0; $($name),*);
+
+        /// The flag bits as WGSL constants.
+        fn $consts() -> String {
+            $crate::gpu::wgsl_consts![$($name),*]
+        }
+    };
+    (@at $n:expr; $name:ident $(, $rest:ident)*) => {
+        const $name: u32 = 1 << ($n);
+        $crate::gpu::flag_bits!(@at $n + 1; $($rest),*);
+    };
+    (@at $n:expr;) => {};
+}
+pub(crate) use flag_bits;
+
+/// The flags whose condition holds, or'ed together.
+pub(crate) fn flags_of(set: &[(bool, u32)]) -> u32 {
+    set.iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |flags, (_, bit)| flags | bit)
+}
+
 /// Planes of the history filters' (`taa`, `phlm`) input buffer, in units of width x
 /// height: r, g, b, motion x and y, depth, the invalid mask.
 pub(crate) const INPUT_PLANES: usize = 7;
@@ -226,8 +284,16 @@ pub(crate) fn input_consts() -> String {
 /// What [`COMMON`] takes from Rust: `kernels::color`'s and `kernels::clip`'s constants.
 fn common_consts() -> String {
     use crate::kernels::clip::{CLIP_EPS, CLIP_REL};
-    use crate::kernels::TONEMAP_MAX;
-    wgsl_consts![TONEMAP_MAX, F32_MAX = f32::MAX, CLIP_EPS, CLIP_REL]
+    use crate::kernels::{LUMA_REC709, TONEMAP_MAX};
+    wgsl_consts![
+        TONEMAP_MAX,
+        F32_MAX = f32::MAX,
+        CLIP_EPS,
+        CLIP_REL,
+        LUMA_R = LUMA_REC709[0],
+        LUMA_G = LUMA_REC709[1],
+        LUMA_B = LUMA_REC709[2],
+    ]
 }
 /// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
 /// filters that reproject a history (`taa`'s resolve, `phlm`).
@@ -265,12 +331,12 @@ pub(crate) fn bind(
     pipeline: &wgpu::ComputePipeline,
     buffers: &[&wgpu::Buffer],
 ) -> wgpu::BindGroup {
-    let at: Vec<(u32, &wgpu::Buffer)> = (0..).zip(buffers.iter().copied()).collect();
+    let at: Vec<(u32, &wgpu::Buffer)> = buffers.iter().enumerate().map(|(i, b)| (i as u32, *b)).collect();
     bind_at(gpu, pipeline, &at)
 }
 
-/// A bind group of `pipeline`'s group 0 with each buffer at its binding (for passes that
-/// declare the same bindings, each layout holding the ones its entry point uses).
+/// A bind group of `pipeline`'s group 0 with each buffer at its binding: the bindings its
+/// entry point uses, where a module's entry points share some of their bindings.
 pub(crate) fn bind_at(
     gpu: &Gpu,
     pipeline: &wgpu::ComputePipeline,
@@ -385,17 +451,46 @@ pub(crate) use stateless_filter;
 /// [`Filter`] for a device filter `$ty` with history, named and checked as the
 /// [`FilterKind`](crate::pipeline::FilterKind) `$kind`: its state is saved and loaded in
 /// the CPU filter's layout, so states move between backends. `$ty` has the fields
-/// `params` and `dev` (a [`DeviceHistory`]), and the methods `run`, `sized` (buffers for
-/// a size), `empty_history` (the CPU filter's empty state),
+/// is a [`history::DeviceHistory`] (its `params`, `buffers`, `read`, `valid`, `tonemapped`
+/// and `sized`) with the methods `run`, `empty_history` (the CPU filter's empty state),
 /// `history_bytes`, `download_history` (the history read next, in the CPU's planes) and
-/// `upload_history` (those planes into the history read next).
+/// `upload_history` (those planes into the history read next). With `texels` the macro
+/// writes those four for a history `buffers.hist` ([`buffers::TexelHistory`]) and a
+/// `$kind::history(&params)`.
 macro_rules! history_filter {
+    ($ty:ty, $kind:ty, texels) => {
+        impl $ty {
+            /// The CPU filter's empty state, the layout the device history is saved and
+            /// loaded in.
+            fn empty_history(&self) -> $crate::filters::passes::TemporalState {
+                <$kind>::history(&self.params)
+            }
+
+            /// Bytes of the device history.
+            fn history_bytes(&self) -> usize {
+                self.buffers.as_ref().map_or(0, |b| b.hist.bytes())
+            }
+
+            /// The history read next, in the CPU filter's planes.
+            fn download_history(&self) -> Result<Vec<$crate::frame::Plane<f32>>, $crate::BackendError> {
+                let b = self.buffers.as_ref().expect("sized");
+                b.hist.download(&self.gpu, self.read)
+            }
+
+            /// Writes `planes` (the CPU filter's layout) into the history read next.
+            fn upload_history(&self, planes: &[$crate::frame::Plane<f32>]) {
+                let b = self.buffers.as_ref().expect("sized");
+                b.hist.upload(&self.gpu, self.read, planes)
+            }
+        }
+        $crate::gpu::history_filter!($ty, $kind);
+    };
     ($ty:ty, $kind:ty) => {
         impl $crate::pipeline::Filter for $ty {
             $crate::gpu::device_filter_methods!($kind, |f| &f.params);
 
             fn reset(&mut self) {
-                self.dev.valid = false;
+                self.valid = false;
             }
 
             fn state_bytes(&self) -> usize {
@@ -405,15 +500,15 @@ macro_rules! history_filter {
             fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
                 use $crate::pipeline::StateError;
                 let mut st = self.empty_history();
-                if self.dev.buffers.is_some() && self.dev.valid {
+                if let (Some(b), true) = (&self.buffers, self.valid) {
                     let planes = self
                         .download_history()
                         .map_err(|e| StateError::Device(e.to_string()))?;
                     st.buffer
-                        .restore(self.dev.size, planes)
+                        .restore($crate::gpu::history::FrameBuffers::size(b), planes)
                         .map_err(StateError::Device)?;
                 }
-                st.set_tonemapped(self.dev.tonemapped);
+                st.set_tonemapped(self.tonemapped);
                 Ok(st.save(self.name(), self.params()))
             }
 
@@ -427,83 +522,20 @@ macro_rules! history_filter {
                     Some((w, h)) => {
                         self.sized(w, h)
                             .map_err(|e| $crate::pipeline::StateError::Device(e.to_string()))?;
-                        self.dev.read = 0;
+                        self.read = 0;
                         self.upload_history(st.buffer.read());
-                        self.dev.gpu.queue.submit([]);
-                        self.dev.valid = true;
+                        self.gpu.queue.submit([]);
+                        self.valid = true;
                     }
-                    None => self.dev.valid = false,
+                    None => self.valid = false,
                 }
-                self.dev.tonemapped = st.tonemapped();
+                self.tonemapped = st.tonemapped();
                 Ok(())
             }
         }
     };
 }
 pub(crate) use history_filter;
-
-/// What every device filter with history keeps besides its parameters and passes.
-#[derive(Debug)]
-pub(crate) struct DeviceHistory<B> {
-    pub(crate) gpu: Arc<Gpu>,
-    /// The precision of the colour's upload.
-    pub(crate) upload: UploadPrecision,
-    /// The buffers of the frame size in use, and that size.
-    pub(crate) buffers: Option<B>,
-    pub(crate) size: (usize, usize),
-    /// Which history buffer holds the previous frame.
-    pub(crate) read: usize,
-    /// Whether it does (not on the first frame or after a reset).
-    pub(crate) valid: bool,
-    /// Whether its colour is tonemapped.
-    pub(crate) tonemapped: bool,
-    /// Readback staging, reused.
-    pub(crate) words: Vec<f32>,
-    /// Planes of the host's `reconstruct` stage, reused from frame to frame.
-    pub(crate) scratch: Scratch,
-}
-
-impl<B> DeviceHistory<B> {
-    /// No buffers yet, on `gpu`, the colour uploaded at `upload` precision.
-    pub(crate) fn new(gpu: Arc<Gpu>, upload: UploadPrecision) -> Self {
-        DeviceHistory {
-            gpu,
-            upload,
-            buffers: None,
-            size: (0, 0),
-            read: 0,
-            valid: false,
-            tonemapped: false,
-            words: Vec::new(),
-            scratch: Scratch::default(),
-        }
-    }
-
-    /// The buffers for a `width` x `height` frame: the ones held when they are of that
-    /// size, else new ones from `make`, which drops the history.
-    pub(crate) fn sized(
-        &mut self,
-        (width, height): (usize, usize),
-        make: impl FnOnce(&Gpu, UploadPrecision) -> Result<B, BackendError>,
-    ) -> Result<&mut B, BackendError> {
-        if self.buffers.is_none() || self.size != (width, height) {
-            // Dropped first: the old buffers and the new never take the device's memory
-            // together.
-            self.buffers = None;
-            self.valid = false;
-            self.read = 0;
-            self.buffers = Some(make(&self.gpu, self.upload)?);
-            self.size = (width, height);
-        }
-        Ok(self.buffers.as_mut().expect("just made"))
-    }
-
-    /// The CPU filters' rule for a `frame` of another size than the history's
-    /// ([`crate::pipeline::check_size`]).
-    pub(crate) fn check_size(&self, frame: &Frame) -> Result<(), crate::pipeline::FilterError> {
-        crate::pipeline::check_size(self.buffers.as_ref().map(|_| self.size), self.valid, frame)
-    }
-}
 
 /// Workgroups of `size` x `size` covering a `width` x `height` image.
 pub(crate) fn groups(width: usize, height: usize, size: usize) -> (u32, u32) {

@@ -10,18 +10,19 @@
 //! held at or above the prior. The CPU solves in f64.
 
 use super::buffers::{download, params_buffer, planes_from, write_words};
+use super::history::{DeviceHistory, FrameBuffers};
 use super::timing::{self, FrameClock, PassTimer};
-use super::upload::ColorUpload;
+use super::upload::{upload_inputs, ColorUpload};
+use super::INPUT_PLANES;
 use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
-use super::{DeviceHistory, INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::frame::{Frame, Plane, Rgb};
 use crate::pipeline::{
-    check_needs, Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output, PixelCounts,
-    Recorder, Skip, UploadPrecision,
+    Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip,
+    UploadPrecision,
 };
 use crate::BackendError;
 use std::sync::Arc;
@@ -103,7 +104,7 @@ const PARAM_WORDS: usize = 21;
 
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
-struct Buffers {
+pub(crate) struct Buffers {
     width: usize,
     height: usize,
     params: wgpu::Buffer,
@@ -179,33 +180,25 @@ impl Buffers {
     }
 }
 
-/// `phlm` with its models on the device.
-#[derive(Debug)]
-pub struct GpuPhlm {
-    params: Params,
-    /// The device, its buffers and the history's place in them.
-    dev: DeviceHistory<Buffers>,
-    pass: wgpu::ComputePipeline,
+/// `phlm` with its models on the device (its passes: the one compiled pass).
+pub(crate) type GpuPhlm = DeviceHistory<Params, wgpu::ComputePipeline, Buffers>;
+
+impl FrameBuffers<Params, wgpu::ComputePipeline> for Buffers {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn make(f: &GpuPhlm, (width, height): (usize, usize)) -> Result<Self, BackendError> {
+        Buffers::new(&f.gpu, &f.passes, width, height, f.upload)
+    }
 }
 
 impl GpuPhlm {
     /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        GpuPhlm {
-            pass: pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm"),
-            dev: DeviceHistory::new(gpu, upload),
-            params,
-        }
-    }
-
-    /// The buffers for a `width` x `height` frame (new ones drop the models).
-    fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
-        let pass = &self.pass;
-        self.dev.sized((width, height), |gpu, upload| {
-            Buffers::new(gpu, pass, width, height, upload)
-        })?;
-        Ok(())
+        let pass = pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm");
+        DeviceHistory::with(gpu, params, upload, pass)
     }
 
     /// The shader's `Params` words for settings `p` (the effective ones).
@@ -238,11 +231,11 @@ impl GpuPhlm {
     /// The previous frame's models as [`STATE_PLANES`] planes (the CPU reference's planar
     /// layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_ref().expect("sized");
         let (w, h) = (b.width, b.height);
         let n = w * h;
-        let parts: Vec<&StorageBuffer> = b.state[self.dev.read].iter().collect();
-        let words = download(&self.dev.gpu, "phlm model readback", &parts)?;
+        let parts: Vec<&StorageBuffer> = b.state[self.read].iter().collect();
+        let words = download(&self.gpu, "phlm model readback", &parts)?;
         (0..STATE_PLANES)
             .map(|k| {
                 Plane::from_vec(w, h, words[k * n..(k + 1) * n].to_vec())
@@ -253,12 +246,12 @@ impl GpuPhlm {
 
     /// Writes [`STATE_PLANES`] model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_ref().expect("sized");
         let n = b.width * b.height;
         let mut k = 0;
-        for (part, (_, count)) in b.state[self.dev.read].iter().zip(PARTS) {
+        for (part, (_, count)) in b.state[self.read].iter().zip(PARTS) {
             for j in 0..count {
-                part.write(&self.dev.gpu, j * n, planes[k].data());
+                part.write(&self.gpu, j * n, planes[k].data());
                 k += 1;
             }
         }
@@ -275,8 +268,7 @@ impl GpuPhlm {
 
     /// Bytes of the device models.
     fn history_bytes(&self) -> usize {
-        self.dev
-            .buffers
+        self.buffers
             .as_ref()
             .map_or(0, |b| b.state.iter().flatten().map(StorageBuffer::bytes).sum())
     }
@@ -364,14 +356,13 @@ struct FrameBack {
 impl GpuPhlm {
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         let mut rec = Recorder::new();
-        let mut inp = self.prepared(frame, &mut rec)?;
+        let recon = self.params.effective().reconstruction();
+        let mut inp = self.prepared::<Phlm>(frame, recon, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        self.dev.check_size(frame)?;
-        self.sized(w, h)?;
-        let has_history = self.dev.valid && !frame.meta.reset;
+        let has_history = self.started(frame, &inp)?;
         let mut clock = FrameClock::start();
-        if has_history && self.dev.tonemapped != hdr {
+        if has_history && self.tonemapped != hdr {
             // A stream moving between LDR and HDR frames: the models move to the new working
             // space on the CPU (rare; `phlm::convert_state`, the CPU filter's conversion).
             let mut planes = self.download()?;
@@ -381,7 +372,6 @@ impl GpuPhlm {
         let p = &self.params.effective();
         let plan = FramePlan::new(p, &inp, has_history);
         let hi = self
-            .dev
             .buffers
             .as_ref()
             .expect("sized")
@@ -390,30 +380,22 @@ impl GpuPhlm {
         let words = Self::param_words(p, w, h, plan.flags, hi);
         let bytes = self.upload_frame(frame, &mut inp, &words);
         let back = self.dispatch(w, h, &mut clock)?;
-        let device = clock.times(back.shaders_ms, self.dev.upload, bytes);
+        let device = clock.times(back.shaders_ms, self.upload, bytes);
         // Without timestamps, the stages share the frame's round trip.
         plan.record(
             &mut rec,
             back.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
         );
 
-        self.dev.read = 1 - self.dev.read;
-        self.dev.valid = true;
-        self.dev.tonemapped = hdr;
+        self.read = 1 - self.read;
+        self.valid = true;
+        self.tonemapped = hdr;
         let mut record = self.frame_record(rec, frame, &inp, &back.counters);
         record.device = Some(device);
         Ok(Output {
             color: back.color,
             record,
         })
-    }
-
-    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
-    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
-        check_needs(Phlm::NAME, Phlm::needs(), frame)?;
-        let recon = self.params.effective().reconstruction();
-        Ok(recon.prepare(frame, Phlm::uses(), rec, &mut self.dev.scratch)?)
     }
 
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
@@ -426,26 +408,12 @@ impl GpuPhlm {
         inp: &mut Inputs<'f>,
         words: &[u32; PARAM_WORDS],
     ) -> u64 {
-        let n = inp.width * inp.height;
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_mut().expect("sized");
+        let gpu = &self.gpu;
+        let b = self.buffers.as_mut().expect("sized");
+        let motion = inp.motion.is_some();
         let mut bytes = write_words(gpu, &b.params, words);
-        bytes += b
-            .upload
-            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
-        let b = &*b;
-        if let Some(m) = inp.motion.as_deref() {
-            for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
-            }
-        }
-        if let Some(d) = inp.depth.as_deref() {
-            bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
-        }
-        if let Some(invalid) = &inp.invalid {
-            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
-        }
+        let scratch = &mut self.scratch;
+        bytes += upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, true);
         bytes + write_words(gpu, &b.counters, &[0; COUNTERS])
     }
 
@@ -454,15 +422,15 @@ impl GpuPhlm {
     /// the readback.
     fn dispatch(&mut self, w: usize, h: usize, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
         let n = w * h;
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("sized");
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         b.upload.encode(gpu, &mut enc);
         {
             let (gx, gy) = groups(w, h, WORKGROUP);
             let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
-            pass.set_pipeline(&self.pass);
-            pass.set_bind_group(0, &b.bound[self.dev.read], &[]);
+            pass.set_pipeline(&self.passes);
+            pass.set_bind_group(0, &b.bound[self.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
@@ -480,18 +448,12 @@ impl GpuPhlm {
         gpu.queue.submit([enc.finish()]);
         clock.submitted();
         let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
-        b.back.read(gpu, words, &mut self.dev.words)?;
+        b.back.read(gpu, words, &mut self.words)?;
         clock.back();
         Ok(FrameBack {
-            color: planes_from(&self.dev.words, w, h)?,
-            counters: self.dev.words[3 * n..timer_at]
-                .iter()
-                .map(|v| v.to_bits())
-                .collect(),
-            shaders_ms: b
-                .timer
-                .as_ref()
-                .map(|t| t.pass_ms(&self.dev.words[timer_at..], 1)[0]),
+            color: planes_from(&self.words, w, h)?,
+            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
+            shaders_ms: b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]),
         })
     }
 

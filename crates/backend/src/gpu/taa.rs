@@ -4,18 +4,16 @@
 //! its colour (and the motion and depth its plan needs), and reads back the colour and the
 //! pixel counts.
 
-use super::buffers::{download, params_buffer, write_words, FrameBack, FrameReadback};
-use super::timing::{self, FrameClock};
-use super::upload::ColorUpload;
-use super::{
-    bind, groups, history_filter, history_output, input_consts, pipeline, Gpu, StorageBuffer, REPROJECT,
-};
-use super::{DeviceHistory, INPUT_PLANES, IN_DEPTH, IN_INVALID, IN_MX};
-use crate::filters::passes::TemporalState;
+use super::buffers::{params_buffer, submit_and_read, write_words, FrameBack, TexelHistory};
+use super::history::{DeviceHistory, FrameBuffers};
+use super::timing::{self, FrameClock, PassTimer};
+use super::upload::{upload_inputs, ColorUpload};
+use super::INPUT_PLANES;
+use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
-use crate::frame::{Frame, Plane};
+use crate::frame::Frame;
 use crate::pipeline::{
-    check_needs, DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
+    DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
 };
 use crate::BackendError;
 use std::sync::Arc;
@@ -73,7 +71,7 @@ fn consts() -> String {
 
 /// The compiled passes.
 #[derive(Debug)]
-struct Passes {
+pub(crate) struct Passes {
     resolve: wgpu::ComputePipeline,
     sharpen: wgpu::ComputePipeline,
     convert: wgpu::ComputePipeline,
@@ -112,7 +110,7 @@ impl Passes {
 /// Device buffers for one frame size, and the bind groups that use them (made once: the
 /// history alternates between two).
 #[derive(Debug)]
-struct Buffers {
+pub(crate) struct Buffers {
     width: usize,
     height: usize,
     params: wgpu::Buffer,
@@ -120,8 +118,8 @@ struct Buffers {
     input: StorageBuffer,
     /// The colour's way into `input`.
     upload: ColorUpload,
-    /// The history: `hist[read]` is the previous frame's, the other is written.
-    hist: [StorageBuffer; 2],
+    /// The history: `hist.buffer(read)` is the previous frame's, the other is written.
+    hist: TexelHistory,
     counters: wgpu::Buffer,
     /// `resolve[k]` reads `hist[k]` and writes `hist[1 - k]` and the colour `out[0]`.
     resolve: [wgpu::BindGroup; 2],
@@ -131,9 +129,11 @@ struct Buffers {
     convert: [wgpu::BindGroup; 2],
     /// The resolved colour (working space when a sharpen follows), then the sharpened one.
     out: [StorageBuffer; 2],
-    /// The colour, the counters and the timestamps of the frame's passes (convert,
-    /// resolve, sharpen).
-    back: FrameReadback,
+    /// Timestamps of the frame's passes (convert, resolve, sharpen), where the device has
+    /// them.
+    timer: Option<PassTimer>,
+    /// The colour (3 planes), the counters, then the timestamps.
+    back: Readback,
 }
 
 impl Buffers {
@@ -146,15 +146,11 @@ impl Buffers {
         upload: UploadPrecision,
     ) -> Result<Self, BackendError> {
         let n = width * height;
-        let hist_len = n * (4 + depth as usize);
         let params = params_buffer(gpu, "taa params", &[0; 9]);
         let convert_params = params_buffer(gpu, "taa convert params", &[0; 9]);
         let input = StorageBuffer::new(gpu, "taa input", INPUT_PLANES * n)?;
         let upload = ColorUpload::new(gpu, upload, &input, n)?;
-        let hist = [
-            StorageBuffer::new(gpu, "taa history", hist_len)?,
-            StorageBuffer::new(gpu, "taa history", hist_len)?,
-        ];
+        let hist = TexelHistory::new(gpu, "taa history", (width, height), 4, depth)?;
         let out = [
             StorageBuffer::new(gpu, "taa colour", 3 * n)?,
             StorageBuffer::new(gpu, "taa colour", 3 * n)?,
@@ -167,15 +163,17 @@ impl Buffers {
                 &[
                     &params,
                     &input.buffer,
-                    &hist[k].buffer,
-                    &hist[1 - k].buffer,
+                    hist.buffer(k),
+                    hist.buffer(1 - k),
                     &out[0].buffer,
                     &counters,
                 ],
             )
         });
         let sharpen = bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]);
-        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, &hist[k].buffer]));
+        let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, hist.buffer(k)]));
+        let timer = PassTimer::new(gpu, 3);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
         Ok(Buffers {
             width,
             height,
@@ -189,41 +187,35 @@ impl Buffers {
             sharpen,
             convert,
             out,
-            back: FrameReadback::new(gpu, "taa readback", n, COUNTERS, 3),
+            back: Readback::new(gpu, "taa readback", 3 * n + COUNTERS + timer_words),
+            timer,
         })
     }
 }
 
 /// `taa` with its history on the device.
-#[derive(Debug)]
-pub struct GpuTaa {
-    params: Params,
-    /// The device, its buffers and the history's place in them.
-    dev: DeviceHistory<Buffers>,
-    passes: Passes,
+pub(crate) type GpuTaa = DeviceHistory<Params, Passes, Buffers>;
+
+impl FrameBuffers<Params, Passes> for Buffers {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn make(f: &GpuTaa, (width, height): (usize, usize)) -> Result<Self, BackendError> {
+        Buffers::new(&f.gpu, &f.passes, width, height, f.keeps_depth(), f.upload)
+    }
 }
 
 impl GpuTaa {
     /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        GpuTaa {
-            passes: Passes::new(&gpu),
-            dev: DeviceHistory::new(gpu, upload),
-            params,
-        }
+        let passes = Passes::new(&gpu);
+        DeviceHistory::with(gpu, params, upload, passes)
     }
 
     fn keeps_depth(&self) -> bool {
         self.params.depth_rejection > 0.0
-    }
-
-    /// The buffers for a `width` x `height` frame (new ones drop the history).
-    fn sized(&mut self, width: usize, height: usize) -> Result<&mut Buffers, BackendError> {
-        let (depth, passes) = (self.keeps_depth(), &self.passes);
-        self.dev.sized((width, height), |gpu, upload| {
-            Buffers::new(gpu, passes, width, height, depth, upload)
-        })
     }
 
     fn param_words(&self, width: usize, height: usize, flags: u32, top: f32) -> [u32; 9] {
@@ -242,58 +234,21 @@ impl GpuTaa {
     }
 }
 
-history_filter!(GpuTaa, Taa);
+history_filter!(GpuTaa, Taa, texels);
 
 impl GpuTaa {
-    /// The CPU filter's empty state, the layout the device history is saved and loaded in.
-    fn empty_history(&self) -> TemporalState {
-        Taa::history(&self.params)
-    }
-
-    /// Bytes of the device history.
-    fn history_bytes(&self) -> usize {
-        self.dev
-            .buffers
-            .as_ref()
-            .map_or(0, |b| b.hist.iter().map(StorageBuffer::bytes).sum())
-    }
-
-    /// The history planes as the CPU filter lays them out.
-    fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.dev.buffers.as_ref().expect("sized");
-        let n = b.width * b.height;
-        let words = download(&self.dev.gpu, "taa history readback", &[&b.hist[self.dev.read]])?;
-        let mut planes = vec![plane(4 * b.width, b.height, words[..4 * n].to_vec())?];
-        if self.keeps_depth() {
-            planes.push(plane(b.width, b.height, words[4 * n..5 * n].to_vec())?);
-        }
-        Ok(planes)
-    }
-
-    /// Writes `planes` (the CPU filter's layout) into the history read next.
-    fn upload_history(&self, planes: &[Plane<f32>]) {
-        let b = self.dev.buffers.as_ref().expect("sized");
-        let mut at = 0;
-        for p in planes {
-            b.hist[self.dev.read].write(&self.dev.gpu, at, p.data());
-            at += p.data().len();
-        }
-    }
-
     fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
         let mut rec = Recorder::new();
-        let mut inp = self.prepared(frame, &mut rec)?;
+        let recon = self.params.reconstruction();
+        let mut inp = self.prepared::<Taa>(frame, recon, &mut rec)?;
         let (w, h) = (inp.width, inp.height);
         let hdr = inp.facts.hdr;
-        self.dev.check_size(frame)?;
-        self.sized(w, h)?;
-        let has_history = self.dev.valid && !frame.meta.reset;
+        let has_history = self.started(frame, &inp)?;
         let plan = StagePlan::new(&self.params, &inp, has_history);
         let flags = self.flags(&plan, &inp, has_history);
 
         let mut clock = FrameClock::start();
         let top = self
-            .dev
             .buffers
             .as_ref()
             .expect("sized")
@@ -301,36 +256,20 @@ impl GpuTaa {
             .output_ceiling(&inp.facts);
         let words = self.param_words(w, h, flags, top);
         // The history goes to the working space of this frame's colour first.
-        let convert = (has_history && self.dev.tonemapped != hdr)
+        let convert = (has_history && self.tonemapped != hdr)
             .then(|| self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top));
         let bytes = self.upload_frame(frame, &mut inp, &plan, flags, &words, convert.as_ref());
         let back = self.dispatch(w, h, convert.is_some(), plan.sharpen.is_none(), &mut clock)?;
-        let device = clock.times(
-            back.pass_ms.as_ref().map(|v| v.iter().sum()),
-            self.dev.upload,
-            bytes,
-        );
+        let device = clock.times(back.pass_ms.as_ref().map(|v| v.iter().sum()), self.upload, bytes);
         record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
-
-        self.dev.read = 1 - self.dev.read;
-        self.dev.valid = true;
-        self.dev.tonemapped = hdr;
         let c = &back.counters;
         let pixels = PixelCounts {
             history_reset: c[C_RESET] as u64,
             history_clipped: c[C_CLIPPED] as u64,
             history_rejected: c[C_REJECTED] as u64,
         };
-        let counts = (pixels, inp.counts, self.state_bytes());
-        Ok(history_output(Taa::NAME, frame, rec, counts, back.color, device))
-    }
-
-    /// The frame's inputs: checked, repaired and reconstructed ([`Reconstruction::prepare`](crate::filters::reconstruct::Reconstruction::prepare)). The
-    /// reconstruction runs on the CPU before the upload: the GPU filters the same colour.
-    fn prepared<'f>(&mut self, frame: &'f Frame, rec: &mut Recorder) -> Result<Inputs<'f>, BackendError> {
-        check_needs(Taa::NAME, Taa::needs(), frame)?;
-        let recon = self.params.reconstruction();
-        Ok(recon.prepare(frame, Taa::uses(), rec, &mut self.dev.scratch)?)
+        let counts = (pixels, self.state_bytes());
+        Ok(self.finished(Taa::NAME, frame, &inp, rec, counts, device, back.color))
     }
 
     /// The shader's flags for a frame with inputs `inp` under `plan`.
@@ -368,28 +307,12 @@ impl GpuTaa {
         words: &[u32; 9],
         convert: Option<&[u32; 9]>,
     ) -> u64 {
-        let n = inp.width * inp.height;
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_mut().expect("sized");
-        let mut bytes = b
-            .upload
-            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
-        let b = &*b;
-        if plan.reproject.is_none() {
-            let m = inp.motion.as_deref().expect("reprojection needs motion");
-            for (k, plane) in m.iter().enumerate() {
-                bytes += b.input.write(gpu, (IN_MX + k) * n, plane.data());
-            }
-        }
-        if let Some(d) = inp.depth.as_deref() {
-            if flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0 {
-                bytes += b.input.write(gpu, IN_DEPTH * n, d.data());
-            }
-        }
-        if let Some(invalid) = &inp.invalid {
-            let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
-            bytes += b.input.write(gpu, IN_INVALID * n, &mask);
-        }
+        let gpu = &self.gpu;
+        let b = self.buffers.as_mut().expect("sized");
+        let motion = plan.reproject.is_none();
+        let depth = flags & (FLAG_DILATE | FLAG_DEPTH_REJECT | FLAG_KEEP_DEPTH) != 0;
+        let scratch = &mut self.scratch;
+        let mut bytes = upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, depth);
         bytes += write_words(gpu, &b.params, words);
         if let Some(convert) = convert {
             bytes += write_words(gpu, &b.convert_params, convert);
@@ -408,14 +331,16 @@ impl GpuTaa {
         sharpen: bool,
         clock: &mut FrameClock,
     ) -> Result<FrameBack, BackendError> {
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_ref().expect("sized");
-        let mut enc = b.upload.frame_encoder(gpu, &b.counters);
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("sized");
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&b.counters, 0, None);
+        b.upload.encode(gpu, &mut enc);
+        let timer = b.timer.as_ref();
         let passes = self.encode_passes(&mut enc, b, w, h, convert, sharpen);
-        let out = &b.out[sharpen as usize].buffer;
-        let words = &mut self.dev.words;
-        b.back
-            .frame(gpu, (enc, passes), (out, &b.counters), (w, h), clock, words)
+        let outputs = (&b.out[sharpen as usize].buffer, &b.counters, COUNTERS);
+        let timed = (timer, passes);
+        submit_and_read(gpu, enc, &b.back, outputs, timed, (w, h), &mut self.words, clock)
     }
 
     /// Encodes the compute passes (each timed where the device has timestamps): the
@@ -430,7 +355,7 @@ impl GpuTaa {
         convert: bool,
         sharpen: bool,
     ) -> u32 {
-        let timer = b.back.timer.as_ref();
+        let timer = b.timer.as_ref();
         let mut passes = 0;
         if convert {
             let groups = (w * h).div_ceil(CONVERT_GROUP);
@@ -438,7 +363,7 @@ impl GpuTaa {
             let mut pass = timing::begin(enc, timer, passes);
             passes += 1;
             pass.set_pipeline(&self.passes.convert);
-            pass.set_bind_group(0, &b.convert[self.dev.read], &[]);
+            pass.set_bind_group(0, &b.convert[self.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         let (gx, gy) = groups(w, h, WORKGROUP);
@@ -446,7 +371,7 @@ impl GpuTaa {
             let mut pass = timing::begin(enc, timer, passes);
             passes += 1;
             pass.set_pipeline(&self.passes.resolve);
-            pass.set_bind_group(0, &b.resolve[self.dev.read], &[]);
+            pass.set_bind_group(0, &b.resolve[self.read], &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
         if sharpen {
@@ -498,9 +423,4 @@ fn record_stages(rec: &mut Recorder, plan: &StagePlan, device: &DeviceTimes, pas
             shaders.unwrap_or(device.upload_ms + device.readback_ms),
         ),
     }
-}
-
-/// A plane of samples read back (their count is the plane's by construction).
-fn plane(width: usize, height: usize, data: Vec<f32>) -> Result<Plane<f32>, BackendError> {
-    Plane::from_vec(width, height, data).map_err(|e| BackendError::Device(e.to_string()))
 }

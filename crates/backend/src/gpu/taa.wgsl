@@ -33,16 +33,3 @@ struct Params {
 // `Params.flags`, the IN_ planes of `inp` in units of width * height, COUNTERS and the C_
 // counters (history reset, clipped, rejected by depth), WORKGROUP and CONVERT_GROUP, and
 // MAX_COUNT of the CPU filter.
-
-// kernels::clip_toward_center: q moved toward the centre of [lo, hi] until inside.
-fn clip_toward_center(q: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> vec4<f32> {
-    let center = 0.5 * (hi + lo);
-    let extent = 0.5 * (hi - lo) + vec3<f32>(clip_guard(lo, hi));
-    let v = q - center;
-    let r = abs(v / extent);
-    let worst = max(max(r.x, r.y), r.z);
-    if worst > 1.0 {
-        return vec4<f32>(center + v * (1.0 / worst), 1.0);
-    }
-    return vec4<f32>(q, 0.0);
-}

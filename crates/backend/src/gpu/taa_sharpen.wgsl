@@ -1,6 +1,9 @@
 // `sharpen` reads the resolved working colour (`src`, the resolve's output) and writes
 // `dst`: passes::sharpen (kernels::sharpen_cross, thesis eq. 4.17) clamped to
 // [0, S.top] (passes::output_ceiling), then back to linear in the tonemapped space.
+// `traa` runs it too, with its variant's strength (eq. 3.1 or 4.17): the module that
+// precedes this file declares `Params` (with `width`, `height`, `flags`, `sharpen`,
+// `top`), FLAG_TONEMAP and WORKGROUP.
 @group(0) @binding(0) var<storage, read> S: Params;
 @group(0) @binding(1) var<storage, read> src: array<f32>;
 @group(0) @binding(2) var<storage, read_write> dst: array<f32>;

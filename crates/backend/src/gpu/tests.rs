@@ -5,7 +5,7 @@
 
 use super::*;
 use crate as backend;
-use crate::filters::check::{sequences, stages};
+use crate::filters::check::{sequences, stages, with_gbuffer, GBUFFER_KINDS};
 use crate::frame::Frame;
 use crate::pipeline::params::parse_assignments;
 use crate::pipeline::{Backend, FilterState, Output, PixelCounts, UploadPrecision};
@@ -177,7 +177,7 @@ fn assert_agree_within(g: &Output, c: &Output, what: &str, bounds: Bounds) -> (f
     assert_eq!(g.record.state_bytes, c.record.state_bytes, "{what}: state bytes");
     assert_eq!(g.record.backend, Backend::Gpu, "{what}");
     assert_eq!(c.record.device, None, "{what}: a CPU record has no device times");
-    if matches!(g.record.filter, "taa" | "phlm" | "upsample") {
+    if matches!(g.record.filter, "taa" | "traa" | "phlm" | "upsample") {
         let d = g
             .record
             .device
@@ -299,10 +299,20 @@ fn taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
 /// Runs `name` with each of `variants` through every adversarial sequence at odd sizes
 /// down to one pixel, on both backends.
 fn compare_adversarial(name: &str, variants: &[&[&str]]) {
+    compare_adversarial_with(name, variants, None);
+}
+
+/// [`compare_adversarial`], each frame given the g-buffer of `kind` ([`with_gbuffer`])
+/// where there is one.
+fn compare_adversarial_with(name: &str, variants: &[&[&str]], kind: Option<&str>) {
     for (w, h) in [(1, 1), (7, 1), (5, 9), (33, 19)] {
-        for (what, frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
+        let mut rng = crate::rng::SplitMix64::new((w * 5 + h) as u64);
+        for (what, mut frames) in sequences(w, h, 12, (w * 7 + h) as u64) {
+            if let Some(kind) = kind {
+                frames = frames.iter().map(|f| with_gbuffer(f, &mut rng, kind)).collect();
+            }
             for set in variants {
-                compare(name, set, &frames, &format!("{w}x{h} {what}"));
+                compare(name, set, &frames, &format!("{w}x{h} {what} {kind:?}"));
             }
         }
     }
@@ -378,6 +388,32 @@ fn upsample_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
                 }
             }
         }
+    }
+}
+
+/// `traa`'s GPU variants: the thesis's improved TRAA (the default) and the INSIDE
+/// baseline, with and without the sharpen, and other feedback bounds.
+const TRAA_VARIANTS: &[&[&str]] = &[
+    &[],
+    &["variant=baseline"],
+    &["sharpen=false", "feedback_min=0.5", "feedback_max=0.99"],
+    &["variant=baseline", "sharpen=false"],
+];
+
+#[test]
+fn traa_on_the_gpu_follows_the_cpu_on_catalogue_scenes() {
+    compare_catalogue("traa", TRAA_VARIANTS);
+}
+
+/// [`taa_on_the_gpu_follows_the_cpu_on_adversarial_sequences`] for `traa`, and the
+/// improved variant's g-buffer on them: albedo, object ids with single-pixel objects (each
+/// left out in turn), the far plane.
+#[test]
+fn traa_on_the_gpu_follows_the_cpu_on_adversarial_sequences() {
+    compare_adversarial("traa", TRAA_VARIANTS);
+    for kind in GBUFFER_KINDS {
+        let variants: &[&[&str]] = &[&[], &["sharpen=false", "feedback_min=0.5"]];
+        compare_adversarial_with("traa", variants, Some(kind));
     }
 }
 
@@ -470,6 +506,8 @@ fn states_move_between_backends() {
     for (name, set) in [
         ("taa", &[][..]),
         ("taa", &["depth_rejection=0.05"][..]),
+        ("traa", &[][..]),
+        ("traa", &["variant=baseline"][..]),
         ("phlm", &[][..]),
         ("upsample", &[][..]),
         ("upsample", &["method=temporal"][..]),
@@ -532,7 +570,10 @@ fn a_gpu_filter_refuses_a_new_size_without_a_reset() {
 
 #[test]
 fn filters_without_a_gpu_implementation_are_refused_and_auto_takes_the_cpu() {
-    assert_eq!(FILTERS, ["passthrough", "fxaa", "taa", "phlm", "upsample"]);
+    assert_eq!(
+        FILTERS,
+        ["passthrough", "fxaa", "taa", "traa", "phlm", "upsample"]
+    );
     let e = backend::create("pixel_trace", &Default::default(), BackendChoice::Gpu).unwrap_err();
     assert!(e.to_string().contains("no GPU implementation"), "{e}");
     let made = backend::create("pixel_trace", &Default::default(), BackendChoice::Auto).unwrap();
@@ -799,6 +840,10 @@ fn reconstruction_of(name: &str, set: &[&str]) -> Option<crate::filters::reconst
             let p: crate::filters::taa::Params = crate::pipeline::params::build("taa", &values).unwrap();
             p.reconstruction()
         }
+        "traa" => {
+            let p: crate::filters::traa::Params = crate::pipeline::params::build("traa", &values).unwrap();
+            p.reconstruction()
+        }
         "phlm" => {
             let p: crate::filters::phlm::Params = crate::pipeline::params::build("phlm", &values).unwrap();
             p.effective().reconstruction()
@@ -886,6 +931,13 @@ const PHLM_ROUNDED_OUTLIER_TOLERANCE: Tolerance = Tolerance::abs(1e-2);
 ///   firefly; bounded here only by the tonemapped range.
 /// - `taa`: up to 4.9% of a frame's samples (camera cut, sharpen 0.5), each within 0.054;
 ///   pixel counts within 2.3% of the pixels (the clip's decisions).
+/// - `traa`: up to 14.3% of a frame's samples (7x1 `pan`, baseline), each within 4.7e-3
+///   (camera cut, baseline): the baseline's sharpen (eq. 3.1, strength 4) scales one
+///   sample's rounding by up to 9, 4.4e-3 where working-space colour is at most 1; the
+///   improved variant's (eq. 4.17) moved at most 1.8e-3, 0.13% of a frame's samples.
+///   Clipped pixels within 6.6% of the pixels (camera cut, improved without sharpen:
+///   eq. 4.16's box shrinks toward the current colour, so more history lies near its
+///   surface); on the rounded colour the GPU's counts are the CPU's.
 /// - `phlm`: up to 15.7% of a frame's samples (`flyover`, nearest model fetch), each
 ///   within 0.42; pixel counts within 2.8%, the largest trace(P) within 8.8% (5x9 `hdr`
 ///   with `on_clip=shift`; 4.8% with the defaults on `flyover`): a failed box test that
@@ -913,6 +965,7 @@ fn f16_bounds(filter: &str) -> Bounds {
         "fxaa" => (F16_TOLERANCE, 0.15, 1.0, COUNT_SLACK, TRACE_TOLERANCE.rel),
         "taa" => (F16_TOLERANCE, 0.07, 0.1, 0.035, TRACE_TOLERANCE.rel),
         "upsample" => (F16_TOLERANCE, 0.0, F16_TOLERANCE.abs, 0.3, TRACE_TOLERANCE.rel),
+        "traa" => (F16_TOLERANCE, 0.2, 0.01, 0.08, TRACE_TOLERANCE.rel),
         _ => (F16_TOLERANCE, 0.2, 0.6, 0.04, 0.12),
     };
     let outlier_rel = if filter == "phlm" { 0.02 } else { 0.0 };
@@ -946,7 +999,7 @@ fn compare_f16(name: &str, set: &[&str], frames: &[Frame], what: &str) -> (Moved
     let bounds = f16_bounds(name);
     let mut rounded_bounds = f32_bounds(name);
     match name {
-        "taa" => rounded_bounds.outliers = TAA_ROUNDED_OUTLIERS,
+        "taa" | "traa" => rounded_bounds.outliers = TAA_ROUNDED_OUTLIERS,
         "phlm" => {
             rounded_bounds.outliers = PHLM_ROUNDED_OUTLIERS;
             rounded_bounds.outlier_tol = PHLM_ROUNDED_OUTLIER_TOLERANCE;
@@ -1029,10 +1082,11 @@ fn compare_f16(name: &str, set: &[&str], frames: &[Frame], what: &str) -> (Moved
 /// rounding moved.
 #[test]
 fn f16_upload_stays_within_its_rounding_of_the_cpu_filter() {
-    let all: [(&str, &[&[&str]]); 5] = [
+    let all: [(&str, &[&[&str]]); 6] = [
         ("passthrough", &[&[]]),
         ("fxaa", &[&[]]),
         ("taa", TAA_VARIANTS),
+        ("traa", TRAA_VARIANTS),
         ("phlm", PHLM_VARIANTS),
         ("upsample", UPSAMPLE_VARIANTS),
     ];
@@ -1083,12 +1137,12 @@ fn the_gpu_follows_the_cpu_on_real_renders() {
             .frames(&ReadOptions::default())
             .collect::<Result<_, _>>()
             .unwrap();
-        for name in ["taa", "phlm", "upsample"] {
-            let mut worst = 0.0f32;
+        for name in ["taa", "traa", "phlm", "upsample"] {
             let (mut gpu, mut cpu) = (
                 make(name, &[], BackendChoice::Gpu),
                 make(name, &[], BackendChoice::Cpu),
             );
+            let mut worst = 0.0f32;
             for (k, f) in frames.iter().enumerate() {
                 let (g, c) = (gpu.process(f).unwrap(), cpu.process(f).unwrap());
                 for ch in 0..3 {
@@ -1104,7 +1158,7 @@ fn the_gpu_follows_the_cpu_on_real_renders() {
                     }
                 }
             }
-            eprintln!("{scene} {name}: max |gpu - cpu| = {worst:.2e}");
+            eprintln!("{scene} {name}: max |gpu - cpu| = {worst:.2e} (linear)");
         }
     }
 }

@@ -194,3 +194,37 @@ pub(crate) fn unpack_pipeline(gpu: &Gpu) -> wgpu::ComputePipeline {
         "unpack",
     )
 }
+
+/// Uploads a history filter's frame into `input` (its `IN_` planes): the colour of `inp`
+/// through `upload` (planes of the host's own go back to `scratch`), then as f32 motion
+/// when `motion`, depth when `depth` (and the frame has some), and the invalid mask.
+/// Returns the bytes written.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn upload_inputs<'f>(
+    gpu: &Gpu,
+    upload: &mut ColorUpload,
+    input: &StorageBuffer,
+    frame: &'f Frame,
+    inp: &mut Inputs<'f>,
+    scratch: &mut Scratch,
+    motion: bool,
+    depth: bool,
+) -> u64 {
+    use super::{IN_DEPTH, IN_INVALID, IN_MX};
+    let n = inp.width * inp.height;
+    let mut bytes = upload.write_frame(gpu, input, frame, inp, scratch);
+    if motion {
+        let m = inp.motion.as_deref().expect("motion to upload");
+        for (k, plane) in m.iter().enumerate() {
+            bytes += input.write(gpu, (IN_MX + k) * n, plane.data());
+        }
+    }
+    if let (Some(d), true) = (inp.depth.as_deref(), depth) {
+        bytes += input.write(gpu, IN_DEPTH * n, d.data());
+    }
+    if let Some(invalid) = &inp.invalid {
+        let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
+        bytes += input.write(gpu, IN_INVALID * n, &mask);
+    }
+    bytes
+}

@@ -8,18 +8,18 @@
 //! range (`geometry`), and `reconstruct` on the output after the readback (sparse
 //! shading), so both backends filter the same numbers.
 
-use super::buffers::{download, params_buffer, write_words, FrameBack, FrameReadback};
-use super::timing::{self, FrameClock};
+use super::buffers::{download, params_buffer, plane, submit_and_read, write_words, FrameBack};
+use super::history::{DeviceHistory, FrameBuffers};
+use super::timing::{self, FrameClock, PassTimer};
 use super::upload::ColorUpload;
-use super::{bind_at, groups, history_filter, history_output, input_consts, pipeline, Gpu, StorageBuffer};
-use super::{DeviceHistory, IN_DEPTH, IN_INVALID, IN_MX};
+use super::{bind_at, groups, history_filter, history_output, input_consts, pipeline, Gpu, Readback};
+use super::{StorageBuffer, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::TemporalState;
 use crate::filters::upsample::{
     decay_for, falloff, geometry, skips, Method, Params, Sparse, Upsample, DEPTH, G1, GRADIENT_WEIGHTS, ID,
     LK, LUMA_FLOOR, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W, WEIGHT_EPSILON,
 };
 use crate::frame::{Frame, Plane, Sampling};
-use crate::kernels::LUMA_REC709;
 use crate::pipeline::{
     check_channels, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
 };
@@ -74,7 +74,6 @@ const _: () = assert!(MAX_TEXEL >= LK + 4);
 /// history channels and counters above, the workgroup size, and the CPU filter's
 /// constants.
 fn consts() -> String {
-    let [luma_r, luma_g, luma_b] = LUMA_REC709;
     let [gw0, gw1, gw2, gw3] = GRADIENT_WEIGHTS;
     let flags = super::wgsl_consts![FLAG_HISTORY, FLAG_GEO_DEPTH, FLAG_DEPTH, FLAG_NORMAL]
         + &super::wgsl_consts![FLAG_IDS, FLAG_MOTION, FLAG_INVALID, FLAG_SKY]
@@ -83,7 +82,6 @@ fn consts() -> String {
     let channels = super::wgsl_consts![R, W, T_DEPTH, T_ID, DEPTH, ID, G1, LK, MAX_TEXEL];
     let counters = super::wgsl_consts![COUNTERS, C_RESET, C_CLIPPED, C_LOST, WORKGROUP, OFFSETS];
     let cpu = super::wgsl_consts![WEIGHT_EPSILON, LUMA_FLOOR, TAA_MAX_COUNT]
-        + &super::wgsl_consts![LUMA_R = luma_r, LUMA_G = luma_g, LUMA_B = luma_b]
         + &super::wgsl_consts![GW0 = gw0, GW1 = gw1, GW2 = gw2, GW3 = gw3];
     let inputs = input_consts() + &super::wgsl_consts![IN_NX, IN_ID];
     [inputs, flags, methods, channels, counters, cpu].concat()
@@ -91,7 +89,7 @@ fn consts() -> String {
 
 /// The compiled passes.
 #[derive(Debug)]
-struct Passes {
+pub(crate) struct Passes {
     reproject: wgpu::ComputePipeline,
     gradient: wgpu::ComputePipeline,
     blend: wgpu::ComputePipeline,
@@ -115,7 +113,9 @@ impl Passes {
 /// Device buffers for one frame size, and the bind groups that use them (made once: the
 /// history alternates between two).
 #[derive(Debug)]
-struct Buffers {
+pub(crate) struct Buffers {
+    width: usize,
+    height: usize,
     params: wgpu::Buffer,
     input: StorageBuffer,
     /// The colour's way into `input`, for colour planes of `color_len` samples.
@@ -132,9 +132,10 @@ struct Buffers {
     /// Held for the bind groups: the reprojected texels (with their tap weights) and the
     /// raw gradients, which the passes hand on within a frame.
     _between: [StorageBuffer; 2],
-    /// The colour, the counters and the timestamps of the frame's passes (reproject,
-    /// gradient, blend).
-    back: FrameReadback,
+    /// The readback of the colour, the counters and the timestamps of the frame's passes
+    /// (reproject, gradient, blend), where the device has them.
+    back: Readback,
+    timer: Option<PassTimer>,
 }
 
 impl Buffers {
@@ -182,7 +183,11 @@ impl Buffers {
                 ],
             )
         });
+        let timer = PassTimer::new(gpu, 3);
+        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
         Ok(Buffers {
+            width,
+            height,
             params,
             upload: ColorUpload::new(gpu, upload, &input, n)?,
             color_len: n,
@@ -194,42 +199,36 @@ impl Buffers {
             blend,
             out,
             _between: [rp, now],
-            back: FrameReadback::new(gpu, "upsample readback", n, COUNTERS, 3),
+            back: Readback::new(gpu, "upsample readback", 3 * n + COUNTERS + timer_words),
+            timer,
         })
     }
 }
 
 /// `upsample` with its history on the device.
-#[derive(Debug)]
-pub struct GpuUpsample {
-    params: Params,
-    /// The device, its buffers and the history's place in them.
-    dev: DeviceHistory<Buffers>,
-    passes: Passes,
+pub(crate) type GpuUpsample = DeviceHistory<Params, Passes, Buffers>;
+
+impl FrameBuffers<Params, Passes> for Buffers {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    fn make(f: &GpuUpsample, size: (usize, usize)) -> Result<Self, BackendError> {
+        Buffers::new(&f.gpu, &f.passes, size, f.texel(), f.upload)
+    }
 }
 
 impl GpuUpsample {
     /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
     /// precision.
     pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        GpuUpsample {
-            passes: Passes::new(&gpu),
-            dev: DeviceHistory::new(gpu, upload),
-            params,
-        }
+        let passes = Passes::new(&gpu);
+        DeviceHistory::with(gpu, params, upload, passes)
     }
 
     /// Floats of a history texel.
     fn texel(&self) -> usize {
         self.params.method.planes()
-    }
-
-    /// The buffers for a `width` x `height` frame (new ones drop the history).
-    fn sized(&mut self, width: usize, height: usize) -> Result<&mut Buffers, BackendError> {
-        let (passes, texel) = (&self.passes, self.texel());
-        self.dev.sized((width, height), |gpu, upload| {
-            Buffers::new(gpu, passes, (width, height), texel, upload)
-        })
     }
 
     /// The CPU filter's empty state, the layout the device history is saved and loaded in.
@@ -239,7 +238,7 @@ impl GpuUpsample {
 
     /// Bytes of the device history.
     fn history_bytes(&self) -> usize {
-        match (&self.dev.buffers, self.texel()) {
+        match (&self.buffers, self.texel()) {
             (Some(b), t) if t > 0 => b.hist.iter().map(StorageBuffer::bytes).sum(),
             _ => 0,
         }
@@ -247,26 +246,20 @@ impl GpuUpsample {
 
     /// The history planes as the CPU filter lays them out: one plane of texels.
     fn download_history(&self) -> Result<Vec<Plane<f32>>, BackendError> {
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_ref().expect("sized");
         let t = self.texel();
         if t == 0 {
             return Ok(Vec::new());
         }
-        let words = download(
-            &self.dev.gpu,
-            "upsample history readback",
-            &[&b.hist[self.dev.read]],
-        )?;
-        let (w, h) = self.dev.size;
-        let plane = Plane::from_vec(t * w, h, words).map_err(|e| BackendError::Device(e.to_string()))?;
-        Ok(vec![plane])
+        let words = download(&self.gpu, "upsample history readback", &[&b.hist[self.read]])?;
+        Ok(vec![plane(t * b.width, b.height, words)?])
     }
 
     /// Writes `planes` (the CPU filter's layout) into the history read next.
     fn upload_history(&self, planes: &[Plane<f32>]) {
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_ref().expect("sized");
         if let Some(p) = planes.first() {
-            b.hist[self.dev.read].write(&self.dev.gpu, 0, p.data());
+            b.hist[self.read].write(&self.gpu, 0, p.data());
         }
     }
 
@@ -274,13 +267,11 @@ impl GpuUpsample {
         check_channels(Upsample::NAME, Upsample::needs(), frame)?;
         let mut rec = Recorder::new();
         let recon = self.params.reconstruction();
-        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.dev.scratch)?;
+        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.scratch)?;
         let (w, h) = (inp.width, inp.height);
-        self.dev.check_size(frame)?;
-        self.sized(w, h)?;
         let method = self.params.method;
         let stateful = method != Method::Spatial;
-        let has_history = stateful && self.dev.valid && !frame.meta.reset;
+        let has_history = self.started(frame, &inp)? && stateful;
         let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
         let sampling = frame.sampling();
         let words = self.param_words(&inp, sampling, range, has_history);
@@ -289,7 +280,7 @@ impl GpuUpsample {
         let bytes = self.upload_frame(frame, &mut inp, &words)?;
         let gradient = method == Method::Spatiotemporal;
         let back = self.dispatch(w, h, has_history, gradient, &mut clock)?;
-        let device = clock.times(back.pass_ms.map(|v| v.iter().sum()), self.dev.upload, bytes);
+        let device = clock.times(back.pass_ms.map(|v| v.iter().sum()), self.upload, bytes);
         let [reproject_skip, gradient_skip] = skips(method, has_history);
         let stages = vec![
             ("reproject", reproject_skip),
@@ -302,13 +293,13 @@ impl GpuUpsample {
             device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
         );
         let mut color = back.color;
-        recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut self.dev.scratch);
+        recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut self.scratch);
 
         if stateful {
-            self.dev.read = 1 - self.dev.read;
-            self.dev.valid = true;
+            self.read = 1 - self.read;
+            self.valid = true;
         }
-        self.dev.tonemapped = inp.facts.hdr;
+        self.tonemapped = inp.facts.hdr;
         let c = &back.counters;
         let lost = c[C_LOST] as u64;
         let mut pixels = PixelCounts {
@@ -411,16 +402,14 @@ impl GpuUpsample {
         words: &[u32],
     ) -> Result<u64, BackendError> {
         let n = inp.width * inp.height;
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_mut().expect("sized");
+        let gpu = &self.gpu;
+        let b = self.buffers.as_mut().expect("sized");
         let color_len = inp.color[0].data().len();
         if b.color_len != color_len {
-            b.upload = ColorUpload::new(gpu, self.dev.upload, &b.input, color_len)?;
+            b.upload = ColorUpload::new(gpu, self.upload, &b.input, color_len)?;
             b.color_len = color_len;
         }
-        let mut bytes = b
-            .upload
-            .write_frame(gpu, &b.input, frame, inp, &mut self.dev.scratch);
+        let mut bytes = b.upload.write_frame(gpu, &b.input, frame, inp, &mut self.scratch);
         let b = &*b;
         let mut put = |at: usize, data: &[f32]| bytes += b.input.write(gpu, at * n, data);
         if let Some(m) = inp.motion.as_deref() {
@@ -459,16 +448,16 @@ impl GpuUpsample {
         gradient: bool,
         clock: &mut FrameClock,
     ) -> Result<FrameBack, BackendError> {
-        let gpu = &self.dev.gpu;
-        let b = self.dev.buffers.as_ref().expect("sized");
+        let gpu = &self.gpu;
+        let b = self.buffers.as_ref().expect("sized");
         let mut enc = b.upload.frame_encoder(gpu, &b.counters);
-        let timer = b.back.timer.as_ref();
+        let timer = b.timer.as_ref();
         let (gx, gy) = groups(w, h, WORKGROUP);
         let mut passes = 0;
         let chosen = [
-            (reproject, &self.passes.reproject, &b.reproject[self.dev.read]),
+            (reproject, &self.passes.reproject, &b.reproject[self.read]),
             (gradient, &self.passes.gradient, &b.gradient),
-            (true, &self.passes.blend, &b.blend[self.dev.read]),
+            (true, &self.passes.blend, &b.blend[self.read]),
         ];
         for (run, pipeline, group) in chosen {
             if run {
@@ -479,14 +468,16 @@ impl GpuUpsample {
                 pass.dispatch_workgroups(gx, gy, 1);
             }
         }
-        let words = &mut self.dev.words;
-        b.back.frame(
+        let outputs = (&b.out.buffer, &b.counters, COUNTERS);
+        submit_and_read(
             gpu,
-            (enc, passes),
-            (&b.out.buffer, &b.counters),
+            enc,
+            &b.back,
+            outputs,
+            (timer, passes),
             (w, h),
+            &mut self.words,
             clock,
-            words,
         )
     }
 }

@@ -59,7 +59,7 @@ struct Params {
 // in units of width * height (colour planes at their own size from 0), the FLAG_ bits,
 // the M_ methods, the history channels (R, W, T_DEPTH, T_ID, DEPTH, ID, G1, LK), COUNTERS
 // and the C_ counters, WORKGROUP, OFFSETS, and the CPU filter's constants WEIGHT_EPSILON,
-// LUMA_FLOOR, LUMA_R/G/B, GW0..GW3 (GRADIENT_WEIGHTS), TAA_MAX_COUNT.
+// LUMA_FLOOR, GW0..GW3 (GRADIENT_WEIGHTS), TAA_MAX_COUNT.
 
 @group(0) @binding(0) var<storage, read> P: Params;
 @group(0) @binding(1) var<storage, read> inp: array<f32>;
@@ -124,11 +124,6 @@ fn invalid_sample(k: u32) -> bool {
 // Rust's `v.max(0.0)`: 0 for NaN.
 fn max0(v: f32) -> f32 {
     return select(0.0, v, v > 0.0);
-}
-
-// kernels::luma (Rec. 709).
-fn luma(c: vec3<f32>) -> f32 {
-    return LUMA_R * c.x + LUMA_G * c.y + LUMA_B * c.z;
 }
 
 // spatial::falloff: (1 - x / sigma)^3, clamped below at WEIGHT_EPSILON.

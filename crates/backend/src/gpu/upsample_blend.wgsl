@@ -119,9 +119,9 @@ fn spatiotemporal(x: u32, y: u32) {
     let own = own_sample(x, y);
     var lk = vec4<f32>(0.0);
     if own.found && history {
-        lk = vec4<f32>(luma(color_at(own.k)), 1.0, rp_at(i, LK), rp_at(i, LK + 1u));
+        lk = vec4<f32>(luma_of(color_at(own.k)), 1.0, rp_at(i, LK), rp_at(i, LK + 1u));
     } else if own.found {
-        lk = vec4<f32>(luma(color_at(own.k)), 1.0, 0.0, 0.0);
+        lk = vec4<f32>(luma_of(color_at(own.k)), 1.0, 0.0, 0.0);
     } else if history {
         lk = vec4<f32>(rp_at(i, LK), rp_at(i, LK + 1u), rp_at(i, LK + 2u), rp_at(i, LK + 3u));
     }

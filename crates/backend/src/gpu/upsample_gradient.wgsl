@@ -18,7 +18,7 @@ fn gradient_pixel(x: u32, y: u32) {
             if has(FLAG_SUB_GRADIENT) && rp_at(j, P.texel + 1u) >= 0.5 * fj {
                 g = 0.0;
             } else {
-                let l = luma(color_at(s.k));
+                let l = luma_of(color_at(s.k));
                 let known = rp_at(j, LK + 1u);
                 let known2 = rp_at(j, LK + 3u);
                 var before: f32;
@@ -27,7 +27,7 @@ fn gradient_pixel(x: u32, y: u32) {
                 } else if known >= 0.5 {
                     before = rp_at(j, LK) / known;
                 } else {
-                    before = luma(vec3<f32>(rp_at(j, R), rp_at(j, R + 1u), rp_at(j, R + 2u)));
+                    before = luma_of(vec3<f32>(rp_at(j, R), rp_at(j, R + 1u), rp_at(j, R + 2u)));
                 }
                 // temporal::signed_gradient.
                 g = clamp((l - before) / max(max(l, before), LUMA_FLOOR), -1.0, 1.0);

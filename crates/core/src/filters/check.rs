@@ -103,6 +103,32 @@ pub fn stages(o: &Output) -> Vec<(&'static str, bool, Option<String>)> {
         .collect()
 }
 
+/// The ways [`with_gbuffer`] gives a frame its g-buffer: all of it, without albedo,
+/// without object ids, and all of it with the far plane set.
+pub const GBUFFER_KINDS: [&str; 4] = ["all", "no albedo", "no object id", "near_far"];
+
+/// `f` with the channels `traa`'s improved variant reads beyond the shared sequences':
+/// albedo in [0, 1) and object ids in small blocks with some single-pixel objects; then
+/// left out again as `kind` (one of [`GBUFFER_KINDS`]) says, or (`near_far`) kept with the
+/// far plane set.
+pub fn with_gbuffer(f: &Frame, rng: &mut SplitMix64, kind: &str) -> Frame {
+    let mut f = f.clone();
+    let (w, h) = (f.width(), f.height());
+    let albedo = [0, 1, 2].map(|_| Plane::from_fn(w, h, |_, _| rng.next_f64() as f32));
+    f.set_f32(ChannelKind::Albedo, albedo.to_vec()).unwrap();
+    let ids = Plane::from_fn(w, h, |x, y| {
+        ((x / 3 + y / 2) % 3) as u32 + (rng.next_f64() < 0.1) as u32
+    });
+    f.set_object_id(ids).unwrap();
+    match kind {
+        "no albedo" => f.remove(ChannelKind::Albedo),
+        "no object id" => f.remove(ChannelKind::ObjectId),
+        "near_far" => f.meta.near_far = Some([0.5, 3.0]),
+        _ => {}
+    }
+    f
+}
+
 /// Panics unless `fast` and `reference` agree: colour within `tol`, the same stages run
 /// and left out (with the same reasons), the same pixel and input counts.
 pub fn assert_same_output(fast: &Output, reference: &Output, tol: Tolerance, what: &str) {

@@ -19,13 +19,14 @@
 //! never NaN, and a sign of zero cannot change what follows them).
 
 use super::{
-    feedback_v, mix_v, Params, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT, SOBEL_UNLIT_WEIGHT,
+    feedback_v, mix_v, Params, StagePlan, Traa, Variant, DEPTH_DISTANCE_MIN, SOBEL_LIT_WEIGHT,
+    SOBEL_UNLIT_WEIGHT,
 };
 use crate::filters::passes::{
-    dilate_row, on_screen_bits, output_ceiling, previous_positions, reproject_skip, tonemap_row,
-    untonemap_row, FrameContext, FrameResult,
+    dilate_row, on_screen_bits, output_ceiling, previous_positions, tonemap_row, untonemap_row, FrameContext,
+    FrameResult,
 };
-use crate::frame::{ChannelKind, Plane, Rgb};
+use crate::frame::{Plane, Rgb};
 use crate::kernels::lanes::{self, block, mask_of_bits, Lanes, Mask, LANES};
 use crate::kernels::{fmax, luma, luma_v, sharpen_cross, sobel_magnitude_v, BilinearLanes};
 use crate::pipeline::exec::{par_bands, par_bands_strided, sized, StageClock};
@@ -211,8 +212,8 @@ pub(super) fn frame(
 ) -> Result<FrameResult, FilterError> {
     let (inp, rec, has_history, read, next, scratch) = ctx.into_parts();
     let (w, h) = (inp.width, inp.height);
-    let skips = Skips::new(p, &inp, has_history);
-    let plan = skips.plan(p, has_history);
+    let skips = StagePlan::new(p, &inp, has_history);
+    let plan = plan(&skips, p, has_history);
     let src = sources(&inp, &plan, near_far, has_history, read);
     let mut out: Rgb = scratch.planes(w, h);
     let clock = StageClock::<10>::default();
@@ -241,79 +242,39 @@ pub(super) fn frame(
     })
 }
 
-/// Why each stage is left out (`None`: it runs), as the reference plans them.
-struct Skips {
-    tonemap: Option<Skip>,
-    reproject: Option<Skip>,
-    dilate: Option<Skip>,
-    /// The improved variant's own stages (`sobel`, `aliased`).
-    variant: Option<Skip>,
-    sobel_history: Option<Skip>,
-    model: Option<Skip>,
-    depth: Option<Skip>,
-    sharpen: Option<Skip>,
-}
-
-impl Skips {
-    fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
-        let improved = p.variant == Variant::Improved;
-        let reproject = reproject_skip(inp, has_history);
-        let variant = (!improved).then_some(Skip::Variant {
-            variant: p.variant.name(),
-        });
-        Skips {
-            tonemap: inp.facts.tonemap(),
-            dilate: reproject.clone().or_else(|| inp.require(ChannelKind::Depth)),
-            reproject,
-            sobel_history: (!has_history).then_some(Skip::NoHistory),
-            model: variant.clone().or_else(|| inp.require(ChannelKind::ObjectId)),
-            depth: variant.clone().or_else(|| inp.require(ChannelKind::Depth)),
-            variant,
-            sharpen: (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
-        }
-    }
-
-    /// Which stages the fused pass runs, and its knobs.
-    fn plan(&self, p: &Params, has_history: bool) -> Plan {
-        let improved = p.variant == Variant::Improved;
-        Plan {
-            improved,
-            tonemap: self.tonemap.is_none(),
-            dilate: self.dilate.is_none(),
-            reproject: self.reproject.is_none(),
-            sobel_history: improved && has_history,
-            depth: self.depth.is_none(),
-            model_average: self.model.is_none(),
-            untonemap: self.tonemap.is_none() && self.sharpen.is_some(),
-            feedback_min: p.feedback_min,
-            feedback_max: p.feedback_max,
-        }
-    }
-
+impl StagePlan {
     /// Records the fused pass's stages from `tonemap` to `resolve` (`sobel_history` only
     /// in the improved variant): their `shares` of its time `ms`, or why they were left out.
     fn record_fused(&self, rec: &mut Recorder, improved: bool, ms: f64, shares: &[f64; 10]) {
-        let mut stages = vec![
-            (TONEMAP, self.tonemap.clone()),
-            (DILATE, self.dilate.clone()),
-            (REPROJECT, self.reproject.clone()),
-            (SOBEL, self.variant.clone()),
-        ];
-        if improved {
-            stages.push((SOBEL_HISTORY, self.sobel_history.clone()));
-        }
-        stages.extend([
-            (MODEL_AVERAGE, self.model.clone()),
-            (DEPTH_VARIANCE, self.depth.clone()),
-            (ALIASED, self.variant.clone()),
-            (RESOLVE, None),
-        ]);
-        for (k, skip) in stages {
+        // `sharpen` and `untonemap` follow, recorded by the caller.
+        for (name, skip) in self
+            .stages(improved)
+            .into_iter()
+            .filter(|(n, _)| *n != "sharpen" && *n != "untonemap")
+        {
+            let k = STAGES.iter().position(|s| *s == name).expect("a fused stage");
             match skip {
-                Some(why) => rec.skip(STAGES[k], why),
-                None => rec.ran_for(STAGES[k], ms * shares[k]),
+                Some(why) => rec.skip(name, why),
+                None => rec.ran_for(name, ms * shares[k]),
             }
         }
+    }
+}
+
+/// Which stages the fused pass runs (as `skips` plans them), and its knobs.
+fn plan(skips: &StagePlan, p: &Params, has_history: bool) -> Plan {
+    let improved = p.variant == Variant::Improved;
+    Plan {
+        improved,
+        tonemap: skips.tonemap.is_none(),
+        dilate: skips.dilate.is_none(),
+        reproject: skips.reproject.is_none(),
+        sobel_history: improved && has_history,
+        depth: skips.depth.is_none(),
+        model_average: skips.model.is_none(),
+        untonemap: skips.tonemap.is_none() && skips.sharpen.is_some(),
+        feedback_min: p.feedback_min,
+        feedback_max: p.feedback_max,
     }
 }
 
@@ -337,10 +298,7 @@ fn sources<'a>(
     let depth = inp.depth.as_deref().map(|d| d.data());
     // Depth / far (improved): far from the frame's planes, else its largest depth.
     let far = match (plan.depth, depth) {
-        (true, Some(d)) => near_far
-            .map(|nf| nf[1])
-            .unwrap_or_else(|| largest(d))
-            .max(f32::MIN_POSITIVE),
+        (true, Some(d)) => far(near_far, d),
         _ => 1.0,
     };
     Sources {
@@ -429,6 +387,15 @@ fn sharpen_pass(
         });
     }
     (t.elapsed().as_secs_f64() * 1e3, clock.shares())
+}
+
+/// The far distance depth is divided by (improved): the frame's far plane `near_far`,
+/// else the largest of `depth`; at least the smallest normal f32.
+pub(super) fn far(near_far: Option<[f32; 2]>, depth: &[f32]) -> f32 {
+    near_far
+        .map(|nf| nf[1])
+        .unwrap_or_else(|| largest(depth))
+        .max(f32::MIN_POSITIVE)
 }
 
 /// The largest sample of a plane, at least 0 (the reference's fold of `f32::max` from 0,

@@ -52,11 +52,11 @@ mod reference;
 
 use super::passes::{Conversion, TemporalState};
 use crate::filter_params;
-use crate::filters::passes::{history_filter, temporal_stages};
+use crate::filters::passes::{history_filter, reproject_skip, temporal_stages};
 use crate::frame::{ChannelKind, ChannelSet, Plane};
 use crate::kernels::{lanes, tonemap, tonemap_inverse};
 use crate::pipeline::exec::for_rows;
-use crate::pipeline::{FilterKind, ParamKind};
+use crate::pipeline::{FilterKind, Inputs, ParamKind, Skip};
 use serde::{Deserialize, Serialize};
 use wide::f32x8;
 
@@ -102,17 +102,17 @@ pub const FEEDBACK_MIN: f32 = 0.88;
 /// INSIDE's `_FeedbackMax` (Pedersen 2016).
 pub const FEEDBACK_MAX: f32 = 0.97;
 /// Floor of the luma normaliser in the feedback (INSIDE: `max(lum0, max(lum1, 0.2))`).
-const FEEDBACK_LUMA_FLOOR: f32 = 0.2;
+pub const FEEDBACK_LUMA_FLOOR: f32 = 0.2;
 /// Sharpen strength of eq. 3.1, `[0 -1 0; -1 5 -1; 0 -1 0]` (Oliveros 2018, after Xu 2016).
-const SHARPEN_BASELINE: f32 = 4.0;
+pub const SHARPEN_BASELINE: f32 = 4.0;
 /// Sharpen strength of eq. 4.17, `[0 -0.25 0; -0.25 2 -0.25; 0 -0.25 0]` (Oliveros 2018).
-const SHARPEN_IMPROVED: f32 = 1.0;
+pub const SHARPEN_IMPROVED: f32 = 1.0;
 /// Eq. 4.9: weight of the albedo ("unlit") luma Sobel.
-const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
+pub const SOBEL_UNLIT_WEIGHT: f32 = 0.3;
 /// Eq. 4.9: weight of the lit luma Sobel.
-const SOBEL_LIT_WEIGHT: f32 = 0.7;
+pub const SOBEL_LIT_WEIGHT: f32 = 0.7;
 /// Sec. 4.3.2: below this normalising depth distance the pseudo-variances are zero.
-const DEPTH_DISTANCE_MIN: f32 = 0.002;
+pub const DEPTH_DISTANCE_MIN: f32 = 0.002;
 
 /// History planes of the reference: working RGB, then (improved) the Sobel history and
 /// depth / far. (The filter itself keeps the same values as texels, see [`Traa`].)
@@ -120,6 +120,74 @@ const DEPTH_DISTANCE_MIN: f32 = 0.002;
 const SOBEL: usize = 3;
 #[cfg(test)]
 const DEPTH01: usize = 4;
+
+/// Which of `traa`'s optional stages run on a frame, and why each of the others is left
+/// out (`None`: it runs), as the reference plans them. The CPU kernel and the GPU backend
+/// follow the same plan, so their records agree.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StagePlan {
+    /// `tonemap` (and `untonemap`): HDR input only.
+    pub tonemap: Option<Skip>,
+    /// `reproject`: needs history, motion and some motion in the frame.
+    pub reproject: Option<Skip>,
+    /// `dilate`: needs reprojection and depth.
+    pub dilate: Option<Skip>,
+    /// The improved variant's own stages (`sobel`, `aliased`).
+    pub variant: Option<Skip>,
+    /// `sobel_history`: needs history.
+    pub sobel_history: Option<Skip>,
+    /// `model_average`: improved, with object ids.
+    pub model: Option<Skip>,
+    /// `depth_variance` (and depth / far in the Sobel): improved, with depth.
+    pub depth: Option<Skip>,
+    /// `sharpen`: needs `sharpen` on.
+    pub sharpen: Option<Skip>,
+}
+
+impl StagePlan {
+    /// The plan for a frame with inputs `inp`, `has_history` saying whether the history
+    /// holds a previous frame.
+    pub fn new(p: &Params, inp: &Inputs, has_history: bool) -> Self {
+        let improved = p.variant == Variant::Improved;
+        let reproject = reproject_skip(inp, has_history);
+        let variant = (!improved).then_some(Skip::Variant {
+            variant: p.variant.name(),
+        });
+        StagePlan {
+            tonemap: inp.facts.tonemap(),
+            dilate: reproject.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            reproject,
+            sobel_history: (!has_history).then_some(Skip::NoHistory),
+            model: variant.clone().or_else(|| inp.require(ChannelKind::ObjectId)),
+            depth: variant.clone().or_else(|| inp.require(ChannelKind::Depth)),
+            variant,
+            sharpen: (!p.sharpen).then_some(Skip::Disabled { param: "sharpen" }),
+        }
+    }
+
+    /// The stages from `tonemap` to `untonemap` in the order the filter records them, each
+    /// with why it is left out (`sobel_history` only in the improved variant).
+    pub fn stages(&self, improved: bool) -> Vec<(&'static str, Option<Skip>)> {
+        let mut stages = vec![
+            ("tonemap", self.tonemap.clone()),
+            ("dilate", self.dilate.clone()),
+            ("reproject", self.reproject.clone()),
+            ("sobel", self.variant.clone()),
+        ];
+        if improved {
+            stages.push(("sobel_history", self.sobel_history.clone()));
+        }
+        stages.extend([
+            ("model_average", self.model.clone()),
+            ("depth_variance", self.depth.clone()),
+            ("aliased", self.variant.clone()),
+            ("resolve", None),
+            ("sharpen", self.sharpen.clone()),
+            ("untonemap", self.tonemap.clone()),
+        ]);
+        stages
+    }
+}
 
 /// The TRAA filter with its history.
 #[derive(Debug)]
@@ -137,8 +205,36 @@ impl Traa {
         }
     }
 
+    /// The empty history of a filter with parameters `p`: texels [r, g, b] or [r, g, b,
+    /// sobel] (one fetch per tap of the history), and depth / far in a plane of its own (it
+    /// is only written on frames with depth). The GPU filter saves and loads its device
+    /// state through the same layout, so states move between backends.
+    pub fn history(p: &Params) -> TemporalState {
+        let (layout, conversion): (&[usize], Conversion) = match p.variant {
+            Variant::Baseline => (&[3], Conversion::Custom(convert_rgb_texels::<3>)),
+            Variant::Improved => (&[4, 1], Conversion::Custom(convert_rgb_texels::<4>)),
+        };
+        TemporalState::with_components(layout, conversion)
+    }
+
+    /// Moves the history `planes` (of [`Traa::history`]'s layout for `p`) between linear
+    /// and tonemapped working space, as the filter does when a stream switches between LDR
+    /// and HDR frames.
+    pub fn convert_history(p: &Params, planes: &mut [Plane<f32>], to_tonemapped: bool) {
+        match p.variant {
+            Variant::Baseline => convert_rgb_texels::<3>(planes, to_tonemapped),
+            Variant::Improved => convert_rgb_texels::<4>(planes, to_tonemapped),
+        }
+    }
+
+    /// What depth is divided by for the linear depth of eq. 4.4-4.6 and 4.9: the far plane
+    /// of the frame's `near_far`, else the largest of its `depth`.
+    pub fn depth_far(near_far: Option<[f32; 2]>, depth: &[f32]) -> f32 {
+        kernel::far(near_far, depth)
+    }
+
     /// Sharpen strength of the variant: eq. 3.1 or eq. 4.17.
-    fn sharpen_strength(p: &Params) -> f32 {
+    pub fn sharpen_strength(p: &Params) -> f32 {
         match p.variant {
             Variant::Baseline => SHARPEN_BASELINE,
             Variant::Improved => SHARPEN_IMPROVED,
@@ -168,14 +264,8 @@ impl FilterKind for Traa {
         2 * 4 * Self::history_planes(p)
     }
     fn new(params: Params) -> Self {
-        // Texels [r, g, b] or [r, g, b, sobel] (one fetch per tap of the history), and
-        // depth / far in a plane of its own: it is only written on frames with depth.
-        let (layout, conversion): (&[usize], Conversion) = match params.variant {
-            Variant::Baseline => (&[3], Conversion::Custom(convert_rgb_texels::<3>)),
-            Variant::Improved => (&[4, 1], Conversion::Custom(convert_rgb_texels::<4>)),
-        };
         Traa {
-            hist: TemporalState::with_components(layout, conversion),
+            hist: Traa::history(&params),
             params,
         }
     }
@@ -236,30 +326,9 @@ mod tests {
     use super::reference::ReferenceTraa;
     use super::*;
     use crate::filters::check::prelude::*;
-    use crate::filters::check::{assert_filter_matches, sequences, ODD_SIZES};
+    use crate::filters::check::{assert_filter_matches, sequences, with_gbuffer, GBUFFER_KINDS, ODD_SIZES};
     use crate::pipeline::params::{build, parse_assignments};
     use crate::rng::SplitMix64;
-
-    /// The channels `improved` reads beyond the shared sequences': albedo in [0, 1) and
-    /// object ids in small blocks with some single-pixel objects; then left out again as
-    /// `variant` says, or (`near_far`) kept with the far plane set.
-    fn with_gbuffer(f: &Frame, rng: &mut SplitMix64, variant: &str) -> Frame {
-        let mut f = f.clone();
-        let (w, h) = (f.width(), f.height());
-        let albedo = [0, 1, 2].map(|_| Plane::from_fn(w, h, |_, _| rng.next_f64() as f32));
-        f.set_f32(ChannelKind::Albedo, albedo.to_vec()).unwrap();
-        let ids = Plane::from_fn(w, h, |x, y| {
-            ((x / 3 + y / 2) % 3) as u32 + (rng.next_f64() < 0.1) as u32
-        });
-        f.set_object_id(ids).unwrap();
-        match variant {
-            "no albedo" => f.remove(ChannelKind::Albedo),
-            "no object id" => f.remove(ChannelKind::ObjectId),
-            "near_far" => f.meta.near_far = Some([0.5, 3.0]),
-            _ => {}
-        }
-        f
-    }
 
     /// The fused kernel gives the reference's output, bit for bit, for both variants and
     /// every option, with each optional channel missing in turn, on every kind of
@@ -273,7 +342,7 @@ mod tests {
             &["sharpen=false"],
             &["feedback_min=0.2", "feedback_max=0.99"],
         ];
-        let channels = ["all", "no albedo", "no object id", "near_far"];
+        let channels = GBUFFER_KINDS;
         let sizes = ODD_SIZES.iter().copied().chain([(64, 36)]);
         for (w, h) in sizes {
             let mut rng = SplitMix64::new((w * 7 + h) as u64);
