@@ -1,7 +1,7 @@
 //! A frame as a renderer holds it (named channels of planar samples), encoded for the
 //! wire, and a reply's colour decoded.
 
-use crate::codec::{chunks, compress, decompress, joined, put_samples, sample_bytes, Samples};
+use crate::codec::{chunks, compress, decompress, in_host_order, joined, put_samples, sample_bytes, Samples};
 use crate::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 
 /// One channel of a frame: its protocol name (`color`, `depth`, `motion`, `normal`,
@@ -45,6 +45,15 @@ pub struct Encoding {
     pub max_chunk: usize,
 }
 
+impl Encoding {
+    /// Whether frames sent so are written into a shared memory region straight from their
+    /// planes (their headers are [`in_place`]): f32 samples, uncompressed (object ids, u32
+    /// with the same compression, then too), on a little-endian host.
+    pub fn in_place(&self) -> bool {
+        in_host_order(self.sample as i32, self.compression as i32)
+    }
+}
+
 /// A frame encoded for the wire: the header, then its data in chunks.
 #[derive(Clone, Debug)]
 pub struct Encoded {
@@ -80,27 +89,72 @@ pub fn encode_ids(ids: &[u32], compression: Compression) -> Vec<u8> {
     compress(raw, compression)
 }
 
-/// `frame` for session `session_id`: a header, and its channels in that order (object ids
-/// last) in chunks of at most `how.max_chunk` bytes. The reply comes in the same sample
-/// type and compression.
-pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded {
-    let mut headers = Vec::new();
-    let samples: usize = frame
+/// Bytes each channel of `frame` takes uncompressed as `sample` samples, in header order
+/// (object ids last, 4 bytes each).
+pub fn raw_bytes<'f>(frame: &'f FrameData<'_>, sample: SampleType) -> impl Iterator<Item = usize> + 'f {
+    let floats = frame
         .channels
         .iter()
-        .flat_map(|c| c.planes)
-        .map(|p| p.len())
-        .sum();
-    let ids = frame.object_id.map_or(0, |i| i.len() * 4);
-    let mut bytes = Vec::with_capacity(samples * sample_bytes(how.sample) + ids);
-    let mut header = |name: &str, sample: SampleType, bytes: usize| {
-        headers.push(ChannelHeader {
+        .map(move |c| c.planes.iter().map(|p| p.len()).sum::<usize>() * sample_bytes(sample));
+    floats.chain(
+        frame
+            .object_id
+            .map(|ids| ids.len() * sample_bytes(SampleType::U32)),
+    )
+}
+
+/// The header of `frame` for session `session_id` sent as `how` says, whose channels (in
+/// [`raw_bytes`]'s order) take `lengths` bytes on the wire.
+pub fn header(
+    frame: &FrameData<'_>,
+    session_id: &str,
+    how: Encoding,
+    lengths: impl IntoIterator<Item = usize>,
+) -> FrameHeader {
+    let names = frame
+        .channels
+        .iter()
+        .map(|c| (c.name, how.sample))
+        .chain(frame.object_id.map(|_| ("object_id", SampleType::U32)));
+    let channels = names
+        .zip(lengths)
+        .map(|((name, sample), bytes)| ChannelHeader {
             name: name.to_string(),
             sample: sample as i32,
             compression: how.compression as i32,
             byte_length: bytes as u64,
         })
-    };
+        .collect();
+    let (factor, phase) = frame.shading.unwrap_or((1, [0, 0]));
+    FrameHeader {
+        session_id: session_id.to_string(),
+        index: frame.index,
+        reset: frame.reset,
+        jitter_x: frame.jitter[0],
+        jitter_y: frame.jitter[1],
+        channels,
+        reply_sample: how.sample as i32,
+        reply_compression: how.compression as i32,
+        shading_factor: factor,
+        shading_phase_x: phase[0],
+        shading_phase_y: phase[1],
+        shared_memory: None,
+    }
+}
+
+/// Whether every channel of a frame with header `h` is, byte for byte, its planes' memory
+/// ([`in_host_order`]): such a frame is written into a shared memory region straight from
+/// its planes by the client and read from it straight into planes by the server.
+pub fn in_place(h: &FrameHeader) -> bool {
+    h.channels.iter().all(|c| in_host_order(c.sample, c.compression))
+}
+
+/// `frame` for session `session_id`: a header, and its channels in that order (object ids
+/// last) in chunks of at most `how.max_chunk` bytes. The reply comes in the same sample
+/// type and compression.
+pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded {
+    let mut lengths = Vec::new();
+    let mut bytes = Vec::with_capacity(raw_bytes(frame, how.sample).sum());
     for ch in &frame.channels {
         let start = bytes.len();
         if how.compression == Compression::None {
@@ -113,30 +167,15 @@ pub fn encode(frame: &FrameData<'_>, session_id: &str, how: Encoding) -> Encoded
         } else {
             bytes.extend_from_slice(&encode_planes(ch.planes, how.sample, how.compression));
         }
-        header(ch.name, how.sample, bytes.len() - start);
+        lengths.push(bytes.len() - start);
     }
     if let Some(ids) = frame.object_id {
         let data = encode_ids(ids, how.compression);
         bytes.extend_from_slice(&data);
-        header("object_id", SampleType::U32, data.len());
+        lengths.push(data.len());
     }
-    let (factor, phase) = frame.shading.unwrap_or((1, [0, 0]));
-    let header = FrameHeader {
-        session_id: session_id.to_string(),
-        index: frame.index,
-        reset: frame.reset,
-        jitter_x: frame.jitter[0],
-        jitter_y: frame.jitter[1],
-        channels: headers,
-        reply_sample: how.sample as i32,
-        reply_compression: how.compression as i32,
-        shading_factor: factor,
-        shading_phase_x: phase[0],
-        shading_phase_y: phase[1],
-        shared_memory: None,
-    };
     Encoded {
-        header,
+        header: header(frame, session_id, how, lengths),
         chunks: chunks(bytes, how.max_chunk),
     }
 }

@@ -6,11 +6,15 @@
 //! only when the reply that used the slot before has been read.
 //!
 //! Positioned reads and writes (`pread`/`pwrite`), as the server: no mapping, no
-//! `unsafe`.
+//! `unsafe`. A frame whose samples are its planes' own bytes (f32 and u32, uncompressed)
+//! is written straight from its planes ([`SharedRegion::write`]), others encoded first;
+//! an f32 reply is read straight into planes.
 
 use crate::codec::in_host_order;
-use crate::frame::{decode_color, Encoded, ReplyError};
-use crate::proto::{ChannelHeader, Region, SampleType, SharedMemory};
+use crate::frame::{
+    decode_color, encode, header, in_place, raw_bytes, Encoded, Encoding, FrameData, ReplyError,
+};
+use crate::proto::{ChannelHeader, FrameHeader, Region, SampleType, SharedMemory};
 use std::fs::{File, OpenOptions};
 use std::io;
 use std::os::unix::fs::FileExt;
@@ -59,34 +63,91 @@ impl SharedRegion {
         self.slots
     }
 
-    /// Writes the `n`th frame sent into its slot and returns the header to send for it
-    /// (no data chunks follow).
-    pub fn place(&self, n: u64, frame: Encoded) -> io::Result<Encoded> {
-        let at = (n % self.slots) * self.slot_bytes;
-        let len: u64 = frame.data_bytes();
+    /// Where the `n`th frame sent goes: its slot's offset, after checking that the frame
+    /// (`index`, `len` bytes) fits.
+    fn slot(&self, n: u64, index: u64, len: u64) -> io::Result<u64> {
         if len > self.frame_bytes {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
-                format!(
-                    "frame {}: {len} bytes, a slot holds {}",
-                    frame.header.index, self.frame_bytes
-                ),
+                format!("frame {index}: {len} bytes, a slot holds {}", self.frame_bytes),
             ));
         }
+        Ok((n % self.slots) * self.slot_bytes)
+    }
+
+    /// `header` pointing at the slot at `at` (no data chunks follow).
+    fn placed(&self, mut header: FrameHeader, at: u64) -> Encoded {
+        header.shared_memory = Some(SharedMemory {
+            offset: at,
+            reply_offset: at + self.frame_bytes,
+        });
+        Encoded {
+            header,
+            chunks: Vec::new(),
+        }
+    }
+
+    /// Writes the `n`th frame sent, encoded, into its slot and returns the header to send
+    /// for it (no data chunks follow).
+    pub fn place(&self, n: u64, frame: Encoded) -> io::Result<Encoded> {
+        let at = self.slot(n, frame.header.index, frame.data_bytes())?;
         let mut offset = at;
         for c in &frame.chunks {
             self.file.write_all_at(&c.data, offset)?;
             offset += c.data.len() as u64;
         }
-        let mut header = frame.header;
-        header.shared_memory = Some(SharedMemory {
-            offset: at,
-            reply_offset: at + self.frame_bytes,
-        });
-        Ok(Encoded {
-            header,
-            chunks: Vec::new(),
-        })
+        Ok(self.placed(frame.header, at))
+    }
+
+    /// Writes the `n`th frame sent (`frame`, for session `session_id`, sent as `how` says)
+    /// into its slot and returns the header to send for it: straight from its planes when
+    /// its samples are the planes' memory ([`SharedRegion::write_in_place`]), else encoded
+    /// and placed ([`SharedRegion::place`]). The region's bytes are the same either way.
+    pub fn write(
+        &self,
+        n: u64,
+        frame: &FrameData<'_>,
+        session_id: &str,
+        how: Encoding,
+    ) -> io::Result<Encoded> {
+        match self.write_in_place(n, frame, session_id, how) {
+            Some(written) => written,
+            None => self.place(n, encode(frame, session_id, how)),
+        }
+    }
+
+    /// Writes the `n`th frame sent into its slot straight from its planes, with no encoded
+    /// copy, when every channel's samples are the planes' own bytes ([`in_place`]: f32 and
+    /// u32, uncompressed, on a little-endian host), and returns the header to send for it;
+    /// None (nothing written) when they are not.
+    pub fn write_in_place(
+        &self,
+        n: u64,
+        frame: &FrameData<'_>,
+        session_id: &str,
+        how: Encoding,
+    ) -> Option<io::Result<Encoded>> {
+        let header = header(frame, session_id, how, raw_bytes(frame, how.sample));
+        if !in_place(&header) {
+            return None;
+        }
+        let len = header.channels.iter().map(|c| c.byte_length).sum();
+        let write = || {
+            let at = self.slot(n, frame.index, len)?;
+            let floats = frame
+                .channels
+                .iter()
+                .flat_map(|c| c.planes.iter())
+                .map(|p| bytemuck::cast_slice(p));
+            let ids = frame.object_id.map(bytemuck::cast_slice);
+            let mut offset = at;
+            for bytes in floats.chain(ids) {
+                self.file.write_all_at(bytes, offset)?;
+                offset += bytes.len() as u64;
+            }
+            Ok(self.placed(header, at))
+        };
+        Some(write())
     }
 
     /// Reads a reply's colour (`ch` its header, of a `width x height` frame) from `offset`:
@@ -126,7 +187,143 @@ impl SharedRegion {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::Channel;
     use crate::proto::Compression;
+
+    /// A region file of `bytes` zeros cut into `slots` slots of `frame_bytes` frames (and
+    /// no reply bytes), under `name`.
+    fn region(name: &str, bytes: u64, frame_bytes: u64, slots: u64) -> (SharedRegion, std::path::PathBuf) {
+        let path = std::env::temp_dir().join(format!("afterimage-shm-test-{name}-{}", std::process::id()));
+        std::fs::write(&path, vec![0u8; bytes as usize]).unwrap();
+        let region = Region {
+            session_id: "s".into(),
+            path: path.display().to_string(),
+            bytes,
+        };
+        (SharedRegion::open(&region, frame_bytes, 0, slots).unwrap(), path)
+    }
+
+    /// An f32 frame (with and without object ids, full or sparse colour, odd sizes,
+    /// arbitrary bit patterns NaNs included) is written into its slot straight from its
+    /// planes ([`SharedRegion::write_in_place`] takes it), and the region then holds, byte
+    /// for byte, what encoding it and placing the encoded bytes gives, with the same
+    /// header; f16 and zstd frames are not taken in place (nothing written) and go through
+    /// the encoder, to the same bytes; a frame larger than its slot is refused, unwritten.
+    #[test]
+    fn an_f32_frame_is_written_in_place_to_the_bytes_encoding_gives() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut bits = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state as u32
+        };
+        for (case, ((w, h), ids, shading)) in [
+            ((7usize, 5usize), false, None),
+            ((13, 3), true, None),
+            ((1, 1), true, None),
+            ((9, 11), true, Some((3u32, [1u32, 2u32]))),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let n = w * h;
+            let (cw, ch) = match shading {
+                Some((f, _)) => (w.div_ceil(f as usize), h.div_ceil(f as usize)),
+                None => (w, h),
+            };
+            let mut plane = |len: usize| (0..len).map(|_| f32::from_bits(bits())).collect::<Vec<f32>>();
+            let color = [plane(cw * ch), plane(cw * ch), plane(cw * ch)];
+            let depth = [plane(n)];
+            let motion = [plane(n), plane(n)];
+            let object_id: Vec<u32> = (0..n).map(|_| bits()).collect();
+            let color: Vec<&[f32]> = color.iter().map(|p| &p[..]).collect();
+            let depth: Vec<&[f32]> = depth.iter().map(|p| &p[..]).collect();
+            let motion: Vec<&[f32]> = motion.iter().map(|p| &p[..]).collect();
+            let frame = FrameData {
+                index: 40 + case as u64,
+                reset: case == 2,
+                jitter: [0.25, -0.125],
+                channels: vec![
+                    Channel {
+                        name: "depth",
+                        planes: &depth,
+                    },
+                    Channel {
+                        name: "color",
+                        planes: &color,
+                    },
+                    Channel {
+                        name: "motion",
+                        planes: &motion,
+                    },
+                ],
+                object_id: ids.then_some(&object_id[..]),
+                shading,
+            };
+            let f32_bytes: u64 = raw_bytes(&frame, SampleType::F32).map(|b| b as u64).sum();
+            // Room to spare in each slot (zstd makes random bits longer), so a write past
+            // the frame's bytes would show.
+            let slot = 2 * f32_bytes + 64;
+            for (sample, compression) in [
+                (SampleType::F32, Compression::None),
+                (SampleType::F16, Compression::None),
+                (SampleType::F32, Compression::Zstd),
+            ] {
+                let how = Encoding {
+                    sample,
+                    compression,
+                    max_chunk: 5,
+                };
+                let what = format!("{w}x{h}, ids {ids}, {sample:?} {compression:?}");
+                let (direct, direct_path) = region(&format!("direct{case}"), 2 * slot, slot, 2);
+                let (encoded, encoded_path) = region(&format!("encoded{case}"), 2 * slot, slot, 2);
+                // The second slot, so the offsets count.
+                let want = encoded.place(1, encode(&frame, "s", how)).unwrap();
+                let got = direct.write_in_place(1, &frame, "s", how);
+                if how.in_place() {
+                    let got = got.expect("an f32 frame is written in place").unwrap();
+                    assert_eq!(got.header, want.header, "{what}");
+                    assert!(got.chunks.is_empty(), "{what}");
+                    assert!(in_place(&got.header), "{what}");
+                } else {
+                    assert!(got.is_none(), "{what}: not in place");
+                    let untouched = std::fs::read(&direct_path).unwrap();
+                    assert!(untouched.iter().all(|&b| b == 0), "{what}: written");
+                    let got = direct.write(1, &frame, "s", how).unwrap();
+                    assert_eq!(got.header, want.header, "{what}");
+                }
+                let (d, e) = (
+                    std::fs::read(&direct_path).unwrap(),
+                    std::fs::read(&encoded_path).unwrap(),
+                );
+                assert!(d == e, "{what}: the region's bytes differ");
+                if compression == Compression::None {
+                    let len = want.header.channels.iter().map(|c| c.byte_length).sum::<u64>() as usize;
+                    assert!(d[slot as usize..][..len].iter().any(|&b| b != 0), "{what}");
+                }
+                // Both ways of writing refuse a frame larger than its slot, naming it and
+                // the sizes, before writing anything.
+                let (small, small_path) = region(&format!("small{case}"), 2 * slot, 4, 2);
+                for e in [
+                    small.write(0, &frame, "s", how).unwrap_err(),
+                    small.place(0, encode(&frame, "s", how)).unwrap_err(),
+                ] {
+                    assert_eq!(e.kind(), io::ErrorKind::InvalidInput, "{what}");
+                    let len = want.header.channels.iter().map(|c| c.byte_length).sum::<u64>();
+                    let msg = format!("frame {}: {len} bytes, a slot holds 4", frame.index);
+                    assert_eq!(e.to_string(), msg, "{what}");
+                }
+                assert!(
+                    std::fs::read(&small_path).unwrap().iter().all(|&b| b == 0),
+                    "{what}"
+                );
+                for p in [direct_path, encoded_path, small_path] {
+                    let _ = std::fs::remove_file(p);
+                }
+            }
+        }
+    }
 
     /// A reply's f32 colour is read from the region straight into its planes (the staging
     /// buffer stays empty); an f16 one goes through the buffer and is widened; both give

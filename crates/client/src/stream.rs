@@ -2,7 +2,7 @@
 //! ahead, and replies come back in order.
 
 use crate::connect::Inner;
-use crate::frame::{decode_color, Encoded};
+use crate::frame::{decode_color, encode, Encoded, Encoding, FrameData};
 use crate::proto::{self as pb, filtered_chunk, frame_chunk};
 use crate::shm::SharedRegion;
 use std::collections::VecDeque;
@@ -32,7 +32,60 @@ pub struct Reply {
     pub payload_bytes: u64,
 }
 
-/// Streams `frames` (encoded as they are taken, see [`crate::frame::encode`]) to session
+/// A frame to stream: encoded already ([`Encoded`]), or encoded only as it is sent
+/// ([`Unencoded`]), so that through a shared memory region a frame whose samples are its
+/// planes' own bytes (f32, uncompressed) is written into its slot straight from its planes
+/// ([`SharedRegion::write`]), with no encoded copy.
+pub trait Outgoing: Sized {
+    /// The frame encoded: its header and data chunks.
+    fn encode(self) -> Encoded;
+
+    /// Whether [`Outgoing::place`] writes it into a region without encoding it first: such
+    /// a frame waits, unencoded, until its slot is free, where others are encoded while
+    /// earlier frames are in flight.
+    fn in_place(&self) -> bool {
+        false
+    }
+
+    /// Writes it as the `n`th frame sent into its slot of `region` and returns the header
+    /// to send for it (encoded, then [`SharedRegion::place`]d, unless overridden).
+    fn place(self, region: &SharedRegion, n: u64) -> std::io::Result<Encoded> {
+        region.place(n, self.encode())
+    }
+}
+
+impl Outgoing for Encoded {
+    fn encode(self) -> Encoded {
+        self
+    }
+}
+
+/// A frame not yet encoded: `frame` for session `session_id`, to be sent as `how` says.
+#[derive(Clone, Debug)]
+pub struct Unencoded<'a> {
+    /// The frame.
+    pub frame: FrameData<'a>,
+    /// Its session.
+    pub session_id: &'a str,
+    /// How its samples travel.
+    pub how: Encoding,
+}
+
+impl Outgoing for Unencoded<'_> {
+    fn encode(self) -> Encoded {
+        encode(&self.frame, self.session_id, self.how)
+    }
+
+    fn in_place(&self) -> bool {
+        self.how.in_place()
+    }
+
+    fn place(self, region: &SharedRegion, n: u64) -> std::io::Result<Encoded> {
+        region.write(n, &self.frame, self.session_id, self.how)
+    }
+}
+
+/// Streams `frames` (encoded as they are taken, see [`Outgoing`]) to session
 /// `session`, `in_flight` frames ahead of their replies (at least 1) beyond a windowed
 /// filter's lookahead, and calls `on_reply` with each reply in order. With 1, the next
 /// frame is sent when the last reply is in, so `round_trip_ms` is a latency; with 2 the
@@ -43,7 +96,7 @@ pub struct Reply {
 pub async fn stream(
     inner: &mut Inner,
     session: &pb::Session,
-    frames: impl IntoIterator<Item = Encoded>,
+    frames: impl IntoIterator<Item = impl Outgoing>,
     in_flight: usize,
     on_reply: impl FnMut(Reply),
 ) -> Result<(), Status> {
@@ -56,7 +109,7 @@ pub async fn stream(
 pub async fn stream_through(
     inner: &mut Inner,
     session: &pb::Session,
-    frames: impl IntoIterator<Item = Encoded>,
+    frames: impl IntoIterator<Item = impl Outgoing>,
     in_flight: usize,
     region: Option<&SharedRegion>,
     mut on_reply: impl FnMut(Reply),
@@ -82,18 +135,26 @@ pub async fn stream_through(
     // receives frame t + 1 never waits on a client busy sending.
     let send = async {
         for (n, frame) in (0u64..).zip(frames) {
+            // Encoded now, while earlier frames are in flight, unless it is to be written
+            // into its slot straight from its planes, which waits for the slot.
+            let frame = match region {
+                Some(_) if frame.in_place() => Staged::Unencoded(frame),
+                _ => Staged::Encoded(frame.encode()),
+            };
             match permits.acquire().await {
                 Ok(p) => p.forget(),
                 Err(_) => return Ok::<(), Status>(()),
             }
-            let bytes = frame.data_bytes();
             // Into its slot only now: the reply that used the slot before has been read.
-            let frame = match region {
-                Some(r) => r
-                    .place(n, frame)
-                    .map_err(|e| Status::internal(format!("shared memory region: {e}")))?,
-                None => frame,
-            };
+            let frame = match (region, frame) {
+                (Some(r), Staged::Encoded(e)) => r.place(n, e),
+                (Some(r), Staged::Unencoded(f)) => f.place(r, n),
+                (None, Staged::Encoded(e)) => Ok(e),
+                (None, Staged::Unencoded(f)) => Ok(f.encode()),
+            }
+            .map_err(|e| Status::internal(format!("shared memory region: {e}")))?;
+            // As the header gives them: a frame in the region has no chunks.
+            let bytes = frame.header.channels.iter().map(|c| c.byte_length).sum();
             lock(&sent_at).push_back((Instant::now(), bytes));
             let parts = std::iter::once(frame_chunk::Part::Header(frame.header))
                 .chain(frame.chunks.into_iter().map(frame_chunk::Part::Data));
@@ -134,6 +195,12 @@ pub async fn stream_through(
             r = &mut receive => return r,
         }
     }
+}
+
+/// A frame taken to be sent, before its slot is free.
+enum Staged<F> {
+    Encoded(Encoded),
+    Unencoded(F),
 }
 
 /// The queue of frames in flight (never held across an await).

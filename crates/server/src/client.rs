@@ -6,8 +6,9 @@ use super::proto as pb;
 use super::wire;
 use crate::frame::{ChannelSet, Frame, Plane, Rgb};
 pub use afterimage_client::connect::{Auth, ConnectError, ConnectOptions, Inner};
-use afterimage_client::frame::Encoded;
+use afterimage_client::frame::{encode, Encoded, Encoding};
 use afterimage_client::shm::SharedRegion;
+use std::borrow::Borrow;
 use tonic::Status;
 
 /// A client connected to a server.
@@ -52,6 +53,34 @@ pub struct SendOptions {
     pub shared_memory: bool,
 }
 
+/// A frame as [`Client::stream`] sends it: encoded as it is sent, so that through a shared
+/// memory region an f32 frame is written into its slot straight from its planes.
+struct Pending<'s, F> {
+    frame: F,
+    session_id: &'s str,
+    /// The channels sent, those the frame has.
+    channels: ChannelSet,
+    how: Encoding,
+}
+
+impl<F: Borrow<Frame>> afterimage_client::stream::Outgoing for Pending<'_, F> {
+    fn encode(self) -> Encoded {
+        wire::with_frame_data(self.frame.borrow(), self.channels, |data| {
+            encode(data, self.session_id, self.how)
+        })
+    }
+
+    fn in_place(&self) -> bool {
+        self.how.in_place()
+    }
+
+    fn place(self, region: &SharedRegion, n: u64) -> std::io::Result<Encoded> {
+        wire::with_frame_data(self.frame.borrow(), self.channels, |data| {
+            region.write(n, data, self.session_id, self.how)
+        })
+    }
+}
+
 impl Client {
     /// Connects to `url` (`http://host:port`) without a key.
     pub async fn connect(url: String) -> Result<Client, ConnectError> {
@@ -72,7 +101,7 @@ impl Client {
     pub async fn stream(
         &mut self,
         session: &pb::Session,
-        frames: impl IntoIterator<Item = impl std::borrow::Borrow<Frame>>,
+        frames: impl IntoIterator<Item = impl Borrow<Frame>>,
         opts: SendOptions,
         mut on_reply: impl FnMut(Reply),
     ) -> Result<(), Status> {
@@ -83,18 +112,24 @@ impl Client {
                 .filter_map(|c| crate::frame::ChannelKind::from_name(c))
                 .collect::<Vec<_>>(),
         );
-        let max_chunk = session.max_chunk_bytes.max(1) as usize;
-        let encoded = frames.into_iter().map(|frame| {
-            let frame = frame.borrow();
+        let how = Encoding {
+            sample: opts.sample,
+            compression: opts.compression,
+            max_chunk: session.max_chunk_bytes.max(1) as usize,
+        };
+        let outgoing = frames.into_iter().map(|frame| {
             // The reference travels too when the frame has one (the reply then has PSNR/SSIM).
-            let send = if opts.reference && frame.reference().is_some() {
+            let send = if opts.reference && frame.borrow().reference().is_some() {
                 channels.with(crate::frame::ChannelKind::Reference)
             } else {
                 channels
             };
-            let (header, chunks) =
-                wire::encode_frame(frame, &session.id, send, opts.sample, opts.compression, max_chunk);
-            Encoded { header, chunks }
+            Pending {
+                frame,
+                session_id: &session.id,
+                channels: send,
+                how,
+            }
         });
         let region = match opts.shared_memory {
             true => Some(self.open_region(session, channels, opts).await?),
@@ -105,7 +140,7 @@ impl Client {
         afterimage_client::stream::stream_through(
             &mut self.inner,
             session,
-            encoded,
+            outgoing,
             opts.in_flight,
             through,
             |r| {

@@ -8,7 +8,7 @@ use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampli
 use crate::pipeline::Scratch;
 use crate::session::{clip, FrameShape, Region, SessionError};
 pub use afterimage_client::codec::chunks;
-use afterimage_client::codec::{in_host_order, joined, sample_bytes, Samples};
+use afterimage_client::codec::{joined, sample_bytes, Samples};
 use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
 pub use afterimage_client::frame::{encode_ids, encode_planes};
 use bytes::Bytes;
@@ -426,9 +426,10 @@ fn decompress<'a>(
 
 /// Whether a frame with header `h` can be read from a shared memory region straight into
 /// its planes ([`decode`] with a region): every float channel f32 and every channel
-/// uncompressed ([`in_host_order`]), so the bytes are the samples.
+/// uncompressed ([`afterimage_client::frame::in_place`], the test the client writes such a
+/// frame straight from its planes by), so the bytes are the samples.
 pub fn reads_in_place(h: &FrameHeader) -> bool {
-    h.channels.iter().all(|c| in_host_order(c.sample, c.compression))
+    afterimage_client::frame::in_place(h)
 }
 
 /// Decodes an assembled frame for a session of `shape` (its header passed
@@ -589,6 +590,18 @@ pub fn encode_frame(
     compression: Compression,
     max_chunk: usize,
 ) -> (FrameHeader, Vec<DataChunk>) {
+    let how = Encoding {
+        sample,
+        compression,
+        max_chunk,
+    };
+    let e = with_frame_data(frame, channels, |data| encode(data, session_id, how));
+    (e.header, e.chunks)
+}
+
+/// Calls `f` with `frame` as the client crate's [`FrameData`] (views of its planes),
+/// sending the channels in `channels` that the frame has.
+pub fn with_frame_data<R>(frame: &Frame, channels: ChannelSet, f: impl FnOnce(&FrameData<'_>) -> R) -> R {
     let kinds: Vec<ChannelKind> = channels
         .with(ChannelKind::Color)
         .iter()
@@ -623,13 +636,7 @@ pub fn encode_frame(
             .flatten(),
         shading: Some((frame.sampling().factor, frame.sampling().phase)),
     };
-    let how = Encoding {
-        sample,
-        compression,
-        max_chunk,
-    };
-    let e = encode(&data, session_id, how);
-    (e.header, e.chunks)
+    f(&data)
 }
 
 #[cfg(test)]
