@@ -1,7 +1,6 @@
 //! Device buffers of f32 samples: storage the shaders read and write, and the mappable
 //! buffers results come back through.
 
-use super::timing::{FrameClock, PassTimer};
 use super::{wait, Gpu};
 use crate::BackendError;
 
@@ -181,48 +180,6 @@ impl TexelHistory {
             at += p.data().len();
         }
     }
-}
-
-/// What the device gives back for a frame of a history filter.
-pub(crate) struct FrameBack {
-    pub(crate) color: crate::frame::Rgb,
-    /// The filter's counters.
-    pub(crate) counters: Vec<u32>,
-    /// Each pass's time from its timestamps, where the device has them.
-    pub(crate) pass_ms: Option<Vec<f64>>,
-}
-
-/// Ends a frame of `w` x `h` pixels: encodes the copies of its colour (3 planes from
-/// `color`), its `counters` (`count` words) and the timestamps of the `used` passes `timer`
-/// timed into `back`, submits `enc`, and reads them back through `words`, marking `clock`
-/// at the submission and the readback.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn submit_and_read(
-    gpu: &Gpu,
-    mut enc: wgpu::CommandEncoder,
-    back: &Readback,
-    (color, counters, count): (&wgpu::Buffer, &wgpu::Buffer, usize),
-    (timer, used): (Option<&PassTimer>, u32),
-    (w, h): (usize, usize),
-    words: &mut Vec<f32>,
-    clock: &mut FrameClock,
-) -> Result<FrameBack, BackendError> {
-    let n = w * h;
-    back.copy_from(&mut enc, color, 0, 3 * n);
-    enc.copy_buffer_to_buffer(counters, 0, &back.buffer, (3 * n * 4) as u64, (count * 4) as u64);
-    let timer_at = 3 * n + count;
-    if let Some(t) = timer {
-        t.resolve(&mut enc, used, back, timer_at);
-    }
-    gpu.queue.submit([enc.finish()]);
-    clock.submitted();
-    back.read(gpu, timer_at + timer.map_or(0, |t| t.words()), words)?;
-    clock.back();
-    Ok(FrameBack {
-        color: planes_from(words, w, h)?,
-        counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-        pass_ms: timer.map(|t| t.pass_ms(&words[timer_at..], used)),
-    })
 }
 
 /// A plane of samples read back (their count is the plane's by construction).

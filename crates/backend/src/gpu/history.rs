@@ -2,6 +2,7 @@
 //! struct, [`DeviceHistory`], that each filter's module instantiates with its parameters,
 //! passes and buffers and gives its frames (`impl GpuTaa { fn run ... }`).
 
+use super::frame_io::{FrameIo, IoShape};
 use super::{Gpu, UploadPrecision};
 use crate::filters::reconstruct::Reconstruction;
 use crate::frame::{Frame, Rgb};
@@ -13,11 +14,17 @@ use std::sync::Arc;
 
 /// A filter's device buffers for one frame size.
 pub(crate) trait FrameBuffers<P, S>: Sized {
-    /// The frame size they hold.
-    fn size(&self) -> (usize, usize);
+    /// What their [`FrameIo`] holds.
+    const SHAPE: IoShape;
 
-    /// New buffers of `filter` for a frame of `size`.
-    fn make(filter: &DeviceHistory<P, S, Self>, size: (usize, usize)) -> Result<Self, BackendError>;
+    /// Their way in and out, which holds the frame size.
+    fn io(&self) -> &FrameIo;
+
+    /// The filter's passes, compiled.
+    fn compile(gpu: &Gpu) -> S;
+
+    /// New buffers of `filter` around `io`, made for the frame's size.
+    fn make(filter: &DeviceHistory<P, S, Self>, io: FrameIo) -> Result<Self, BackendError>;
 }
 
 /// A device filter with a history: its device, parameters `P`, compiled passes `S` and
@@ -43,9 +50,10 @@ pub struct DeviceHistory<P, S, B> {
 }
 
 impl<P, S, B: FrameBuffers<P, S>> DeviceHistory<P, S, B> {
-    /// The filter with parameters `params` and its compiled `passes` on `gpu`, its colour
-    /// uploaded at `upload` precision.
-    pub(crate) fn with(gpu: Arc<Gpu>, params: P, upload: UploadPrecision, passes: S) -> Self {
+    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
+    /// precision.
+    pub fn new(gpu: Arc<Gpu>, params: P, upload: UploadPrecision) -> Self {
+        let passes = B::compile(&gpu);
         DeviceHistory {
             gpu,
             params,
@@ -62,15 +70,21 @@ impl<P, S, B: FrameBuffers<P, S>> DeviceHistory<P, S, B> {
 
     /// The buffers for a `width` x `height` frame (new ones drop the history).
     pub(crate) fn sized(&mut self, width: usize, height: usize) -> Result<(), BackendError> {
-        if self.buffers.as_ref().map(B::size) != Some((width, height)) {
+        if self.buffers.as_ref().map(|b| b.io().size()) != Some((width, height)) {
             // Dropped first: the old buffers and the new never take the device's memory
             // together.
             self.buffers = None;
             self.valid = false;
             self.read = 0;
-            self.buffers = Some(B::make(self, (width, height))?);
+            let io = FrameIo::new(&self.gpu, B::SHAPE, (width, height), self.upload)?;
+            self.buffers = Some(B::make(self, io)?);
         }
         Ok(())
+    }
+
+    /// The way in and out of the buffers made for this frame ([`DeviceHistory::started`]).
+    pub(crate) fn io(&self) -> &FrameIo {
+        self.buffers.as_ref().expect("sized").io()
     }
 
     /// The inputs of a frame of filter `K`: checked, repaired and reconstructed by `recon`
@@ -88,7 +102,7 @@ impl<P, S, B: FrameBuffers<P, S>> DeviceHistory<P, S, B> {
     /// A frame's start: `frame` checked against the history's size, the buffers for its
     /// `inp`; whether the history holds the previous frame.
     pub(crate) fn started(&mut self, frame: &Frame, inp: &Inputs) -> Result<bool, BackendError> {
-        check_size(self.buffers.as_ref().map(B::size), self.valid, frame)?;
+        check_size(self.buffers.as_ref().map(|b| b.io().size()), self.valid, frame)?;
         self.sized(inp.width, inp.height)?;
         Ok(self.valid && !frame.meta.reset)
     }

@@ -17,6 +17,7 @@
 //! and shading factor). Left for later: `pixel_trace`.
 
 mod buffers;
+mod frame_io;
 mod fxaa;
 mod history;
 mod passthrough;
@@ -258,6 +259,32 @@ macro_rules! flag_bits {
 }
 pub(crate) use flag_bits;
 
+/// Declares a shader's counters: each name a `usize` index into its counter words, in
+/// order from 0, `COUNTERS` the words (padded to whole 16 bytes), and `$consts()` the WGSL
+/// declarations of all of them ([`wgsl_consts!`]).
+macro_rules! counters {
+    ($consts:ident: $($name:ident),* $(,)?) => {
+        $crate::gpu::counters!(@at 0; $($name),*);
+
+        /// Words of the counters, padded to whole 16 bytes.
+        const COUNTERS: usize = (0usize $(+ $crate::gpu::counters!(@one $name))*).next_multiple_of(4);
+
+        /// `COUNTERS` and the counters' indices as WGSL constants.
+        fn $consts() -> String {
+            $crate::gpu::wgsl_consts![COUNTERS $(, $name)*]
+        }
+    };
+    (@one $name:ident) => {
+        1
+    };
+    (@at $n:expr; $name:ident $(, $rest:ident)*) => {
+        const $name: usize = $n;
+        $crate::gpu::counters!(@at $n + 1; $($rest),*);
+    };
+    (@at $n:expr;) => {};
+}
+pub(crate) use counters;
+
 /// The flags whose condition holds, or'ed together.
 pub(crate) fn flags_of(set: &[(bool, u32)]) -> u32 {
     set.iter()
@@ -295,6 +322,16 @@ fn common_consts() -> String {
         LUMA_B = LUMA_REC709[2],
     ]
 }
+
+/// The history filters' parameters and input planes at bindings 0 and 1, with their
+/// pixel indexing (`frame.wgsl`), appended to those filters' shaders that read the frame.
+const FRAME: &str = include_str!("frame.wgsl");
+/// The working colour of the filters that tonemap HDR input (`working.wgsl`, after
+/// [`FRAME`]).
+const WORKING: &str = include_str!("working.wgsl");
+/// Pixel counts kept per workgroup (`counts.wgsl`), appended to the shaders that count
+/// most of their pixels.
+const COUNTS: &str = include_str!("counts.wgsl");
 /// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
 /// filters that reproject a history (`taa`'s resolve, `phlm`).
 const REPROJECT: &str = include_str!("reproject.wgsl");
@@ -505,7 +542,7 @@ macro_rules! history_filter {
                         .download_history()
                         .map_err(|e| StateError::Device(e.to_string()))?;
                     st.buffer
-                        .restore($crate::gpu::history::FrameBuffers::size(b), planes)
+                        .restore($crate::gpu::history::FrameBuffers::io(b).size(), planes)
                         .map_err(StateError::Device)?;
                 }
                 st.set_tonemapped(self.tonemapped);

@@ -61,8 +61,6 @@ struct Params {
 // and the C_ counters, WORKGROUP, OFFSETS, and the CPU filter's constants WEIGHT_EPSILON,
 // LUMA_FLOOR, GW0..GW3 (GRADIENT_WEIGHTS), TAA_MAX_COUNT.
 
-@group(0) @binding(0) var<storage, read> P: Params;
-@group(0) @binding(1) var<storage, read> inp: array<f32>;
 @group(0) @binding(2) var<storage, read> hist: array<f32>;
 // Reprojected texels: `texel` floats, then the tap weight and the part kept for sub-pixel
 // surfaces.
@@ -75,14 +73,6 @@ struct Params {
 // Whether an invocation's pixel lies in the frame.
 fn inside(gid: vec3<u32>) -> bool {
     return gid.x < P.width && gid.y < P.height;
-}
-
-fn has(f: u32) -> bool {
-    return (P.flags & f) != 0u;
-}
-
-fn plane_len() -> u32 {
-    return P.width * P.height;
 }
 
 fn count(c: u32) {
