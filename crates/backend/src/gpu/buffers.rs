@@ -108,7 +108,7 @@ pub(crate) fn download(gpu: &Gpu, label: &str, parts: &[&StorageBuffer]) -> Resu
     }
     gpu.queue.submit([enc.finish()]);
     let mut words = Vec::new();
-    back.read(gpu, len, &mut words)?;
+    back.read(gpu, None, len, &mut words)?;
     Ok(words)
 }
 
@@ -227,10 +227,12 @@ impl Readback {
         enc.copy_buffer_to_buffer(src, (at * 4) as u64, &self.buffer, 0, (len * 4) as u64);
     }
 
-    /// Waits for the device and reads the first `len` words into `out`.
+    /// Waits for the device (for `submission` and those before it, or for all) and reads
+    /// the first `len` words into `out`.
     pub(crate) fn read<T: bytemuck::Pod>(
         &self,
         gpu: &Gpu,
+        submission: Option<wgpu::SubmissionIndex>,
         len: usize,
         out: &mut Vec<T>,
     ) -> Result<(), BackendError> {
@@ -239,7 +241,7 @@ impl Readback {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        wait(gpu)?;
+        wait(gpu, submission)?;
         rx.recv()
             .map_err(|e| BackendError::Device(e.to_string()))?
             .map_err(|e| BackendError::Device(e.to_string()))?;

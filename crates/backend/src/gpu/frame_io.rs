@@ -6,7 +6,7 @@
 use super::buffers::{params_buffer, planes_from, write_words, Readback, StorageBuffer};
 use super::timing::{self, FrameClock, PassTimer};
 use super::upload::{upload_inputs, ColorUpload};
-use super::{groups, Gpu};
+use super::{bind_at, groups, Gpu};
 use crate::frame::{Frame, Rgb};
 use crate::pipeline::{Inputs, Scratch, UploadPrecision};
 use crate::BackendError;
@@ -50,9 +50,88 @@ impl IoShape {
     }
 }
 
+/// What a binding of a history filter's shader holds.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Binding {
+    /// f32 samples it reads.
+    Read,
+    /// f32 samples it writes (and may read).
+    Write,
+    /// Object ids (u32) it reads.
+    Ids,
+    /// The counters (`COUNTERS` atomic words).
+    Counters,
+}
+
+/// Declares `const $name: Bindings` from `buffer: Kind` pairs ([`Binding`]'s variants).
+macro_rules! bindings {
+    ($(#[$doc:meta])* $name:ident: $($buffer:ident: $kind:ident),* $(,)?) => {
+        $(#[$doc])*
+        const $name: $crate::gpu::frame_io::Bindings = $crate::gpu::frame_io::Bindings(&[
+            $((stringify!($buffer), $crate::gpu::frame_io::Binding::$kind)),*
+        ]);
+    };
+}
+pub(crate) use bindings;
+
+/// The storage buffers a history filter's shader binds after frame.wgsl's `P` (binding 0)
+/// and `inp` (1), in order from binding 2: their WGSL declarations ([`Bindings::wgsl`])
+/// and the numbers the bind groups use ([`Bindings::group`]) both come from this list.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Bindings(pub(crate) &'static [(&'static str, Binding)]);
+
+impl Bindings {
+    /// The WGSL declarations, put before the shader's source.
+    pub(crate) fn wgsl(&self) -> String {
+        let declare = |(k, (name, binding)): (usize, &(&str, Binding))| {
+            let (access, ty) = match binding {
+                Binding::Read => ("read", "array<f32>"),
+                Binding::Write => ("read_write", "array<f32>"),
+                Binding::Ids => ("read", "array<u32>"),
+                Binding::Counters => ("read_write", "array<atomic<u32>, COUNTERS>"),
+            };
+            format!(
+                "@group(0) @binding({}) var<storage, {access}> {name}: {ty};\n",
+                k + 2
+            )
+        };
+        self.0.iter().enumerate().map(declare).collect()
+    }
+
+    /// A bind group of `pipeline` (an entry point of a shader with these bindings): the
+    /// frame's parameters and inputs from `io`, and each of `buffers` at its name's binding.
+    pub(crate) fn group(
+        &self,
+        gpu: &Gpu,
+        pipeline: &wgpu::ComputePipeline,
+        io: &FrameIo,
+        buffers: &[(&str, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let mut at = vec![(0, &io.params), (1, &io.input.buffer)];
+        at.extend(buffers.iter().map(|&(name, buffer)| (self.number(name), buffer)));
+        bind_at(gpu, pipeline, &at)
+    }
+
+    /// The binding number of `name`.
+    fn number(&self, name: &str) -> u32 {
+        let k = self.0.iter().position(|(n, _)| *n == name);
+        2 + k.unwrap_or_else(|| panic!("{name} is not a binding of this shader")) as u32
+    }
+}
+
 /// A compute pass of a frame: whether it runs, its pipeline, its bind group and its
 /// workgroups in x and y.
 pub(crate) type Pass<'a> = (bool, &'a wgpu::ComputePipeline, &'a wgpu::BindGroup, (u32, u32));
+
+/// A frame submitted to the device, its readback still to come ([`FrameIo::read`]).
+#[derive(Debug)]
+pub(crate) struct Submitted {
+    index: wgpu::SubmissionIndex,
+    /// Which readback its results are copied to.
+    slot: usize,
+    /// Passes it ran.
+    used: u32,
+}
 
 /// What the device gives back for a frame.
 pub(crate) struct FrameBack {
@@ -87,8 +166,12 @@ pub(crate) struct FrameIo {
     /// The shaders' counters (at least a word: wgpu refuses empty bindings).
     pub(crate) counters: wgpu::Buffer,
     timer: Option<PassTimer>,
-    /// The colour (3 planes), the counters, then the passes' timestamps.
-    back: Readback,
+    /// Two readbacks, used in turn, so that a frame's results can be copied while the
+    /// previous frame's are still mapped or in flight: each holds the colour (3 planes),
+    /// the counters, then the passes' timestamps.
+    back: [Readback; 2],
+    /// The readback the next frame's results go to.
+    next_back: usize,
 }
 
 impl FrameIo {
@@ -115,7 +198,8 @@ impl FrameIo {
         let words = 3 * n + shape.counters + timer.as_ref().map_or(0, PassTimer::words);
         Ok(FrameIo {
             upload: ColorUpload::new(gpu, precision, &input, n)?,
-            back: Readback::new(gpu, &format!("{label} readback"), words),
+            back: [0, 1].map(|_| Readback::new(gpu, &format!("{label} readback"), words)),
+            next_back: 0,
             shape,
             width,
             height,
@@ -202,38 +286,69 @@ impl FrameIo {
     }
 
     /// Ends a frame whose `used` passes `enc` holds: encodes the copies of its colour (3
-    /// planes of `color`), its counters and its timestamps into the readback, submits, and
-    /// reads them back through `words`, marking `clock` at the submission and the readback.
-    pub(crate) fn submit_and_read(
-        &self,
+    /// planes of `color`), its counters and its timestamps into the next of the two
+    /// readbacks, and submits, marking `clock`. The frame is read back by
+    /// [`FrameIo::read`]; meanwhile the next frame may be uploaded and submitted (its
+    /// copies go to the other readback).
+    pub(crate) fn submit(
+        &mut self,
         gpu: &Gpu,
         mut enc: wgpu::CommandEncoder,
         color: &wgpu::Buffer,
         used: u32,
+        clock: &mut FrameClock,
+    ) -> Submitted {
+        let n = self.width * self.height;
+        let count = self.shape.counters;
+        let slot = self.next_back;
+        self.next_back = 1 - slot;
+        let back = &self.back[slot];
+        back.copy_from(&mut enc, color, 0, 3 * n);
+        if count > 0 {
+            let at = (3 * n * 4) as u64;
+            enc.copy_buffer_to_buffer(&self.counters, 0, back.buffer(), at, (count * 4) as u64);
+        }
+        if let Some(t) = &self.timer {
+            t.resolve(&mut enc, used, back, 3 * n + count);
+        }
+        let index = gpu.queue.submit([enc.finish()]);
+        clock.submitted();
+        Submitted { index, slot, used }
+    }
+
+    /// Waits for the frame `submitted` (not for those submitted after it) and reads back
+    /// its colour, counters and timestamps through `words`, marking `clock`.
+    pub(crate) fn read(
+        &self,
+        gpu: &Gpu,
+        submitted: Submitted,
         words: &mut Vec<f32>,
         clock: &mut FrameClock,
     ) -> Result<FrameBack, BackendError> {
         let n = self.width * self.height;
-        let count = self.shape.counters;
-        self.back.copy_from(&mut enc, color, 0, 3 * n);
-        if count > 0 {
-            let back = self.back.buffer();
-            enc.copy_buffer_to_buffer(&self.counters, 0, back, (3 * n * 4) as u64, (count * 4) as u64);
-        }
-        let timer_at = 3 * n + count;
+        let timer_at = 3 * n + self.shape.counters;
         let timer = self.timer.as_ref();
-        if let Some(t) = timer {
-            t.resolve(&mut enc, used, &self.back, timer_at);
-        }
-        gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        self.back
-            .read(gpu, timer_at + timer.map_or(0, PassTimer::words), words)?;
+        let len = timer_at + timer.map_or(0, PassTimer::words);
+        self.back[submitted.slot].read(gpu, Some(submitted.index), len, words)?;
         clock.back();
         Ok(FrameBack {
             color: planes_from(words, self.width, self.height)?,
             counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            pass_ms: timer.map(|t| t.pass_ms(&words[timer_at..], used)),
+            pass_ms: timer.map(|t| t.pass_ms(&words[timer_at..], submitted.used)),
         })
+    }
+
+    /// [`FrameIo::submit`], then [`FrameIo::read`]: the frame's work done before the call
+    /// returns.
+    pub(crate) fn submit_and_read(
+        &mut self,
+        gpu: &Gpu,
+        enc: wgpu::CommandEncoder,
+        (color, used): (&wgpu::Buffer, u32),
+        words: &mut Vec<f32>,
+        clock: &mut FrameClock,
+    ) -> Result<FrameBack, BackendError> {
+        let submitted = self.submit(gpu, enc, color, used, clock);
+        self.read(gpu, submitted, words, clock)
     }
 }

@@ -109,7 +109,7 @@ impl GpuFxaa {
             &[(true, &self.luma, luma, g), (true, &self.fxaa, fxaa, g)],
         );
         let back =
-            b.io.submit_and_read(gpu, enc, &b.out, used, &mut self.words, &mut clock)?;
+            b.io.submit_and_read(gpu, enc, (&b.out, used), &mut self.words, &mut clock)?;
         // One pass per stage: each its own device time where there are timestamps, else
         // the frame's round trip shared evenly.
         let device = clock.times(back.shaders_ms(), self.upload, bytes);
@@ -121,7 +121,7 @@ impl GpuFxaa {
         rec.ran_for("fxaa", each[1]);
         Ok(stateless_output(
             Fxaa::NAME,
-            frame,
+            frame.meta.index,
             rec,
             inp.counts,
             back.color,

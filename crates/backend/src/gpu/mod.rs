@@ -29,7 +29,7 @@ mod upload;
 mod upsample;
 
 use super::{AdapterInfo, BackendError};
-use crate::frame::{Frame, Rgb};
+use crate::frame::Rgb;
 use crate::pipeline::params::build;
 use crate::pipeline::{
     Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
@@ -182,11 +182,15 @@ pub fn create(
     make(shared()?, values, upload)
 }
 
-/// Waits for the device to finish what was submitted; a device error becomes a
-/// [`BackendError::Device`].
-pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
+/// Waits for the device to finish `submission` and those before it (`None`: all that was
+/// submitted); a device error becomes a [`BackendError::Device`].
+pub(crate) fn wait(gpu: &Gpu, submission: Option<wgpu::SubmissionIndex>) -> Result<(), BackendError> {
+    let until = wgpu::PollType::Wait {
+        submission_index: submission,
+        timeout: None,
+    };
     gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
+        .poll(until)
         .map(|_| ())
         .map_err(|e| BackendError::Device(e.to_string()))
 }
@@ -397,14 +401,14 @@ pub(crate) fn bind_at(
 /// (no history to count) as run on the GPU with the `device` times.
 pub(crate) fn stateless_output(
     filter: &'static str,
-    frame: &Frame,
+    index: u64,
     rec: Recorder,
     input: InputCounts,
     color: Rgb,
     device: DeviceTimes,
 ) -> Output {
     let counts = (PixelCounts::default(), input, 0);
-    history_output(filter, frame, rec, counts, color, device)
+    history_output(filter, index, rec, counts, color, device)
 }
 
 /// The output of a history filter's frame on the device: `color`, and `rec` finished with
@@ -412,13 +416,13 @@ pub(crate) fn stateless_output(
 /// `device` times.
 pub(crate) fn history_output(
     filter: &'static str,
-    frame: &Frame,
+    index: u64,
     rec: Recorder,
     (pixels, input, state_bytes): (PixelCounts, InputCounts, usize),
     color: Rgb,
     device: DeviceTimes,
 ) -> Output {
-    let mut record = rec.finish(filter, frame.meta.index, pixels, input, state_bytes);
+    let mut record = rec.finish(filter, index, pixels, input, state_bytes);
     record.backend = Backend::Gpu;
     record.device = Some(device);
     Output { color, record }
@@ -526,7 +530,25 @@ macro_rules! history_filter {
         impl $crate::pipeline::Filter for $ty {
             $crate::gpu::device_filter_methods!($kind, |f| &f.params);
 
+            fn push_overlapped(
+                &mut self,
+                frame: &$crate::frame::Frame,
+            ) -> Result<Vec<$crate::pipeline::Output>, $crate::pipeline::FilterError> {
+                let name = <$kind as $crate::pipeline::FilterKind>::NAME;
+                self.push_overlapped(frame)
+                    .map_err(|e| e.into_filter_error(name))
+            }
+
+            fn flush_overlapped(
+                &mut self,
+            ) -> Result<Vec<$crate::pipeline::Output>, $crate::pipeline::FilterError> {
+                let name = <$kind as $crate::pipeline::FilterKind>::NAME;
+                self.flush_overlapped()
+                    .map_err(|e| e.into_filter_error(name))
+            }
+
             fn reset(&mut self) {
+                self.drop_in_flight();
                 self.valid = false;
             }
 
@@ -536,6 +558,12 @@ macro_rules! history_filter {
 
             fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
                 use $crate::pipeline::StateError;
+                if self.in_flight() {
+                    return Err(StateError::Unsupported {
+                        filter: self.name(),
+                        why: "a frame is in flight (push_overlapped); flush_overlapped first",
+                    });
+                }
                 let mut st = self.empty_history();
                 if let (Some(b), true) = (&self.buffers, self.valid) {
                     let planes = self
@@ -555,6 +583,7 @@ macro_rules! history_filter {
             ) -> Result<(), $crate::pipeline::StateError> {
                 let mut st = self.empty_history();
                 st.load(state, self.name(), &self.params())?;
+                self.drop_in_flight();
                 match st.buffer.history_size() {
                     Some((w, h)) => {
                         self.sized(w, h)

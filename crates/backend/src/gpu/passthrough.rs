@@ -48,13 +48,14 @@ impl GpuPassthrough {
         let io = self.io.as_mut().expect("just made");
         let bytes = io.upload.write(&self.gpu, &io.input, &inp.color);
         let enc = io.encoder(&self.gpu);
-        let back = io.submit_and_read(&self.gpu, enc, &io.input.buffer, 0, &mut self.words, &mut clock)?;
+        let colour = io.input.buffer.clone();
+        let back = io.submit_and_read(&self.gpu, enc, (&colour, 0), &mut self.words, &mut clock)?;
         // No shader: the copy is the upload and the readback.
         let device = clock.times(None, self.upload, bytes);
         rec.ran_for("copy", device.upload_ms + device.readback_ms);
         Ok(stateless_output(
             Passthrough::NAME,
-            frame,
+            frame.meta.index,
             rec,
             inp.counts,
             back.color,

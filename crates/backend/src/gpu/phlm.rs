@@ -10,17 +10,17 @@
 //! held at or above the prior. The CPU solves in f64.
 
 use super::buffers::download;
-use super::frame_io::{FrameBack, FrameIo, IoShape};
-use super::history::{DeviceHistory, FrameBuffers};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
 use super::timing::{self, FrameClock};
-use super::{bind, history_filter, input_consts, pipeline, Gpu, StorageBuffer, INPUT_PLANES};
+use super::{history_filter, input_consts, pipeline, Gpu, StorageBuffer, INPUT_PLANES};
 use super::{COUNTS, FRAME, REPROJECT, WORKING};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
 use crate::frame::{Frame, Plane};
-use crate::pipeline::{Filter, FilterKind, Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip};
+use crate::pipeline::{FilterKind, Inputs, ModelHealth, PixelCounts, Recorder, Skip};
 use crate::BackendError;
 
 const SOURCE: &str = include_str!("phlm.wgsl");
@@ -70,6 +70,13 @@ const PARTS: [(&str, usize); 3] = [
 // The parts are the whole state, in its order.
 const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
 
+super::frame_io::bindings! {
+    /// phlm.wgsl's buffers after `P` and `inp`: the previous models' parts ([`PARTS`]), the
+    /// next models' parts, the colour and the counters.
+    BINDINGS: beta: Read, info: Read, feat: Read, next_beta: Write, next_info: Write, next_feat: Write,
+        out: Write, counters: Counters
+}
+
 /// Words of the shader's `Params` (`phlm.wgsl`: 21 four-byte fields, in
 /// [`GpuPhlm::param_words`]'s order).
 const PARAM_WORDS: usize = 21;
@@ -102,7 +109,10 @@ impl FrameBuffers<Params, wgpu::ComputePipeline> for Buffers {
             gpu,
             "phlm",
             &consts(),
-            &format!("{SOURCE}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}"),
+            &format!(
+                "{}{SOURCE}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+                BINDINGS.wgsl()
+            ),
             "resolve",
         )
     }
@@ -118,13 +128,13 @@ impl FrameBuffers<Params, wgpu::ComputePipeline> for Buffers {
         let state = [models()?, models()?];
         let out = StorageBuffer::new(gpu, "phlm colour", 3 * n)?;
         let bound = [0, 1].map(|k| {
-            let [from, to] = [&state[k], &state[1 - k]].map(|part| part.each_ref().map(|b| &b.buffer));
-            let ends = [&out.buffer, &io.counters];
-            bind(
-                gpu,
-                pass,
-                &[&[&io.params, &io.input.buffer][..], &from, &to, &ends].concat(),
-            )
+            let names = [["beta", "info", "feat"], ["next_beta", "next_info", "next_feat"]];
+            let models = [&state[k], &state[1 - k]].into_iter().zip(names);
+            let buffers: Vec<_> = models
+                .flat_map(|(parts, names)| names.into_iter().zip(parts.iter().map(|b| &b.buffer)))
+                .collect();
+            let ends = [("out", &out.buffer), ("counters", &io.counters)];
+            BINDINGS.group(gpu, pass, &io, &[&buffers[..], &ends].concat())
         });
         Ok(Buffers {
             io,
@@ -279,8 +289,8 @@ impl FramePlan {
     }
 }
 
-impl GpuPhlm {
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+impl StartFrame for GpuPhlm {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
         let mut rec = Recorder::new();
         let recon = self.params.effective().reconstruction();
         let mut inp = self.prepared::<Phlm>(frame, recon, &mut rec)?;
@@ -300,32 +310,37 @@ impl GpuPhlm {
         let hi = self.io().upload.output_ceiling(&inp.facts);
         let words = Self::param_words(p, w, h, plan.flags, hi);
         let bytes = self.upload_frame(frame, &mut inp, &words);
-        let back = self.dispatch(&mut clock)?;
-        let device = clock.times(back.shaders_ms(), self.upload, bytes);
-        // Without timestamps, the stages share the frame's round trip.
-        plan.record(
-            &mut rec,
-            back.shaders_ms().unwrap_or(device.upload_ms + device.readback_ms),
-        );
-        let c = &back.counters;
-        let pixels = PixelCounts {
-            history_reset: c[C_RESET] as u64,
-            history_clipped: c[C_CLIPPED] as u64,
-            history_rejected: 0,
+        let submitted = self.dispatch(&mut clock);
+        let (index, input) = (frame.meta.index, inp.counts);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let device = clock.times(back.shaders_ms(), f.upload, bytes);
+            // Without timestamps, the stages share the frame's round trip.
+            plan.record(
+                &mut rec,
+                back.shaders_ms().unwrap_or(device.upload_ms + device.readback_ms),
+            );
+            let c = &back.counters;
+            let pixels = PixelCounts {
+                history_reset: c[C_RESET] as u64,
+                history_clipped: c[C_CLIPPED] as u64,
+                history_rejected: 0,
+            };
+            let n = (w * h) as f64;
+            let model = ModelHealth {
+                reset_by_clip: c[C_CLIPPED] as f64 / n,
+                reset_by_disocclusion: c[C_OFFSCREEN] as f64 / n,
+                max_trace_p: f32::from_bits(c[C_TRACE]) as f64,
+                p_repaired: c[C_REPAIRED] as u64,
+            };
+            let mut out = f.output(Phlm::NAME, index, rec, (pixels, input), device, back.color);
+            out.record.model = Some(model);
+            Ok(out)
         };
-        let n = (w * h) as f64;
-        let model = ModelHealth {
-            reset_by_clip: c[C_CLIPPED] as f64 / n,
-            reset_by_disocclusion: c[C_OFFSCREEN] as f64 / n,
-            max_trace_p: f32::from_bits(c[C_TRACE]) as f64,
-            p_repaired: c[C_REPAIRED] as u64,
-        };
-        let counts = (pixels, self.state_bytes());
-        let mut out = self.finished(Phlm::NAME, frame, &inp, rec, counts, device, back.color);
-        out.record.model = Some(model);
-        Ok(out)
+        Ok(self.submitted(submitted, clock, (true, hdr), Box::new(finish)))
     }
+}
 
+impl GpuPhlm {
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
     /// host's own go back to the scratch), then motion, depth (for the dilation and the
     /// models' depth) and the invalid mask as f32. Returns the bytes written.
@@ -344,15 +359,14 @@ impl GpuPhlm {
                 .write_inputs(gpu, frame, inp, &mut self.scratch, (motion, true))
     }
 
-    /// Runs the pass over the uploaded frame (after the colour's unpacking) and reads back
-    /// the colour, the counters and the timestamps, marking `clock` at the submission and
-    /// the readback.
-    fn dispatch(&mut self, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
+    /// Runs the pass over the uploaded frame (after the colour's unpacking) and submits it
+    /// with the copies of the colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_mut().expect("sized");
         let mut enc = b.io.encoder(gpu);
         let pass = (true, &self.passes, &b.bound[self.read], b.io.groups());
         let used = b.io.encode_passes(&mut enc, &[pass]);
-        b.io.submit_and_read(gpu, enc, &b.out.buffer, used, &mut self.words, clock)
+        b.io.submit(gpu, enc, &b.out.buffer, used, clock)
     }
 }

@@ -48,17 +48,11 @@ struct Params {
     depth_jump: f32,
 }
 
-// The previous models and the next, each in three parts (beta, R, z with the count of failed
-// box tests and the speed), so that no buffer is past the 128 MiB a shader's buffer may have on many
-// devices at 1080p.
-@group(0) @binding(2) var<storage, read> beta: array<f32>;
-@group(0) @binding(3) var<storage, read> info: array<f32>;
-@group(0) @binding(4) var<storage, read> feat: array<f32>;
-@group(0) @binding(5) var<storage, read_write> next_beta: array<f32>;
-@group(0) @binding(6) var<storage, read_write> next_info: array<f32>;
-@group(0) @binding(7) var<storage, read_write> next_feat: array<f32>;
-@group(0) @binding(8) var<storage, read_write> out: array<f32>;
-@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
+// Declared from Rust (`gpu::phlm::BINDINGS`), after frame.wgsl's `P` and `inp`: the previous
+// models (`beta`, `info`, `feat`) and the next (`next_beta`, `next_info`, `next_feat`), each
+// in three parts (beta, R, z with the count of failed box tests and the speed) so that no
+// buffer is past the 128 MiB a shader's buffer may have on many devices at 1080p; `out`
+// and `counters`.
 
 // Declared before this file from Rust (`gpu::phlm::consts`): the FLAG_ bits of `P.flags`
 // (FLAG_DEPTH: the frame has depth, uploaded and kept with the models,

@@ -5,14 +5,14 @@
 //! pixel counts.
 
 use super::buffers::{params_buffer, write_words, TexelHistory};
-use super::frame_io::{FrameBack, FrameIo, IoShape};
-use super::history::{DeviceHistory, FrameBuffers};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
 use super::timing::{self, FrameClock};
 use super::{bind, history_filter, input_consts, pipeline, Gpu, StorageBuffer, INPUT_PLANES};
 use super::{COUNTS, FRAME, REPROJECT, WORKING};
 use crate::filters::taa::{HistoryFilter, Params, StagePlan, Taa};
 use crate::frame::Frame;
-use crate::pipeline::{DeviceTimes, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder};
+use crate::pipeline::{DeviceTimes, FilterKind, Inputs, PixelCounts, Recorder};
 use crate::BackendError;
 
 const SHARED: &str = include_str!("taa.wgsl");
@@ -27,6 +27,11 @@ super::flag_bits! {
 
 // The counters: pixels whose history was reset, clipped, rejected.
 super::counters! { counter_consts: C_RESET, C_CLIPPED, C_REJECTED }
+
+super::frame_io::bindings! {
+    /// taa_resolve.wgsl's buffers after `P` and `inp`.
+    RESOLVE: hist: Read, next: Write, out: Write, counters: Counters
+}
 
 /// Words of the shaders' `Params` (`taa.wgsl`, in [`GpuTaa::param_words`]'s order).
 const PARAM_WORDS: usize = 9;
@@ -91,7 +96,8 @@ impl FrameBuffers<Params, Passes> for Buffers {
                 "taa resolve",
                 &consts,
                 &with(&format!(
-                    "{}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+                    "{}{}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+                    RESOLVE.wgsl(),
                     include_str!("taa_resolve.wgsl")
                 )),
                 "resolve",
@@ -121,16 +127,16 @@ impl FrameBuffers<Params, Passes> for Buffers {
         let hist = TexelHistory::new(gpu, "taa history", io.size(), 4, depth)?;
         let colour = || StorageBuffer::new(gpu, "taa colour", 3 * n);
         let out = [colour()?, colour()?];
-        let (p, i, c) = (&io.params, &io.input.buffer, &io.counters);
         let resolve = [0, 1].map(|k| {
-            let outputs = [hist.buffer(1 - k), &out[0].buffer, c];
-            bind(
-                gpu,
-                &passes.resolve,
-                &[&[p, i, hist.buffer(k)][..], &outputs].concat(),
-            )
+            let buffers = [("hist", hist.buffer(k)), ("next", hist.buffer(1 - k))];
+            let ends = [("out", &out[0].buffer), ("counters", &io.counters)];
+            RESOLVE.group(gpu, &passes.resolve, &io, &[&buffers[..], &ends].concat())
         });
-        let sharpen = bind(gpu, &passes.sharpen, &[p, &out[0].buffer, &out[1].buffer]);
+        let sharpen = bind(
+            gpu,
+            &passes.sharpen,
+            &[&io.params, &out[0].buffer, &out[1].buffer],
+        );
         let convert = [0, 1].map(|k| bind(gpu, &passes.convert, &[&convert_params, hist.buffer(k)]));
         Ok(Buffers {
             io,
@@ -167,8 +173,8 @@ impl GpuTaa {
 
 history_filter!(GpuTaa, Taa, texels);
 
-impl GpuTaa {
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+impl StartFrame for GpuTaa {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
         let mut rec = Recorder::new();
         let recon = self.params.reconstruction();
         let mut inp = self.prepared::<Taa>(frame, recon, &mut rec)?;
@@ -185,19 +191,24 @@ impl GpuTaa {
         let convert = (has_history && self.tonemapped != hdr)
             .then(|| self.param_words(w, h, if hdr { FLAG_TO_TONEMAPPED } else { 0 }, top));
         let bytes = self.upload_frame(frame, &mut inp, &plan, flags, &words, convert.as_ref());
-        let back = self.dispatch(convert.is_some(), plan.sharpen.is_none(), &mut clock)?;
-        let device = clock.times(back.shaders_ms(), self.upload, bytes);
-        record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
-        let c = &back.counters;
-        let pixels = PixelCounts {
-            history_reset: c[C_RESET] as u64,
-            history_clipped: c[C_CLIPPED] as u64,
-            history_rejected: c[C_REJECTED] as u64,
+        let submitted = self.dispatch(convert.is_some(), plan.sharpen.is_none(), &mut clock);
+        let (index, input) = (frame.meta.index, inp.counts);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let device = clock.times(back.shaders_ms(), f.upload, bytes);
+            record_stages(&mut rec, &plan, &device, back.pass_ms.as_deref());
+            let c = &back.counters;
+            let pixels = PixelCounts {
+                history_reset: c[C_RESET] as u64,
+                history_clipped: c[C_CLIPPED] as u64,
+                history_rejected: c[C_REJECTED] as u64,
+            };
+            Ok(f.output(Taa::NAME, index, rec, (pixels, input), device, back.color))
         };
-        let counts = (pixels, self.state_bytes());
-        Ok(self.finished(Taa::NAME, frame, &inp, rec, counts, device, back.color))
+        Ok(self.submitted(submitted, clock, (true, hdr), Box::new(finish)))
     }
+}
 
+impl GpuTaa {
     /// The shader's flags for a frame with inputs `inp` under `plan`.
     fn flags(&self, plan: &StagePlan, inp: &Inputs, has_history: bool) -> u32 {
         let p = &self.params;
@@ -243,16 +254,11 @@ impl GpuTaa {
 
     /// Runs the frame's passes (the colour's unpacking; the history's conversion in place
     /// when `convert`; the resolve into `out[0]`; the sharpen into `out[1]` when `sharpen`)
-    /// and reads back the colour, the counters and the timestamps, marking `clock` at the
-    /// submission and the readback.
-    fn dispatch(
-        &mut self,
-        convert: bool,
-        sharpen: bool,
-        clock: &mut FrameClock,
-    ) -> Result<FrameBack, BackendError> {
+    /// and submits them with the copies of the colour, the counters and the timestamps,
+    /// marking `clock`.
+    fn dispatch(&mut self, convert: bool, sharpen: bool, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_mut().expect("sized");
         let (w, h) = b.io.size();
         let mut enc = b.io.encoder(gpu);
         // One texel an invocation, in rows of 65535 workgroups at most.
@@ -267,8 +273,7 @@ impl GpuTaa {
                 (sharpen, &self.passes.sharpen, &b.sharpen, image),
             ],
         );
-        let color = &b.out[sharpen as usize].buffer;
-        b.io.submit_and_read(gpu, enc, color, used, &mut self.words, clock)
+        b.io.submit(gpu, enc, &b.out[sharpen as usize].buffer, used, clock)
     }
 }
 

@@ -1,9 +1,6 @@
-// `taa`: the resolve pass (see taa.wgsl, which precedes this file).
-
-@group(0) @binding(2) var<storage, read> hist: array<f32>;
-@group(0) @binding(3) var<storage, read_write> next: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
-@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
+// `taa`: the resolve pass (see taa.wgsl, which precedes this file). Its buffers (`hist`,
+// `next`, `out`, `counters`) are declared from Rust (`gpu::taa::RESOLVE`), after frame.wgsl's
+// `P` and `inp`.
 
 fn texel_at(i: u32) -> vec4<f32> {
     let k = 4u * i;

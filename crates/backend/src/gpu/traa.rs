@@ -9,17 +9,17 @@
 //! the Sobel history's 3x3, which reads the raw Sobel's 3x3), `resolve`, and `sharpen`.
 
 use super::buffers::{write_words, TexelHistory};
-use super::frame_io::{FrameBack, FrameIo, IoShape};
-use super::history::{DeviceHistory, FrameBuffers};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
 use super::timing::{self, FrameClock};
-use super::{bind, bind_at, history_filter, input_consts, pipeline, Gpu, StorageBuffer};
+use super::{bind, history_filter, input_consts, pipeline, Gpu, StorageBuffer};
 use super::{COUNTS, FRAME, INPUT_PLANES, REPROJECT, WORKING};
 use crate::filters::traa::{
     Params, StagePlan, Traa, Variant, DEPTH_DISTANCE_MIN, FEEDBACK_LUMA_FLOOR, SOBEL_LIT_WEIGHT,
     SOBEL_UNLIT_WEIGHT,
 };
 use crate::frame::Frame;
-use crate::pipeline::{Filter, FilterKind, Inputs, Output, PixelCounts, Recorder};
+use crate::pipeline::{FilterKind, Inputs, PixelCounts, Recorder};
 use crate::BackendError;
 
 const SHARED: &str = include_str!("traa.wgsl");
@@ -36,6 +36,12 @@ super::counters! { counter_consts: C_RESET, C_CLIPPED }
 
 /// The Sobel history's channel of an improved texel [r, g, b, sobel].
 const SOBEL_TEXEL: usize = 3;
+super::frame_io::bindings! {
+    /// The buffers of traa_resolve.wgsl's passes after `P` and `inp`.
+    STAGES: albedo: Read, ids: Ids, hist: Read, next: Write, raw: Write, stable: Write,
+        out: Write, counters: Counters
+}
+
 /// Words of the shaders' `Params` (`traa.wgsl`, in [`GpuTraa::param_words`]'s order).
 const PARAM_WORDS: usize = 9;
 
@@ -108,7 +114,10 @@ impl FrameBuffers<Params, Passes> for Buffers {
     fn compile(gpu: &Gpu) -> Passes {
         let consts = consts();
         let resolve = include_str!("traa_resolve.wgsl");
-        let stages = format!("{SHARED}\n{resolve}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}");
+        let stages = format!(
+            "{SHARED}\n{}{resolve}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+            STAGES.wgsl()
+        );
         let sharpen = format!("{SHARED}\n{}", include_str!("taa_sharpen.wgsl"));
         let make = |label: &str, source: &str, entry: &str| pipeline(gpu, label, &consts, source, entry);
         Passes {
@@ -132,23 +141,28 @@ impl FrameBuffers<Params, Passes> for Buffers {
         let hist = TexelHistory::new(gpu, "traa history", (width, height), texel(improved), improved)?;
         let colour = || StorageBuffer::new(gpu, "traa colour", 3 * n);
         let out = [colour()?, colour()?];
-        // The bindings of traa_resolve.wgsl.
-        let (params, counters) = (&io.params, &io.counters);
-        let (p, i, s) = ((0, params), (1, &io.input.buffer), (7, &stable.buffer));
-        let at = |k: usize| [(4, hist.buffer(k)), (5, hist.buffer(1 - k))];
-        let stages = |pass, k: usize| {
-            let [h, next] = at(k);
-            let extra = [(3, &ids.buffer), next, (8, &out[0].buffer), (9, counters)];
-            match pass {
-                0 => bind_at(gpu, &passes.sobel_history, &[p, i, h, (6, &raw.buffer), s]),
-                _ => bind_at(gpu, &passes.resolve, &[&[p, i, h, s][..], &extra].concat()),
-            }
+        let (raw, stable) = (("raw", &raw.buffer), ("stable", &stable.buffer));
+        let group = |pass, buffers: &[(&str, &wgpu::Buffer)]| STAGES.group(gpu, pass, &io, buffers);
+        let resolve = |k: usize| {
+            let ends = [("out", &out[0].buffer), ("counters", &io.counters)];
+            let buffers = [
+                ("hist", hist.buffer(k)),
+                ("next", hist.buffer(1 - k)),
+                stable,
+                ("ids", &ids.buffer),
+            ];
+            group(&passes.resolve, &[&buffers[..], &ends].concat())
         };
         let groups = Groups {
-            sobel: bind_at(gpu, &passes.sobel, &[p, i, (2, &albedo.buffer), (6, &raw.buffer)]),
-            sobel_history: [0, 1].map(|k| stages(0, k)),
-            resolve: [0, 1].map(|k| stages(1, k)),
-            sharpen: bind(gpu, &passes.sharpen, &[params, &out[0].buffer, &out[1].buffer]),
+            sobel: group(&passes.sobel, &[("albedo", &albedo.buffer), raw]),
+            sobel_history: [0, 1]
+                .map(|k| group(&passes.sobel_history, &[("hist", hist.buffer(k)), raw, stable])),
+            resolve: [0, 1].map(resolve),
+            sharpen: bind(
+                gpu,
+                &passes.sharpen,
+                &[&io.params, &out[0].buffer, &out[1].buffer],
+            ),
         };
         Ok(Buffers {
             io,
@@ -191,8 +205,8 @@ impl GpuTraa {
 
 history_filter!(GpuTraa, Traa, texels);
 
-impl GpuTraa {
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+impl StartFrame for GpuTraa {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
         let mut rec = Recorder::new();
         let recon = self.params.reconstruction();
         let mut inp = self.prepared::<Traa>(frame, recon, &mut rec)?;
@@ -214,23 +228,28 @@ impl GpuTraa {
         };
         let words = self.param_words(size, flags, self.io().upload.output_ceiling(&inp.facts), far);
         let bytes = self.upload_frame(frame, &mut inp, flags, &words);
-        let back = self.dispatch(flags, &mut clock)?;
-        let shaders_ms = back.shaders_ms();
-        let device = clock.times(shaders_ms, self.upload, bytes);
-        // Most stages share a pass: those that ran share the passes' device time (or,
-        // without timestamps, the frame's round trip).
-        let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
-        timing::share(&mut rec, plan.stages(improved), ms);
-        let c = &back.counters;
-        let pixels = PixelCounts {
-            history_reset: c[C_RESET] as u64,
-            history_clipped: c[C_CLIPPED] as u64,
-            history_rejected: 0,
+        let submitted = self.dispatch(flags, &mut clock);
+        let (index, input) = (frame.meta.index, inp.counts);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let shaders_ms = back.shaders_ms();
+            let device = clock.times(shaders_ms, f.upload, bytes);
+            // Most stages share a pass: those that ran share the passes' device time (or,
+            // without timestamps, the frame's round trip).
+            let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+            timing::share(&mut rec, plan.stages(improved), ms);
+            let c = &back.counters;
+            let pixels = PixelCounts {
+                history_reset: c[C_RESET] as u64,
+                history_clipped: c[C_CLIPPED] as u64,
+                history_rejected: 0,
+            };
+            Ok(f.output(Traa::NAME, index, rec, (pixels, input), device, back.color))
         };
-        let counts = (pixels, self.state_bytes());
-        Ok(self.finished(Traa::NAME, frame, &inp, rec, counts, device, back.color))
+        Ok(self.submitted(submitted, clock, (true, hdr), Box::new(finish)))
     }
+}
 
+impl GpuTraa {
     /// The shaders' flags for a frame with inputs `inp` under `plan`.
     fn flags(&self, plan: &StagePlan, inp: &Inputs, has_history: bool) -> u32 {
         let improved = self.improved();
@@ -271,11 +290,11 @@ impl GpuTraa {
         bytes + b.io.write_params(gpu, words)
     }
 
-    /// Runs the frame's passes (after the colour's unpacking) and reads back the colour,
-    /// the counters and the timestamps, marking `clock` at the submission and the readback.
-    fn dispatch(&mut self, flags: u32, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
+    /// Runs the frame's passes (after the colour's unpacking) and submits them with the
+    /// copies of the colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, flags: u32, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_mut().expect("sized");
         let mut enc = b.io.encoder(gpu);
         let g = b.io.groups();
         let improved = flags & FLAG_IMPROVED != 0;
@@ -295,7 +314,6 @@ impl GpuTraa {
                 (sharpen, &passes.sharpen, &groups.sharpen, g),
             ],
         );
-        let color = &b.out[sharpen as usize].buffer;
-        b.io.submit_and_read(gpu, enc, color, used, &mut self.words, clock)
+        b.io.submit(gpu, enc, &b.out[sharpen as usize].buffer, used, clock)
     }
 }

@@ -9,15 +9,9 @@
 // absolute differences of inputs; object ids are compared as integers. What a fused
 // multiply-add may round differently (lumas, the Sobel, the mixes, the feedback) moves
 // the output continuously: the clip and the clamps are continuous at their box's surface.
-
-@group(0) @binding(2) var<storage, read> albedo: array<f32>;
-@group(0) @binding(3) var<storage, read> ids: array<u32>;
-@group(0) @binding(4) var<storage, read> hist: array<f32>;
-@group(0) @binding(5) var<storage, read_write> next: array<f32>;
-@group(0) @binding(6) var<storage, read_write> raw: array<f32>;
-@group(0) @binding(7) var<storage, read_write> stable: array<f32>;
-@group(0) @binding(8) var<storage, read_write> out: array<f32>;
-@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
+//
+// The buffers (`albedo`, `ids`, `hist`, `next`, `raw`, `stable`, `out`, `counters`) are
+// declared from Rust (`gpu::traa::STAGES`), after frame.wgsl's `P` and `inp`.
 
 // Linear depth of pixel i: depth / far.
 fn depth01(i: u32) -> f32 {

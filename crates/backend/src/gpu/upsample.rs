@@ -9,10 +9,10 @@
 //! shading), so both backends filter the same numbers.
 
 use super::buffers::{download, plane};
-use super::frame_io::{FrameBack, FrameIo, IoShape};
-use super::history::{DeviceHistory, FrameBuffers};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
 use super::timing::{self, FrameClock};
-use super::{bind_at, history_filter, history_output, input_consts, pipeline, Gpu};
+use super::{history_filter, input_consts, pipeline, Gpu};
 use super::{StorageBuffer, FRAME, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::TemporalState;
 use crate::filters::upsample::{
@@ -20,7 +20,7 @@ use crate::filters::upsample::{
     LK, LUMA_FLOOR, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W, WEIGHT_EPSILON,
 };
 use crate::frame::{Frame, Plane, Sampling};
-use crate::pipeline::{check_channels, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder};
+use crate::pipeline::{check_channels, FilterKind, Inputs, PixelCounts, Recorder};
 use crate::BackendError;
 
 const REPROJECT: &str = include_str!("upsample_reproject.wgsl");
@@ -49,6 +49,12 @@ const M_TAA: u32 = 3;
 // The counters: holes filled (`temporal`), clipped (`taa`), pixels that lost their history
 // in the reprojection.
 super::counters! { counter_consts: C_RESET, C_CLIPPED, C_LOST }
+
+super::frame_io::bindings! {
+    /// upsample.wgsl's buffers after `P` and `inp`: the history read, the reprojected texels,
+    /// the raw gradients, the history written, the colour and the counters.
+    BINDINGS: hist: Read, rp: Write, now: Write, next: Write, out: Write, counters: Counters
+}
 
 /// Footprint offsets of the largest factor, `(2 x 4 + 1)^2`: the image-space table.
 const OFFSETS: usize = 81;
@@ -120,7 +126,11 @@ impl FrameBuffers<Params, Passes> for Buffers {
     fn compile(gpu: &Gpu) -> Passes {
         let consts = consts();
         let make = |label: &str, body: &str, entry: &str| {
-            let source = format!("{}\n{FRAME}\n{body}", include_str!("upsample.wgsl"));
+            let source = format!(
+                "{}{}\n{FRAME}\n{body}",
+                BINDINGS.wgsl(),
+                include_str!("upsample.wgsl")
+            );
             pipeline(gpu, label, &consts, &source, entry)
         };
         Passes {
@@ -140,18 +150,18 @@ impl FrameBuffers<Params, Passes> for Buffers {
         let rp = StorageBuffer::new(gpu, "upsample reprojected", (texel + 2) * n)?;
         let now = StorageBuffer::new(gpu, "upsample gradients", n)?;
         let out = StorageBuffer::new(gpu, "upsample colour", 3 * n)?;
-        let (p, i, r, c) = (&io.params, &io.input.buffer, &rp.buffer, &io.counters);
-        let reproject = [0, 1].map(|k| {
-            let bindings = [(0, p), (1, i), (2, &hist[k].buffer), (3, r), (7, c)];
-            bind_at(gpu, &passes.reproject, &bindings)
-        });
-        let gradient = bind_at(gpu, &passes.gradient, &[(0, p), (1, i), (3, r), (4, &now.buffer)]);
+        let (r, g, c) = (
+            ("rp", &rp.buffer),
+            ("now", &now.buffer),
+            ("counters", &io.counters),
+        );
+        let group = |pass, buffers: &[(&str, &wgpu::Buffer)]| BINDINGS.group(gpu, pass, &io, buffers);
+        let reproject = [0, 1].map(|k| group(&passes.reproject, &[("hist", &hist[k].buffer), r, c]));
+        let gradient = group(&passes.gradient, &[r, g]);
         let blend = [0, 1].map(|k| {
-            let outputs = [(5, &hist[1 - k].buffer), (6, &out.buffer), (7, c)];
-            bind_at(
-                gpu,
+            group(
                 &passes.blend,
-                &[&[(0, p), (1, i), (3, r), (4, &now.buffer)][..], &outputs].concat(),
+                &[r, g, ("next", &hist[1 - k].buffer), ("out", &out.buffer), c],
             )
         });
         Ok(Buffers {
@@ -205,59 +215,23 @@ impl GpuUpsample {
         }
     }
 
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
-        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
-        let mut rec = Recorder::new();
-        let recon = self.params.reconstruction();
-        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.scratch)?;
-        let (w, h) = (inp.width, inp.height);
-        let method = self.params.method;
-        let stateful = method != Method::Spatial;
-        let has_history = self.started(frame, &inp)? && stateful;
-        let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
-        let sampling = frame.sampling();
-        let words = self.param_words(&inp, sampling, range, has_history);
-
-        let mut clock = FrameClock::start();
-        let bytes = self.upload_frame(frame, &mut inp, &words)?;
-        let gradient = method == Method::Spatiotemporal;
-        let back = self.dispatch(has_history, gradient, &mut clock)?;
-        let device = clock.times(back.shaders_ms(), self.upload, bytes);
-        let [reproject_skip, gradient_skip] = skips(method, has_history);
-        let stages = vec![
-            ("reproject", reproject_skip),
-            ("gradient", gradient_skip),
-            ("blend", None),
-        ];
-        timing::share(
-            &mut rec,
-            stages,
-            device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
-        );
-        let mut color = back.color;
-        recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut self.scratch);
-
-        if stateful {
-            self.read = 1 - self.read;
-            self.valid = true;
-        }
-        self.tonemapped = inp.facts.hdr;
-        let c = &back.counters;
+    /// The counts of a frame of `pixels` pixels from its `counters`, `has_history` saying
+    /// whether the history held the previous frame.
+    fn pixel_counts(&self, c: &[u32], has_history: bool, pixels: usize) -> PixelCounts {
         let lost = c[C_LOST] as u64;
-        let mut pixels = PixelCounts {
+        let mut counts = PixelCounts {
             history_reset: c[C_RESET] as u64,
             history_clipped: c[C_CLIPPED] as u64,
             history_rejected: 0,
         };
-        match method {
-            Method::Taa => pixels.history_reset += lost,
-            _ => pixels.history_rejected += lost,
+        match self.params.method {
+            Method::Taa => counts.history_reset += lost,
+            _ => counts.history_rejected += lost,
         }
-        if stateful && !has_history {
-            pixels.history_reset += (w * h) as u64;
+        if self.params.method != Method::Spatial && !has_history {
+            counts.history_reset += pixels as u64;
         }
-        let counts = (pixels, inp.counts, self.state_bytes());
-        Ok(history_output(Upsample::NAME, frame, rec, counts, color, device))
+        counts
     }
 
     /// The shader's parameters for a frame with inputs `inp` shaded with `sampling`,
@@ -378,16 +352,11 @@ impl GpuUpsample {
     }
 
     /// Runs the frame's passes (the colour's unpacking; the reprojection when `reproject`;
-    /// the raw gradient when `gradient`; the blend) and reads back the colour, the counters
-    /// and the timestamps, marking `clock` at the submission and the readback.
-    fn dispatch(
-        &mut self,
-        reproject: bool,
-        gradient: bool,
-        clock: &mut FrameClock,
-    ) -> Result<FrameBack, BackendError> {
+    /// the raw gradient when `gradient`; the blend) and submits them with the copies of the
+    /// colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, reproject: bool, gradient: bool, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
+        let b = self.buffers.as_mut().expect("sized");
         let mut enc = b.io.encoder(gpu);
         let g = b.io.groups();
         let used = b.io.encode_passes(
@@ -398,11 +367,49 @@ impl GpuUpsample {
                 (true, &self.passes.blend, &b.blend[self.read], g),
             ],
         );
-        b.io.submit_and_read(gpu, enc, &b.out.buffer, used, &mut self.words, clock)
+        b.io.submit(gpu, enc, &b.out.buffer, used, clock)
     }
 }
 
 history_filter!(GpuUpsample, Upsample);
+
+impl StartFrame for GpuUpsample {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
+        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let recon = self.params.reconstruction();
+        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.scratch)?;
+        let (w, h) = (inp.width, inp.height);
+        let method = self.params.method;
+        let stateful = method != Method::Spatial;
+        let has_history = self.started(frame, &inp)? && stateful;
+        let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
+        let sampling = frame.sampling();
+        let words = self.param_words(&inp, sampling, range, has_history);
+
+        let mut clock = FrameClock::start();
+        let bytes = self.upload_frame(frame, &mut inp, &words)?;
+        let gradient = method == Method::Spatiotemporal;
+        let submitted = self.dispatch(has_history, gradient, &mut clock);
+        let (index, input, hdr) = (frame.meta.index, inp.counts, inp.facts.hdr);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let device = clock.times(back.shaders_ms(), f.upload, bytes);
+            let [reproject_skip, gradient_skip] = skips(method, has_history);
+            let stages = vec![
+                ("reproject", reproject_skip),
+                ("gradient", gradient_skip),
+                ("blend", None),
+            ];
+            let ms = device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+            timing::share(&mut rec, stages, ms);
+            let mut color = back.color;
+            recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut f.scratch);
+            let pixels = f.pixel_counts(&back.counters, has_history, w * h);
+            Ok(f.output(Upsample::NAME, index, rec, (pixels, input), device, color))
+        };
+        Ok(self.submitted(submitted, clock, (stateful, hdr), Box::new(finish)))
+    }
+}
 
 /// The image-space term per footprint offset (`Params.table`), as the CPU computes it:
 /// the distance in block diagonals for `spatiotemporal` (its kernel width varies per
