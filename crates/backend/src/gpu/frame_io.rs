@@ -311,7 +311,7 @@ impl FrameIo {
         if let Some(t) = &self.timer {
             t.resolve(&mut enc, used, back, 3 * n + count);
         }
-        let index = gpu.queue.submit([enc.finish()]);
+        let index = gpu.submit(enc.finish());
         clock.submitted();
         Submitted { index, slot, used }
     }

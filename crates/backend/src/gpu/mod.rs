@@ -22,6 +22,7 @@ mod fxaa;
 mod history;
 mod passthrough;
 mod phlm;
+mod submit;
 mod taa;
 mod timing;
 mod traa;
@@ -94,12 +95,20 @@ pub struct Gpu {
     pub adapter: AdapterInfo,
     /// The pass widening f16 colour to f32 (`upload`), compiled on first use.
     unpack: OnceLock<wgpu::ComputePipeline>,
+    /// The filters' frames, submitted together where several are ready at once.
+    batcher: submit::Batcher,
 }
 
 impl Gpu {
     /// The pass widening f16 colour to f32, compiled on its first use.
     pub(crate) fn unpack(&self) -> &wgpu::ComputePipeline {
         self.unpack.get_or_init(|| upload::unpack_pipeline(self))
+    }
+
+    /// Submits a frame's `commands`, in one submission with other filters' frames ready at
+    /// the same time ([`submit::Batcher`]).
+    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
+        self.batcher.submit(&self.queue, commands)
     }
 }
 
@@ -152,6 +161,7 @@ fn open() -> Result<Gpu, String> {
         queue,
         adapter,
         unpack: OnceLock::new(),
+        batcher: submit::Batcher::default(),
     })
 }
 
