@@ -30,6 +30,7 @@ import argparse
 import json
 import math
 import os
+import runpy
 import sys
 import time
 
@@ -40,21 +41,15 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import exr_attr  # noqa: E402
 
 HALTON_PHASES = 8
-
-
-def radical_inverse(i, base):
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= base
-        r += f * (i % base)
-        i //= base
-    return r
+# afterimage_client's jitter (`scene::halton_jitter` in Python), run from its file: Blender's
+# Python has neither that package nor its dependencies, and the module imports nothing.
+_JITTER = runpy.run_path(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "clients", "python", "src",
+                                      "afterimage_client", "jitter.py"))
 
 
 def halton_jitter(frame):
     """afterimage's `scene::halton_jitter(frame, 8)`: pixels, x right, y down."""
-    i = frame % HALTON_PHASES + 1
-    return (radical_inverse(i, 2) - 0.5, radical_inverse(i, 3) - 0.5)
+    return _JITTER["halton_jitter"](frame, HALTON_PHASES)
 
 
 # --------------------------------------------------------------------------- materials

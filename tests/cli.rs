@@ -1143,7 +1143,9 @@ fn batch_shards_every_shot_once_skips_finished_ones_and_reports_failures() {
 /// A batch killed (SIGKILL) mid-shot shows no partial frame, and its rerun continues from
 /// the last checkpoint to the outputs and figures of an uninterrupted run, rewriting none of
 /// the frames before the checkpoint: for a causal filter (its state saved) and a windowed
-/// one (its window replayed), on jittered frames measured against their reference.
+/// one (its window replayed), on jittered frames measured against their reference; and, in
+/// a build with the GPU backend, for the causal filter on the GPU, whose frames overlap
+/// (each checkpoint's state saved with no frame in flight).
 #[test]
 fn a_killed_batch_resumes_from_its_checkpoint_to_the_same_outputs() {
     const EVERY: usize = 4;
@@ -1163,27 +1165,30 @@ fn a_killed_batch_resumes_from_its_checkpoint_to_the_same_outputs() {
         "-o",
         input.to_str().unwrap(),
     ]);
-    for filter in ["phlm", "pixel_trace"] {
+    let mut runs = vec![("phlm", "cpu"), ("pixel_trace", "cpu")];
+    if afterimage::backend::GPU_BUILT {
+        runs.push(("phlm", "gpu"));
+    }
+    for (filter, backend) in runs {
+        // A manifest, for the backend: its one shot is the `-i` shot of the same name.
         let batch = |out: &Path| -> std::process::Command {
+            let manifest = out.with_extension("toml");
+            let shot = format!(
+                "filter = {filter:?}\nargs = [\"--backend\", {backend:?}]\n\n[[shot]]\nname = \"long\"\ninput = {:?}\noutput = {:?}\n",
+                input.display().to_string(),
+                out.join("long").display().to_string(),
+            );
+            std::fs::write(&manifest, shot).unwrap();
             let mut c = common::bin();
-            c.args([
-                "batch",
-                "--filter",
-                filter,
-                "--checkpoint-every",
-                &EVERY.to_string(),
-                "-i",
-            ])
-            .arg(&input)
-            .arg("-o")
-            .arg(out);
+            c.args(["batch", "--checkpoint-every", &EVERY.to_string()])
+                .arg(&manifest);
             c.arg("--summary").arg(out.join("summary.json"));
             c
         };
-        let whole = d.join(format!("whole-{filter}"));
+        let whole = d.join(format!("whole-{filter}-{backend}"));
         assert!(batch(&whole).output().unwrap().status.success());
         // Killed once a checkpoint past the first few frames is in place.
-        let cut = d.join(format!("cut-{filter}"));
+        let cut = d.join(format!("cut-{filter}-{backend}"));
         let mut child = batch(&cut)
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::null())

@@ -3,11 +3,12 @@
 #
 #   clients/python/check.sh target/release/afterimage
 #
-# 1. the committed gRPC modules are what tools/regen_proto.sh generates from
-#    crates/client/proto/afterimage/v1/afterimage.proto;
-# 2. `pip install ./clients/python[test]` into a fresh venv (a temporary directory, removed
-#    afterwards) installs the package, importable from the venv's site-packages, with its
-#    `python -m afterimage_client` command;
+# 1. `pip install ./clients/python[test]` into a fresh venv (a temporary directory, removed
+#    afterwards) builds the package, its gRPC modules generated from
+#    crates/client/proto/afterimage/v1/afterimage.proto (setup.py), and installs it,
+#    importable from the venv's site-packages, with its `python -m afterimage_client` command;
+# 2. the sdist carries the proto, and the wheel built from the sdist (not the checkout) has
+#    the generated modules;
 # 3. the tests in clients/python/tests run against the given server binary: the EXR
 #    mapping and error unit tests, and, against a real `afterimage serve` on loopback
 #    ports, `python -m afterimage_client filter` on the committed Blender frames for taa
@@ -29,9 +30,6 @@ if [ ! -x "$bin" ]; then
 fi
 here="$(cd "$(dirname "$0")" && pwd)"
 py="${PYTHON:-python3}"
-
-echo "== generated gRPC modules are current"
-"$here/tools/regen_proto.sh" --check
 
 echo "== pip install ./clients/python into a fresh venv"
 tmp="$(mktemp -d)"
@@ -55,6 +53,21 @@ print(f"afterimage_client {afterimage_client.__version__} from {where}")
 PY
 )
 (cd "$tmp" && "$tmp/venv/bin/python" -m afterimage_client filter --help >/dev/null)
+
+echo "== the sdist carries the proto; the wheel built from it has the generated gRPC modules"
+# A build away from the checkout (an sdist) has no ../../crates: it must bring its own proto.
+"$tmp/venv/bin/python" -m pip install --quiet --disable-pip-version-check build
+"$tmp/venv/bin/python" -m build --outdir "$tmp/dist" "$here" >"$tmp/build.log" 2>&1 || { cat "$tmp/build.log" >&2; exit 1; }
+"$tmp/venv/bin/python" - "$tmp/dist" <<'PY'
+import glob, sys, tarfile, zipfile
+(sdist,), (wheel,) = glob.glob(f"{sys.argv[1]}/*.tar.gz"), glob.glob(f"{sys.argv[1]}/*.whl")
+names = tarfile.open(sdist).getnames()
+assert any(n.endswith("/proto/afterimage/v1/afterimage.proto") for n in names), f"{sdist} has no proto: {names}"
+assert not any("afterimage_pb2" in n for n in names), f"{sdist} carries generated modules"
+missing = {f"afterimage_client/proto/afterimage_pb2{m}" for m in (".py", ".pyi", "_grpc.py")} - set(zipfile.ZipFile(wheel).namelist())
+assert not missing, f"{wheel} lacks {sorted(missing)}"
+print(f"{sdist.rsplit('/', 1)[1]} carries the proto; {wheel.rsplit('/', 1)[1]}, built from it, the generated modules")
+PY
 
 echo "== tests against $bin"
 cd "$tmp"

@@ -6,7 +6,8 @@
 #   examples/python/run.sh --server 127.0.0.1:50051 --filter taa
 #
 # The venv goes under examples/python/.venv (ignored by git); a second run reuses it and
-# reinstalls the package only when clients/python or requirements.txt changed.
+# reinstalls the package only when clients/python, the proto its build generates the gRPC
+# modules from, or requirements.txt changed.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
@@ -25,7 +26,7 @@ fi
 stamp="$venv/.afterimage-client"
 pkg="$root/clients/python"
 if [ ! -f "$stamp" ] || ! cmp -s "$here/requirements.txt" "$stamp" \
-  || [ -n "$(find "$pkg/pyproject.toml" "$pkg/src" -newer "$stamp" -print -quit)" ]; then
+  || [ -n "$(find "$pkg/pyproject.toml" "$pkg/setup.py" "$pkg/src" "$pkg/proto/" -newer "$stamp" -print -quit)" ]; then
   "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -c "$here/requirements.txt" "$pkg"
   cp "$here/requirements.txt" "$stamp"
 fi

@@ -721,8 +721,19 @@ fn filter_frames(
             hdr: frame_is_hdr(&frame),
             input: kept,
         });
+        // A checkpoint after the frame before holds the filter's state then: nothing of
+        // this frame may be started yet.
+        if shot.checkpoint_at(position) {
+            for out in filter
+                .flush_overlapped()
+                .context("finishing the frames in flight")?
+            {
+                shot.emit(out, filter, jobs)?;
+            }
+        }
+        // Overlapped: a GPU filter works on this frame while the host reads the next.
         let outs = filter
-            .push(&frame)
+            .push_overlapped(&frame)
             .with_context(|| format!("filtering {}", entry.path.display()))?;
         for out in outs {
             shot.emit(out, filter, jobs)?;
@@ -734,6 +745,12 @@ fn filter_frames(
         "reading stopped after frame {fed} of {}",
         input.len()
     );
+    for out in filter
+        .flush_overlapped()
+        .context("finishing the frames in flight")?
+    {
+        shot.emit(out, filter, jobs)?;
+    }
     for out in filter.finish().context("flushing the filter's window")? {
         shot.emit(out, filter, jobs)?;
     }
@@ -797,12 +814,16 @@ impl Emitter<'_> {
                 .then(|| (self.naming.preview_path(&p.path, p.number), p.hdr)),
         })))?;
         let done = p.position + 1;
-        if let Some(c) = self.checkpoints {
-            if c.every > 0 && done.is_multiple_of(c.every) && done < self.frames.len() {
-                send(self.checkpoint(c, done, filter)?)?;
-            }
+        if let (Some(c), true) = (self.checkpoints, self.checkpoint_at(done)) {
+            send(self.checkpoint(c, done, filter)?)?;
         }
         Ok(())
+    }
+
+    /// Whether a checkpoint is written once the outputs before position `next` are.
+    fn checkpoint_at(&self, next: usize) -> bool {
+        self.checkpoints
+            .is_some_and(|c| c.every > 0 && next.is_multiple_of(c.every) && next < self.frames.len())
     }
 
     /// The checkpoint at position `next`, for the writer to write once every output before

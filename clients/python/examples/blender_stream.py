@@ -73,22 +73,6 @@ def import_client(site_dir):
         )
 
 
-def radical_inverse(i, base):
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= base
-        r += f * (i % base)
-        i //= base
-    return r
-
-
-def halton_jitter(frame, phases=8):
-    """Halton(2,3) over `phases` frames, centred: pixels, x right, y down (as
-    `afterimage scene` and `afterimage filter --jitter-from halton:8`)."""
-    i = frame % phases + 1
-    return (radical_inverse(i, 2) - 0.5, radical_inverse(i, 3) - 0.5)
-
-
 # --- the scene ------------------------------------------------------------------------------
 
 
@@ -224,7 +208,7 @@ def main():
     import bpy
     import numpy as np
 
-    from afterimage_client import AfterimageError, Client
+    from afterimage_client import AfterimageError, Client, halton_jitter
     from afterimage_client.exr import Preset, frame_from_exr, read_exr, write_filtered
 
     frames = list(range(1, args.frames + 1))

@@ -29,6 +29,7 @@ from .client import (  # noqa: E402
     Session,
     StageTime,
 )
+from .jitter import halton_jitter  # noqa: E402
 
 __all__ = [
     "COMPONENTS",
@@ -47,4 +48,5 @@ __all__ = [
     "Session",
     "StageTime",
     "__version__",
+    "halton_jitter",
 ]

@@ -1,7 +1,6 @@
 //! Device buffers of f32 samples: storage the shaders read and write, and the mappable
 //! buffers results come back through.
 
-use super::timing::{FrameClock, PassTimer};
 use super::{wait, Gpu};
 use crate::BackendError;
 
@@ -109,7 +108,7 @@ pub(crate) fn download(gpu: &Gpu, label: &str, parts: &[&StorageBuffer]) -> Resu
     }
     gpu.queue.submit([enc.finish()]);
     let mut words = Vec::new();
-    back.read(gpu, len, &mut words)?;
+    back.read(gpu, None, len, &mut words)?;
     Ok(words)
 }
 
@@ -183,48 +182,6 @@ impl TexelHistory {
     }
 }
 
-/// What the device gives back for a frame of a history filter.
-pub(crate) struct FrameBack {
-    pub(crate) color: crate::frame::Rgb,
-    /// The filter's counters.
-    pub(crate) counters: Vec<u32>,
-    /// Each pass's time from its timestamps, where the device has them.
-    pub(crate) pass_ms: Option<Vec<f64>>,
-}
-
-/// Ends a frame of `w` x `h` pixels: encodes the copies of its colour (3 planes from
-/// `color`), its `counters` (`count` words) and the timestamps of the `used` passes `timer`
-/// timed into `back`, submits `enc`, and reads them back through `words`, marking `clock`
-/// at the submission and the readback.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn submit_and_read(
-    gpu: &Gpu,
-    mut enc: wgpu::CommandEncoder,
-    back: &Readback,
-    (color, counters, count): (&wgpu::Buffer, &wgpu::Buffer, usize),
-    (timer, used): (Option<&PassTimer>, u32),
-    (w, h): (usize, usize),
-    words: &mut Vec<f32>,
-    clock: &mut FrameClock,
-) -> Result<FrameBack, BackendError> {
-    let n = w * h;
-    back.copy_from(&mut enc, color, 0, 3 * n);
-    enc.copy_buffer_to_buffer(counters, 0, &back.buffer, (3 * n * 4) as u64, (count * 4) as u64);
-    let timer_at = 3 * n + count;
-    if let Some(t) = timer {
-        t.resolve(&mut enc, used, back, timer_at);
-    }
-    gpu.queue.submit([enc.finish()]);
-    clock.submitted();
-    back.read(gpu, timer_at + timer.map_or(0, |t| t.words()), words)?;
-    clock.back();
-    Ok(FrameBack {
-        color: planes_from(words, w, h)?,
-        counters: words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-        pass_ms: timer.map(|t| t.pass_ms(&words[timer_at..], used)),
-    })
-}
-
 /// A plane of samples read back (their count is the plane's by construction).
 pub(crate) fn plane(
     width: usize,
@@ -270,10 +227,12 @@ impl Readback {
         enc.copy_buffer_to_buffer(src, (at * 4) as u64, &self.buffer, 0, (len * 4) as u64);
     }
 
-    /// Waits for the device and reads the first `len` words into `out`.
+    /// Waits for the device (for `submission` and those before it, or for all) and reads
+    /// the first `len` words into `out`.
     pub(crate) fn read<T: bytemuck::Pod>(
         &self,
         gpu: &Gpu,
+        submission: Option<wgpu::SubmissionIndex>,
         len: usize,
         out: &mut Vec<T>,
     ) -> Result<(), BackendError> {
@@ -282,7 +241,7 @@ impl Readback {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        wait(gpu)?;
+        wait(gpu, submission)?;
         rx.recv()
             .map_err(|e| BackendError::Device(e.to_string()))?
             .map_err(|e| BackendError::Device(e.to_string()))?;

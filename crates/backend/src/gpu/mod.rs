@@ -17,10 +17,12 @@
 //! and shading factor). Left for later: `pixel_trace`.
 
 mod buffers;
+mod frame_io;
 mod fxaa;
 mod history;
 mod passthrough;
 mod phlm;
+mod submit;
 mod taa;
 mod timing;
 mod traa;
@@ -28,7 +30,7 @@ mod upload;
 mod upsample;
 
 use super::{AdapterInfo, BackendError};
-use crate::frame::{Frame, Rgb};
+use crate::frame::Rgb;
 use crate::pipeline::params::build;
 use crate::pipeline::{
     Backend, DeviceTimes, Filter, InputCounts, Output, PixelCounts, Recorder, UploadPrecision,
@@ -93,12 +95,20 @@ pub struct Gpu {
     pub adapter: AdapterInfo,
     /// The pass widening f16 colour to f32 (`upload`), compiled on first use.
     unpack: OnceLock<wgpu::ComputePipeline>,
+    /// The filters' frames, submitted together where several are ready at once.
+    batcher: submit::Batcher,
 }
 
 impl Gpu {
     /// The pass widening f16 colour to f32, compiled on its first use.
     pub(crate) fn unpack(&self) -> &wgpu::ComputePipeline {
         self.unpack.get_or_init(|| upload::unpack_pipeline(self))
+    }
+
+    /// Submits a frame's `commands`, in one submission with other filters' frames ready at
+    /// the same time ([`submit::Batcher`]).
+    pub(crate) fn submit(&self, commands: wgpu::CommandBuffer) -> wgpu::SubmissionIndex {
+        self.batcher.submit(&self.queue, commands)
     }
 }
 
@@ -151,6 +161,7 @@ fn open() -> Result<Gpu, String> {
         queue,
         adapter,
         unpack: OnceLock::new(),
+        batcher: submit::Batcher::default(),
     })
 }
 
@@ -181,11 +192,15 @@ pub fn create(
     make(shared()?, values, upload)
 }
 
-/// Waits for the device to finish what was submitted; a device error becomes a
-/// [`BackendError::Device`].
-pub(crate) fn wait(gpu: &Gpu) -> Result<(), BackendError> {
+/// Waits for the device to finish `submission` and those before it (`None`: all that was
+/// submitted); a device error becomes a [`BackendError::Device`].
+pub(crate) fn wait(gpu: &Gpu, submission: Option<wgpu::SubmissionIndex>) -> Result<(), BackendError> {
+    let until = wgpu::PollType::Wait {
+        submission_index: submission,
+        timeout: None,
+    };
     gpu.device
-        .poll(wgpu::PollType::wait_indefinitely())
+        .poll(until)
         .map(|_| ())
         .map_err(|e| BackendError::Device(e.to_string()))
 }
@@ -258,6 +273,32 @@ macro_rules! flag_bits {
 }
 pub(crate) use flag_bits;
 
+/// Declares a shader's counters: each name a `usize` index into its counter words, in
+/// order from 0, `COUNTERS` the words (padded to whole 16 bytes), and `$consts()` the WGSL
+/// declarations of all of them ([`wgsl_consts!`]).
+macro_rules! counters {
+    ($consts:ident: $($name:ident),* $(,)?) => {
+        $crate::gpu::counters!(@at 0; $($name),*);
+
+        /// Words of the counters, padded to whole 16 bytes.
+        const COUNTERS: usize = (0usize $(+ $crate::gpu::counters!(@one $name))*).next_multiple_of(4);
+
+        /// `COUNTERS` and the counters' indices as WGSL constants.
+        fn $consts() -> String {
+            $crate::gpu::wgsl_consts![COUNTERS $(, $name)*]
+        }
+    };
+    (@one $name:ident) => {
+        1
+    };
+    (@at $n:expr; $name:ident $(, $rest:ident)*) => {
+        const $name: usize = $n;
+        $crate::gpu::counters!(@at $n + 1; $($rest),*);
+    };
+    (@at $n:expr;) => {};
+}
+pub(crate) use counters;
+
 /// The flags whose condition holds, or'ed together.
 pub(crate) fn flags_of(set: &[(bool, u32)]) -> u32 {
     set.iter()
@@ -295,6 +336,16 @@ fn common_consts() -> String {
         LUMA_B = LUMA_REC709[2],
     ]
 }
+
+/// The history filters' parameters and input planes at bindings 0 and 1, with their
+/// pixel indexing (`frame.wgsl`), appended to those filters' shaders that read the frame.
+const FRAME: &str = include_str!("frame.wgsl");
+/// The working colour of the filters that tonemap HDR input (`working.wgsl`, after
+/// [`FRAME`]).
+const WORKING: &str = include_str!("working.wgsl");
+/// Pixel counts kept per workgroup (`counts.wgsl`), appended to the shaders that count
+/// most of their pixels.
+const COUNTS: &str = include_str!("counts.wgsl");
 /// Velocity dilation and the Catmull-Rom footprint (`reproject.wgsl`), appended by the
 /// filters that reproject a history (`taa`'s resolve, `phlm`).
 const REPROJECT: &str = include_str!("reproject.wgsl");
@@ -360,14 +411,14 @@ pub(crate) fn bind_at(
 /// (no history to count) as run on the GPU with the `device` times.
 pub(crate) fn stateless_output(
     filter: &'static str,
-    frame: &Frame,
+    index: u64,
     rec: Recorder,
     input: InputCounts,
     color: Rgb,
     device: DeviceTimes,
 ) -> Output {
     let counts = (PixelCounts::default(), input, 0);
-    history_output(filter, frame, rec, counts, color, device)
+    history_output(filter, index, rec, counts, color, device)
 }
 
 /// The output of a history filter's frame on the device: `color`, and `rec` finished with
@@ -375,13 +426,13 @@ pub(crate) fn stateless_output(
 /// `device` times.
 pub(crate) fn history_output(
     filter: &'static str,
-    frame: &Frame,
+    index: u64,
     rec: Recorder,
     (pixels, input, state_bytes): (PixelCounts, InputCounts, usize),
     color: Rgb,
     device: DeviceTimes,
 ) -> Output {
-    let mut record = rec.finish(filter, frame.meta.index, pixels, input, state_bytes);
+    let mut record = rec.finish(filter, index, pixels, input, state_bytes);
     record.backend = Backend::Gpu;
     record.device = Some(device);
     Output { color, record }
@@ -489,7 +540,25 @@ macro_rules! history_filter {
         impl $crate::pipeline::Filter for $ty {
             $crate::gpu::device_filter_methods!($kind, |f| &f.params);
 
+            fn push_overlapped(
+                &mut self,
+                frame: &$crate::frame::Frame,
+            ) -> Result<Vec<$crate::pipeline::Output>, $crate::pipeline::FilterError> {
+                let name = <$kind as $crate::pipeline::FilterKind>::NAME;
+                self.push_overlapped(frame)
+                    .map_err(|e| e.into_filter_error(name))
+            }
+
+            fn flush_overlapped(
+                &mut self,
+            ) -> Result<Vec<$crate::pipeline::Output>, $crate::pipeline::FilterError> {
+                let name = <$kind as $crate::pipeline::FilterKind>::NAME;
+                self.flush_overlapped()
+                    .map_err(|e| e.into_filter_error(name))
+            }
+
             fn reset(&mut self) {
+                self.drop_in_flight();
                 self.valid = false;
             }
 
@@ -499,13 +568,19 @@ macro_rules! history_filter {
 
             fn save_state(&self) -> Result<$crate::pipeline::FilterState, $crate::pipeline::StateError> {
                 use $crate::pipeline::StateError;
+                if self.in_flight() {
+                    return Err(StateError::Unsupported {
+                        filter: self.name(),
+                        why: "a frame is in flight (push_overlapped); flush_overlapped first",
+                    });
+                }
                 let mut st = self.empty_history();
                 if let (Some(b), true) = (&self.buffers, self.valid) {
                     let planes = self
                         .download_history()
                         .map_err(|e| StateError::Device(e.to_string()))?;
                     st.buffer
-                        .restore($crate::gpu::history::FrameBuffers::size(b), planes)
+                        .restore($crate::gpu::history::FrameBuffers::io(b).size(), planes)
                         .map_err(StateError::Device)?;
                 }
                 st.set_tonemapped(self.tonemapped);
@@ -518,6 +593,7 @@ macro_rules! history_filter {
             ) -> Result<(), $crate::pipeline::StateError> {
                 let mut st = self.empty_history();
                 st.load(state, self.name(), &self.params())?;
+                self.drop_in_flight();
                 match st.buffer.history_size() {
                     Some((w, h)) => {
                         self.sized(w, h)

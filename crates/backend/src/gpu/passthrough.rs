@@ -2,21 +2,25 @@
 //! round trip's floor: what any GPU filter pays for its upload and readback. With f16
 //! upload the colour comes back widened (`upload`): rounded to f16, not bit for bit.
 
-use super::upload::ColorUpload;
-use super::{stateless_filter, stateless_output, Gpu, Readback, StorageBuffer};
+use super::frame_io::{FrameIo, IoShape};
+use super::timing::FrameClock;
+use super::{stateless_filter, stateless_output, Gpu};
 use crate::filters::passthrough::{Params, Passthrough};
 use crate::frame::Frame;
 use crate::pipeline::{check_needs, prepare, FilterKind, Output, Recorder, UploadPrecision};
 use crate::BackendError;
 use std::sync::Arc;
 
+/// The colour in and out: no parameters, counters or passes.
+const SHAPE: IoShape = IoShape::new("passthrough", 3, 0, 0, (0, 1));
+
 /// `passthrough` through the device.
 #[derive(Debug)]
 pub struct GpuPassthrough {
     gpu: Arc<Gpu>,
     upload: UploadPrecision,
-    /// The colour on the device, its readback and its upload, for the last frame size.
-    buffers: Option<(usize, StorageBuffer, Readback, ColorUpload)>,
+    /// The colour on the device, its upload and its readback, for the last frame size.
+    io: Option<FrameIo>,
     words: Vec<f32>,
 }
 
@@ -26,7 +30,7 @@ impl GpuPassthrough {
         GpuPassthrough {
             gpu,
             upload,
-            buffers: None,
+            io: None,
             words: Vec::new(),
         }
     }
@@ -35,38 +39,26 @@ impl GpuPassthrough {
         check_needs(Passthrough::NAME, Passthrough::needs(), frame)?;
         let mut rec = Recorder::new();
         let inp = prepare(frame, Passthrough::uses(), &mut rec)?;
-        let (w, h) = (inp.width, inp.height);
-        let n = w * h;
-        let mut clock = super::timing::FrameClock::start();
-        if self.buffers.as_ref().map(|b| b.0) != Some(n) {
-            let dev = StorageBuffer::new(&self.gpu, "passthrough colour", 3 * n)?;
-            let upload = ColorUpload::new(&self.gpu, self.upload, &dev, n)?;
-            self.buffers = Some((
-                n,
-                dev,
-                Readback::new(&self.gpu, "passthrough readback", 3 * n),
-                upload,
-            ));
+        let size = (inp.width, inp.height);
+        let mut clock = FrameClock::start();
+        if self.io.as_ref().map(FrameIo::size) != Some(size) {
+            self.io = None;
+            self.io = Some(FrameIo::new(&self.gpu, SHAPE, size, self.upload)?);
         }
-        let (_, dev, back, upload) = self.buffers.as_mut().expect("just made");
-        let bytes = upload.write(&self.gpu, dev, &inp.color);
-        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-        upload.encode(&self.gpu, &mut enc);
-        back.copy_from(&mut enc, &dev.buffer, 0, 3 * n);
-        self.gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        back.read(&self.gpu, 3 * n, &mut self.words)?;
-        clock.back();
-        let color = super::buffers::planes_from(&self.words, w, h)?;
+        let io = self.io.as_mut().expect("just made");
+        let bytes = io.upload.write(&self.gpu, &io.input, &inp.color);
+        let enc = io.encoder(&self.gpu);
+        let colour = io.input.buffer.clone();
+        let back = io.submit_and_read(&self.gpu, enc, (&colour, 0), &mut self.words, &mut clock)?;
         // No shader: the copy is the upload and the readback.
         let device = clock.times(None, self.upload, bytes);
         rec.ran_for("copy", device.upload_ms + device.readback_ms);
         Ok(stateless_output(
             Passthrough::NAME,
-            frame,
+            frame.meta.index,
             rec,
             inp.counts,
-            color,
+            back.color,
             device,
         ))
     }

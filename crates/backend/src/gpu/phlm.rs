@@ -9,76 +9,48 @@
 //! mirrors): the information matrix formed with one rounding per entry and Cholesky pivots
 //! held at or above the prior. The CPU solves in f64.
 
-use super::buffers::{download, params_buffer, planes_from, write_words};
-use super::history::{DeviceHistory, FrameBuffers};
-use super::timing::{self, FrameClock, PassTimer};
-use super::upload::{upload_inputs, ColorUpload};
-use super::INPUT_PLANES;
-use super::{bind, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer, REPROJECT};
+use super::buffers::download;
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
+use super::timing::{self, FrameClock};
+use super::{history_filter, input_consts, pipeline, Gpu, StorageBuffer, INPUT_PLANES};
+use super::{COUNTS, FRAME, REPROJECT, WORKING};
 use crate::filters::passes::{dilate_skip, reproject_skip, TemporalState};
 use crate::filters::phlm::{
     convert_state, from_texels, to_texels, ModelFetch, OnClip, Params, Phlm, TestBox, STATE_PLANES,
 };
-use crate::frame::{Frame, Plane, Rgb};
-use crate::pipeline::{
-    Backend, Filter, FilterKind, FrameRecord, Inputs, ModelHealth, Output, PixelCounts, Recorder, Skip,
-    UploadPrecision,
-};
+use crate::frame::{Frame, Plane};
+use crate::pipeline::{FilterKind, Inputs, ModelHealth, PixelCounts, Recorder, Skip};
 use crate::BackendError;
-use std::sync::Arc;
 
 const SOURCE: &str = include_str!("phlm.wgsl");
 const WORKGROUP: usize = 8;
 
-// Bits of `Params.flags`, declared in phlm.wgsl from these ([`consts`]).
-const FLAG_TONEMAP: u32 = 1;
-const FLAG_REPROJECT: u32 = 2;
-const FLAG_HISTORY: u32 = 4;
-const FLAG_MOTION: u32 = 8;
-const FLAG_INVALID: u32 = 16;
-const FLAG_NEAREST: u32 = 32;
-const FLAG_VARIANCE_BOX: u32 = 64;
-const FLAG_SHIFT: u32 = 128;
-const FLAG_DILATE: u32 = 256;
-const FLAG_CATMULL_ROM: u32 = 512;
-const FLAG_DEPTH: u32 = 1024;
+// Bits of `Params.flags`, declared in phlm.wgsl ([`consts`]).
+super::flag_bits! {
+    flag_consts: FLAG_TONEMAP, FLAG_REPROJECT, FLAG_HISTORY, FLAG_MOTION, FLAG_INVALID, FLAG_NEAREST,
+    FLAG_VARIANCE_BOX, FLAG_SHIFT, FLAG_DILATE, FLAG_CATMULL_ROM, FLAG_DEPTH
+}
 
-/// Words of the counters: reset, clipped, off screen, repaired, the largest trace(P) as
-/// bits (the `C_` indices); padded.
-const COUNTERS: usize = 8;
-const C_RESET: usize = 0;
-const C_CLIPPED: usize = 1;
-const C_OFFSCREEN: usize = 2;
-const C_REPAIRED: usize = 3;
-const C_TRACE: usize = 4;
+// The counters: models reset, clipped, reset off screen, P repaired, the largest trace(P)
+// (as bits).
+super::counters! { counter_consts: C_RESET, C_CLIPPED, C_OFFSCREEN, C_REPAIRED, C_TRACE }
 
 /// What phlm.wgsl takes from Rust: the input planes ([`input_consts`]), the flag bits and
 /// counters above, the workgroup's side, and the CPU filter's constants it mirrors.
 fn consts() -> String {
     use crate::filters::phlm::{feature, DEPTH_JUMP_SPEED, STRIKE_DECAY};
     input_consts()
+        + &flag_consts()
+        + &counter_consts()
+        // The largest trace(P) keeps its bits' maximum (non-negative floats order as their
+        // bits): the counts from C_TRACE on are not summed.
         + &super::wgsl_consts![
-            FLAG_TONEMAP,
-            FLAG_REPROJECT,
-            FLAG_HISTORY,
-            FLAG_MOTION,
-            FLAG_INVALID,
-            FLAG_NEAREST,
-            FLAG_VARIANCE_BOX,
-            FLAG_SHIFT,
-            FLAG_DILATE,
-            FLAG_CATMULL_ROM,
-            FLAG_DEPTH,
-            COUNTERS,
-            C_RESET,
-            C_CLIPPED,
-            C_OFFSCREEN,
-            C_REPAIRED,
-            C_TRACE,
             WORKGROUP,
+            SUMMED = C_TRACE,
             FEATURE_EPS = feature::EPS,
             STRIKE_DECAY,
-            DEPTH_JUMP_SPEED,
+            DEPTH_JUMP_SPEED
         ]
 }
 
@@ -98,6 +70,13 @@ const PARTS: [(&str, usize); 3] = [
 // The parts are the whole state, in its order.
 const _: () = assert!(PARTS[0].1 + PARTS[1].1 + PARTS[2].1 == STATE_PLANES);
 
+super::frame_io::bindings! {
+    /// phlm.wgsl's buffers after `P` and `inp`: the previous models' parts ([`PARTS`]), the
+    /// next models' parts, the colour and the counters.
+    BINDINGS: beta: Read, info: Read, feat: Read, next_beta: Write, next_info: Write, next_feat: Write,
+        out: Write, counters: Counters
+}
+
 /// Words of the shader's `Params` (`phlm.wgsl`: 21 four-byte fields, in
 /// [`GpuPhlm::param_words`]'s order).
 const PARAM_WORDS: usize = 21;
@@ -105,102 +84,68 @@ const PARAM_WORDS: usize = 21;
 /// Device buffers for one frame size, and the two bind groups that alternate the state.
 #[derive(Debug)]
 pub(crate) struct Buffers {
-    width: usize,
-    height: usize,
-    params: wgpu::Buffer,
-    input: StorageBuffer,
-    /// The colour's way into `input`.
-    upload: ColorUpload,
+    io: FrameIo,
     /// The models, in [`PARTS`]: `state[read]` is the previous frame's, the other is
     /// written.
     state: [[StorageBuffer; 3]; 2],
     out: StorageBuffer,
-    counters: wgpu::Buffer,
     /// `bound[k]` reads `state[k]` and writes `state[1 - k]`.
     bound: [wgpu::BindGroup; 2],
-    /// The pass's timestamps, where the device has them.
-    timer: Option<PassTimer>,
-    /// The colour (3 planes), the counters, then the timestamps.
-    back: Readback,
-}
-
-impl Buffers {
-    fn new(
-        gpu: &Gpu,
-        pass: &wgpu::ComputePipeline,
-        width: usize,
-        height: usize,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let n = width * height;
-        let params = params_buffer(gpu, "phlm params", &[0; PARAM_WORDS]);
-        let input = StorageBuffer::new(gpu, "phlm input", INPUT_PLANES * n)?;
-        let upload = ColorUpload::new(gpu, upload, &input, n)?;
-        let models = || -> Result<[StorageBuffer; 3], BackendError> {
-            let [a, b, c] = PARTS.map(|(label, planes)| StorageBuffer::new(gpu, label, planes * n));
-            Ok([a?, b?, c?])
-        };
-        let state = [models()?, models()?];
-        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n)?;
-        let counters = StorageBuffer::new(gpu, "phlm counters", COUNTERS)?.buffer;
-        let bound = [0, 1].map(|k| {
-            let (from, to) = (&state[k], &state[1 - k]);
-            bind(
-                gpu,
-                pass,
-                &[
-                    &params,
-                    &input.buffer,
-                    &from[0].buffer,
-                    &from[1].buffer,
-                    &from[2].buffer,
-                    &to[0].buffer,
-                    &to[1].buffer,
-                    &to[2].buffer,
-                    &out.buffer,
-                    &counters,
-                ],
-            )
-        });
-        let timer = PassTimer::new(gpu, 1);
-        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        Ok(Buffers {
-            width,
-            height,
-            params,
-            input,
-            upload,
-            state,
-            out,
-            counters,
-            bound,
-            timer,
-            back: Readback::new(gpu, "phlm readback", 3 * n + COUNTERS + timer_words),
-        })
-    }
 }
 
 /// `phlm` with its models on the device (its passes: the one compiled pass).
 pub(crate) type GpuPhlm = DeviceHistory<Params, wgpu::ComputePipeline, Buffers>;
 
 impl FrameBuffers<Params, wgpu::ComputePipeline> for Buffers {
-    fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    /// What `phlm` keeps for a frame: its inputs, parameters, counters and its one pass.
+    const SHAPE: IoShape = IoShape::new("phlm", INPUT_PLANES, PARAM_WORDS, COUNTERS, (1, WORKGROUP));
+
+    fn io(&self) -> &FrameIo {
+        &self.io
     }
 
-    fn make(f: &GpuPhlm, (width, height): (usize, usize)) -> Result<Self, BackendError> {
-        Buffers::new(&f.gpu, &f.passes, width, height, f.upload)
+    fn compile(gpu: &Gpu) -> wgpu::ComputePipeline {
+        pipeline(
+            gpu,
+            "phlm",
+            &consts(),
+            &format!(
+                "{}{SOURCE}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+                BINDINGS.wgsl()
+            ),
+            "resolve",
+        )
+    }
+
+    fn make(f: &GpuPhlm, io: FrameIo) -> Result<Self, BackendError> {
+        let (gpu, (width, height)) = (&*f.gpu, io.size());
+        let n = width * height;
+        let pass = &f.passes;
+        let models = || -> Result<[StorageBuffer; 3], BackendError> {
+            let [a, b, c] = PARTS.map(|(label, planes)| StorageBuffer::new(gpu, label, planes * n));
+            Ok([a?, b?, c?])
+        };
+        let state = [models()?, models()?];
+        let out = StorageBuffer::new(gpu, "phlm colour", 3 * n)?;
+        let bound = [0, 1].map(|k| {
+            let names = [["beta", "info", "feat"], ["next_beta", "next_info", "next_feat"]];
+            let models = [&state[k], &state[1 - k]].into_iter().zip(names);
+            let buffers: Vec<_> = models
+                .flat_map(|(parts, names)| names.into_iter().zip(parts.iter().map(|b| &b.buffer)))
+                .collect();
+            let ends = [("out", &out.buffer), ("counters", &io.counters)];
+            BINDINGS.group(gpu, pass, &io, &[&buffers[..], &ends].concat())
+        });
+        Ok(Buffers {
+            io,
+            state,
+            out,
+            bound,
+        })
     }
 }
 
 impl GpuPhlm {
-    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
-    /// precision.
-    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        let pass = pipeline(&gpu, "phlm", &consts(), &format!("{SOURCE}\n{REPROJECT}"), "phlm");
-        DeviceHistory::with(gpu, params, upload, pass)
-    }
-
     /// The shader's `Params` words for settings `p` (the effective ones).
     fn param_words(p: &Params, width: usize, height: usize, flags: u32, hi: f32) -> [u32; PARAM_WORDS] {
         [
@@ -232,7 +177,7 @@ impl GpuPhlm {
     /// layout).
     fn download(&self) -> Result<Vec<Plane<f32>>, BackendError> {
         let b = self.buffers.as_ref().expect("sized");
-        let (w, h) = (b.width, b.height);
+        let (w, h) = b.io.size();
         let n = w * h;
         let parts: Vec<&StorageBuffer> = b.state[self.read].iter().collect();
         let words = download(&self.gpu, "phlm model readback", &parts)?;
@@ -247,7 +192,7 @@ impl GpuPhlm {
     /// Writes [`STATE_PLANES`] model planes as the previous frame's.
     fn upload(&self, planes: &[Plane<f32>]) {
         let b = self.buffers.as_ref().expect("sized");
-        let n = b.width * b.height;
+        let n = b.io.size().0 * b.io.size().1;
         let mut k = 0;
         for (part, (_, count)) in b.state[self.read].iter().zip(PARTS) {
             for j in 0..count {
@@ -344,17 +289,8 @@ impl FramePlan {
     }
 }
 
-/// What the device gives back for a frame.
-struct FrameBack {
-    color: Rgb,
-    /// The counters (C_ constants of phlm.wgsl).
-    counters: Vec<u32>,
-    /// The pass's time from its timestamps, where the device has them.
-    shaders_ms: Option<f64>,
-}
-
-impl GpuPhlm {
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+impl StartFrame for GpuPhlm {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
         let mut rec = Recorder::new();
         let recon = self.params.effective().reconstruction();
         let mut inp = self.prepared::<Phlm>(frame, recon, &mut rec)?;
@@ -371,37 +307,43 @@ impl GpuPhlm {
         }
         let p = &self.params.effective();
         let plan = FramePlan::new(p, &inp, has_history);
-        let hi = self
-            .buffers
-            .as_ref()
-            .expect("sized")
-            .upload
-            .output_ceiling(&inp.facts);
+        let hi = self.io().upload.output_ceiling(&inp.facts);
         let words = Self::param_words(p, w, h, plan.flags, hi);
         let bytes = self.upload_frame(frame, &mut inp, &words);
-        let back = self.dispatch(w, h, &mut clock)?;
-        let device = clock.times(back.shaders_ms, self.upload, bytes);
-        // Without timestamps, the stages share the frame's round trip.
-        plan.record(
-            &mut rec,
-            back.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
-        );
-
-        self.read = 1 - self.read;
-        self.valid = true;
-        self.tonemapped = hdr;
-        let mut record = self.frame_record(rec, frame, &inp, &back.counters);
-        record.device = Some(device);
-        Ok(Output {
-            color: back.color,
-            record,
-        })
+        let submitted = self.dispatch(&mut clock);
+        let (index, input) = (frame.meta.index, inp.counts);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let device = clock.times(back.shaders_ms(), f.upload, bytes);
+            // Without timestamps, the stages share the frame's round trip.
+            plan.record(
+                &mut rec,
+                back.shaders_ms().unwrap_or(device.upload_ms + device.readback_ms),
+            );
+            let c = &back.counters;
+            let pixels = PixelCounts {
+                history_reset: c[C_RESET] as u64,
+                history_clipped: c[C_CLIPPED] as u64,
+                history_rejected: 0,
+            };
+            let n = (w * h) as f64;
+            let model = ModelHealth {
+                reset_by_clip: c[C_CLIPPED] as f64 / n,
+                reset_by_disocclusion: c[C_OFFSCREEN] as f64 / n,
+                max_trace_p: f32::from_bits(c[C_TRACE]) as f64,
+                p_repaired: c[C_REPAIRED] as u64,
+            };
+            let mut out = f.output(Phlm::NAME, index, rec, (pixels, input), device, back.color);
+            out.record.model = Some(model);
+            Ok(out)
+        };
+        Ok(self.submitted(submitted, clock, (true, hdr), Box::new(finish)))
     }
+}
 
+impl GpuPhlm {
     /// Uploads the shader's parameter `words`, the colour (as f32 or f16; planes of the
     /// host's own go back to the scratch), then motion, depth (for the dilation and the
-    /// models' depth) and the invalid mask as f32, and clears the counters. Returns the
-    /// bytes written.
+    /// models' depth) and the invalid mask as f32. Returns the bytes written.
     fn upload_frame<'f>(
         &mut self,
         frame: &'f Frame,
@@ -411,75 +353,20 @@ impl GpuPhlm {
         let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
         let motion = inp.motion.is_some();
-        let mut bytes = write_words(gpu, &b.params, words);
-        let scratch = &mut self.scratch;
-        bytes += upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, true);
-        bytes + write_words(gpu, &b.counters, &[0; COUNTERS])
+        let bytes = b.io.write_params(gpu, words);
+        bytes
+            + b.io
+                .write_inputs(gpu, frame, inp, &mut self.scratch, (motion, true))
     }
 
-    /// Runs the pass over the uploaded frame (after the colour's unpacking) and reads back
-    /// the colour, the counters and the timestamps, marking `clock` at the submission and
-    /// the readback.
-    fn dispatch(&mut self, w: usize, h: usize, clock: &mut FrameClock) -> Result<FrameBack, BackendError> {
-        let n = w * h;
+    /// Runs the pass over the uploaded frame (after the colour's unpacking) and submits it
+    /// with the copies of the colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        b.upload.encode(gpu, &mut enc);
-        {
-            let (gx, gy) = groups(w, h, WORKGROUP);
-            let mut pass = timing::begin(&mut enc, b.timer.as_ref(), 0);
-            pass.set_pipeline(&self.passes);
-            pass.set_bind_group(0, &b.bound[self.read], &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        b.back.copy_from(&mut enc, &b.out.buffer, 0, 3 * n);
-        enc.copy_buffer_to_buffer(
-            &b.counters,
-            0,
-            b.back.buffer(),
-            (3 * n * 4) as u64,
-            (COUNTERS * 4) as u64,
-        );
-        let timer_at = 3 * n + COUNTERS;
-        if let Some(timer) = &b.timer {
-            timer.resolve(&mut enc, 1, &b.back, timer_at);
-        }
-        gpu.queue.submit([enc.finish()]);
-        clock.submitted();
-        let words = timer_at + b.timer.as_ref().map_or(0, PassTimer::words);
-        b.back.read(gpu, words, &mut self.words)?;
-        clock.back();
-        Ok(FrameBack {
-            color: planes_from(&self.words, w, h)?,
-            counters: self.words[3 * n..timer_at].iter().map(|v| v.to_bits()).collect(),
-            shaders_ms: b.timer.as_ref().map(|t| t.pass_ms(&self.words[timer_at..], 1)[0]),
-        })
-    }
-
-    /// The frame's record, with its pixel counts and model health from the `counters` (its
-    /// device times still to add).
-    fn frame_record(&self, rec: Recorder, frame: &Frame, inp: &Inputs, c: &[u32]) -> FrameRecord {
-        let n = (inp.width * inp.height) as f64;
-        let pixels = PixelCounts {
-            history_reset: c[C_RESET] as u64,
-            history_clipped: c[C_CLIPPED] as u64,
-            history_rejected: 0,
-        };
-        let mut record = rec.finish(
-            Phlm::NAME,
-            frame.meta.index,
-            pixels,
-            inp.counts,
-            self.state_bytes(),
-        );
-        record.backend = Backend::Gpu;
-        record.model = Some(ModelHealth {
-            reset_by_clip: c[C_CLIPPED] as f64 / n,
-            reset_by_disocclusion: c[C_OFFSCREEN] as f64 / n,
-            max_trace_p: f32::from_bits(c[C_TRACE]) as f64,
-            p_repaired: c[C_REPAIRED] as u64,
-        });
-        record
+        let b = self.buffers.as_mut().expect("sized");
+        let mut enc = b.io.encoder(gpu);
+        let pass = (true, &self.passes, &b.bound[self.read], b.io.groups());
+        let used = b.io.encode_passes(&mut enc, &[pass]);
+        b.io.submit(gpu, enc, &b.out.buffer, used, clock)
     }
 }

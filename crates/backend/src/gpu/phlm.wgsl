@@ -48,19 +48,11 @@ struct Params {
     depth_jump: f32,
 }
 
-@group(0) @binding(0) var<storage, read> P: Params;
-@group(0) @binding(1) var<storage, read> inp: array<f32>;
-// The previous models and the next, each in three parts (beta, R, z with the count of failed
-// box tests and the speed), so that no buffer is past the 128 MiB a shader's buffer may have on many
-// devices at 1080p.
-@group(0) @binding(2) var<storage, read> beta: array<f32>;
-@group(0) @binding(3) var<storage, read> info: array<f32>;
-@group(0) @binding(4) var<storage, read> feat: array<f32>;
-@group(0) @binding(5) var<storage, read_write> next_beta: array<f32>;
-@group(0) @binding(6) var<storage, read_write> next_info: array<f32>;
-@group(0) @binding(7) var<storage, read_write> next_feat: array<f32>;
-@group(0) @binding(8) var<storage, read_write> out: array<f32>;
-@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
+// Declared from Rust (`gpu::phlm::BINDINGS`), after frame.wgsl's `P` and `inp`: the previous
+// models (`beta`, `info`, `feat`) and the next (`next_beta`, `next_info`, `next_feat`), each
+// in three parts (beta, R, z with the count of failed box tests and the speed) so that no
+// buffer is past the 128 MiB a shader's buffer may have on many devices at 1080p; `out`
+// and `counters`.
 
 // Declared before this file from Rust (`gpu::phlm::consts`): the FLAG_ bits of `P.flags`
 // (FLAG_DEPTH: the frame has depth, uploaded and kept with the models,
@@ -73,37 +65,6 @@ struct Params {
 const BETA: u32 = 0u;
 const R: u32 = 1u;
 const Z: u32 = 2u;
-
-var<workgroup> wg_counts: array<atomic<u32>, C_TRACE + 1u>;
-
-fn has(f: u32) -> bool {
-    return (P.flags & f) != 0u;
-}
-
-fn plane_len() -> u32 {
-    return P.width * P.height;
-}
-
-fn input_color(i: u32) -> vec3<f32> {
-    let n = plane_len();
-    return vec3<f32>(inp[i], inp[n + i], inp[2u * n + i]);
-}
-
-// The working colour (tonemapped for HDR input; passes::to_working).
-fn working(i: u32) -> vec3<f32> {
-    let c = input_color(i);
-    if has(FLAG_TONEMAP) {
-        return tonemap(c);
-    }
-    return c;
-}
-
-// The working colour in YCoCg at (x, y) clamped to the image (passes::to_ycocg).
-fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
-    let cx = u32(clamp(x, 0, i32(P.width) - 1));
-    let cy = u32(clamp(y, 0, i32(P.height) - 1));
-    return rgb_to_ycocg(working(cy * P.width + cx));
-}
 
 // Where a previous position's state is read (phlm::fetch): the nearest pixel (all four
 // taps on it, weights 0), or kernels::bilinear's footprint.
@@ -458,26 +419,6 @@ fn column(x: i32, y: i32) -> Column {
     return Column(min(min(u, v), t), max(max(u, v), t), u + v + t, u * u + v * v + t * t, v);
 }
 
-@compute @workgroup_size(WORKGROUP, WORKGROUP)
-fn phlm(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    if li <= C_TRACE {
-        atomicStore(&wg_counts[li], 0u);
-    }
-    workgroupBarrier();
-    if gid.x < P.width && gid.y < P.height {
-        phlm_pixel(gid.x, gid.y);
-    }
-    workgroupBarrier();
-    if li < C_TRACE {
-        let c = atomicLoad(&wg_counts[li]);
-        if c != 0u {
-            atomicAdd(&counters[li], c);
-        }
-    } else if li == C_TRACE {
-        atomicMax(&counters[C_TRACE], atomicLoad(&wg_counts[C_TRACE]));
-    }
-}
-
 // Planes k .. k + 3 of beta (part BETA) or R of the next models at pixel i.
 fn store4(part: u32, k: u32, i: u32, v: vec4<f32>) {
     let n = plane_len();
@@ -494,7 +435,7 @@ fn store4(part: u32, k: u32, i: u32, v: vec4<f32>) {
     }
 }
 
-fn phlm_pixel(x: u32, y: u32) {
+fn resolve_pixel(x: u32, y: u32) {
     let n = plane_len();
     let i = y * P.width + x;
     let input = working(i);

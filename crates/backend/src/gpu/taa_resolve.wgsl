@@ -1,38 +1,6 @@
-// `taa`: the resolve pass (see taa.wgsl, which precedes this file).
-
-@group(0) @binding(0) var<storage, read> P: Params;
-@group(0) @binding(1) var<storage, read> inp: array<f32>;
-@group(0) @binding(2) var<storage, read> hist: array<f32>;
-@group(0) @binding(3) var<storage, read_write> next: array<f32>;
-@group(0) @binding(4) var<storage, read_write> out: array<f32>;
-@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
-
-var<workgroup> wg_counts: array<atomic<u32>, COUNTERS>;
-
-fn has(f: u32) -> bool {
-    return (P.flags & f) != 0u;
-}
-
-fn plane_len() -> u32 {
-    return P.width * P.height;
-}
-
-fn input_color(i: u32) -> vec3<f32> {
-    let n = plane_len();
-    return vec3<f32>(inp[IN_R * n + i], inp[(IN_R + 1u) * n + i], inp[(IN_R + 2u) * n + i]);
-}
-
-// The working colour (tonemapped for HDR input) in YCoCg, at pixel (x, y) clamped to the
-// image (passes::to_working, passes::to_ycocg).
-fn working_ycocg(x: i32, y: i32) -> vec3<f32> {
-    let cx = u32(clamp(x, 0, i32(P.width) - 1));
-    let cy = u32(clamp(y, 0, i32(P.height) - 1));
-    var c = input_color(cy * P.width + cx);
-    if has(FLAG_TONEMAP) {
-        c = tonemap(c);
-    }
-    return rgb_to_ycocg(c);
-}
+// `taa`: the resolve pass (see taa.wgsl, which precedes this file). Its buffers (`hist`,
+// `next`, `out`, `counters`) are declared from Rust (`gpu::taa::RESOLVE`), after frame.wgsl's
+// `P` and `inp`.
 
 fn texel_at(i: u32) -> vec4<f32> {
     let k = 4u * i;
@@ -74,26 +42,6 @@ fn catmull_rom_texel(px: f32, py: f32) -> vec4<f32> {
         acc += f.wy[j] * row;
     }
     return vec4<f32>(acc, bilinear_texel(px, py).w);
-}
-
-@compute @workgroup_size(WORKGROUP, WORKGROUP)
-fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    if li < COUNTERS {
-        atomicStore(&wg_counts[li], 0u);
-    }
-    workgroupBarrier();
-    let x = gid.x;
-    let y = gid.y;
-    if x < P.width && y < P.height {
-        resolve_pixel(x, y);
-    }
-    workgroupBarrier();
-    if li <= C_REJECTED {
-        let c = atomicLoad(&wg_counts[li]);
-        if c != 0u {
-            atomicAdd(&counters[li], c);
-        }
-    }
 }
 
 fn resolve_pixel(x: u32, y: u32) {

@@ -550,6 +550,85 @@ fn states_move_between_backends() {
     assert_eq!(gpu.save_state().unwrap(), before);
 }
 
+/// Frames pushed overlapped (`push_overlapped`: a frame started before the one before it is
+/// read back) give every frame's output, in order, bit for bit as one by one (`process`),
+/// with the same record but for its times: across a cut to another size, with a state
+/// refused while a frame is in flight and saved after a flush, and a flush at the end.
+#[test]
+fn overlapped_frames_give_the_outputs_of_frames_one_by_one() {
+    let sized = |width, height| {
+        let s = Settings {
+            width,
+            height,
+            frames: 6,
+            spp: 1,
+            jitter: Jitter::Halton(8),
+            noise: false,
+            seed: 5,
+            shading: 1,
+        };
+        let scene = Scene::new("flyover", s).unwrap();
+        (0..s.frames).map(|i| scene.frame(i)).collect::<Vec<_>>()
+    };
+    let mut frames = sized(48, 27);
+    let mut cut = sized(17, 11);
+    cut[0].meta.reset = true;
+    frames.extend(cut);
+    for (name, set) in [
+        ("taa", &[][..]),
+        ("traa", &[][..]),
+        ("phlm", &[][..]),
+        ("upsample", &[][..]),
+        ("upsample", &["method=spatial"][..]),
+    ] {
+        let what = format!("{name} {set:?}");
+        let mut one = make(name, set, BackendChoice::Gpu);
+        let want: Vec<Output> = frames.iter().map(|f| one.process(f).unwrap()).collect();
+        let mut saved_one = make(name, set, BackendChoice::Gpu);
+        for f in &frames[..3] {
+            saved_one.process(f).unwrap();
+        }
+        let mut over = make(name, set, BackendChoice::Gpu);
+        let mut got = Vec::new();
+        for (i, f) in frames.iter().enumerate() {
+            let outs = over.push_overlapped(f).unwrap();
+            // One call late: none for the first frame and the first after the flush.
+            let expected = usize::from(i != 0 && i != 3);
+            assert_eq!(outs.len(), expected, "{what}: outputs after frame {i}");
+            got.extend(outs);
+            if i == 2 {
+                assert!(
+                    over.save_state().is_err(),
+                    "{what}: state saved with a frame in flight"
+                );
+                got.extend(over.flush_overlapped().unwrap());
+                assert_eq!(
+                    over.save_state().unwrap(),
+                    saved_one.save_state().unwrap(),
+                    "{what}: state after a flush"
+                );
+            }
+        }
+        got.extend(over.flush_overlapped().unwrap());
+        assert!(
+            over.flush_overlapped().unwrap().is_empty(),
+            "{what}: a second flush"
+        );
+        assert_eq!(got.len(), want.len(), "{what}: outputs");
+        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                g.record.without_timings(),
+                w.record.without_timings(),
+                "{what}: frame {k}'s record"
+            );
+            for c in 0..3 {
+                let bits = |o: &Output| o.color[c].data().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert!(bits(g) == bits(w), "{what}: frame {k} channel {c} differs");
+            }
+        }
+    }
+}
+
 /// Size changes follow the CPU rule: refused mid-stream, accepted on a reset frame or
 /// after `reset`.
 #[test]

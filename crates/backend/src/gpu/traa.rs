@@ -8,20 +8,19 @@
 //! Passes: `sobel` and `sobel_history` (improved only: the resolve's aliased value reads
 //! the Sobel history's 3x3, which reads the raw Sobel's 3x3), `resolve`, and `sharpen`.
 
-use super::buffers::{params_buffer, submit_and_read, write_words, FrameBack, TexelHistory};
-use super::history::{DeviceHistory, FrameBuffers};
-use super::timing::{self, FrameClock, PassTimer};
-use super::upload::{upload_inputs, ColorUpload};
-use super::{bind, bind_at, groups, history_filter, input_consts, pipeline, Gpu, Readback, StorageBuffer};
-use super::{INPUT_PLANES, REPROJECT};
+use super::buffers::{write_words, TexelHistory};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
+use super::timing::{self, FrameClock};
+use super::{bind, history_filter, input_consts, pipeline, Gpu, StorageBuffer};
+use super::{COUNTS, FRAME, INPUT_PLANES, REPROJECT, WORKING};
 use crate::filters::traa::{
     Params, StagePlan, Traa, Variant, DEPTH_DISTANCE_MIN, FEEDBACK_LUMA_FLOOR, SOBEL_LIT_WEIGHT,
     SOBEL_UNLIT_WEIGHT,
 };
 use crate::frame::Frame;
-use crate::pipeline::{Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision};
+use crate::pipeline::{FilterKind, Inputs, PixelCounts, Recorder};
 use crate::BackendError;
-use std::sync::Arc;
 
 const SHARED: &str = include_str!("traa.wgsl");
 const WORKGROUP: usize = 8;
@@ -32,25 +31,27 @@ super::flag_bits! {
     FLAG_DEPTH, FLAG_MODEL, FLAG_INVALID, FLAG_SHARPEN
 }
 
-/// Words of the counters: reset, clipped (the `C_` indices); padded.
-const COUNTERS: usize = 4;
-const C_RESET: usize = 0;
-const C_CLIPPED: usize = 1;
+// The counters: pixels whose history was reset, clipped.
+super::counters! { counter_consts: C_RESET, C_CLIPPED }
+
 /// The Sobel history's channel of an improved texel [r, g, b, sobel].
 const SOBEL_TEXEL: usize = 3;
+super::frame_io::bindings! {
+    /// The buffers of traa_resolve.wgsl's passes after `P` and `inp`.
+    STAGES: albedo: Read, ids: Ids, hist: Read, next: Write, raw: Write, stable: Write,
+        out: Write, counters: Counters
+}
+
 /// Words of the shaders' `Params` (`traa.wgsl`, in [`GpuTraa::param_words`]'s order).
 const PARAM_WORDS: usize = 9;
-/// Passes of a frame at most: sobel, sobel_history, resolve, sharpen.
-const PASSES: u32 = 4;
 
 /// What traa's shaders take from Rust: the input planes ([`input_consts`]), the flag bits
 /// and counters above, the workgroup size, and the CPU filter's constants.
 fn consts() -> String {
     let ours = super::wgsl_consts! {
-        COUNTERS, C_RESET, C_CLIPPED, SOBEL_TEXEL, WORKGROUP,
-        FEEDBACK_LUMA_FLOOR, SOBEL_UNLIT_WEIGHT, SOBEL_LIT_WEIGHT, DEPTH_DISTANCE_MIN
+        SOBEL_TEXEL, WORKGROUP, SUMMED = COUNTERS, FEEDBACK_LUMA_FLOOR, SOBEL_UNLIT_WEIGHT, SOBEL_LIT_WEIGHT, DEPTH_DISTANCE_MIN
     };
-    input_consts() + &flag_consts() + &ours
+    input_consts() + &flag_consts() + &counter_consts() + &ours
 }
 
 /// The compiled passes.
@@ -62,40 +63,15 @@ pub(crate) struct Passes {
     sharpen: wgpu::ComputePipeline,
 }
 
-impl Passes {
-    fn new(gpu: &Gpu) -> Self {
-        let consts = consts();
-        let stages = format!("{SHARED}\n{}\n{REPROJECT}", include_str!("traa_resolve.wgsl"));
-        let sharpen = format!("{SHARED}\n{}", include_str!("taa_sharpen.wgsl"));
-        let make = |label: &str, source: &str, entry: &str| pipeline(gpu, label, &consts, source, entry);
-        Passes {
-            sobel: make("traa sobel", &stages, "sobel"),
-            sobel_history: make("traa sobel history", &stages, "sobel_history"),
-            resolve: make("traa resolve", &stages, "resolve"),
-            sharpen: make("traa sharpen", &sharpen, "sharpen"),
-        }
-    }
-}
-
 /// What `traa` keeps on the device for one frame size.
 #[derive(Debug)]
 pub(crate) struct Buffers {
-    width: usize,
-    height: usize,
-    /// The readback of the colour (3 planes), the counters, then the passes' timestamps
-    /// (where the device has them).
-    back: Readback,
-    timer: Option<PassTimer>,
-    params: wgpu::Buffer,
-    input: StorageBuffer,
-    /// The colour's way into `input`.
-    upload: ColorUpload,
+    io: FrameIo,
     /// Albedo (3 planes) and object ids (improved; a word each in baseline).
     albedo: StorageBuffer,
     ids: StorageBuffer,
     /// The history: `hist.buffer(read)` is the previous frame's, the other is written.
     hist: TexelHistory,
-    counters: wgpu::Buffer,
     /// The resolved colour (working space when a sharpen follows), then the sharpened one.
     out: [StorageBuffer; 2],
     groups: Groups,
@@ -114,64 +90,6 @@ struct Groups {
     sharpen: wgpu::BindGroup,
 }
 
-impl Buffers {
-    fn new(
-        gpu: &Gpu,
-        passes: &Passes,
-        (width, height): (usize, usize),
-        improved: bool,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let n = width * height;
-        // The improved variant's own planes; baseline binds a word for each.
-        let g = if improved { n } else { 1 };
-        let params = params_buffer(gpu, "traa params", &[0; PARAM_WORDS]);
-        let input = StorageBuffer::new(gpu, "traa input", INPUT_PLANES * n)?;
-        let albedo = StorageBuffer::new(gpu, "traa albedo", 3 * g)?;
-        let ids = StorageBuffer::new(gpu, "traa object ids", g)?;
-        let raw = StorageBuffer::new(gpu, "traa sobel", g)?;
-        let stable = StorageBuffer::new(gpu, "traa sobel history", g)?;
-        let hist = TexelHistory::new(gpu, "traa history", (width, height), texel(improved), improved)?;
-        let colour = || StorageBuffer::new(gpu, "traa colour", 3 * n);
-        let out = [colour()?, colour()?];
-        let counters = StorageBuffer::new(gpu, "traa counters", COUNTERS)?.buffer;
-        // The bindings of traa_resolve.wgsl.
-        let (p, i, s) = ((0, &params), (1, &input.buffer), (7, &stable.buffer));
-        let at = |k: usize| [(4, hist.buffer(k)), (5, hist.buffer(1 - k))];
-        let stages = |pass, k: usize| {
-            let [h, next] = at(k);
-            let extra = [(3, &ids.buffer), next, (8, &out[0].buffer), (9, &counters)];
-            match pass {
-                0 => bind_at(gpu, &passes.sobel_history, &[p, i, h, (6, &raw.buffer), s]),
-                _ => bind_at(gpu, &passes.resolve, &[&[p, i, h, s][..], &extra].concat()),
-            }
-        };
-        let groups = Groups {
-            sobel: bind_at(gpu, &passes.sobel, &[p, i, (2, &albedo.buffer), (6, &raw.buffer)]),
-            sobel_history: [0, 1].map(|k| stages(0, k)),
-            resolve: [0, 1].map(|k| stages(1, k)),
-            sharpen: bind(gpu, &passes.sharpen, &[&params, &out[0].buffer, &out[1].buffer]),
-        };
-        let timer = PassTimer::new(gpu, PASSES);
-        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        Ok(Buffers {
-            width,
-            height,
-            back: Readback::new(gpu, "traa readback", 3 * n + COUNTERS + timer_words),
-            timer,
-            upload: ColorUpload::new(gpu, upload, &input, n)?,
-            params,
-            input,
-            albedo,
-            ids,
-            hist,
-            counters,
-            out,
-            groups,
-        })
-    }
-}
-
 /// Channels of a history texel: r, g, b, and the Sobel history when improved.
 fn texel(improved: bool) -> usize {
     if improved {
@@ -185,24 +103,79 @@ fn texel(improved: bool) -> usize {
 pub(crate) type GpuTraa = DeviceHistory<Params, Passes, Buffers>;
 
 impl FrameBuffers<Params, Passes> for Buffers {
-    fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    /// What `traa` keeps for a frame: its inputs, parameters, counters, and passes sobel,
+    /// sobel_history, resolve and sharpen.
+    const SHAPE: IoShape = IoShape::new("traa", INPUT_PLANES, PARAM_WORDS, COUNTERS, (4, WORKGROUP));
+
+    fn io(&self) -> &FrameIo {
+        &self.io
     }
 
-    fn make(f: &GpuTraa, size: (usize, usize)) -> Result<Self, BackendError> {
-        let improved = f.params.variant == Variant::Improved;
-        Buffers::new(&f.gpu, &f.passes, size, improved, f.upload)
+    fn compile(gpu: &Gpu) -> Passes {
+        let consts = consts();
+        let resolve = include_str!("traa_resolve.wgsl");
+        let stages = format!(
+            "{SHARED}\n{}{resolve}\n{FRAME}\n{WORKING}\n{COUNTS}\n{REPROJECT}",
+            STAGES.wgsl()
+        );
+        let sharpen = format!("{SHARED}\n{}", include_str!("taa_sharpen.wgsl"));
+        let make = |label: &str, source: &str, entry: &str| pipeline(gpu, label, &consts, source, entry);
+        Passes {
+            sobel: make("traa sobel", &stages, "sobel"),
+            sobel_history: make("traa sobel history", &stages, "sobel_history"),
+            resolve: make("traa resolve", &stages, "resolve"),
+            sharpen: make("traa sharpen", &sharpen, "sharpen"),
+        }
+    }
+
+    fn make(f: &GpuTraa, io: FrameIo) -> Result<Self, BackendError> {
+        let (gpu, (width, height)) = (&*f.gpu, io.size());
+        let n = width * height;
+        let (passes, improved) = (&f.passes, f.params.variant == Variant::Improved);
+        // The improved variant's own planes; baseline binds a word for each.
+        let g = if improved { n } else { 1 };
+        let albedo = StorageBuffer::new(gpu, "traa albedo", 3 * g)?;
+        let ids = StorageBuffer::new(gpu, "traa object ids", g)?;
+        let raw = StorageBuffer::new(gpu, "traa sobel", g)?;
+        let stable = StorageBuffer::new(gpu, "traa sobel history", g)?;
+        let hist = TexelHistory::new(gpu, "traa history", (width, height), texel(improved), improved)?;
+        let colour = || StorageBuffer::new(gpu, "traa colour", 3 * n);
+        let out = [colour()?, colour()?];
+        let (raw, stable) = (("raw", &raw.buffer), ("stable", &stable.buffer));
+        let group = |pass, buffers: &[(&str, &wgpu::Buffer)]| STAGES.group(gpu, pass, &io, buffers);
+        let resolve = |k: usize| {
+            let ends = [("out", &out[0].buffer), ("counters", &io.counters)];
+            let buffers = [
+                ("hist", hist.buffer(k)),
+                ("next", hist.buffer(1 - k)),
+                stable,
+                ("ids", &ids.buffer),
+            ];
+            group(&passes.resolve, &[&buffers[..], &ends].concat())
+        };
+        let groups = Groups {
+            sobel: group(&passes.sobel, &[("albedo", &albedo.buffer), raw]),
+            sobel_history: [0, 1]
+                .map(|k| group(&passes.sobel_history, &[("hist", hist.buffer(k)), raw, stable])),
+            resolve: [0, 1].map(resolve),
+            sharpen: bind(
+                gpu,
+                &passes.sharpen,
+                &[&io.params, &out[0].buffer, &out[1].buffer],
+            ),
+        };
+        Ok(Buffers {
+            io,
+            albedo,
+            ids,
+            hist,
+            out,
+            groups,
+        })
     }
 }
 
 impl GpuTraa {
-    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
-    /// precision.
-    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        let passes = Passes::new(&gpu);
-        DeviceHistory::with(gpu, params, upload, passes)
-    }
-
     fn improved(&self) -> bool {
         self.params.variant == Variant::Improved
     }
@@ -232,8 +205,8 @@ impl GpuTraa {
 
 history_filter!(GpuTraa, Traa, texels);
 
-impl GpuTraa {
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
+impl StartFrame for GpuTraa {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
         let mut rec = Recorder::new();
         let recon = self.params.reconstruction();
         let mut inp = self.prepared::<Traa>(frame, recon, &mut rec)?;
@@ -253,26 +226,30 @@ impl GpuTraa {
             (None, Some(d)) => Traa::depth_far(frame.meta.near_far, d.data()),
             _ => 1.0,
         };
-        let b = self.buffers.as_ref().expect("sized");
-        let words = self.param_words(size, flags, b.upload.output_ceiling(&inp.facts), far);
+        let words = self.param_words(size, flags, self.io().upload.output_ceiling(&inp.facts), far);
         let bytes = self.upload_frame(frame, &mut inp, flags, &words);
-        let back = self.dispatch(size, flags, &mut clock)?;
-        let shaders_ms = back.pass_ms.as_ref().map(|v| v.iter().sum());
-        let device = clock.times(shaders_ms, self.upload, bytes);
-        // Most stages share a pass: those that ran share the passes' device time (or,
-        // without timestamps, the frame's round trip).
-        let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
-        timing::share(&mut rec, plan.stages(improved), ms);
-        let c = &back.counters;
-        let pixels = PixelCounts {
-            history_reset: c[C_RESET] as u64,
-            history_clipped: c[C_CLIPPED] as u64,
-            history_rejected: 0,
+        let submitted = self.dispatch(flags, &mut clock);
+        let (index, input) = (frame.meta.index, inp.counts);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let shaders_ms = back.shaders_ms();
+            let device = clock.times(shaders_ms, f.upload, bytes);
+            // Most stages share a pass: those that ran share the passes' device time (or,
+            // without timestamps, the frame's round trip).
+            let ms = shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+            timing::share(&mut rec, plan.stages(improved), ms);
+            let c = &back.counters;
+            let pixels = PixelCounts {
+                history_reset: c[C_RESET] as u64,
+                history_clipped: c[C_CLIPPED] as u64,
+                history_rejected: 0,
+            };
+            Ok(f.output(Traa::NAME, index, rec, (pixels, input), device, back.color))
         };
-        let counts = (pixels, self.state_bytes());
-        Ok(self.finished(Traa::NAME, frame, &inp, rec, counts, device, back.color))
+        Ok(self.submitted(submitted, clock, (true, hdr), Box::new(finish)))
     }
+}
 
+impl GpuTraa {
     /// The shaders' flags for a frame with inputs `inp` under `plan`.
     fn flags(&self, plan: &StagePlan, inp: &Inputs, has_history: bool) -> u32 {
         let improved = self.improved();
@@ -292,16 +269,16 @@ impl GpuTraa {
 
     /// Uploads what the `flags` say the shaders read: the colour (as f32 or f16; planes of
     /// the host's own go back to the scratch), then motion, depth, the invalid mask, albedo
-    /// as f32 and the object ids; then the shaders' parameter `words`, and clears the
-    /// counters. Returns the bytes written.
+    /// as f32 and the object ids; then the shaders' parameter `words`. Returns the bytes
+    /// written.
     fn upload_frame<'f>(&mut self, frame: &'f Frame, inp: &mut Inputs<'f>, flags: u32, words: &[u32]) -> u64 {
         let n = inp.width * inp.height;
         let gpu = &self.gpu;
         let b = self.buffers.as_mut().expect("sized");
         let motion = flags & FLAG_REPROJECT != 0;
         let depth = flags & (FLAG_DILATE | FLAG_DEPTH) != 0;
-        let scratch = &mut self.scratch;
-        let mut bytes = upload_inputs(gpu, &mut b.upload, &b.input, frame, inp, scratch, motion, depth);
+        let mut bytes =
+            b.io.write_inputs(gpu, frame, inp, &mut self.scratch, (motion, depth));
         if let (Some(albedo), true) = (inp.albedo.as_deref(), flags & FLAG_ALBEDO != 0) {
             for (k, plane) in albedo.iter().enumerate() {
                 bytes += b.albedo.write(gpu, k * n, plane.data());
@@ -310,46 +287,33 @@ impl GpuTraa {
         if let (Some(ids), true) = (inp.object_id, flags & FLAG_MODEL != 0) {
             bytes += write_words(gpu, &b.ids.buffer, ids.data());
         }
-        bytes += write_words(gpu, &b.params, words);
-        bytes + write_words(gpu, &b.counters, &[0; COUNTERS])
+        bytes + b.io.write_params(gpu, words)
     }
 
-    /// Runs the frame's passes (after the colour's unpacking) and reads back the colour,
-    /// the counters and the timestamps, marking `clock` at the submission and the readback.
-    fn dispatch(
-        &mut self,
-        (w, h): (usize, usize),
-        flags: u32,
-        clock: &mut FrameClock,
-    ) -> Result<FrameBack, BackendError> {
+    /// Runs the frame's passes (after the colour's unpacking) and submits them with the
+    /// copies of the colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, flags: u32, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        b.upload.encode(gpu, &mut enc);
-        let timer = b.timer.as_ref();
-        let (gx, gy) = groups(w, h, WORKGROUP);
+        let b = self.buffers.as_mut().expect("sized");
+        let mut enc = b.io.encoder(gpu);
+        let g = b.io.groups();
         let improved = flags & FLAG_IMPROVED != 0;
         let sharpen = flags & FLAG_SHARPEN != 0;
-        let passes = [
-            (improved, &self.passes.sobel, &b.groups.sobel),
-            (
-                improved,
-                &self.passes.sobel_history,
-                &b.groups.sobel_history[self.read],
-            ),
-            (true, &self.passes.resolve, &b.groups.resolve[self.read]),
-            (sharpen, &self.passes.sharpen, &b.groups.sharpen),
-        ];
-        let mut used = 0;
-        for (_, pipeline, group) in passes.into_iter().filter(|(on, _, _)| *on) {
-            let mut pass = timing::begin(&mut enc, timer, used);
-            used += 1;
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, group, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        let outputs = (&b.out[sharpen as usize].buffer, &b.counters, COUNTERS);
-        let timed = (timer, used);
-        submit_and_read(gpu, enc, &b.back, outputs, timed, (w, h), &mut self.words, clock)
+        let (passes, groups) = (&self.passes, &b.groups);
+        let used = b.io.encode_passes(
+            &mut enc,
+            &[
+                (improved, &passes.sobel, &groups.sobel, g),
+                (
+                    improved,
+                    &passes.sobel_history,
+                    &groups.sobel_history[self.read],
+                    g,
+                ),
+                (true, &passes.resolve, &groups.resolve[self.read], g),
+                (sharpen, &passes.sharpen, &groups.sharpen, g),
+            ],
+        );
+        b.io.submit(gpu, enc, &b.out[sharpen as usize].buffer, used, clock)
     }
 }

@@ -9,44 +9,9 @@
 // absolute differences of inputs; object ids are compared as integers. What a fused
 // multiply-add may round differently (lumas, the Sobel, the mixes, the feedback) moves
 // the output continuously: the clip and the clamps are continuous at their box's surface.
-
-@group(0) @binding(0) var<storage, read> P: Params;
-@group(0) @binding(1) var<storage, read> inp: array<f32>;
-@group(0) @binding(2) var<storage, read> albedo: array<f32>;
-@group(0) @binding(3) var<storage, read> ids: array<u32>;
-@group(0) @binding(4) var<storage, read> hist: array<f32>;
-@group(0) @binding(5) var<storage, read_write> next: array<f32>;
-@group(0) @binding(6) var<storage, read_write> raw: array<f32>;
-@group(0) @binding(7) var<storage, read_write> stable: array<f32>;
-@group(0) @binding(8) var<storage, read_write> out: array<f32>;
-@group(0) @binding(9) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
-
-var<workgroup> wg_counts: array<atomic<u32>, COUNTERS>;
-
-fn has(f: u32) -> bool {
-    return (P.flags & f) != 0u;
-}
-
-fn plane_len() -> u32 {
-    return P.width * P.height;
-}
-
-// The index of pixel (x, y) clamped to the image (kernels::fetch_clamped).
-fn clamped(x: i32, y: i32) -> u32 {
-    let cx = u32(clamp(x, 0, i32(P.width) - 1));
-    let cy = u32(clamp(y, 0, i32(P.height) - 1));
-    return cy * P.width + cx;
-}
-
-// The working colour (tonemapped for HDR input) of pixel i (passes::to_working).
-fn working(i: u32) -> vec3<f32> {
-    let n = plane_len();
-    let c = vec3<f32>(inp[IN_R * n + i], inp[(IN_R + 1u) * n + i], inp[(IN_R + 2u) * n + i]);
-    if has(FLAG_TONEMAP) {
-        return tonemap(c);
-    }
-    return c;
-}
+//
+// The buffers (`albedo`, `ids`, `hist`, `next`, `raw`, `stable`, `out`, `counters`) are
+// declared from Rust (`gpu::traa::STAGES`), after frame.wgsl's `P` and `inp`.
 
 // Linear depth of pixel i: depth / far.
 fn depth01(i: u32) -> f32 {
@@ -260,24 +225,6 @@ fn aliased(x: u32, y: u32, ma: f32, dv: f32) -> f32 {
     let avg_cross = (t[1] + t[3] + t[4] + t[5] + t[7]) / 5.0;
     let sobel_avg = mix1(avg_cross, avg3, clamp(ma + t[4], 0.0, 1.0));
     return clamp(sobel_avg + dv + ma, 0.0, 1.0);
-}
-
-@compute @workgroup_size(WORKGROUP, WORKGROUP)
-fn resolve(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    if li < COUNTERS {
-        atomicStore(&wg_counts[li], 0u);
-    }
-    workgroupBarrier();
-    if gid.x < P.width && gid.y < P.height {
-        resolve_pixel(gid.x, gid.y);
-    }
-    workgroupBarrier();
-    if li < COUNTERS {
-        let c = atomicLoad(&wg_counts[li]);
-        if c != 0u {
-            atomicAdd(&counters[li], c);
-        }
-    }
 }
 
 // The colour box of pixel (x, y) (kernels::for_each_row_stats): min and max of the 3x3

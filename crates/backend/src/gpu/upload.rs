@@ -161,14 +161,6 @@ impl ColorUpload {
         bytes
     }
 
-    /// A frame's command encoder: its `counters` cleared, then the colour's unpacking.
-    pub(crate) fn frame_encoder(&self, gpu: &Gpu, counters: &wgpu::Buffer) -> wgpu::CommandEncoder {
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        enc.clear_buffer(counters, 0, None);
-        self.encode(gpu, &mut enc);
-        enc
-    }
-
     /// Encodes the pass widening the halves into `dst`'s colour planes (nothing with f32).
     pub(crate) fn encode(&self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder) {
         if let Some(p) = &self.packed {

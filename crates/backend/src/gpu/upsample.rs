@@ -8,23 +8,20 @@
 //! range (`geometry`), and `reconstruct` on the output after the readback (sparse
 //! shading), so both backends filter the same numbers.
 
-use super::buffers::{download, params_buffer, plane, submit_and_read, write_words, FrameBack};
-use super::history::{DeviceHistory, FrameBuffers};
-use super::timing::{self, FrameClock, PassTimer};
-use super::upload::ColorUpload;
-use super::{bind_at, groups, history_filter, history_output, input_consts, pipeline, Gpu, Readback};
-use super::{StorageBuffer, IN_DEPTH, IN_INVALID, IN_MX};
+use super::buffers::{download, plane};
+use super::frame_io::{FrameBack, FrameIo, IoShape, Submitted};
+use super::history::{DeviceHistory, FrameBuffers, StartFrame, Started};
+use super::timing::{self, FrameClock};
+use super::{history_filter, input_consts, pipeline, Gpu};
+use super::{StorageBuffer, FRAME, IN_DEPTH, IN_INVALID, IN_MX};
 use crate::filters::passes::TemporalState;
 use crate::filters::upsample::{
     decay_for, falloff, geometry, skips, Method, Params, Sparse, Upsample, DEPTH, G1, GRADIENT_WEIGHTS, ID,
     LK, LUMA_FLOOR, R, TAA_KERNEL, TAA_MAX_COUNT, T_DEPTH, T_ID, W, WEIGHT_EPSILON,
 };
 use crate::frame::{Frame, Plane, Sampling};
-use crate::pipeline::{
-    check_channels, Filter, FilterKind, Inputs, Output, PixelCounts, Recorder, UploadPrecision,
-};
+use crate::pipeline::{check_channels, FilterKind, Inputs, PixelCounts, Recorder};
 use crate::BackendError;
-use std::sync::Arc;
 
 const REPROJECT: &str = include_str!("upsample_reproject.wgsl");
 const GRADIENT: &str = include_str!("upsample_gradient.wgsl");
@@ -37,17 +34,11 @@ const IN_NX: usize = super::INPUT_PLANES;
 const IN_ID: usize = IN_NX + 3;
 const INPUT_PLANES: usize = IN_ID + 1;
 
-// Bits of `Params.flags`, declared in upsample.wgsl from these ([`consts`]).
-const FLAG_HISTORY: u32 = 1;
-const FLAG_GEO_DEPTH: u32 = 2;
-const FLAG_DEPTH: u32 = 4;
-const FLAG_NORMAL: u32 = 8;
-const FLAG_IDS: u32 = 16;
-const FLAG_MOTION: u32 = 32;
-const FLAG_INVALID: u32 = 64;
-const FLAG_SKY: u32 = 128;
-const FLAG_VALIDITY: u32 = 256;
-const FLAG_SUB_GRADIENT: u32 = 512;
+// Bits of `Params.flags`, declared in upsample.wgsl ([`consts`]).
+super::flag_bits! {
+    flag_consts: FLAG_HISTORY, FLAG_GEO_DEPTH, FLAG_DEPTH, FLAG_NORMAL, FLAG_IDS, FLAG_MOTION,
+    FLAG_INVALID, FLAG_SKY, FLAG_VALIDITY, FLAG_SUB_GRADIENT
+}
 
 // The methods as `Params.method`.
 const M_SPATIOTEMPORAL: u32 = 0;
@@ -55,12 +46,15 @@ const M_SPATIAL: u32 = 1;
 const M_TEMPORAL: u32 = 2;
 const M_TAA: u32 = 3;
 
-/// Words of the counters: holes filled (`temporal`), clipped (`taa`), pixels that lost
-/// their history in the reprojection (the `C_` indices); padded.
-const COUNTERS: usize = 4;
-const C_RESET: usize = 0;
-const C_CLIPPED: usize = 1;
-const C_LOST: usize = 2;
+// The counters: holes filled (`temporal`), clipped (`taa`), pixels that lost their history
+// in the reprojection.
+super::counters! { counter_consts: C_RESET, C_CLIPPED, C_LOST }
+
+super::frame_io::bindings! {
+    /// upsample.wgsl's buffers after `P` and `inp`: the history read, the reprojected texels,
+    /// the raw gradients, the history written, the colour and the counters.
+    BINDINGS: hist: Read, rp: Write, now: Write, next: Write, out: Write, counters: Counters
+}
 
 /// Footprint offsets of the largest factor, `(2 x 4 + 1)^2`: the image-space table.
 const OFFSETS: usize = 81;
@@ -75,12 +69,10 @@ const _: () = assert!(MAX_TEXEL >= LK + 4);
 /// constants.
 fn consts() -> String {
     let [gw0, gw1, gw2, gw3] = GRADIENT_WEIGHTS;
-    let flags = super::wgsl_consts![FLAG_HISTORY, FLAG_GEO_DEPTH, FLAG_DEPTH, FLAG_NORMAL]
-        + &super::wgsl_consts![FLAG_IDS, FLAG_MOTION, FLAG_INVALID, FLAG_SKY]
-        + &super::wgsl_consts![FLAG_VALIDITY, FLAG_SUB_GRADIENT];
+    let flags = flag_consts();
     let methods = super::wgsl_consts![M_SPATIOTEMPORAL, M_SPATIAL, M_TEMPORAL, M_TAA];
     let channels = super::wgsl_consts![R, W, T_DEPTH, T_ID, DEPTH, ID, G1, LK, MAX_TEXEL];
-    let counters = super::wgsl_consts![COUNTERS, C_RESET, C_CLIPPED, C_LOST, WORKGROUP, OFFSETS];
+    let counters = counter_consts() + &super::wgsl_consts![WORKGROUP, OFFSETS];
     let cpu = super::wgsl_consts![WEIGHT_EPSILON, LUMA_FLOOR, TAA_MAX_COUNT]
         + &super::wgsl_consts![GW0 = gw0, GW1 = gw1, GW2 = gw2, GW3 = gw3];
     let inputs = input_consts() + &super::wgsl_consts![IN_NX, IN_ID];
@@ -95,35 +87,13 @@ pub(crate) struct Passes {
     blend: wgpu::ComputePipeline,
 }
 
-impl Passes {
-    fn new(gpu: &Gpu) -> Self {
-        let consts = consts();
-        let make = |label: &str, body: &str, entry: &str| {
-            let source = format!("{}\n{body}", include_str!("upsample.wgsl"));
-            pipeline(gpu, label, &consts, &source, entry)
-        };
-        Passes {
-            reproject: make("upsample reproject", REPROJECT, "reproject_pass"),
-            gradient: make("upsample gradient", GRADIENT, "gradient_pass"),
-            blend: make("upsample blend", BLEND, "blend_pass"),
-        }
-    }
-}
-
 /// Device buffers for one frame size, and the bind groups that use them (made once: the
 /// history alternates between two).
 #[derive(Debug)]
 pub(crate) struct Buffers {
-    width: usize,
-    height: usize,
-    params: wgpu::Buffer,
-    input: StorageBuffer,
-    /// The colour's way into `input`, for colour planes of `color_len` samples.
-    upload: ColorUpload,
-    color_len: usize,
+    io: FrameIo,
     /// The history: `hist[read]` is the previous frame's, the other is written.
     hist: [StorageBuffer; 2],
-    counters: wgpu::Buffer,
     /// `reproject[k]` reads `hist[k]`; `blend[k]` writes `hist[1 - k]`.
     reproject: [wgpu::BindGroup; 2],
     gradient: wgpu::BindGroup,
@@ -132,100 +102,81 @@ pub(crate) struct Buffers {
     /// Held for the bind groups: the reprojected texels (with their tap weights) and the
     /// raw gradients, which the passes hand on within a frame.
     _between: [StorageBuffer; 2],
-    /// The readback of the colour, the counters and the timestamps of the frame's passes
-    /// (reproject, gradient, blend), where the device has them.
-    back: Readback,
-    timer: Option<PassTimer>,
-}
-
-impl Buffers {
-    fn new(
-        gpu: &Gpu,
-        passes: &Passes,
-        (width, height): (usize, usize),
-        texel: usize,
-        upload: UploadPrecision,
-    ) -> Result<Self, BackendError> {
-        let n = width * height;
-        // `spatial` keeps no history: one-float stand-ins for the bindings.
-        let hist_len = (texel * n).max(1);
-        let params = params_buffer(gpu, "upsample params", &[0; HEADER + OFFSETS]);
-        let input = StorageBuffer::new(gpu, "upsample input", INPUT_PLANES * n)?;
-        let hist = [
-            StorageBuffer::new(gpu, "upsample history", hist_len)?,
-            StorageBuffer::new(gpu, "upsample history", hist_len)?,
-        ];
-        let rp = StorageBuffer::new(gpu, "upsample reprojected", ((texel + 2) * n).max(1))?;
-        let now = StorageBuffer::new(gpu, "upsample gradients", n)?;
-        let out = StorageBuffer::new(gpu, "upsample colour", 3 * n)?;
-        let counters = StorageBuffer::new(gpu, "upsample counters", COUNTERS)?.buffer;
-        let (p, i, r) = (&params, &input.buffer, &rp.buffer);
-        let reproject = [0, 1].map(|k| {
-            bind_at(
-                gpu,
-                &passes.reproject,
-                &[(0, p), (1, i), (2, &hist[k].buffer), (3, r), (7, &counters)],
-            )
-        });
-        let gradient = bind_at(gpu, &passes.gradient, &[(0, p), (1, i), (3, r), (4, &now.buffer)]);
-        let blend = [0, 1].map(|k| {
-            bind_at(
-                gpu,
-                &passes.blend,
-                &[
-                    (0, p),
-                    (1, i),
-                    (3, r),
-                    (4, &now.buffer),
-                    (5, &hist[1 - k].buffer),
-                    (6, &out.buffer),
-                    (7, &counters),
-                ],
-            )
-        });
-        let timer = PassTimer::new(gpu, 3);
-        let timer_words = timer.as_ref().map_or(0, PassTimer::words);
-        Ok(Buffers {
-            width,
-            height,
-            params,
-            upload: ColorUpload::new(gpu, upload, &input, n)?,
-            color_len: n,
-            input,
-            hist,
-            counters,
-            reproject,
-            gradient,
-            blend,
-            out,
-            _between: [rp, now],
-            back: Readback::new(gpu, "upsample readback", 3 * n + COUNTERS + timer_words),
-            timer,
-        })
-    }
 }
 
 /// `upsample` with its history on the device.
 pub(crate) type GpuUpsample = DeviceHistory<Params, Passes, Buffers>;
 
 impl FrameBuffers<Params, Passes> for Buffers {
-    fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+    /// What `upsample` keeps for a frame: its inputs (the shared planes, normals and ids), the
+    /// parameters and the image-space table, the counters, and passes reproject, gradient and
+    /// blend.
+    const SHAPE: IoShape = IoShape::new(
+        "upsample",
+        INPUT_PLANES,
+        HEADER + OFFSETS,
+        COUNTERS,
+        (3, WORKGROUP),
+    );
+
+    fn io(&self) -> &FrameIo {
+        &self.io
     }
 
-    fn make(f: &GpuUpsample, size: (usize, usize)) -> Result<Self, BackendError> {
-        Buffers::new(&f.gpu, &f.passes, size, f.texel(), f.upload)
+    fn compile(gpu: &Gpu) -> Passes {
+        let consts = consts();
+        let make = |label: &str, body: &str, entry: &str| {
+            let source = format!(
+                "{}{}\n{FRAME}\n{body}",
+                BINDINGS.wgsl(),
+                include_str!("upsample.wgsl")
+            );
+            pipeline(gpu, label, &consts, &source, entry)
+        };
+        Passes {
+            reproject: make("upsample reproject", REPROJECT, "reproject_pass"),
+            gradient: make("upsample gradient", GRADIENT, "gradient_pass"),
+            blend: make("upsample blend", BLEND, "blend_pass"),
+        }
+    }
+
+    fn make(f: &GpuUpsample, io: FrameIo) -> Result<Self, BackendError> {
+        let (gpu, (width, height)) = (&*f.gpu, io.size());
+        let n = width * height;
+        let (passes, texel) = (&f.passes, f.texel());
+        // `spatial` keeps no history: one-float stand-ins for the bindings.
+        let history = || StorageBuffer::new(gpu, "upsample history", texel * n);
+        let hist = [history()?, history()?];
+        let rp = StorageBuffer::new(gpu, "upsample reprojected", (texel + 2) * n)?;
+        let now = StorageBuffer::new(gpu, "upsample gradients", n)?;
+        let out = StorageBuffer::new(gpu, "upsample colour", 3 * n)?;
+        let (r, g, c) = (
+            ("rp", &rp.buffer),
+            ("now", &now.buffer),
+            ("counters", &io.counters),
+        );
+        let group = |pass, buffers: &[(&str, &wgpu::Buffer)]| BINDINGS.group(gpu, pass, &io, buffers);
+        let reproject = [0, 1].map(|k| group(&passes.reproject, &[("hist", &hist[k].buffer), r, c]));
+        let gradient = group(&passes.gradient, &[r, g]);
+        let blend = [0, 1].map(|k| {
+            group(
+                &passes.blend,
+                &[r, g, ("next", &hist[1 - k].buffer), ("out", &out.buffer), c],
+            )
+        });
+        Ok(Buffers {
+            io,
+            hist,
+            reproject,
+            gradient,
+            blend,
+            out,
+            _between: [rp, now],
+        })
     }
 }
 
 impl GpuUpsample {
-    /// The filter with parameters `params` on `gpu`, its colour uploaded at `upload`
-    /// precision.
-    pub fn new(gpu: Arc<Gpu>, params: Params, upload: UploadPrecision) -> Self {
-        let passes = Passes::new(&gpu);
-        DeviceHistory::with(gpu, params, upload, passes)
-    }
-
     /// Floats of a history texel.
     fn texel(&self) -> usize {
         self.params.method.planes()
@@ -252,7 +203,8 @@ impl GpuUpsample {
             return Ok(Vec::new());
         }
         let words = download(&self.gpu, "upsample history readback", &[&b.hist[self.read]])?;
-        Ok(vec![plane(t * b.width, b.height, words)?])
+        let (w, h) = b.io.size();
+        Ok(vec![plane(t * w, h, words)?])
     }
 
     /// Writes `planes` (the CPU filter's layout) into the history read next.
@@ -263,59 +215,23 @@ impl GpuUpsample {
         }
     }
 
-    fn run(&mut self, frame: &Frame) -> Result<Output, BackendError> {
-        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
-        let mut rec = Recorder::new();
-        let recon = self.params.reconstruction();
-        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.scratch)?;
-        let (w, h) = (inp.width, inp.height);
-        let method = self.params.method;
-        let stateful = method != Method::Spatial;
-        let has_history = self.started(frame, &inp)? && stateful;
-        let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
-        let sampling = frame.sampling();
-        let words = self.param_words(&inp, sampling, range, has_history);
-
-        let mut clock = FrameClock::start();
-        let bytes = self.upload_frame(frame, &mut inp, &words)?;
-        let gradient = method == Method::Spatiotemporal;
-        let back = self.dispatch(w, h, has_history, gradient, &mut clock)?;
-        let device = clock.times(back.pass_ms.map(|v| v.iter().sum()), self.upload, bytes);
-        let [reproject_skip, gradient_skip] = skips(method, has_history);
-        let stages = vec![
-            ("reproject", reproject_skip),
-            ("gradient", gradient_skip),
-            ("blend", None),
-        ];
-        timing::share(
-            &mut rec,
-            stages,
-            device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms),
-        );
-        let mut color = back.color;
-        recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut self.scratch);
-
-        if stateful {
-            self.read = 1 - self.read;
-            self.valid = true;
-        }
-        self.tonemapped = inp.facts.hdr;
-        let c = &back.counters;
+    /// The counts of a frame of `pixels` pixels from its `counters`, `has_history` saying
+    /// whether the history held the previous frame.
+    fn pixel_counts(&self, c: &[u32], has_history: bool, pixels: usize) -> PixelCounts {
         let lost = c[C_LOST] as u64;
-        let mut pixels = PixelCounts {
+        let mut counts = PixelCounts {
             history_reset: c[C_RESET] as u64,
             history_clipped: c[C_CLIPPED] as u64,
             history_rejected: 0,
         };
-        match method {
-            Method::Taa => pixels.history_reset += lost,
-            _ => pixels.history_rejected += lost,
+        match self.params.method {
+            Method::Taa => counts.history_reset += lost,
+            _ => counts.history_rejected += lost,
         }
-        if stateful && !has_history {
-            pixels.history_reset += (w * h) as u64;
+        if self.params.method != Method::Spatial && !has_history {
+            counts.history_reset += pixels as u64;
         }
-        let counts = (pixels, inp.counts, self.state_bytes());
-        Ok(history_output(Upsample::NAME, frame, rec, counts, color, device))
+        counts
     }
 
     /// The shader's parameters for a frame with inputs `inp` shaded with `sampling`,
@@ -403,15 +319,13 @@ impl GpuUpsample {
     ) -> Result<u64, BackendError> {
         let n = inp.width * inp.height;
         let gpu = &self.gpu;
-        let b = self.buffers.as_mut().expect("sized");
-        let color_len = inp.color[0].data().len();
-        if b.color_len != color_len {
-            b.upload = ColorUpload::new(gpu, self.upload, &b.input, color_len)?;
-            b.color_len = color_len;
-        }
-        let mut bytes = b.upload.write_frame(gpu, &b.input, frame, inp, &mut self.scratch);
-        let b = &*b;
-        let mut put = |at: usize, data: &[f32]| bytes += b.input.write(gpu, at * n, data);
+        let io = &mut self.buffers.as_mut().expect("sized").io;
+        io.color_len(gpu, inp.color[0].data().len())?;
+        let mut bytes = io
+            .upload
+            .write_frame(gpu, &io.input, frame, inp, &mut self.scratch);
+        let io = &*io;
+        let mut put = |at: usize, data: &[f32]| bytes += io.input.write(gpu, at * n, data);
         if let Some(m) = inp.motion.as_deref() {
             put(IN_MX, m[0].data());
             put(IN_MX + 1, m[1].data());
@@ -433,56 +347,69 @@ impl GpuUpsample {
             let mask: Vec<f32> = invalid.iter().map(|&v| v as u8 as f32).collect();
             put(IN_INVALID, &mask);
         }
-        bytes += write_words(gpu, &b.params, words);
+        bytes += io.write_params(gpu, words);
         Ok(bytes)
     }
 
     /// Runs the frame's passes (the colour's unpacking; the reprojection when `reproject`;
-    /// the raw gradient when `gradient`; the blend) and reads back the colour, the counters
-    /// and the timestamps, marking `clock` at the submission and the readback.
-    fn dispatch(
-        &mut self,
-        w: usize,
-        h: usize,
-        reproject: bool,
-        gradient: bool,
-        clock: &mut FrameClock,
-    ) -> Result<FrameBack, BackendError> {
+    /// the raw gradient when `gradient`; the blend) and submits them with the copies of the
+    /// colour, the counters and the timestamps, marking `clock`.
+    fn dispatch(&mut self, reproject: bool, gradient: bool, clock: &mut FrameClock) -> Submitted {
         let gpu = &self.gpu;
-        let b = self.buffers.as_ref().expect("sized");
-        let mut enc = b.upload.frame_encoder(gpu, &b.counters);
-        let timer = b.timer.as_ref();
-        let (gx, gy) = groups(w, h, WORKGROUP);
-        let mut passes = 0;
-        let chosen = [
-            (reproject, &self.passes.reproject, &b.reproject[self.read]),
-            (gradient, &self.passes.gradient, &b.gradient),
-            (true, &self.passes.blend, &b.blend[self.read]),
-        ];
-        for (run, pipeline, group) in chosen {
-            if run {
-                let mut pass = timing::begin(&mut enc, timer, passes);
-                passes += 1;
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
-            }
-        }
-        let outputs = (&b.out.buffer, &b.counters, COUNTERS);
-        submit_and_read(
-            gpu,
-            enc,
-            &b.back,
-            outputs,
-            (timer, passes),
-            (w, h),
-            &mut self.words,
-            clock,
-        )
+        let b = self.buffers.as_mut().expect("sized");
+        let mut enc = b.io.encoder(gpu);
+        let g = b.io.groups();
+        let used = b.io.encode_passes(
+            &mut enc,
+            &[
+                (reproject, &self.passes.reproject, &b.reproject[self.read], g),
+                (gradient, &self.passes.gradient, &b.gradient, g),
+                (true, &self.passes.blend, &b.blend[self.read], g),
+            ],
+        );
+        b.io.submit(gpu, enc, &b.out.buffer, used, clock)
     }
 }
 
 history_filter!(GpuUpsample, Upsample);
+
+impl StartFrame for GpuUpsample {
+    fn start(&mut self, frame: &Frame) -> Result<Started<Self>, BackendError> {
+        check_channels(Upsample::NAME, Upsample::needs(), frame)?;
+        let mut rec = Recorder::new();
+        let recon = self.params.reconstruction();
+        let mut inp = recon.prepare(frame, Upsample::uses(), &mut rec, &mut self.scratch)?;
+        let (w, h) = (inp.width, inp.height);
+        let method = self.params.method;
+        let stateful = method != Method::Spatial;
+        let has_history = self.started(frame, &inp)? && stateful;
+        let range = geometry(method, &inp, frame.meta.near_far, &mut rec);
+        let sampling = frame.sampling();
+        let words = self.param_words(&inp, sampling, range, has_history);
+
+        let mut clock = FrameClock::start();
+        let bytes = self.upload_frame(frame, &mut inp, &words)?;
+        let gradient = method == Method::Spatiotemporal;
+        let submitted = self.dispatch(has_history, gradient, &mut clock);
+        let (index, input, hdr) = (frame.meta.index, inp.counts, inp.facts.hdr);
+        let finish = move |f: &mut Self, back: FrameBack, clock: FrameClock| {
+            let device = clock.times(back.shaders_ms(), f.upload, bytes);
+            let [reproject_skip, gradient_skip] = skips(method, has_history);
+            let stages = vec![
+                ("reproject", reproject_skip),
+                ("gradient", gradient_skip),
+                ("blend", None),
+            ];
+            let ms = device.shaders_ms.unwrap_or(device.upload_ms + device.readback_ms);
+            timing::share(&mut rec, stages, ms);
+            let mut color = back.color;
+            recon.sparse_output(&mut rec, &mut color, !sampling.is_full(), &mut f.scratch);
+            let pixels = f.pixel_counts(&back.counters, has_history, w * h);
+            Ok(f.output(Upsample::NAME, index, rec, (pixels, input), device, color))
+        };
+        Ok(self.submitted(submitted, clock, (stateful, hdr), Box::new(finish)))
+    }
+}
 
 /// The image-space term per footprint offset (`Params.table`), as the CPU computes it:
 /// the distance in block diagonals for `spatiotemporal` (its kernel width varies per

@@ -61,28 +61,14 @@ struct Params {
 // and the C_ counters, WORKGROUP, OFFSETS, and the CPU filter's constants WEIGHT_EPSILON,
 // LUMA_FLOOR, GW0..GW3 (GRADIENT_WEIGHTS), TAA_MAX_COUNT.
 
-@group(0) @binding(0) var<storage, read> P: Params;
-@group(0) @binding(1) var<storage, read> inp: array<f32>;
-@group(0) @binding(2) var<storage, read> hist: array<f32>;
-// Reprojected texels: `texel` floats, then the tap weight and the part kept for sub-pixel
-// surfaces.
-@group(0) @binding(3) var<storage, read_write> rp: array<f32>;
-@group(0) @binding(4) var<storage, read_write> now: array<f32>;
-@group(0) @binding(5) var<storage, read_write> next: array<f32>;
-@group(0) @binding(6) var<storage, read_write> out: array<f32>;
-@group(0) @binding(7) var<storage, read_write> counters: array<atomic<u32>, COUNTERS>;
+// Declared from Rust (`gpu::upsample::BINDINGS`), after frame.wgsl's `P` and `inp`: the
+// history `hist`; `rp`, the reprojected texels (`texel` floats, then the tap weight and the
+// part kept for sub-pixel surfaces); `now`, the raw gradients; the next history `next`,
+// `out` and `counters`.
 
 // Whether an invocation's pixel lies in the frame.
 fn inside(gid: vec3<u32>) -> bool {
     return gid.x < P.width && gid.y < P.height;
-}
-
-fn has(f: u32) -> bool {
-    return (P.flags & f) != 0u;
-}
-
-fn plane_len() -> u32 {
-    return P.width * P.height;
 }
 
 fn count(c: u32) {

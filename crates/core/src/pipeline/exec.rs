@@ -3,6 +3,7 @@
 use rayon::prelude::*;
 use std::cell::RefCell;
 use std::ops::AddAssign;
+use std::ops::Range;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
@@ -13,6 +14,47 @@ pub fn sized<T: Clone + Default>(v: &mut Vec<T>, n: usize) -> &mut [T] {
         v.resize(n, T::default());
     }
     &mut v[..n]
+}
+
+/// A band's rows with a row of halo on each side, clamped to the image: what a 3x3 stencil
+/// over the band reads. Band buffers hold them from row `start`, `width` samples a row.
+#[derive(Clone, Copy, Debug)]
+pub struct Halo {
+    /// The first image row held.
+    pub start: usize,
+    /// One past the last.
+    pub end: usize,
+    width: usize,
+    height: usize,
+}
+
+impl Halo {
+    /// The halo of band `rows` of a `width` x `height` image.
+    pub fn new(rows: &Range<usize>, width: usize, height: usize) -> Self {
+        Halo {
+            start: rows.start.saturating_sub(1),
+            end: (rows.end + 1).min(height),
+            width,
+            height,
+        }
+    }
+
+    /// Samples of a band buffer.
+    pub fn samples(&self) -> usize {
+        (self.end - self.start) * self.width
+    }
+
+    /// Where image row `r` lies in a band buffer.
+    pub fn row(&self, r: usize) -> Range<usize> {
+        let k = r - self.start;
+        k * self.width..(k + 1) * self.width
+    }
+
+    /// The rows of row `y`'s 3x3 stencil (above, itself, below; clamped to the image) in a
+    /// band buffer.
+    pub fn stencil(&self, y: usize) -> [Range<usize>; 3] {
+        [y.saturating_sub(1), y, (y + 1).min(self.height - 1)].map(|r| self.row(r))
+    }
 }
 
 /// Environment variable that sets the number of filter threads (default: all cores).

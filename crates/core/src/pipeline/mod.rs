@@ -164,6 +164,20 @@ pub trait Filter: Send {
     fn push(&mut self, frame: &Frame) -> Result<Vec<Output>, FilterError> {
         Ok(vec![self.process(frame)?])
     }
+    /// Like [`Filter::push`], but this frame's output may come from the next call: a GPU
+    /// filter starts this frame on the device and then reads back the one before, so the
+    /// host's work on one frame and the device's on the other overlap. Outputs come in
+    /// order, at most one call late; [`Filter::flush_overlapped`] returns those held. A
+    /// caller with the next frame at hand uses it (the shot runner does); the default is
+    /// `push`. On error the state is left as it was.
+    fn push_overlapped(&mut self, frame: &Frame) -> Result<Vec<Output>, FilterError> {
+        self.push(frame)
+    }
+    /// The outputs [`Filter::push_overlapped`] holds back, oldest first; afterwards the
+    /// filter is as after `push` (its history kept). Call it before saving state.
+    fn flush_overlapped(&mut self) -> Result<Vec<Output>, FilterError> {
+        Ok(Vec::new())
+    }
     /// The outputs still held back at the end of a sequence, oldest first; afterwards the
     /// filter is empty, as after `reset`.
     fn finish(&mut self) -> Result<Vec<Output>, FilterError> {

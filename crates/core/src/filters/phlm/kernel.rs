@@ -26,7 +26,7 @@ use crate::kernels::lanes::{self, Lanes, LANES};
 use crate::kernels::{
     bilinear_texels, fmax, fmin, nearest_texel, rgb_to_ycocg, tonemap, tonemap_inverse, FootprintLanes, SPAN,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, Halo, StageClock};
 use crate::pipeline::FilterError;
 use std::ops::Range;
 use wide::f32x8;
@@ -187,8 +187,7 @@ fn run_band(
     [or, og, ob, next]: [&mut [f32]; 4],
 ) -> Counts {
     let (w, h) = (src.frame.w, src.frame.h);
-    let r0 = rows.start.saturating_sub(1);
-    let r1 = (rows.end + 1).min(h);
+    let halo = Halo::new(&rows, w, h);
     let Band {
         cur,
         work,
@@ -198,11 +197,11 @@ fn run_band(
         z,
         depth,
     } = band;
-    let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
-    let mut work = work.each_mut().map(|v| sized(v, (r1 - r0) * w));
-    for r in r0..r1 {
+    let mut cur = cur.each_mut().map(|v| sized(v, halo.samples()));
+    let mut work = work.each_mut().map(|v| sized(v, halo.samples()));
+    for r in halo.start..halo.end {
         let at = r * w..(r + 1) * w;
-        let dst = (r - r0) * w..(r - r0 + 1) * w;
+        let dst = halo.row(r);
         let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
         let [w0, w1, w2] = work.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
@@ -230,13 +229,12 @@ fn run_band(
     let mut counts = Counts::default();
     for y in rows.clone() {
         let at = y * w..(y + 1) * w;
-        let band_row = |r: usize| (r - r0) * w..(r - r0 + 1) * w;
         let fetch_stage = if plan.reproject { REPROJECT } else { MODEL };
         let fetched = sized(fetched, wp / LANES);
         clock.time(fetch_stage, || fetch_row(src, plan, y, fetched, texels));
         let cols = cols.each_mut().map(|v| sized(v, wp + 2));
-        let rows3 = [y.saturating_sub(1), y, (y + 1).min(h - 1)].map(band_row);
-        let centre = band_row(y);
+        let rows3 = halo.stencil(y);
+        let centre = halo.row(y);
         let squares = plan.p.test_box == TestBox::Variance;
         let stats = clock.time(FEATURE, || column_stats(&cur, &rows3, w, squares, cols));
         let z = sized(z, wp / LANES);

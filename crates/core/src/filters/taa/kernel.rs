@@ -24,7 +24,7 @@ use crate::kernels::{
     bilinear, bilinear_texels, box_from_columns, clip_toward_center, column_stats, rgb_to_ycocg,
     variance_box, ycocg_to_rgb, FootprintLanes, NeighborhoodStats, TEXEL,
 };
-use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, StageClock};
+use crate::pipeline::exec::{par_bands_strided, sized, stage_indices, Halo, StageClock};
 use crate::pipeline::{FilterError, FilterKind, PixelCounts};
 use std::ops::Range;
 use wide::f32x8;
@@ -190,8 +190,7 @@ fn run_band(
     [or, og, ob, next]: [&mut [f32]; 4],
 ) -> PixelCounts {
     let (w, h) = (src.frame.w, src.frame.h);
-    let r0 = rows.start.saturating_sub(1);
-    let r1 = (rows.end + 1).min(h);
+    let halo = Halo::new(&rows, w, h);
     let Band {
         cur,
         work,
@@ -200,11 +199,11 @@ fn run_band(
         reject,
         cols,
     } = band;
-    let mut cur = cur.each_mut().map(|v| sized(v, (r1 - r0) * w));
-    for r in r0..r1 {
+    let mut cur = cur.each_mut().map(|v| sized(v, halo.samples()));
+    for r in halo.start..halo.end {
         let at = r * w..(r + 1) * w;
         let input = [0, 1, 2].map(|k| &src.frame.color[k][at.clone()]);
-        let dst = (r - r0) * w..(r - r0 + 1) * w;
+        let dst = halo.row(r);
         let [c0, c1, c2] = cur.each_mut().map(|c| &mut c[dst.clone()]);
         if plan.tonemap {
             let [t0, t1, t2] = work.each_mut().map(|v| sized(v, w));
@@ -263,14 +262,7 @@ fn run_band(
         } else {
             None
         };
-        let [cy, ca, cb] = [0, 1, 2].map(|c| {
-            let rows_of = |r: usize| &cur[c][(r - r0) * w..(r - r0 + 1) * w];
-            [
-                rows_of(y.saturating_sub(1)),
-                rows_of(y),
-                rows_of((y + 1).min(h - 1)),
-            ]
-        });
+        let [cy, ca, cb] = [0, 1, 2].map(|c| halo.stencil(y).map(|r| &cur[c][r]));
         let cl = cols.each_mut().map(|v| sized(v, w));
         let o = k * w..(k + 1) * w;
         let c = clock.time(RESOLVE, || {

@@ -120,6 +120,21 @@ impl StagePlan {
             sharpen: (p.sharpen <= 0.0).then_some(Skip::Disabled { param: "sharpen" }),
         }
     }
+
+    /// The frame's stages in the record's order, each with why it is left out (`None`: it
+    /// runs).
+    pub fn stages(&self) -> Vec<(&'static str, Option<Skip>)> {
+        vec![
+            ("tonemap", self.tonemap.clone()),
+            ("ycocg", None),
+            ("dilate", self.dilate.clone()),
+            ("reproject", self.reproject.clone()),
+            ("depth_reject", self.depth_reject.clone()),
+            ("resolve", None),
+            ("sharpen", self.sharpen.clone()),
+            ("untonemap", self.tonemap.clone()),
+        ]
+    }
 }
 
 /// The TAA filter with its history.
