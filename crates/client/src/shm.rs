@@ -1,12 +1,12 @@
 //! The shared memory transport, for a client on the server's machine: the server makes a
-//! region (a file on its tmpfs, `OpenRegion`), the client writes each frame's bytes into
+//! region (a sealed memfd, `OpenRegion`), the client maps it, writes each frame's bytes into
 //! it and sends only the header with their offsets, and the server writes the reply's
 //! colour back into it. The region is cut into one slot per frame that may be in flight,
 //! each a frame's bytes followed by its reply's colour; a frame is written into its slot
 //! only when the reply that used the slot before has been read.
 //!
-//! Positioned reads and writes (`pread`/`pwrite`), as the server: no mapping, no
-//! `unsafe`. A frame whose samples are its planes' own bytes (f32 and u32, uncompressed)
+//! Both sides copy through their mappings (`afterimage-shm`, the one crate with `unsafe`
+//! code). A frame whose samples are its planes' own bytes (f32 and u32, uncompressed)
 //! is written straight from its planes ([`SharedRegion::write`]), others encoded first;
 //! an f32 reply is read straight into planes.
 
@@ -15,14 +15,14 @@ use crate::frame::{
     decode_color, encode, header, in_place, raw_bytes, Encoded, Encoding, FrameData, ReplyError,
 };
 use crate::proto::{ChannelHeader, FrameHeader, Region, SampleType, SharedMemory};
-use std::fs::{File, OpenOptions};
+use afterimage_shm::Mapping;
 use std::io;
-use std::os::unix::fs::FileExt;
+use std::path::Path;
 
 /// A session's region, opened by the client and cut into slots.
 #[derive(Debug)]
 pub struct SharedRegion {
-    file: File,
+    map: Mapping,
     slot_bytes: u64,
     frame_bytes: u64,
     slots: u64,
@@ -38,7 +38,18 @@ impl SharedRegion {
     /// Opens the region the server made (read and write), cut into `slots` slots whose
     /// frames take at most `frame_bytes` and replies at most `reply_bytes`.
     pub fn open(region: &Region, frame_bytes: u64, reply_bytes: u64, slots: u64) -> io::Result<SharedRegion> {
-        let file = OpenOptions::new().read(true).write(true).open(&region.path)?;
+        let map = Mapping::open(Path::new(&region.path)).map_err(io::Error::other)?;
+        if map.len() != region.bytes {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidData,
+                format!(
+                    "the region {} is {} bytes, the server said {}",
+                    region.path,
+                    map.len(),
+                    region.bytes
+                ),
+            ));
+        }
         let slots = slots.max(1);
         let slot_bytes = region.bytes / slots;
         if slot_bytes < frame_bytes + reply_bytes {
@@ -51,7 +62,7 @@ impl SharedRegion {
             ));
         }
         Ok(SharedRegion {
-            file,
+            map,
             slot_bytes,
             frame_bytes,
             slots,
@@ -93,7 +104,7 @@ impl SharedRegion {
         let at = self.slot(n, frame.header.index, frame.data_bytes())?;
         let mut offset = at;
         for c in &frame.chunks {
-            self.file.write_all_at(&c.data, offset)?;
+            self.copy_in(offset, &c.data)?;
             offset += c.data.len() as u64;
         }
         Ok(self.placed(frame.header, at))
@@ -142,7 +153,7 @@ impl SharedRegion {
             let ids = frame.object_id.map(bytemuck::cast_slice);
             let mut offset = at;
             for bytes in floats.chain(ids) {
-                self.file.write_all_at(bytes, offset)?;
+                self.copy_in(offset, bytes)?;
                 offset += bytes.len() as u64;
             }
             Ok(self.placed(header, at))
@@ -171,16 +182,23 @@ impl SharedRegion {
             }
             let mut planes = [vec![0f32; n], vec![0f32; n], vec![0f32; n]];
             for (k, p) in (0u64..).zip(&mut planes) {
-                self.file
-                    .read_exact_at(bytemuck::cast_slice_mut(p), offset + k * (n * 4) as u64)?;
+                self.copy_out(offset + k * (n * 4) as u64, bytemuck::cast_slice_mut(p))?;
             }
             return Ok(planes);
         }
         let len = usize::try_from(ch.byte_length)
             .map_err(|_| ReplyError::Header(format!("{} bytes of colour", ch.byte_length)))?;
         buf.resize(len, 0);
-        self.file.read_exact_at(buf, offset)?;
+        self.copy_out(offset, buf)?;
         decode_color(ch, &[&buf[..]], width, height)
+    }
+
+    fn copy_in(&self, offset: u64, src: &[u8]) -> io::Result<()> {
+        self.map.write(offset, src).map_err(io::Error::other)
+    }
+
+    fn copy_out(&self, offset: u64, dst: &mut [u8]) -> io::Result<()> {
+        self.map.read(offset, dst).map_err(io::Error::other)
     }
 }
 
@@ -190,17 +208,27 @@ mod tests {
     use crate::frame::Channel;
     use crate::proto::Compression;
 
-    /// A region file of `bytes` zeros cut into `slots` slots of `frame_bytes` frames (and
-    /// no reply bytes), under `name`.
-    fn region(name: &str, bytes: u64, frame_bytes: u64, slots: u64) -> (SharedRegion, std::path::PathBuf) {
-        let path = std::env::temp_dir().join(format!("afterimage-shm-test-{name}-{}", std::process::id()));
-        std::fs::write(&path, vec![0u8; bytes as usize]).unwrap();
+    /// A region of `bytes` zeros as the server makes it (returned, to read its bytes
+    /// with [`all_of`]), opened by the client cut into `slots` slots of `frame_bytes`
+    /// frames and `reply_bytes` replies.
+    fn region(bytes: u64, frame_bytes: u64, reply_bytes: u64, slots: u64) -> (SharedRegion, Mapping) {
+        let server = Mapping::create("test", bytes).unwrap();
         let region = Region {
             session_id: "s".into(),
-            path: path.display().to_string(),
+            path: server.path().display().to_string(),
             bytes,
         };
-        (SharedRegion::open(&region, frame_bytes, 0, slots).unwrap(), path)
+        (
+            SharedRegion::open(&region, frame_bytes, reply_bytes, slots).unwrap(),
+            server,
+        )
+    }
+
+    /// Every byte of a region, as the server sees it.
+    fn all_of(m: &Mapping) -> Vec<u8> {
+        let mut v = vec![0u8; m.len() as usize];
+        m.read(0, &mut v).unwrap();
+        v
     }
 
     /// An f32 frame (with and without object ids, full or sparse colour, odd sizes,
@@ -276,8 +304,8 @@ mod tests {
                     max_chunk: 5,
                 };
                 let what = format!("{w}x{h}, ids {ids}, {sample:?} {compression:?}");
-                let (direct, direct_path) = region(&format!("direct{case}"), 2 * slot, slot, 2);
-                let (encoded, encoded_path) = region(&format!("encoded{case}"), 2 * slot, slot, 2);
+                let (direct, direct_server) = region(2 * slot, slot, 0, 2);
+                let (encoded, encoded_server) = region(2 * slot, slot, 0, 2);
                 // The second slot, so the offsets count.
                 let want = encoded.place(1, encode(&frame, "s", how)).unwrap();
                 let got = direct.write_in_place(1, &frame, "s", how);
@@ -288,15 +316,12 @@ mod tests {
                     assert!(in_place(&got.header), "{what}");
                 } else {
                     assert!(got.is_none(), "{what}: not in place");
-                    let untouched = std::fs::read(&direct_path).unwrap();
+                    let untouched = all_of(&direct_server);
                     assert!(untouched.iter().all(|&b| b == 0), "{what}: written");
                     let got = direct.write(1, &frame, "s", how).unwrap();
                     assert_eq!(got.header, want.header, "{what}");
                 }
-                let (d, e) = (
-                    std::fs::read(&direct_path).unwrap(),
-                    std::fs::read(&encoded_path).unwrap(),
-                );
+                let (d, e) = (all_of(&direct_server), all_of(&encoded_server));
                 assert!(d == e, "{what}: the region's bytes differ");
                 if compression == Compression::None {
                     let len = want.header.channels.iter().map(|c| c.byte_length).sum::<u64>() as usize;
@@ -304,7 +329,7 @@ mod tests {
                 }
                 // Both ways of writing refuse a frame larger than its slot, naming it and
                 // the sizes, before writing anything.
-                let (small, small_path) = region(&format!("small{case}"), 2 * slot, 4, 2);
+                let (small, small_server) = region(2 * slot, 4, 0, 2);
                 for e in [
                     small.write(0, &frame, "s", how).unwrap_err(),
                     small.place(0, encode(&frame, "s", how)).unwrap_err(),
@@ -314,13 +339,7 @@ mod tests {
                     let msg = format!("frame {}: {len} bytes, a slot holds 4", frame.index);
                     assert_eq!(e.to_string(), msg, "{what}");
                 }
-                assert!(
-                    std::fs::read(&small_path).unwrap().iter().all(|&b| b == 0),
-                    "{what}"
-                );
-                for p in [direct_path, encoded_path, small_path] {
-                    let _ = std::fs::remove_file(p);
-                }
+                assert!(all_of(&small_server).iter().all(|&b| b == 0), "{what}");
             }
         }
     }
@@ -333,18 +352,12 @@ mod tests {
         let (w, h) = (5u32, 3u32);
         let n = (w * h) as usize;
         let want: Vec<f32> = (0..3 * n).map(|i| i as f32 * 0.25 - 2.0).collect();
-        let path = std::env::temp_dir().join(format!("afterimage-shm-test-{}", std::process::id()));
         for sample in [SampleType::F32, SampleType::F16] {
             let mut bytes = vec![0u8; want.len() * crate::codec::sample_bytes(sample)];
             crate::codec::put_samples(&want, sample, &mut bytes);
             let offset = 8;
-            std::fs::write(&path, [vec![0u8; offset], bytes.clone()].concat()).unwrap();
-            let region = Region {
-                session_id: "s".into(),
-                path: path.display().to_string(),
-                bytes: (offset + bytes.len()) as u64,
-            };
-            let r = SharedRegion::open(&region, 0, bytes.len() as u64, 1).unwrap();
+            let (r, server) = region((offset + bytes.len()) as u64, 0, bytes.len() as u64, 1);
+            server.write(offset as u64, &bytes).unwrap();
             let ch = ChannelHeader {
                 name: "color".into(),
                 sample: sample as i32,
@@ -363,6 +376,29 @@ mod tests {
             };
             assert!(r.read_color(offset as u64, &short, (w, h), &mut buf).is_err());
         }
-        let _ = std::fs::remove_file(&path);
+    }
+
+    /// A file the server did not seal is not mapped (it could shrink under the mapping),
+    /// and one whose size is not what the server said is refused.
+    #[test]
+    fn only_a_sealed_region_of_the_size_given_is_opened() {
+        let path = std::env::temp_dir().join(format!("afterimage-unsealed-{}", std::process::id()));
+        std::fs::write(&path, vec![0u8; 64]).unwrap();
+        let plain = Region {
+            session_id: "s".into(),
+            path: path.display().to_string(),
+            bytes: 64,
+        };
+        let e = SharedRegion::open(&plain, 32, 0, 2).unwrap_err();
+        std::fs::remove_file(&path).unwrap();
+        assert!(e.to_string().contains("not a sealed"), "{e}");
+        let server = Mapping::create("test", 64).unwrap();
+        let wrong = Region {
+            session_id: "s".into(),
+            path: server.path().display().to_string(),
+            bytes: 128,
+        };
+        let e = SharedRegion::open(&wrong, 32, 0, 2).unwrap_err();
+        assert!(e.to_string().contains("is 64 bytes, the server said 128"), "{e}");
     }
 }

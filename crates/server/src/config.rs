@@ -59,12 +59,11 @@ pub struct Config {
     /// methods and messages, for `grpcurl` and the like) on the gRPC port, without a key.
     /// The health service (`grpc.health.v1`) is always served.
     pub grpc_reflection: bool,
-    /// Serve shared memory regions (`OpenRegion`): a client on this machine writes its
-    /// frames into a file on a tmpfs and the stream carries offsets (`afterimage stream
-    /// --transport shm`). A region counts twice its size against the memory budgets.
+    /// Serve shared memory regions (`OpenRegion`): a client on this machine (same user,
+    /// same process namespace: it opens the region through `/proc`) writes its frames into
+    /// a sealed memfd and the stream carries offsets (`afterimage stream --transport shm`).
+    /// A region counts twice its size against the memory budgets.
     pub shared_memory: bool,
-    /// Where regions are created: a tmpfs the clients can open.
-    pub shared_memory_dir: String,
     /// PEM certificate chain for TLS on both ports (with `tls_key`); empty: plain TCP.
     pub tls_cert: String,
     /// PEM private key for TLS.
@@ -131,7 +130,6 @@ impl Default for Config {
             metrics_require_key: false,
             grpc_reflection: true,
             shared_memory: true,
-            shared_memory_dir: "/dev/shm".into(),
             tls_cert: String::new(),
             tls_key: String::new(),
             header_timeout_s: 10,
@@ -337,13 +335,6 @@ impl Config {
                 got: format!("{addr:?}"),
             })?;
         }
-        if self.shared_memory && !Path::new(&self.shared_memory_dir).is_absolute() {
-            return Err(ConfigError::Invalid {
-                field: "shared_memory_dir",
-                expected: "an absolute directory (a tmpfs such as /dev/shm), or shared_memory = false".into(),
-                got: format!("{:?}", self.shared_memory_dir),
-            });
-        }
         let positive: [(&'static str, u64); 17] = [
             ("max_sessions", self.max_sessions as u64),
             ("memory_budget_mib", self.memory_budget_mib),
@@ -429,7 +420,7 @@ impl Config {
             replica: self.replica_name(),
             default_backend: self.default_backend,
             state_key: self.state_key.clone(),
-            shared_memory_dir: self.shared_memory.then(|| self.shared_memory_dir.clone().into()),
+            shared_memory: self.shared_memory,
         }
     }
 
@@ -581,19 +572,10 @@ mod tests {
     }
 
     #[test]
-    fn shared_memory_needs_an_absolute_directory_unless_off() {
-        let c = Config::load(None, env(&[("AFTERIMAGE_SHARED_MEMORY_DIR", "shm")])).unwrap_err();
-        assert!(c.to_string().contains("shared_memory_dir"), "{c}");
-        let off = [
-            ("AFTERIMAGE_SHARED_MEMORY_DIR", "shm"),
-            ("AFTERIMAGE_SHARED_MEMORY", "false"),
-        ];
-        let c = Config::load(None, env(&off)).unwrap();
-        assert_eq!(c.limits().shared_memory_dir, None);
-        assert_eq!(
-            Config::default().limits().shared_memory_dir,
-            Some("/dev/shm".into())
-        );
+    fn shared_memory_is_on_unless_turned_off() {
+        assert!(Config::default().limits().shared_memory);
+        let c = Config::load(None, env(&[("AFTERIMAGE_SHARED_MEMORY", "false")])).unwrap();
+        assert!(!c.limits().shared_memory);
     }
 
     #[test]

@@ -774,13 +774,12 @@ mod tests {
             height: h as u32,
             channels,
         };
-        let dir = tempfile::tempdir().unwrap();
         for sample in [SampleType::F32, SampleType::F16] {
             let (header, chunks) = encode_frame(&frame, "s", channels, sample, Compression::None, 1 << 20);
             let data: Vec<u8> = chunks.iter().flat_map(|c| c.data.to_vec()).collect();
             let bytes = data.len() as u64 + 13;
             let hold = Reservation::take(&[&Budget::new("test", 1 << 30)], bytes, "region").unwrap();
-            let region = Region::create(dir.path(), bytes, hold).unwrap();
+            let region = Region::create(bytes, hold).unwrap();
             std::fs::File::options()
                 .write(true)
                 .open(region.path())

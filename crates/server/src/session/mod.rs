@@ -25,13 +25,14 @@ pub use region::Region;
 
 use crate::backend::Created;
 use crate::filters;
-use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, MotionConvention, Rgb};
+use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, MotionConvention, Plane, Rgb};
 use crate::io::InputImage;
 use crate::pipeline::exec::panic_text;
 use crate::pipeline::{self, Filter, FilterError, FilterInfo, FilterState, FrameRecord};
 use access::SessionSlot;
 use afterimage_core::metrics::{luma, mse, psnr_from_mse, ssim, MetricSpace, SpaceChoice};
 use error::filter_error;
+use rayon::prelude::*;
 use serde::Serialize;
 use serde_json::{Map, Value};
 use std::collections::{HashMap, VecDeque};
@@ -68,8 +69,8 @@ pub struct Limits {
     /// [`crate::pipeline::state`]); a secret, never shown.
     #[serde(skip)]
     pub state_key: Option<crate::pipeline::state::StateKey>,
-    /// Where shared memory regions are created (None: refused).
-    pub shared_memory_dir: Option<std::path::PathBuf>,
+    /// Whether sessions may have shared memory regions.
+    pub shared_memory: bool,
 }
 
 impl Default for Limits {
@@ -85,7 +86,7 @@ impl Default for Limits {
             replica: "local".into(),
             default_backend: crate::backend::BackendChoice::Cpu,
             state_key: None,
-            shared_memory_dir: Some("/dev/shm".into()),
+            shared_memory: true,
         }
     }
 }
@@ -718,12 +719,12 @@ impl Sessions {
     pub fn open_region(&self, caller: &Caller, id: &str, bytes: u64) -> Result<Arc<Region>, SessionError> {
         self.check_open()?;
         let s = self.get_arc(caller, id)?;
-        let Some(dir) = &self.limits.shared_memory_dir else {
+        if !self.limits.shared_memory {
             return Err(SessionError::invalid(
                 "shared_memory",
                 "this server serves no shared memory regions (shared_memory = false); stream the frames' bytes instead",
             ));
-        };
+        }
         if s.info.lookahead > 0 {
             return Err(SessionError::invalid(
                 "session_id",
@@ -766,7 +767,7 @@ impl Sessions {
             2 * bytes,
             &format!("a shared memory region of {bytes} bytes"),
         )?;
-        let region = Arc::new(Region::create(dir, bytes, hold)?);
+        let region = Arc::new(Region::create(bytes, hold)?);
         tracing::info!(id, bytes, path = %region.path().display(), "shared memory region opened");
         *slot = Some(region.clone());
         Ok(region)
@@ -949,7 +950,8 @@ impl Checkout {
         }
         let (cw, ch) = frame.color_size();
         let samples = 3 * cw * ch;
-        let bad = frame.non_finite().of(ChannelKind::Color);
+        // The colour alone (the other channels are the filter's to repair), a plane a thread.
+        let bad: u64 = frame.color().par_iter().map(Plane::count_non_finite).sum();
         let fraction = bad as f64 / samples as f64;
         let max = s.non_finite_limit;
         if fraction > max {
