@@ -108,7 +108,10 @@ impl Region {
     pub fn read_into(&self, index: u64, offset: u64, dst: &mut [u8]) -> Result<(), SessionError> {
         dst.par_chunks_mut(COPY_PIECE)
             .enumerate()
-            .try_for_each(|(k, piece)| self.map.read(offset + (k * COPY_PIECE) as u64, piece))
+            .try_for_each(|(k, piece)| {
+                self.map
+                    .read(offset.saturating_add((k * COPY_PIECE) as u64), piece)
+            })
             .map_err(|e| out_of_range(index, e))
     }
 
@@ -116,7 +119,10 @@ impl Region {
     pub fn write_from(&self, index: u64, offset: u64, src: &[u8]) -> Result<(), SessionError> {
         src.par_chunks(COPY_PIECE)
             .enumerate()
-            .try_for_each(|(k, piece)| self.map.write(offset + (k * COPY_PIECE) as u64, piece))
+            .try_for_each(|(k, piece)| {
+                self.map
+                    .write(offset.saturating_add((k * COPY_PIECE) as u64), piece)
+            })
             .map_err(|e| out_of_range(index, e))
     }
 
