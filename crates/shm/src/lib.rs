@@ -27,7 +27,7 @@
 use rustix::fs::{fcntl_add_seals, fcntl_get_seals, fstat, memfd_create, MemfdFlags, Mode, SealFlags};
 use rustix::mm::{mmap, munmap, MapFlags, ProtFlags};
 use std::fs::OpenOptions;
-use std::os::fd::{AsFd, AsRawFd, BorrowedFd, OwnedFd};
+use std::os::fd::{AsRawFd, OwnedFd};
 use std::path::{Path, PathBuf};
 use std::ptr::NonNull;
 
@@ -145,11 +145,6 @@ impl Mapping {
     /// Whether it has no bytes (never: [`Mapping::create`] refuses that).
     pub fn is_empty(&self) -> bool {
         self.len == 0
-    }
-
-    /// The file, for a check of its seals or an attempt to truncate it.
-    pub fn fd(&self) -> BorrowedFd<'_> {
-        self.fd.as_fd()
     }
 
     /// Where `len` bytes from `offset` start, when they lie within the region.

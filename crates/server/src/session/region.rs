@@ -10,18 +10,16 @@
 use super::{lock, Reservation, SessionError};
 use afterimage_shm::Mapping;
 use rayon::prelude::*;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Mutex;
 
 /// Copies in and out of the region go in pieces of this size over the filter threads: one
 /// core's copy of a 720p frame (22 MB) takes 3-4 ms, as long as a fifth of taa's filtering.
 const COPY_PIECE: usize = 1 << 20;
 
-/// A region: its mapping, its path for the client, and the memory it holds against the
-/// budgets.
+/// A region: its mapping, and the memory it holds against the budgets.
 #[derive(Debug)]
 pub struct Region {
-    path: PathBuf,
     map: Mapping,
     /// The region's pages, and the staging buffers below.
     _hold: Reservation,
@@ -40,7 +38,6 @@ impl Region {
         let map = Mapping::create("afterimage-region", bytes)
             .map_err(|e| SessionError::Internal(format!("shared memory: {e}")))?;
         Ok(Region {
-            path: map.path(),
             map,
             _hold: hold,
             inbound: Mutex::new(Vec::new()),
@@ -49,8 +46,8 @@ impl Region {
     }
 
     /// The file a client opens.
-    pub fn path(&self) -> &Path {
-        &self.path
+    pub fn path(&self) -> PathBuf {
+        self.map.path()
     }
 
     /// Its size in bytes.
