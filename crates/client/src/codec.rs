@@ -167,8 +167,8 @@ pub fn compress(raw: Vec<u8>, compression: Compression) -> Vec<u8> {
 }
 
 /// Splits bytes into chunks of at most `max_chunk` (views of one buffer, not copies).
-pub fn chunks(bytes: Vec<u8>, max_chunk: usize) -> Vec<DataChunk> {
-    let bytes = bytes::Bytes::from(bytes);
+pub fn chunks(bytes: impl Into<bytes::Bytes>, max_chunk: usize) -> Vec<DataChunk> {
+    let bytes = bytes.into();
     let step = max_chunk.max(1);
     (0..bytes.len())
         .step_by(step)

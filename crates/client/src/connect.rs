@@ -24,6 +24,9 @@ pub const STREAM_WINDOW_BYTES: u32 = 4 << 20;
 /// is also the most a gRPC client can make it buffer outside the memory budget (data sent
 /// but not read yet while a frame is filtered); 8 MiB keeps loopback at 1.4 GB/s.
 pub const CONNECTION_WINDOW_BYTES: u32 = 8 << 20;
+/// Largest HTTP/2 frame each side accepts. h2's default (16 KiB) cuts a 1 MiB chunk into 64
+/// frames, each a wakeup and a buffer of its own on the receiving side.
+pub const MAX_FRAME_BYTES: u32 = 1 << 20;
 
 /// Largest message the client takes or sends (a reply chunk and its framing).
 const MAX_MESSAGE_BYTES: usize = 64 << 20;
@@ -83,6 +86,7 @@ pub async fn connect(url: String, opts: &ConnectOptions) -> Result<Inner, Connec
     let mut endpoint = Endpoint::from_shared(url)?
         .initial_stream_window_size(STREAM_WINDOW_BYTES)
         .initial_connection_window_size(CONNECTION_WINDOW_BYTES)
+        .max_frame_size(MAX_FRAME_BYTES)
         .tcp_nodelay(true);
     match (&opts.tls_ca, tls) {
         (Some(ca), true) => {

@@ -144,6 +144,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
     let mut grpc_builder = tonic::transport::Server::builder()
         .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
         .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
+        .max_frame_size(super::wire::MAX_FRAME_BYTES)
         .http2_keepalive_interval(Some(Duration::from_secs(config.keepalive_interval_s)))
         .http2_keepalive_timeout(Some(Duration::from_secs(config.keepalive_timeout_s)))
         .max_concurrent_streams(config.max_concurrent_streams)

@@ -17,7 +17,7 @@ use std::borrow::Cow;
 /// Default largest chunk: 1 MiB.
 pub const DEFAULT_MAX_CHUNK_BYTES: usize = 1 << 20;
 
-pub use afterimage_client::connect::{CONNECTION_WINDOW_BYTES, STREAM_WINDOW_BYTES};
+pub use afterimage_client::connect::{CONNECTION_WINDOW_BYTES, MAX_FRAME_BYTES, STREAM_WINDOW_BYTES};
 
 fn invalid(field: impl Into<String>, message: impl Into<String>) -> SessionError {
     SessionError::invalid(field, message)
@@ -36,6 +36,8 @@ pub struct FramePlan {
     pub decoded_bytes: u64,
     /// Decoded bytes of each channel, in header order.
     raw_bytes: Vec<u64>,
+    /// Each channel's planes: how many, and their size.
+    planes: Vec<(usize, (usize, usize))>,
 }
 
 /// Largest zstd frame for `raw` input bytes (zstd's `ZSTD_COMPRESSBOUND`).
@@ -76,6 +78,7 @@ impl FramePlan {
         let mut wire = 0u64;
         let mut decoded = 0u64;
         let mut raw_bytes = Vec::with_capacity(h.channels.len());
+        let mut planes = Vec::with_capacity(h.channels.len());
         for ch in &h.channels {
             let kind = channel_kind(ch, seen, shape.channels)?;
             seen = seen.with(kind);
@@ -136,6 +139,7 @@ impl FramePlan {
                 .ok_or_else(|| invalid("channels.byte_length", "the lengths overflow"))?;
             decoded += samples * 4;
             raw_bytes.push(raw);
+            planes.push((kind.components(), (pw, ph)));
         }
         if !seen.contains(ChannelKind::Color) {
             return Err(invalid("channels", "no color channel; every frame needs one"));
@@ -153,6 +157,7 @@ impl FramePlan {
             wire_bytes: wire,
             decoded_bytes: decoded,
             raw_bytes,
+            planes,
         })
     }
 }
@@ -209,6 +214,35 @@ pub struct Assembly {
     received: u64,
     /// Where the frame's bytes lie in the session's shared memory region, when they do.
     region: Option<u64>,
+    /// The planes an f32 frame's chunks are copied into as they arrive.
+    landing: Option<Landing>,
+}
+
+/// The planes of a frame whose samples need no conversion (every channel f32,
+/// uncompressed, in host order), filled as its chunks arrive: each chunk is copied once,
+/// to where the filter reads it, and dropped, so the transport reuses its receive buffer
+/// (a chunk kept until the frame is whole makes it take fresh memory for every message,
+/// which costs a page fault per 4 KiB).
+#[derive(Debug)]
+struct Landing {
+    /// Every channel's planes, in header order.
+    planes: Vec<Plane<f32>>,
+    /// The byte of the frame's data where each plane ends.
+    ends: Vec<usize>,
+}
+
+impl Landing {
+    /// Copies `bytes`, which start at byte `at` of the frame's data, into the planes.
+    fn put(&mut self, mut at: usize, mut bytes: &[u8]) {
+        let mut k = self.ends.partition_point(|&end| end <= at);
+        while !bytes.is_empty() && k < self.planes.len() {
+            let start = self.ends[k] - self.planes[k].data().len() * 4;
+            let dst = &mut bytemuck::cast_slice_mut::<f32, u8>(self.planes[k].data_mut())[at - start..];
+            let n = dst.len().min(bytes.len());
+            dst[..n].copy_from_slice(&bytes[..n]);
+            (at, bytes, k) = (at + n, &bytes[n..], k + 1);
+        }
+    }
 }
 
 impl Assembly {
@@ -221,7 +255,33 @@ impl Assembly {
             tail: Vec::new(),
             received: 0,
             region: None,
+            landing: None,
         }
+    }
+
+    /// Has the frame's chunks copied into planes from `spare` as they arrive, when its
+    /// samples need no conversion ([`lands`]) and it is streamed; call it before the first
+    /// chunk.
+    pub fn land(&mut self, spare: &mut Scratch) {
+        if !lands(&self.header) || self.region.is_some() || self.received > 0 {
+            return;
+        }
+        let mut planes = Vec::new();
+        let mut ends = Vec::new();
+        let mut end = 0;
+        for &(count, (w, h)) in &self.plan.planes {
+            for _ in 0..count {
+                end += w * h * 4;
+                planes.push(spare.plane(w, h));
+                ends.push(end);
+            }
+        }
+        self.landing = Some(Landing { planes, ends });
+    }
+
+    /// Whether the chunks are copied into planes as they arrive ([`Assembly::land`]).
+    pub fn is_landed(&self) -> bool {
+        self.landing.is_some()
     }
 
     /// A frame whose bytes lie in the session's shared memory region from `offset` (its
@@ -281,7 +341,12 @@ impl Assembly {
                 ),
             ));
         }
+        let at = self.received as usize;
         self.received += chunk.len() as u64;
+        if let Some(l) = &mut self.landing {
+            l.put(at, &chunk);
+            return Ok(());
+        }
         if chunk.len() < KEEP_CHUNK_BYTES {
             if self.tail.capacity() == 0 {
                 // Once, for what is still to come: no regrowth, whatever the chunking.
@@ -424,6 +489,12 @@ fn decompress<'a>(
     }
 }
 
+/// Whether a streamed frame with header `h` is copied into its planes as its chunks arrive
+/// ([`Assembly::land`]): every channel f32 and uncompressed, in host order.
+pub fn lands(h: &FrameHeader) -> bool {
+    reads_in_place(h) && h.channels.iter().all(|c| c.sample == SampleType::F32 as i32)
+}
+
 /// Whether a frame with header `h` can be read from a shared memory region straight into
 /// its planes ([`decode`] with a region): every float channel f32 and every channel
 /// uncompressed ([`afterimage_client::frame::in_place`], the test the client writes such a
@@ -439,7 +510,7 @@ pub fn reads_in_place(h: &FrameHeader) -> bool {
 /// frame in the region whose header [`reads_in_place`]); without, they are the chunks
 /// received (or filled from the region).
 pub fn decode(
-    a: &Assembly,
+    a: &mut Assembly,
     shape: FrameShape,
     spare: &mut Scratch,
     region: Option<&Region>,
@@ -460,6 +531,8 @@ pub fn decode(
     let mut color: Option<Rgb> = None;
     let mut rest: Vec<(ChannelKind, Vec<Plane<f32>>)> = Vec::new();
     let mut ids: Option<Plane<u32>> = None;
+    let mut landed = a.landing.take().map(|l| l.planes.into_iter());
+    let a = &*a;
     let hd = &a.header;
     let sampling = Sampling {
         factor: hd.shading_factor.max(1),
@@ -477,6 +550,20 @@ pub fn decode(
         seen = seen.with(kind);
         let name = kind.name();
         let len = usize::try_from(ch.byte_length).map_err(|_| invalid("channels.byte_length", "too long"))?;
+        if let Some(landed) = &mut landed {
+            // The plan made a plane of the right size for every component, filled in order.
+            at += len;
+            let planes: Vec<Plane<f32>> = landed.by_ref().take(kind.components()).collect();
+            if kind == ChannelKind::Color {
+                let [r, g, b]: [Plane<f32>; 3] = planes
+                    .try_into()
+                    .map_err(|_| SessionError::Internal("a landed colour without three planes".into()))?;
+                color = Some([r, g, b]);
+            } else {
+                rest.push((kind, planes));
+            }
+            continue;
+        }
         if let Some((r, base)) = in_place {
             // The plan checked the lengths and the region check the span.
             let offset = base + at as u64;
@@ -726,33 +813,50 @@ mod tests {
             let cuts: [&dyn Fn(usize) -> usize; 4] = [&|_| data.len(), &|_| 1, &|_| 3, &|i| random[i]];
             let mut first: Option<Frame> = None;
             for (c, cut) in cuts.iter().enumerate() {
-                let plan = FramePlan::check(&header, shape, 1 << 30).unwrap();
-                let mut a = Assembly::start(header.clone(), plan);
-                let (mut at, mut i) = (0, 0);
-                while at < data.len() {
-                    let end = (at + cut(i)).min(data.len());
-                    a.push(data[at..end].to_vec(), 1 << 20).unwrap();
-                    (at, i) = (end, i + 1);
-                }
-                // Small chunks are copied together: one piece, not one per chunk.
-                assert_eq!(a.chunks.len(), 1, "{sample:?} cut {c}");
-                let mut spare = Scratch::default();
-                spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
-                let got = decode(&a, shape, &mut spare, None).unwrap();
-                let want = first.get_or_insert_with(|| got.clone());
-                for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
-                    assert_eq!(bits(&got, k), bits(want, k), "{sample:?} cut {c}, {k}");
-                    if sample == SampleType::F32 {
-                        assert_eq!(bits(&got, k), bits(&frame, k), "{sample:?} cut {c}, {k}");
+                for land in [false, true] {
+                    let plan = FramePlan::check(&header, shape, 1 << 30).unwrap();
+                    let mut a = Assembly::start(header.clone(), plan);
+                    // Stale planes to land in: every byte must be overwritten.
+                    let mut landing = Scratch::default();
+                    landing.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![f32::NAN; n]).unwrap()));
+                    if land {
+                        a.land(&mut landing);
+                        // Only f32 lands; f16 needs converting, so it is kept as it came.
+                        assert_eq!(a.is_landed(), sample == SampleType::F32, "{sample:?}");
+                    }
+                    let (mut at, mut i) = (0, 0);
+                    while at < data.len() {
+                        let end = (at + cut(i)).min(data.len());
+                        a.push(data[at..end].to_vec(), 1 << 20).unwrap();
+                        (at, i) = (end, i + 1);
+                    }
+                    // Small chunks are copied together: one piece, not one per chunk; a
+                    // landed frame keeps none.
+                    let pieces = if a.is_landed() { 0 } else { 1 };
+                    assert_eq!(a.chunks.len(), pieces, "{sample:?} cut {c}");
+                    let mut spare = Scratch::default();
+                    spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
+                    let got = decode(&mut a, shape, &mut spare, None).unwrap();
+                    let want = first.get_or_insert_with(|| got.clone());
+                    for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
+                        assert_eq!(
+                            bits(&got, k),
+                            bits(want, k),
+                            "{sample:?} cut {c} land {land}, {k}"
+                        );
+                        if sample == SampleType::F32 {
+                            assert_eq!(
+                                bits(&got, k),
+                                bits(&frame, k),
+                                "{sample:?} cut {c} land {land}, {k}"
+                            );
+                        }
                     }
                 }
             }
         }
     }
 
-    /// A frame in a shared memory region whose channels are f32 (and u32 ids) decodes
-    /// from the region straight into its planes, bit for bit what was sent, without its
-    /// bytes ever being filled into the assembly; an f16 frame cannot be read in place.
     #[test]
     fn a_region_frame_of_f32_decodes_in_place() {
         use crate::session::{Budget, Reservation};
@@ -787,8 +891,8 @@ mod tests {
                 .write_all_at(&data, 13)
                 .unwrap();
             let plan = FramePlan::check(&header, shape, 1 << 30).unwrap();
-            let a = Assembly::in_region(header.clone(), plan, 13);
-            let got = decode(&a, shape, &mut Scratch::default(), Some(&region));
+            let mut a = Assembly::in_region(header.clone(), plan, 13);
+            let got = decode(&mut a, shape, &mut Scratch::default(), Some(&region));
             if sample == SampleType::F16 {
                 assert!(matches!(got, Err(SessionError::Internal(_))), "{got:?}");
                 assert!(!reads_in_place(&header));

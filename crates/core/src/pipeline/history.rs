@@ -158,6 +158,11 @@ impl Scratch {
         std::array::from_fn(|_| self.plane(width, height))
     }
 
+    /// Every plane held, for a caller that keeps them elsewhere.
+    pub fn drain(&mut self) -> Vec<Plane<f32>> {
+        std::mem::take(&mut self.free)
+    }
+
     /// Takes planes back for reuse.
     pub fn recycle(&mut self, planes: impl IntoIterator<Item = Plane<f32>>) {
         let start = self.free.len();
