@@ -195,9 +195,9 @@ fn channel_kind(
 /// Chunks at least this long are kept as they came; shorter ones are copied together.
 const KEEP_CHUNK_BYTES: usize = 64 << 10;
 
-/// Collects one frame's chunks after its header. The chunks are kept as they came (views
-/// of the transport's receive buffers), not copied into one buffer: decoding reads across
-/// them.
+/// Collects one frame's chunks after its header: copied into its planes as they arrive
+/// when it lands ([`Assembly::land`]); else kept as they came (views of the transport's
+/// receive buffers), not copied into one buffer, and decoding reads across them.
 #[derive(Debug)]
 pub struct Assembly {
     /// The header.
