@@ -31,6 +31,17 @@ pub const BLOCK: usize = 1 << 16;
 /// maps fresh, and faults in, for every block.
 const STAGE: usize = 1024;
 
+/// Writes `planes` one after another as little-endian `sample` samples into `dst`
+/// (exactly as long as they all are).
+pub fn put_planes(planes: &[&[f32]], sample: SampleType, dst: &mut [u8]) {
+    let mut at = 0;
+    for p in planes {
+        let len = p.len() * sample_bytes(sample);
+        put_samples(p, sample, &mut dst[at..at + len]);
+        at += len;
+    }
+}
+
 /// Writes `src` as little-endian f32 or f16 samples into `dst` (exactly as long).
 pub fn put_samples(src: &[f32], sample: SampleType, dst: &mut [u8]) {
     use half::slice::HalfFloatSliceExt;

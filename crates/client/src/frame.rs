@@ -1,7 +1,9 @@
 //! A frame as a renderer holds it (named channels of planar samples), encoded for the
 //! wire, and a reply's colour decoded.
 
-use crate::codec::{chunks, compress, decompress, in_host_order, joined, put_samples, sample_bytes, Samples};
+use crate::codec::{
+    chunks, compress, decompress, in_host_order, joined, put_planes, put_samples, sample_bytes, Samples,
+};
 use crate::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
 
 /// One channel of a frame: its protocol name (`color`, `depth`, `motion`, `normal`,
@@ -74,12 +76,7 @@ impl Encoded {
 pub fn encode_planes(planes: &[&[f32]], sample: SampleType, compression: Compression) -> Vec<u8> {
     let n: usize = planes.iter().map(|p| p.len()).sum();
     let mut raw = vec![0u8; n * sample_bytes(sample)];
-    let mut at = 0;
-    for p in planes {
-        let len = p.len() * sample_bytes(sample);
-        put_samples(p, sample, &mut raw[at..at + len]);
-        at += len;
-    }
+    put_planes(planes, sample, &mut raw);
     compress(raw, compression)
 }
 

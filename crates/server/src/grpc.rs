@@ -18,7 +18,7 @@ use crate::session::{
     clip, Caller, Checkout, ErrorKind, Filtered, MotionInput, Region, Reservation, SessionError, SessionInfo,
     SessionRequest, StreamClaim,
 };
-use afterimage_client::codec::{in_host_order, put_samples, sample_bytes};
+use afterimage_client::codec::{in_host_order, put_planes, sample_bytes};
 use bytes::Bytes;
 use std::future::Future;
 use std::pin::Pin;
@@ -190,22 +190,14 @@ pub fn reply(
         Some((r, at)) => {
             let len = 3 * w * h * sample_bytes(sample);
             r.write(f.index, at.reply_offset, len, |buf| {
-                for (p, out) in planes
-                    .iter()
-                    .zip(buf.chunks_exact_mut(w * h * sample_bytes(sample)))
-                {
-                    put_samples(p, sample, out);
-                }
+                put_planes(&planes, sample, buf)
             })?;
             (Bytes::new(), len)
         }
         None => match buffer.filter(|_| compression == pb::Compression::None) {
             Some(b) => {
-                let plane_len = w * h * sample_bytes(sample);
-                let bytes = b.lend(3 * plane_len, |buf| {
-                    for (p, out) in planes.iter().zip(buf.chunks_exact_mut(plane_len)) {
-                        put_samples(p, sample, out);
-                    }
+                let bytes = b.lend(3 * w * h * sample_bytes(sample), |buf| {
+                    put_planes(&planes, sample, buf)
                 });
                 let len = bytes.len();
                 (bytes, len)
@@ -419,7 +411,7 @@ fn start_frame(
     let region = claimed.region();
     *claim = Some(claimed);
     let plan = FramePlan::check(&h, shape, svc.config.max_frame_mib << 20)?;
-    let assembly = match h.shared_memory {
+    let mut assembly = match h.shared_memory {
         None => Assembly::start(h, plan),
         Some(at) => {
             let r = region.ok_or_else(|| {
@@ -451,7 +443,6 @@ fn start_frame(
     let hold = svc
         .sessions
         .reserve(caller, bytes, &format!("frame {}", assembly.header.index))?;
-    let mut assembly = assembly;
     assembly.land(spare);
     Ok(Receiving {
         assembly,
