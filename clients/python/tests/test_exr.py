@@ -7,7 +7,17 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from afterimage_client.client import FrameError, encode_channel, planar
+from afterimage_client.client import (
+    FrameError,
+    ProtocolError,
+    decode_replies,
+    encode_channel,
+    encode_channels,
+    frame_messages,
+    Frame,
+    planar,
+)
+from afterimage_client.proto import afterimage_pb2 as pb
 from afterimage_client.exr import (
     ExrError,
     MissingPassError,
@@ -204,6 +214,80 @@ def test_wire_encoding_refuses_wrong_shapes():
         encode_channel("object_id", np.zeros((2, 3), np.float32), 3, 2)
     with pytest.raises(FrameError, match="unknown channel 'colour'"):
         encode_channel("colour", np.zeros((2, 3, 3), np.float32), 3, 2)
+
+
+def test_a_frame_payload_is_its_channels_encoded_one_after_another():
+    rng = np.random.default_rng(7)
+    h, w = 5, 7  # odd sizes: no accidental alignment
+    channels = {
+        "color": rng.standard_normal((h, w, 3)).astype(np.float32),
+        "depth": rng.random((h, w)),  # float64: cast to f32 as the channel's samples
+        "motion": rng.standard_normal((h, w, 2)).astype(np.float32)[:, ::-1],  # not contiguous
+        "object_id": rng.integers(0, 2**32, (h, w), dtype=np.uint64),
+    }
+    for f16 in (False, True):
+        headers, payload = encode_channels(channels, w, h, f16)
+        want = b"".join(encode_channel(n, a, w, h, f16)[1] for n, a in channels.items())
+        # The scalar definition: each component's plane, row by row, little-endian.
+        ref = b"".join(
+            np.asarray(a if a.ndim == 3 else a[..., None])[..., k].astype(
+                "<u4" if n == "object_id" else ("<f2" if f16 else "<f4")
+            ).tobytes()
+            for n, a in channels.items()
+            for k in range(np.asarray(a if a.ndim == 3 else a[..., None]).shape[2])
+        )
+        assert payload.tobytes() == want == ref
+        assert [hd.byte_length for hd in headers] == [len(encode_channel(n, a, w, h, f16)[1]) for n, a in channels.items()]
+
+
+def _reply(index, planes, sample, cuts):
+    """A reply's FilteredChunks: its header, then its planes' bytes cut at ``cuts``."""
+    data = np.ascontiguousarray(planes).astype("<f2" if sample == pb.SAMPLE_TYPE_F16 else "<f4").tobytes()
+    _, h, w = planes.shape
+    head = pb.FilteredHeader(index=index, width=w, height=h, color=pb.ChannelHeader(name="color", sample=sample, byte_length=len(data)))
+    bounds = [0, *sorted(cuts), len(data)]
+    return [pb.FilteredChunk(header=head)] + [
+        pb.FilteredChunk(data=pb.DataChunk(data=data[a:b])) for a, b in zip(bounds, bounds[1:])
+    ]
+
+
+def test_replies_reassemble_across_any_chunking():
+    rng = np.random.default_rng(3)
+    planes = [rng.standard_normal((3, 3, 5)).astype(np.float32) for _ in range(2)]
+    for sample in (pb.SAMPLE_TYPE_F32, pb.SAMPLE_TYPE_F16):
+        n = 3 * 3 * 5 * (2 if sample == pb.SAMPLE_TYPE_F16 else 4)
+        for cuts in ([], [1], [3, 4, 5], list(range(1, n)), rng.choice(np.arange(1, n), 7, replace=False)):
+            msgs = _reply(0, planes[0], sample, cuts) + _reply(1, planes[1], sample, [n // 2])
+            out = list(decode_replies(msgs))
+            assert [h.index for h, _ in out] == [0, 1]
+            for (_, color), p in zip(out, planes):
+                want = p.astype(np.float16).astype(np.float32) if sample == pb.SAMPLE_TYPE_F16 else p
+                assert color.dtype == np.float32 and color.flags.c_contiguous
+                np.testing.assert_array_equal(color, want.transpose(1, 2, 0))
+
+
+def test_a_reply_that_disagrees_with_its_header_is_refused():
+    p = np.zeros((3, 2, 2), np.float32)
+    msgs = _reply(4, p, pb.SAMPLE_TYPE_F32, [])
+    msgs[0].header.color.byte_length += 4
+    with pytest.raises(ProtocolError, match=r"frame 4: 52 bytes of colour announced, expected 48"):
+        list(decode_replies(msgs))
+    msgs = _reply(4, p, pb.SAMPLE_TYPE_F32, [20])
+    msgs.append(pb.FilteredChunk(data=pb.DataChunk(data=b"1234")))
+    with pytest.raises(ProtocolError, match=r"reply data before its header"):
+        list(decode_replies(msgs))
+    msgs = _reply(4, p, pb.SAMPLE_TYPE_F32, [20])[:-1]
+    with pytest.raises(ProtocolError, match=r"ended inside frame 4's reply \(20 of 48 bytes\)"):
+        list(decode_replies(msgs))
+
+
+def test_frame_messages_cut_the_payload_into_chunks():
+    rgb = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)
+    msgs = list(frame_messages("s", 9, Frame(color=rgb), max_chunk_bytes=7))
+    assert msgs[0].header.index == 9 and [c.name for c in msgs[0].header.channels] == ["color"]
+    data = [m.data.data for m in msgs[1:]]
+    assert all(len(d) == 7 for d in data[:-1]) and 0 < len(data[-1]) <= 7
+    assert b"".join(data) == encode_channel("color", rgb, 5, 4)[1]
 
 
 def _fixture_files():

@@ -200,21 +200,50 @@ def planar(name: str, array: np.ndarray, width: int, height: int) -> np.ndarray:
     return a.transpose(2, 0, 1)
 
 
-def encode_channel(name: str, array: np.ndarray, width: int, height: int, f16: bool = False) -> Tuple["pb.ChannelHeader", bytes]:
-    """One channel's ChannelHeader and wire bytes: planar little-endian f32 (f16 with
-    ``f16``; object_id always u32)."""
-    planes = planar(name, array, width, height)
+def _channel_sample(name: str, planes: np.ndarray, f16: bool) -> int:
+    """The wire sample type of channel ``name`` (object_id always u32, its ids checked)."""
     if name == "object_id":
         if not np.issubdtype(planes.dtype, np.integer):
             raise FrameError(f"channel object_id: expected integer ids (uint32), got {planes.dtype}")
         if planes.size and (planes.min() < 0 or planes.max() > 0xFFFFFFFF):
             raise FrameError("channel object_id: ids must be in 0..2**32-1")
-        sample = pb.SAMPLE_TYPE_U32
-    else:
-        sample = pb.SAMPLE_TYPE_F16 if f16 else pb.SAMPLE_TYPE_F32
-    data = np.ascontiguousarray(planes, dtype=_sample_dtype(sample)).tobytes()
-    header = pb.ChannelHeader(name=name, sample=sample, compression=pb.COMPRESSION_NONE, byte_length=len(data))
-    return header, data
+        return pb.SAMPLE_TYPE_U32
+    return pb.SAMPLE_TYPE_F16 if f16 else pb.SAMPLE_TYPE_F32
+
+
+def _put_planes(planes: np.ndarray, sample: int, out: np.ndarray) -> None:
+    """Writes ``planes`` (C x H x W, any layout) into the bytes ``out`` as planar samples
+    of ``sample``, a component at a time: numpy copies a strided component several times
+    faster than it transposes a whole HxWxC array in one go."""
+    dst = out.view(_sample_dtype(sample)).reshape(planes.shape)
+    for k in range(planes.shape[0]):
+        dst[k] = planes[k]
+
+
+def encode_channel(name: str, array: np.ndarray, width: int, height: int, f16: bool = False) -> Tuple["pb.ChannelHeader", bytes]:
+    """One channel's ChannelHeader and wire bytes: planar little-endian f32 (f16 with
+    ``f16``; object_id always u32)."""
+    headers, payload = encode_channels({name: array}, width, height, f16)
+    return headers[0], payload.tobytes()
+
+
+def encode_channels(
+    channels: Mapping[str, np.ndarray], width: int, height: int, f16: bool = False
+) -> Tuple[List["pb.ChannelHeader"], np.ndarray]:
+    """The ChannelHeaders of ``channels`` and their wire bytes one after another, written
+    straight into one buffer (a uint8 array): each sample is copied once on its way in."""
+    prepared = []
+    for name, array in channels.items():
+        planes = planar(name, array, width, height)
+        sample = _channel_sample(name, planes, f16)
+        prepared.append((name, planes, sample, planes.size * np.dtype(_sample_dtype(sample)).itemsize))
+    payload = np.empty(sum(n for *_, n in prepared), np.uint8)
+    headers, at = [], 0
+    for name, planes, sample, n in prepared:
+        _put_planes(planes, sample, payload[at : at + n])
+        headers.append(pb.ChannelHeader(name=name, sample=sample, compression=pb.COMPRESSION_NONE, byte_length=n))
+        at += n
+    return headers, payload
 
 
 def frame_messages(
@@ -228,11 +257,7 @@ def frame_messages(
     """One frame as a FrameHeader message then DataChunk messages of at most
     ``max_chunk_bytes`` each."""
     width, height = frame.size
-    headers, blobs = [], []
-    for name, array in frame.channels().items():
-        h, data = encode_channel(name, array, width, height, f16)
-        headers.append(h)
-        blobs.append(data)
+    headers, payload = encode_channels(frame.channels(), width, height, f16)
     jx, jy = (float(v) for v in frame.jitter)
     reply_sample = pb.SAMPLE_TYPE_F16 if reply_f16 else pb.SAMPLE_TYPE_F32
     yield pb.FrameChunk(
@@ -247,15 +272,16 @@ def frame_messages(
             reply_compression=pb.COMPRESSION_NONE,
         )
     )
-    payload = b"".join(blobs)
     step = max_chunk_bytes or (1 << 20)
     for at in range(0, len(payload), step):
-        yield pb.FrameChunk(data=pb.DataChunk(data=payload[at : at + step]))
+        yield pb.FrameChunk(data=pb.DataChunk(data=payload[at : at + step].tobytes()))
 
 
 def decode_replies(responses: Iterable["pb.FilteredChunk"]) -> Iterator[Tuple["pb.FilteredHeader", np.ndarray]]:
-    """Reassembles FilteredChunks into (header, colour of shape HxWx3 float32)."""
-    header, parts, have = None, [], 0
+    """Reassembles FilteredChunks into (header, colour of shape HxWx3 float32). Each
+    chunk is copied once, into the reply's planes; the planes then once more, into the
+    image layout."""
+    header, buf, have = None, None, 0
     for msg in responses:
         if msg.HasField("header"):
             if header is not None:
@@ -263,26 +289,34 @@ def decode_replies(responses: Iterable["pb.FilteredChunk"]) -> Iterator[Tuple["p
                     f"reply header for frame {msg.header.index} before frame {header.index}'s data was complete "
                     f"({have} of {header.color.byte_length} bytes)"
                 )
-            header, parts, have = msg.header, [], 0
+            header, have = msg.header, 0
+            if header.color.compression != pb.COMPRESSION_NONE:
+                raise ProtocolError(f"frame {header.index}: compressed reply colour, which this client never asks for")
+            dtype = np.dtype(_sample_dtype(header.color.sample))
+            expected = 3 * header.width * header.height * dtype.itemsize
+            if header.color.byte_length != expected:
+                raise ProtocolError(
+                    f"frame {header.index}: {header.color.byte_length} bytes of colour announced, expected {expected} "
+                    f"(3 x {header.width} x {header.height} {dtype.name} samples)"
+                )
+            buf = np.empty(expected, np.uint8)
         else:
             if header is None:
                 raise ProtocolError("reply data before its header")
-            parts.append(msg.data.data)
-            have += len(msg.data.data)
-            if have > header.color.byte_length:
+            data = msg.data.data
+            if have + len(data) > header.color.byte_length:
                 raise ProtocolError(
-                    f"frame {header.index}: {have} bytes of colour, the header announced {header.color.byte_length}"
+                    f"frame {header.index}: {have + len(data)} bytes of colour, the header announced {header.color.byte_length}"
                 )
+            buf[have : have + len(data)] = np.frombuffer(data, np.uint8)
+            have += len(data)
         if header is not None and have == header.color.byte_length:
-            if header.color.compression != pb.COMPRESSION_NONE:
-                raise ProtocolError(f"frame {header.index}: compressed reply colour, which this client never asks for")
-            planes = np.frombuffer(b"".join(parts), dtype=_sample_dtype(header.color.sample))
-            expected = 3 * header.width * header.height
-            if planes.size != expected:
-                raise ProtocolError(f"frame {header.index}: {planes.size} colour samples, expected {expected}")
-            color = planes.astype(np.float32).reshape(3, header.height, header.width).transpose(1, 2, 0)
-            yield header, np.ascontiguousarray(color)
-            header = None
+            planes = buf.view(_sample_dtype(header.color.sample)).reshape(3, header.height, header.width)
+            color = np.empty((header.height, header.width, 3), np.float32)
+            for k in range(3):
+                color[..., k] = planes[k]
+            yield header, color
+            header, buf = None, None
     if header is not None:
         raise ProtocolError(f"the stream ended inside frame {header.index}'s reply ({have} of {header.color.byte_length} bytes)")
 
