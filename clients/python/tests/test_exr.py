@@ -276,6 +276,9 @@ def test_a_reply_that_disagrees_with_its_header_is_refused():
     msgs.append(pb.FilteredChunk(data=pb.DataChunk(data=b"1234")))
     with pytest.raises(ProtocolError, match=r"reply data before its header"):
         list(decode_replies(msgs))
+    with pytest.raises(ProtocolError, match=r"frame 4: a reply of 2x2 in a session of 3x2"):
+        list(decode_replies(_reply(4, p, pb.SAMPLE_TYPE_F32, []), size=(3, 2)))
+    assert len(list(decode_replies(_reply(4, p, pb.SAMPLE_TYPE_F32, []), size=(2, 2)))) == 1
     msgs = _reply(4, p, pb.SAMPLE_TYPE_F32, [20])[:-1]
     with pytest.raises(ProtocolError, match=r"ended inside frame 4's reply \(20 of 48 bytes\)"):
         list(decode_replies(msgs))

@@ -213,8 +213,8 @@ def _channel_sample(name: str, planes: np.ndarray, f16: bool) -> int:
 
 def _put_planes(planes: np.ndarray, sample: int, out: np.ndarray) -> None:
     """Writes ``planes`` (C x H x W, any layout) into the bytes ``out`` as planar samples
-    of ``sample``, a component at a time: numpy copies a strided component several times
-    faster than it transposes a whole HxWxC array in one go."""
+    of ``sample``, a component at a time: numpy copies a strided component about three
+    times faster than it transposes a whole HxWxC array in one go."""
     dst = out.view(_sample_dtype(sample)).reshape(planes.shape)
     for k in range(planes.shape[0]):
         dst[k] = planes[k]
@@ -277,10 +277,12 @@ def frame_messages(
         yield pb.FrameChunk(data=pb.DataChunk(data=payload[at : at + step].tobytes()))
 
 
-def decode_replies(responses: Iterable["pb.FilteredChunk"]) -> Iterator[Tuple["pb.FilteredHeader", np.ndarray]]:
-    """Reassembles FilteredChunks into (header, colour of shape HxWx3 float32). Each
-    chunk is copied once, into the reply's planes; the planes then once more, into the
-    image layout."""
+def decode_replies(
+    responses: Iterable["pb.FilteredChunk"], size: Optional[Tuple[int, int]] = None
+) -> Iterator[Tuple["pb.FilteredHeader", np.ndarray]]:
+    """Reassembles FilteredChunks into (header, colour of shape HxWx3 float32), each reply
+    of ``size`` (width, height) when given. Each chunk is copied once, into the reply's
+    planes; the planes then once more, into the image layout."""
     header, buf, have = None, None, 0
     for msg in responses:
         if msg.HasField("header"):
@@ -290,6 +292,10 @@ def decode_replies(responses: Iterable["pb.FilteredChunk"]) -> Iterator[Tuple["p
                     f"({have} of {header.color.byte_length} bytes)"
                 )
             header, have = msg.header, 0
+            if size is not None and (header.width, header.height) != tuple(size):
+                raise ProtocolError(
+                    f"frame {header.index}: a reply of {header.width}x{header.height} in a session of {size[0]}x{size[1]}"
+                )
             if header.color.compression != pb.COMPRESSION_NONE:
                 raise ProtocolError(f"frame {header.index}: compressed reply colour, which this client never asks for")
             dtype = np.dtype(_sample_dtype(header.color.sample))
@@ -619,7 +625,7 @@ class FrameStream:
     def _decode(self) -> Iterator[FilteredFrame]:
         s = self.session
         try:
-            for header, color in decode_replies(self._call):
+            for header, color in decode_replies(self._call, (s.width, s.height)):
                 sent = self._sent_at.pop(header.index, None)
                 yield FilteredFrame(
                     index=header.index,
