@@ -30,7 +30,10 @@ def main() -> None:
         (rng.random((h, w, 3), np.float32), rng.random((h, w), np.float32) + 1, rng.random((h, w, 2), np.float32) - 0.5)
         for _ in range(4)
     ]
-    frames = [Frame(color=c, depth=d, motion=m, index=i) for i, (c, d, m) in ((i, base[i % 4]) for i in range(args.frames))]
+    frames = []
+    for i in range(args.frames):
+        color, depth, motion = base[i % 4]
+        frames.append(Frame(color=color, depth=depth, motion=motion, index=i))
     with Client(args.server) as client:
         with client.create_session(args.filter, width=w, height=h) as session:
             arrivals = []
