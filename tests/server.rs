@@ -1034,6 +1034,10 @@ async fn the_stream_command_filters_a_scene_remotely() {
             stdout.contains("3 frames of 64x36")
                 && stdout.contains("mean PSNR")
                 && stdout.contains("in process")
+                && stdout.contains("median to median")
+                && stdout.contains("mean to mean")
+                && stdout.contains("before the stream")
+                && stdout.contains("copy floor:")
                 && stdout.contains("client CPU:")
                 && stdout.contains("cores busy while filtering"),
             "{transport}: {stdout}"

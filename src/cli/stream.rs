@@ -5,7 +5,7 @@
 use super::outln;
 use super::read_args::{ReadArgs, WriteArgs};
 use afterimage::filters::create;
-use afterimage::frame::Frame;
+use afterimage::frame::{Frame, Plane};
 use afterimage::io::{
     refuse_overwrite, write_filtered, FilteredFrame, InputImage, Keep, OutputNaming, OutputOptions, Sequence,
 };
@@ -210,6 +210,13 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
             .progress_chars("=> "),
     );
     bar.set_message(args.filter.clone());
+    // The in-process figure drifts with the machine's load over a run: measured before the
+    // stream and after, the two bracket it.
+    let before = if args.compare {
+        Some(in_process(&args.filter, &values, &frames)?)
+    } else {
+        None
+    };
     let wall = Instant::now();
     let Shot {
         replies,
@@ -237,8 +244,9 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     // Once streaming: what a long shot approaches, as the in-process median leaves out the
     // first frame's allocations. With one reply, only the whole span exists.
     let rate_ms = steady.rate_ms().unwrap_or(period_ms);
+    let median_ms = steady.median_ms().unwrap_or(period_ms);
     outln!(
-        "through the server: {rate_ms:.2} ms per frame ({:.1} frames/s) with {} in flight, from the first reply to the last; {period_ms:.2} ms from the first frame sent (the session's region and first allocations included)",
+        "through the server: {rate_ms:.2} ms per frame ({:.1} frames/s) with {} in flight, from the first reply to the last (median gap {median_ms:.2} ms); {period_ms:.2} ms from the first frame sent (the session's region and first allocations included)",
         1e3 / rate_ms,
         args.in_flight
     );
@@ -248,17 +256,33 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
             ms / replies.len().max(1) as f64
         );
     }
-    if args.compare {
-        let (local, cpu) = in_process_ms(&args.filter, &values, &frames)?;
+    if let Some(before) = before {
+        let after = in_process(&args.filter, &values, &frames)?;
+        let local = before.bracket(&after);
+        let median = local.median_ms;
+        // Like with like: medians (a frame's period, fresh memory left out on both sides),
+        // and means over what the rate covers (every frame after the first).
+        let mean = local
+            .mean_ms
+            .map_or(String::new(), |m| format!(", {:.2}x mean to mean", rate_ms / m));
         outln!(
-            "in process: median {local:.2} ms/frame; the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x ({:.2}x from the first frame sent)",
-            rtt_ms - local,
-            rtt_ms / local,
-            rate_ms / local,
-            period_ms / local
+            "in process: median {median:.2} ms/frame ({:.2} before the stream, {:.2} after{}); the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x median to median{mean} ({:.2}x from the first frame sent)",
+            before.median_ms,
+            after.median_ms,
+            local.mean_ms.map_or(String::new(), |m| format!("; mean {m:.2} after the first frame")),
+            rtt_ms - median,
+            rtt_ms / median,
+            median_ms / median,
+            period_ms / median
         );
-        if let Some((cpu_ms, busy)) = cpu {
+        if let Some((cpu_ms, busy)) = local.cpu {
             outln!("in process: {cpu_ms:.2} ms of CPU per frame ({busy:.2} cores busy while filtering)");
+        }
+        if let Some(floor) = copy_floor_ms(&args.filter, &frames) {
+            outln!(
+                "copy floor: {floor:.2} ms/frame to copy the channels the filter uses once in and its colour once out on one thread; a server that copies both is at least {:.2}x",
+                (median + floor) / median
+            );
         }
     }
     Ok(())
@@ -411,37 +435,43 @@ fn kept(mut r: Reply, keep_color: bool) -> Reply {
 /// One session's replies: when the first and the last came, and how many.
 #[derive(Default)]
 struct Arrivals {
-    span: Option<(Instant, Instant)>,
-    count: u64,
+    last: Option<Instant>,
+    /// Milliseconds between consecutive replies.
+    gaps: Vec<f64>,
 }
 
 impl Arrivals {
     fn arrived(&mut self, at: Instant) {
-        let first = self.span.map_or(at, |(first, _)| first);
-        self.span = Some((first, at));
-        self.count += 1;
+        if let Some(last) = self.last {
+            self.gaps.push((at - last).as_secs_f64() * 1e3);
+        }
+        self.last = Some(at);
     }
 }
 
-/// The time between the first and last reply of each session, and the intervals it holds:
-/// the rate once the pipeline is full.
+/// The gaps between consecutive replies of each session: the rate once the pipeline is
+/// full.
 #[derive(Default, Debug, PartialEq)]
 struct Steady {
-    seconds: f64,
-    intervals: u64,
+    gaps: Vec<f64>,
 }
 
 impl Steady {
     fn add(&mut self, a: &Arrivals) {
-        if let Some((first, last)) = a.span {
-            self.seconds += (last - first).as_secs_f64();
-            self.intervals += a.count - 1;
-        }
+        self.gaps.extend_from_slice(&a.gaps);
     }
 
-    /// Milliseconds per frame, when any session had two replies.
+    /// Mean milliseconds per frame from each session's first reply to its last, when any
+    /// session had two replies (it counts the first frames' fresh memory, see
+    /// [`send_shot`]).
     fn rate_ms(&self) -> Option<f64> {
-        (self.intervals > 0).then(|| self.seconds * 1e3 / self.intervals as f64)
+        (!self.gaps.is_empty()).then(|| self.gaps.iter().sum::<f64>() / self.gaps.len() as f64)
+    }
+
+    /// The median gap: a frame's period once streaming, the figure that compares with the
+    /// in-process median.
+    fn median_ms(&self) -> Option<f64> {
+        (!self.gaps.is_empty()).then(|| Timing::of(&self.gaps).median_ms)
     }
 }
 
@@ -508,13 +538,23 @@ fn print_figures(args: &StreamArgs, first: &Frame, replies: &[Reply], wall_s: f6
     Ok(Timing::of(&rtt).median_ms)
 }
 
-/// `--compare`: the same filter over the same frames in this process: median ms/frame,
-/// and (where the CPU time can be read) the mean CPU ms/frame and the cores it kept busy.
-fn in_process_ms(
+/// `--compare`'s figures: the same filter over the same frames in this process.
+struct InProcess {
+    /// Median ms a frame.
+    median_ms: f64,
+    /// Mean ms a frame after the first (the span the rate through the server covers), when
+    /// there are two frames.
+    mean_ms: Option<f64>,
+    /// Mean CPU ms a frame and the cores it kept busy, where the CPU time can be read.
+    cpu: Option<(f64, f64)>,
+}
+
+/// `--compare`: runs the filter over `frames` in this process.
+fn in_process(
     filter: &str,
     values: &serde_json::Map<String, serde_json::Value>,
     frames: &[Frame],
-) -> anyhow::Result<(f64, Option<(f64, f64)>)> {
+) -> anyhow::Result<InProcess> {
     let mut f = create(filter, values)?;
     let mut ms = Vec::new();
     let cpu = process_cpu_ms();
@@ -529,8 +569,59 @@ fn in_process_ms(
     let cpu_ms = cpu.zip(process_cpu_ms()).map(|(a, b)| b - a);
     f.finish()?;
     let wall_ms: f64 = ms.iter().sum();
-    let per_frame = cpu_ms.map(|c| (c / ms.len().max(1) as f64, c / wall_ms));
-    Ok((Timing::of(&ms).median_ms, per_frame))
+    let after_first = ms.get(1..).filter(|rest| !rest.is_empty());
+    Ok(InProcess {
+        median_ms: Timing::of(&ms).median_ms,
+        mean_ms: after_first.map(|rest| rest.iter().sum::<f64>() / rest.len() as f64),
+        cpu: cpu_ms.map(|c| (c / ms.len().max(1) as f64, c / wall_ms)),
+    })
+}
+
+impl InProcess {
+    /// The mean of two runs' figures (each figure where both have it).
+    fn bracket(&self, other: &InProcess) -> InProcess {
+        let mid = |a: f64, b: f64| (a + b) / 2.0;
+        InProcess {
+            median_ms: mid(self.median_ms, other.median_ms),
+            mean_ms: self.mean_ms.zip(other.mean_ms).map(|(a, b)| mid(a, b)),
+            cpu: self
+                .cpu
+                .zip(other.cpu)
+                .map(|((a, x), (b, y))| (mid(a, b), mid(x, y))),
+        }
+    }
+}
+
+/// `--compare`'s copy floor, median ms a frame: the channels of `frames` that `filter`
+/// uses copied once into planes, and the colour once out, on this thread (the copies the
+/// shared-memory transport makes; gRPC's come on top of the socket's).
+fn copy_floor_ms(filter: &str, frames: &[Frame]) -> Option<f64> {
+    let uses = afterimage::filters::info(filter)?.uses;
+    let mut into: Vec<Vec<f32>> = Vec::new();
+    let mut out: Vec<Vec<f32>> = Vec::new();
+    let copy = |dst: &mut Vec<Vec<f32>>, planes: &mut dyn Iterator<Item = &Plane<f32>>| {
+        for (k, p) in planes.enumerate() {
+            if dst.len() <= k {
+                dst.push(Vec::new());
+            }
+            dst[k].resize(p.data().len(), 0.0);
+            dst[k].copy_from_slice(p.data());
+        }
+    };
+    let ms: Vec<f64> = frames
+        .iter()
+        .map(|fr| {
+            let t = Instant::now();
+            copy(
+                &mut into,
+                &mut uses.iter().filter_map(|&k| fr.planes(k)).flatten(),
+            );
+            copy(&mut out, &mut fr.color().iter());
+            std::hint::black_box((&into, &out));
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    Some(Timing::of(&ms).median_ms)
 }
 
 #[cfg(test)]
@@ -554,13 +645,15 @@ mod tests {
         lone.arrived(ms(900));
         steady.add(&lone);
         steady.add(&Arrivals::default());
-        assert_eq!(steady.intervals, 3);
+        assert_eq!(steady.gaps.len(), 3);
+        let close = afterimage::tolerance::Tolerance::abs(1e-6);
         let rate = steady.rate_ms().unwrap();
-        assert!(
-            afterimage::tolerance::Tolerance::abs(1e-9).eq(rate, 40.0),
-            "{rate}"
-        );
+        assert!(close.eq(rate, 40.0), "{rate}");
+        // The one slow gap moves the mean, not the median.
+        let median = steady.median_ms().unwrap();
+        assert!(close.eq(median, 30.0), "{median}");
         assert_eq!(Steady::default().rate_ms(), None);
+        assert_eq!(Steady::default().median_ms(), None);
     }
 
     #[test]
