@@ -241,8 +241,9 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     }
     let rtt_ms = print_figures(&args, &frames[0], &replies, wall_s)?;
     let period_ms = streaming_s * 1e3 / replies.len().max(1) as f64;
-    // Once streaming: what a long shot approaches, as the in-process median leaves out the
-    // first frame's allocations. With one reply, only the whole span exists.
+    // Once streaming: what a long shot approaches (the median also leaves out the first
+    // gaps' fresh memory, as the in-process median does). With one reply, only the whole
+    // span exists.
     let rate_ms = steady.rate_ms().unwrap_or(period_ms);
     let median_ms = steady.median_ms().unwrap_or(period_ms);
     outln!(
@@ -432,7 +433,7 @@ fn kept(mut r: Reply, keep_color: bool) -> Reply {
     r
 }
 
-/// One session's replies: when the first and the last came, and how many.
+/// One session's replies: when the last came, and the gaps between them so far.
 #[derive(Default)]
 struct Arrivals {
     last: Option<Instant>,
@@ -604,8 +605,8 @@ fn copy_floor_ms(filter: &str, frames: &[Frame]) -> Option<f64> {
             if dst.len() <= k {
                 dst.push(Vec::new());
             }
-            dst[k].resize(p.data().len(), 0.0);
-            dst[k].copy_from_slice(p.data());
+            dst[k].clear();
+            dst[k].extend_from_slice(p.data());
         }
     };
     let ms: Vec<f64> = frames
