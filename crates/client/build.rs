@@ -21,6 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // chunking a frame for sending slices one buffer instead of copying it.
     tonic_prost_build::configure()
         .bytes(".afterimage.v1")
+        .codec_path("crate::connect::WireCodec")
         .build_server(std::env::var_os("CARGO_FEATURE_SERVER").is_some())
         .compile_fds(compiler.file_descriptor_set())?;
     Ok(())

@@ -2,11 +2,14 @@
 //! HTTP/2 windows sized for frames.
 
 use crate::proto::afterimage_client::AfterimageClient;
+use std::marker::PhantomData;
+use tonic::codec::{BufferSettings, Codec};
 use tonic::metadata::{Ascii, MetadataValue};
 use tonic::service::interceptor::InterceptedService;
 use tonic::service::Interceptor;
 use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint};
 use tonic::Status;
+use tonic_prost::{ProstDecoder, ProstEncoder};
 
 /// The routing key of a session: an HTTP header and gRPC metadata entry a client sends,
 /// with the same value, on every request of a session (create, frames, get, close). With
@@ -27,6 +30,43 @@ pub const CONNECTION_WINDOW_BYTES: u32 = 8 << 20;
 /// Largest HTTP/2 frame each side accepts. h2's default (16 KiB) cuts a 1 MiB chunk into 64
 /// frames, each a wakeup and a buffer of its own on the receiving side.
 pub const MAX_FRAME_BYTES: u32 = 1 << 20;
+
+/// Starting size of the buffer a gRPC message stream is received into (tonic's default
+/// is 8 KiB). tonic copies each HTTP/2 frame into it and, when a message does not fit
+/// after what it has read, moves the unread bytes to its start; with room for several
+/// 1 MiB chunks that move comes once every few chunks instead of with every one.
+pub const RECEIVE_BUFFER_BYTES: usize = 8 << 20;
+
+/// The protocol's gRPC codec: prost's, receiving into a buffer of
+/// [`RECEIVE_BUFFER_BYTES`] (`build.rs` makes the generated client and server use it).
+#[derive(Debug, Clone, Copy)]
+pub struct WireCodec<T, U>(PhantomData<(T, U)>);
+
+impl<T, U> Default for WireCodec<T, U> {
+    fn default() -> Self {
+        WireCodec(PhantomData)
+    }
+}
+
+impl<T, U> Codec for WireCodec<T, U>
+where
+    T: prost::Message + Send + 'static,
+    U: prost::Message + Default + Send + 'static,
+{
+    type Encode = T;
+    type Decode = U;
+    type Encoder = ProstEncoder<T>;
+    type Decoder = ProstDecoder<U>;
+
+    fn encoder(&mut self) -> Self::Encoder {
+        ProstEncoder::default()
+    }
+
+    fn decoder(&mut self) -> Self::Decoder {
+        // The second figure is tonic's default yield threshold, which only encoders use.
+        ProstDecoder::new(BufferSettings::new(RECEIVE_BUFFER_BYTES, 32 << 10))
+    }
+}
 
 /// Largest message the client takes or sends (a reply chunk and its framing).
 const MAX_MESSAGE_BYTES: usize = 64 << 20;
@@ -129,4 +169,27 @@ pub async fn connect(url: String, opts: &ConnectOptions) -> Result<Inner, Connec
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
     Ok(inner)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::proto::{FilteredChunk, FrameChunk};
+    use tonic::codec::Decoder;
+
+    /// The generated calls go through [`WireCodec`] (`build.rs` names it), whose decoder
+    /// starts with room for several chunks.
+    #[test]
+    fn the_generated_code_receives_into_a_buffer_for_several_chunks() {
+        let generated = include_str!(concat!(env!("OUT_DIR"), "/afterimage.v1.rs"));
+        assert!(generated.contains("crate::connect::WireCodec::default()"));
+        assert!(!generated.contains("ProstCodec"));
+        let settings = WireCodec::<FrameChunk, FilteredChunk>::default()
+            .decoder()
+            .buffer_settings();
+        assert!(
+            format!("{settings:?}").contains(&format!("buffer_size: {RECEIVE_BUFFER_BYTES},")),
+            "{settings:?}"
+        );
+    }
 }

@@ -533,7 +533,7 @@ fn filter_job(
                         r.recycle(frame.assembly.take_buffer());
                     }
                     drop(frame);
-                    let outs = co.process(decoded?, MotionInput::Session)?;
+                    let outs = co.process_decoded(decoded?, MotionInput::Session)?;
                     if landed {
                         // The stream lands its next frames in them; gone with the stream.
                         let _ = recycle.planes.send(co.input_planes()?.drain());

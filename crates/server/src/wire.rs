@@ -4,7 +4,7 @@
 //! channels, lengths) and says precisely what is wrong.
 
 use super::proto::{ChannelHeader, Compression, DataChunk, FrameHeader, SampleType};
-use crate::frame::{ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
+use crate::frame::{count_non_finite, ChannelKind, ChannelSet, Frame, FrameMeta, Plane, Rgb, Sampling};
 use crate::pipeline::Scratch;
 use crate::session::{clip, FrameShape, Region, SessionError};
 pub use afterimage_client::codec::chunks;
@@ -13,6 +13,7 @@ use afterimage_client::frame::{encode, Channel, Encoding, FrameData};
 pub use afterimage_client::frame::{encode_ids, encode_planes};
 use bytes::Bytes;
 use std::borrow::Cow;
+use std::ops::Range;
 
 /// Default largest chunk: 1 MiB.
 pub const DEFAULT_MAX_CHUNK_BYTES: usize = 1 << 20;
@@ -38,6 +39,8 @@ pub struct FramePlan {
     raw_bytes: Vec<u64>,
     /// Each channel's planes: how many, and their size.
     planes: Vec<(usize, (usize, usize))>,
+    /// Where the colour's planes are among every channel's, in header order.
+    color_planes: Range<usize>,
 }
 
 /// Largest zstd frame for `raw` input bytes (zstd's `ZSTD_COMPRESSBOUND`).
@@ -79,6 +82,8 @@ impl FramePlan {
         let mut decoded = 0u64;
         let mut raw_bytes = Vec::with_capacity(h.channels.len());
         let mut planes = Vec::with_capacity(h.channels.len());
+        let mut color_planes = 0..0;
+        let mut plane_count = 0;
         for ch in &h.channels {
             let kind = channel_kind(ch, seen, shape.channels)?;
             seen = seen.with(kind);
@@ -140,6 +145,10 @@ impl FramePlan {
             decoded += samples * 4;
             raw_bytes.push(raw);
             planes.push((kind.components(), (pw, ph)));
+            if kind == ChannelKind::Color {
+                color_planes = plane_count..plane_count + kind.components();
+            }
+            plane_count += kind.components();
         }
         if !seen.contains(ChannelKind::Color) {
             return Err(invalid("channels", "no color channel; every frame needs one"));
@@ -158,6 +167,7 @@ impl FramePlan {
             decoded_bytes: decoded,
             raw_bytes,
             planes,
+            color_planes,
         })
     }
 }
@@ -229,6 +239,11 @@ struct Landing {
     planes: Vec<Plane<f32>>,
     /// The byte of the frame's data where each plane ends.
     ends: Vec<usize>,
+    /// Which of them are the colour's.
+    color: Range<usize>,
+    /// The colour's NaN and infinite samples among those filled, counted as each chunk is
+    /// copied in (still in cache) rather than in a pass of its own.
+    non_finite: u64,
 }
 
 impl Landing {
@@ -240,6 +255,12 @@ impl Landing {
             let dst = &mut bytemuck::cast_slice_mut::<f32, u8>(self.planes[k].data_mut())[at - start..];
             let n = dst.len().min(bytes.len());
             dst[..n].copy_from_slice(&bytes[..n]);
+            if self.color.contains(&k) {
+                // The samples this chunk completes: a chunk may end inside a sample.
+                let from = at - start;
+                let done = &self.planes[k].data()[from / 4..(from + n) / 4];
+                self.non_finite += count_non_finite(done);
+            }
             (at, bytes, k) = (at + n, &bytes[n..], k + 1);
         }
     }
@@ -276,7 +297,12 @@ impl Assembly {
                 ends.push(end);
             }
         }
-        self.landing = Some(Landing { planes, ends });
+        self.landing = Some(Landing {
+            planes,
+            ends,
+            color: self.plan.color_planes.clone(),
+            non_finite: 0,
+        });
     }
 
     /// Whether the chunks are copied into planes as they arrive ([`Assembly::land`]).
@@ -454,7 +480,7 @@ fn decode_planes(
 }
 
 /// `planes` planes of `w x h` f32 samples read from `region` at `offset`, each straight
-/// into its memory.
+/// into its memory, and (when `count`) how many of their samples are NaN or infinite.
 fn read_planes(
     region: &Region,
     index: u64,
@@ -462,15 +488,22 @@ fn read_planes(
     (w, h): (usize, usize),
     planes: usize,
     spare: &mut Scratch,
-) -> Result<Vec<Plane<f32>>, SessionError> {
-    (0..planes)
+    count: bool,
+) -> Result<(Vec<Plane<f32>>, u64), SessionError> {
+    let mut non_finite = 0;
+    let planes = (0..planes)
         .map(|k| {
             let mut plane = spare.plane(w, h);
             let at = offset + (k * w * h * 4) as u64;
-            region.read_into(index, at, bytemuck::cast_slice_mut(plane.data_mut()))?;
+            if count {
+                non_finite += region.read_counting(index, at, plane.data_mut())?;
+            } else {
+                region.read_into(index, at, bytemuck::cast_slice_mut(plane.data_mut()))?;
+            }
             Ok(plane)
         })
-        .collect()
+        .collect::<Result<_, SessionError>>()?;
+    Ok((planes, non_finite))
 }
 
 fn decompress<'a>(
@@ -514,7 +547,7 @@ pub fn decode(
     shape: FrameShape,
     spare: &mut Scratch,
     region: Option<&Region>,
-) -> Result<Frame, SessionError> {
+) -> Result<Decoded, SessionError> {
     let in_place = match (region, a.region_offset()) {
         (Some(r), Some(base)) if reads_in_place(&a.header) => Some((r, base)),
         (None, _) => None,
@@ -531,7 +564,11 @@ pub fn decode(
     let mut color: Option<Rgb> = None;
     let mut rest: Vec<(ChannelKind, Vec<Plane<f32>>)> = Vec::new();
     let mut ids: Option<Plane<u32>> = None;
-    let mut landed = a.landing.take().map(|l| l.planes.into_iter());
+    let mut color_non_finite = None;
+    let mut landed = a.landing.take().map(|l| {
+        color_non_finite = Some(l.non_finite);
+        l.planes.into_iter()
+    });
     let a = &*a;
     let hd = &a.header;
     let sampling = Sampling {
@@ -579,8 +616,11 @@ pub fn decode(
             } else {
                 (w, h)
             };
-            let planes = read_planes(r, hd.index, offset, size, kind.components(), spare)?;
-            if kind == ChannelKind::Color {
+            let is_color = kind == ChannelKind::Color;
+            let (planes, non_finite) =
+                read_planes(r, hd.index, offset, size, kind.components(), spare, is_color)?;
+            if is_color {
+                color_non_finite = Some(non_finite);
                 let [r, g, b]: [Plane<f32>; 3] = planes.try_into().expect("three components");
                 color = Some([r, g, b]);
             } else {
@@ -663,7 +703,21 @@ pub fn decode(
         ));
     }
     frame.meta.jitter = jitter;
-    Ok(frame)
+    Ok(Decoded {
+        frame,
+        color_non_finite,
+    })
+}
+
+/// A decoded frame, and its colour's NaN and infinite samples when they were counted as the
+/// samples were copied in (landed or read from the region), so the session need not count
+/// them again.
+#[derive(Debug)]
+pub struct Decoded {
+    /// The frame.
+    pub frame: Frame,
+    /// Its colour's NaN and infinite samples, when counted on the way in.
+    pub color_non_finite: Option<u64>,
 }
 
 /// A frame as a header plus data chunks of at most `max_chunk` bytes, sending the
@@ -764,12 +818,16 @@ mod tests {
             .collect()
     }
 
-    /// A 7x5 frame of adversarial colour, depth and motion, and its size.
+    /// A 7x5 frame of adversarial colour (NaN and infinities among it), depth and motion,
+    /// and its size.
     fn test_frame() -> (Frame, (usize, usize)) {
         let (w, h) = (7, 5);
         let n = w * h;
         let plane = |k: usize| Plane::from_vec(w, h, adversarial(n + k)[k..].to_vec()).unwrap();
         let mut frame = Frame::new([plane(0), plane(1), plane(2)]).unwrap();
+        // Non-finite colour, which the session counts as it lands.
+        let [r, g, b] = frame.color_mut();
+        (r[0], r[9], g[17], b[n - 1]) = (f32::NAN, f32::INFINITY, f32::NEG_INFINITY, f32::NAN);
         frame.set_f32(ChannelKind::Depth, vec![plane(3)]).unwrap();
         frame
             .set_f32(ChannelKind::Motion, vec![plane(4), plane(5)])
@@ -836,7 +894,15 @@ mod tests {
                     assert_eq!(a.chunks.len(), pieces, "{sample:?} cut {c}");
                     let mut spare = Scratch::default();
                     spare.recycle((0..6).map(|_| Plane::from_vec(w, h, vec![9.0; n]).unwrap()));
-                    let got = decode(&mut a, shape, &mut spare, None).unwrap();
+                    let landed = a.is_landed();
+                    let d = decode(&mut a, shape, &mut spare, None).unwrap();
+                    // A landed colour's NaNs and infinities are counted as it comes, cut
+                    // inside samples or not; the rest is left to the session.
+                    let counted =
+                        landed.then(|| frame.color().iter().map(Plane::count_non_finite).sum::<u64>());
+                    assert!(counted != Some(0), "the test frame must hold non-finite colour");
+                    assert_eq!(d.color_non_finite, counted, "{sample:?} cut {c} land {land}");
+                    let got = d.frame;
                     let want = first.get_or_insert_with(|| got.clone());
                     for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
                         assert_eq!(
@@ -898,7 +964,11 @@ mod tests {
                 assert!(!reads_in_place(&header));
                 continue;
             }
-            let got = got.unwrap();
+            let d = got.unwrap();
+            let counted: u64 = frame.color().iter().map(Plane::count_non_finite).sum();
+            assert!(counted > 0, "the test frame must hold non-finite colour");
+            assert_eq!(d.color_non_finite, Some(counted));
+            let got = d.frame;
             for k in [ChannelKind::Color, ChannelKind::Depth, ChannelKind::Motion] {
                 assert_eq!(bits(&got, k), bits(&frame, k), "{k}");
             }

@@ -8,7 +8,7 @@ mod sampling;
 
 pub use channels::{ChannelKind, ChannelSet, SampleKind};
 pub use motion::{MotionConvention, MotionDirection, MotionUnits, YAxis};
-pub use plane::Plane;
+pub use plane::{count_non_finite, Plane};
 pub use sampling::{Sampling, FACTORS};
 
 use serde::{Deserialize, Serialize};

@@ -126,8 +126,13 @@ impl<T: Copy> Plane<T> {
 impl Plane<f32> {
     /// Number of samples that are NaN or infinite.
     pub fn count_non_finite(&self) -> u64 {
-        self.data.iter().filter(|v| !v.is_finite()).count() as u64
+        count_non_finite(&self.data)
     }
+}
+
+/// Number of samples in `samples` that are NaN or infinite.
+pub fn count_non_finite(samples: &[f32]) -> u64 {
+    samples.iter().filter(|v| !v.is_finite()).count() as u64
 }
 
 #[cfg(test)]

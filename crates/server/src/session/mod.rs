@@ -907,6 +907,16 @@ impl Checkout {
         self.process_kept(frame, motion, None)
     }
 
+    /// [`Checkout::process`] for a frame decoded from the wire, whose colour's NaN and
+    /// infinite samples were counted as it was copied in (see [`crate::wire::Decoded`]).
+    pub fn process_decoded(
+        &mut self,
+        d: crate::wire::Decoded,
+        motion: MotionInput,
+    ) -> Result<Vec<Filtered>, SessionError> {
+        self.filter_frame(d.frame, motion, None, d.color_non_finite)
+    }
+
     /// The index the session gives its next frame when the frame has none: one past the
     /// last frame's (0 first).
     pub fn next_index(&mut self) -> Result<u64, SessionError> {
@@ -917,9 +927,21 @@ impl Checkout {
     /// (it is in that output's [`Filtered::input`]).
     pub fn process_kept(
         &mut self,
+        frame: Frame,
+        motion: MotionInput,
+        input: Option<KeptInput>,
+    ) -> Result<Vec<Filtered>, SessionError> {
+        self.filter_frame(frame, motion, input, None)
+    }
+
+    /// Checks and filters a frame; `color_non_finite` is its colour's NaN and infinite
+    /// samples when already counted.
+    fn filter_frame(
+        &mut self,
         mut frame: Frame,
         motion: MotionInput,
         input: Option<KeptInput>,
+        color_non_finite: Option<u64>,
     ) -> Result<Vec<Filtered>, SessionError> {
         if crate::pipeline::exec::cancelled() {
             // Queued for a client that has gone: dropped, the session as it was.
@@ -951,7 +973,8 @@ impl Checkout {
         let (cw, ch) = frame.color_size();
         let samples = 3 * cw * ch;
         // The colour alone (the other channels are the filter's to repair), a plane a thread.
-        let bad: u64 = frame.color().par_iter().map(Plane::count_non_finite).sum();
+        let bad =
+            color_non_finite.unwrap_or_else(|| frame.color().par_iter().map(Plane::count_non_finite).sum());
         let fraction = bad as f64 / samples as f64;
         let max = s.non_finite_limit;
         if fraction > max {

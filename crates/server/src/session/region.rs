@@ -8,6 +8,7 @@
 //! offsets against the region and keeps the buffers a converted frame or reply is staged in.
 
 use super::{lock, Reservation, SessionError};
+use crate::frame::count_non_finite;
 use afterimage_shm::Mapping;
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -112,6 +113,21 @@ impl Region {
             .map_err(|e| out_of_range(index, e))
     }
 
+    /// Fills `dst` with frame `index`'s f32 samples from `offset`, as [`Region::read_into`],
+    /// and counts the NaN and infinite ones among them piece by piece, while each piece is
+    /// still in cache (a pass of its own over a colour costs as much again as reading it).
+    pub fn read_counting(&self, index: u64, offset: u64, dst: &mut [f32]) -> Result<u64, SessionError> {
+        dst.par_chunks_mut(COPY_PIECE / 4)
+            .enumerate()
+            .map(|(k, piece)| {
+                let at = offset.saturating_add((k * COPY_PIECE) as u64);
+                self.map.read(at, bytemuck::cast_slice_mut(piece))?;
+                Ok(count_non_finite(piece))
+            })
+            .try_reduce(|| 0, |a, b| Ok(a + b))
+            .map_err(|e| out_of_range(index, e))
+    }
+
     /// Writes `src` (a reply's plane, say) at `offset`.
     pub fn write_from(&self, index: u64, offset: u64, src: &[u8]) -> Result<(), SessionError> {
         src.par_chunks(COPY_PIECE)
@@ -148,4 +164,42 @@ impl Region {
 /// A copy outside the region: the header check should have caught it first.
 fn out_of_range(index: u64, e: afterimage_shm::Error) -> SessionError {
     SessionError::invalid("shared_memory", format!("frame {index}: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::session::Budget;
+    use std::os::unix::fs::FileExt;
+
+    /// The count made piece by piece is the count of the samples read, across pieces, at an
+    /// offset that is not a sample's, with NaNs and infinities on the pieces' edges.
+    #[test]
+    fn a_counted_read_counts_every_non_finite_sample() {
+        let n = COPY_PIECE / 4 * 2 + 37;
+        let mut samples: Vec<f32> = (0..n).map(|i| i as f32 * 0.5 - 3.0).collect();
+        for i in [0, COPY_PIECE / 4 - 1, COPY_PIECE / 4, COPY_PIECE / 2 + 1, n - 1] {
+            samples[i] = f32::NAN;
+        }
+        for i in [7, COPY_PIECE / 4 + 1, n - 2] {
+            samples[i] = if i % 2 == 0 {
+                f32::INFINITY
+            } else {
+                f32::NEG_INFINITY
+            };
+        }
+        let bytes = (n * 4 + 13) as u64;
+        let hold = Reservation::take(&[&Budget::new("test", 1 << 30)], bytes, "region").unwrap();
+        let region = Region::create(bytes, hold).unwrap();
+        let file = std::fs::File::options().write(true).open(region.path()).unwrap();
+        file.write_all_at(bytemuck::cast_slice(&samples), 13).unwrap();
+        let mut got = vec![0f32; n];
+        let bad = region.read_counting(0, 13, &mut got).unwrap();
+        assert_eq!(bad, 8);
+        assert_eq!(bad, count_non_finite(&samples));
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&got), bits(&samples));
+        // Past the region's end: refused, not read.
+        assert!(region.read_counting(0, 14, &mut got).is_err());
+    }
 }
