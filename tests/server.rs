@@ -271,6 +271,50 @@ async fn raw_stream(c: &mut Client, parts: Vec<frame_chunk::Part>) -> tonic::Sta
     }
 }
 
+/// `Stream` is read from the HTTP/2 frames by the server's own route (`stream_route`), not
+/// by tonic: a message it cannot take, here one with its compression flag set, sent over a
+/// bare HTTP/2 connection, ends the call with the route's status naming why.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stream_call_reads_its_own_framing_and_names_what_is_wrong() {
+    use prost::Message;
+    let r = server(|_| {}).await;
+    let tcp = tokio::net::TcpStream::connect(r.grpc_addr).await.unwrap();
+    let (mut h2, conn) = h2::client::handshake(tcp).await.unwrap();
+    tokio::spawn(conn);
+    let path = afterimage::server::stream_route::STREAM_PATH;
+    let req = http::Request::post(format!("http://{}{path}", r.grpc_addr))
+        .header("content-type", "application/grpc")
+        .header("te", "trailers")
+        .body(())
+        .unwrap();
+    let (resp, mut send) = h2.send_request(req, false).unwrap();
+    let msg = pb::FrameChunk {
+        part: Some(frame_chunk::Part::Data(pb::DataChunk {
+            data: vec![1; 8].into(),
+        })),
+    }
+    .encode_to_vec();
+    let mut framed = vec![1u8];
+    framed.extend((msg.len() as u32).to_be_bytes());
+    framed.extend(msg);
+    send.send_data(framed.into(), true).unwrap();
+    let resp = resp.await.unwrap();
+    assert_eq!(resp.status(), 200);
+    let mut body = resp.into_body();
+    while let Some(d) = body.data().await {
+        d.unwrap();
+    }
+    let trailers = body.trailers().await.unwrap().expect("a status in trailers");
+    let status = tonic::Status::from_header_map(&trailers).unwrap();
+    assert_eq!(status.code(), Code::Internal, "{}", status.message());
+    assert!(
+        status.message().contains("compression flag 1"),
+        "{}",
+        status.message()
+    );
+    r.shutdown().await.unwrap();
+}
+
 fn frame_parts(
     frame: &Frame,
     id: &str,
@@ -454,6 +498,19 @@ async fn bad_input_gets_a_precise_status_and_the_session_keeps_working() {
             frame_parts(&nan, &s.id, &[Color]),
             Code::InvalidArgument,
             &["color", "NaN", "100.0%"],
+        ),
+        (
+            "chunk over max_chunk_bytes",
+            {
+                let mut p = frame_parts(&fr[0], &s.id, &[Color]);
+                p.truncate(1);
+                p.push(frame_chunk::Part::Data(pb::DataChunk {
+                    data: vec![0; (1 << 20) + 1].into(),
+                }));
+                p
+            },
+            Code::ResourceExhausted,
+            &["chunk of 1048577 bytes", "the limit is 1048576"],
         ),
         (
             "undeclared channel",
@@ -3501,9 +3558,13 @@ async fn shared_memory_is_per_key_and_can_be_turned_off() {
     assert_eq!(e.code(), Code::NotFound, "{}", e.message());
     let region = a.inner.open_region(req()).await.unwrap().into_inner();
     assert!(std::path::Path::new(&region.path).is_file());
+    // The path names a descriptor of this process (the server runs in the test's), whose
+    // number another test's file may take once it is closed: compare the files.
+    let file = || std::fs::metadata(&region.path).map(|m| std::os::unix::fs::MetadataExt::ino(&m));
+    let before = file().unwrap();
     r.shutdown().await.unwrap();
     assert!(
-        !std::path::Path::new(&region.path).exists(),
+        file().map_or(true, |ino| ino != before),
         "a stopped server leaves no region"
     );
     let r = server(|c| c.shared_memory = false).await;

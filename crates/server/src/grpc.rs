@@ -279,7 +279,7 @@ impl Grpc {
 
     /// Largest message either way: a chunk and its framing, at least 4 MiB (gRPC's
     /// default, so session requests with many parameters still fit).
-    fn message_limit(&self) -> usize {
+    pub(crate) fn message_limit(&self) -> usize {
         (self.0.config.max_chunk_bytes + (64 << 10)).max(4 << 20)
     }
 
@@ -585,13 +585,39 @@ async fn flush_stream(
     .await
 }
 
-async fn handle_stream(
+/// Starts a Stream call whose metadata is `md` and whose messages `inbound` gives: the
+/// caller checked, then the call served in a task of its own; the replies, ended by an
+/// error status when the call fails. tonic's `stream` and [`crate::stream_route`] both
+/// come here.
+pub(crate) fn open_stream<S>(
+    grpc: &Grpc,
+    md: &MetadataMap,
+    inbound: S,
+) -> Result<mpsc::Receiver<Result<pb::FilteredChunk, Status>>, Status>
+where
+    S: Stream<Item = Result<pb::FrameChunk, Status>> + Unpin + Send + 'static,
+{
+    let caller = grpc.caller(md)?;
+    let (tx, rx) = mpsc::channel(grpc.0.config.queue_depth);
+    tokio::spawn(handle_stream(
+        grpc.0.clone(),
+        caller,
+        grpc.message_limit(),
+        inbound,
+        tx,
+    ));
+    Ok(rx)
+}
+
+async fn handle_stream<S>(
     svc: Service,
     caller: Caller,
     message_limit: usize,
-    mut inbound: Streaming<pb::FrameChunk>,
+    mut inbound: S,
     tx: mpsc::Sender<Result<pb::FilteredChunk, Status>>,
-) {
+) where
+    S: Stream<Item = Result<pb::FrameChunk, Status>> + Unpin,
+{
     let max_chunk = svc.config.max_chunk_bytes;
     let frame_timeout = Duration::from_secs(svc.config.request_timeout_s);
     let idle = Duration::from_secs(svc.config.idle_connection_timeout_s);
@@ -664,7 +690,9 @@ async fn handle_stream(
             }
             Some(Err(s)) => {
                 // Cancelled or reset: nobody takes the window's outputs, so they go now.
+                // A message that could not be read is told to the client, if it listens.
                 tracing::debug!(status = %s, "client stream ended with an error");
+                let _ = tx.try_send(Err(s));
                 drop(filtering.take());
                 abandon(&svc, claim.as_ref());
                 return;
@@ -789,8 +817,8 @@ enum Wait {
 /// Waits for the stream's next message: within the request timeout while a frame is half
 /// received (however it is chunked); between frames of a `quiet` stream (nothing in
 /// flight) within the idle timeout or until the server drains.
-async fn next_message(
-    inbound: &mut Streaming<pb::FrameChunk>,
+async fn next_message<S: Stream<Item = Result<pb::FrameChunk, Status>> + Unpin>(
+    inbound: &mut S,
     current: Option<&Receiving>,
     frame_timeout: Duration,
     idle: Duration,
@@ -955,15 +983,8 @@ impl Afterimage for Grpc {
         &self,
         req: Request<Streaming<pb::FrameChunk>>,
     ) -> Result<Response<Self::StreamStream>, Status> {
-        let caller = self.caller(req.metadata())?;
-        let (tx, rx) = mpsc::channel(self.0.config.queue_depth);
-        tokio::spawn(handle_stream(
-            self.0.clone(),
-            caller,
-            self.message_limit(),
-            req.into_inner(),
-            tx,
-        ));
+        let md = req.metadata().clone();
+        let rx = open_stream(self, &md, req.into_inner())?;
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 }

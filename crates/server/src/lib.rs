@@ -24,6 +24,7 @@ pub mod proto;
 pub mod run;
 pub mod schedule;
 pub mod service;
+pub mod stream_route;
 pub mod wire;
 
 pub use config::Config;

@@ -11,6 +11,7 @@ use super::grpc::{health, reflection, Grpc};
 use super::http::router;
 use super::listener::{accept, serve_http, tls_acceptor, ConnSettings, HttpSettings, PerIp};
 use super::service::Service;
+use super::stream_route::StreamRouteLayer;
 use crate::session::Keyring;
 use std::future::Future;
 use std::net::SocketAddr;
@@ -141,7 +142,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
         keepalive_timeout: Duration::from_secs(config.keepalive_timeout_s),
         max_concurrent_streams: config.max_concurrent_streams,
     };
-    let mut grpc_builder = tonic::transport::Server::builder()
+    let grpc_builder = tonic::transport::Server::builder()
         .initial_stream_window_size(super::wire::STREAM_WINDOW_BYTES)
         .initial_connection_window_size(super::wire::CONNECTION_WINDOW_BYTES)
         .max_frame_size(super::wire::MAX_FRAME_BYTES)
@@ -185,6 +186,7 @@ pub async fn start(config: Config) -> Result<Running, ServeError> {
     let grpc = {
         let mut closed = closed.clone();
         grpc_builder
+            .layer(StreamRouteLayer(Grpc(service.clone())))
             .add_service(Grpc(service.clone()).server())
             .add_service(health)
             .add_optional_service(reflection_v1)
