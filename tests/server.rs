@@ -3560,11 +3560,16 @@ async fn shared_memory_is_per_key_and_can_be_turned_off() {
     assert!(std::path::Path::new(&region.path).is_file());
     // The path names a descriptor of this process (the server runs in the test's), whose
     // number another test's file may take once it is closed: compare the files.
-    let file = || std::fs::metadata(&region.path).map(|m| std::os::unix::fs::MetadataExt::ino(&m));
+    let file = || {
+        std::fs::metadata(&region.path).map(|m| {
+            use std::os::unix::fs::MetadataExt;
+            (m.dev(), m.ino())
+        })
+    };
     let before = file().unwrap();
     r.shutdown().await.unwrap();
     assert!(
-        file().map_or(true, |ino| ino != before),
+        file().map_or(true, |f| f != before),
         "a stopped server leaves no region"
     );
     let r = server(|c| c.shared_memory = false).await;

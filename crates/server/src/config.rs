@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 use thiserror::Error;
 
+/// The largest `max_chunk_bytes` taken: a chunk and its framing fit a gRPC message's 4-byte
+/// length with room to spare.
+pub const MAX_CHUNK_BYTES_LIMIT: usize = 1 << 30;
 /// Prefix of the environment variables read.
 pub const ENV_PREFIX: &str = "AFTERIMAGE_";
 
@@ -363,6 +366,14 @@ impl Config {
                 });
             }
         }
+        // A chunk and its framing must fit gRPC's 4-byte message length.
+        if self.max_chunk_bytes > MAX_CHUNK_BYTES_LIMIT {
+            return Err(ConfigError::Invalid {
+                field: "max_chunk_bytes",
+                expected: format!("at most {MAX_CHUNK_BYTES_LIMIT} (1 GiB)"),
+                got: self.max_chunk_bytes.to_string(),
+            });
+        }
         if self.tls_cert.is_empty() != self.tls_key.is_empty() {
             return Err(ConfigError::Invalid {
                 field: if self.tls_cert.is_empty() {
@@ -484,6 +495,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("queue_depth") && e.contains("at least 1"), "{e}");
+        let e = Config::load(None, env(&[("AFTERIMAGE_MAX_CHUNK_BYTES", "2147483648")]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("max_chunk_bytes") && e.contains("at most"), "{e}");
     }
 
     /// The sessions' default backend comes from the file or the environment; a name that

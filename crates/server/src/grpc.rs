@@ -689,10 +689,11 @@ async fn handle_stream<S>(
                 return;
             }
             Some(Err(s)) => {
-                // Cancelled or reset: nobody takes the window's outputs, so they go now.
-                // A message that could not be read is told to the client, if it listens.
+                // Cancelled or reset, or a message that could not be read: nobody takes the
+                // window's outputs, so they go now. The status goes to a client that still
+                // listens (a reset one has dropped the replies, and the send fails at once).
                 tracing::debug!(status = %s, "client stream ended with an error");
-                let _ = tx.try_send(Err(s));
+                let _ = tx.send(Err(s)).await;
                 drop(filtering.take());
                 abandon(&svc, claim.as_ref());
                 return;

@@ -6,15 +6,17 @@
 //! a data chunk's bytes go from the frame they arrived in straight to where the frame is
 //! landed (as views of that frame, [`Inbound`]), and a reply chunk's bytes are handed to
 //! HTTP/2 as they are, after a few bytes of framing ([`ReplyBody`]). Every other message,
-//! and any chunk not laid out as prost lays it out, is gathered and decoded by prost as
-//! before; what the call does with its messages is [`crate::grpc`]'s `handle_stream`.
+//! any chunk not laid out as prost lays it out, and a chunk over the session's chunk size
+//! (for `handle_stream` to refuse as any other) is gathered and decoded by prost as before;
+//! what the call does with its messages is [`crate::grpc`]'s `handle_stream`.
 
-use crate::grpc::{open_stream, status, Grpc};
+use crate::grpc::{open_stream, Grpc};
 use crate::proto::{self as pb, filtered_chunk, frame_chunk};
-use crate::session::SessionError;
+use crate::wire::KEEP_CHUNK_BYTES;
 use bytes::{BufMut, Bytes, BytesMut};
 use http::{HeaderMap, HeaderValue, Request, Response};
 use http_body::{Body, Frame, SizeHint};
+use prost::encoding::{decode_varint, encode_varint, encoded_len_varint};
 use prost::Message;
 use std::convert::Infallible;
 use std::future::Future;
@@ -35,6 +37,12 @@ const PREFIX: usize = 5;
 /// below 2^35, so five bytes of varint at most).
 const DATA_HEAD: usize = 12;
 
+/// A data chunk's bytes go on as views of the HTTP/2 frames they came in when at least
+/// this many lie in one frame; shorter runs are copied together (up to this many, or to
+/// the chunk's end), so a client that cuts its data into tiny frames costs the stream one
+/// message a run, as a stream of whole chunks would.
+const VIEW_BYTES: usize = KEEP_CHUNK_BYTES;
+
 /// Tag of a chunk's `data` part (field 2, length-delimited) and of a `DataChunk`'s `data`
 /// bytes (field 1, length-delimited).
 const DATA_PART_TAG: u8 = 2 << 3 | 2;
@@ -47,15 +55,17 @@ enum State {
     Prefix,
     /// Reading the first bytes of a message of `len` bytes, to tell a data chunk.
     Head { len: usize },
-    /// Inside a data chunk's bytes: `left` still to come, handed on as they arrive.
+    /// Inside a data chunk's bytes: `left` still to come (beyond `runs`), handed on as they
+    /// arrive.
     Data { left: usize },
     /// Gathering a whole message of `len` bytes into `whole`, for prost.
     Whole { len: usize },
 }
 
 /// A request body's bytes as the call's messages. A data chunk comes out as one or more
-/// data chunks whose bytes are views of the HTTP/2 frames they arrived in (one per frame
-/// it spans, at least one per message); any other message as prost decodes it.
+/// data chunks that add up to it (at least one): views of the HTTP/2 frames it arrived in
+/// where [`VIEW_BYTES`] or more lie in one, else runs copied together; any other message
+/// as prost decodes it.
 pub struct Inbound<B> {
     body: B,
     /// The unread rest of the last frame.
@@ -63,6 +73,8 @@ pub struct Inbound<B> {
     state: State,
     /// A prefix or a message's head, as it comes.
     small: Vec<u8>,
+    /// A data chunk's bytes too short to go on as views, copied together.
+    runs: BytesMut,
     whole: BytesMut,
     /// The largest message taken.
     limit: usize,
@@ -72,14 +84,15 @@ pub struct Inbound<B> {
 }
 
 impl<B> Inbound<B> {
-    /// The messages of `body`, each at most `limit` bytes, data chunks at most `max_chunk`
-    /// (as the chunks of a message decoded whole are checked when they are taken).
+    /// The messages of `body`, each at most `limit` bytes; a data chunk over `max_chunk`
+    /// bytes comes out whole, for the stream to refuse.
     pub fn new(body: B, limit: usize, max_chunk: usize) -> Self {
         Inbound {
             body,
             frame: Bytes::new(),
             state: State::Prefix,
             small: Vec::with_capacity(DATA_HEAD),
+            runs: BytesMut::new(),
             whole: BytesMut::new(),
             limit,
             max_chunk,
@@ -96,13 +109,22 @@ impl<B> Inbound<B> {
                         return Ok(None);
                     }
                     let n = left.min(self.frame.len());
-                    let piece = self.frame.split_to(n);
+                    if n >= VIEW_BYTES && !self.runs.is_empty() {
+                        // The copied run first, then this frame's bytes as a view.
+                        return Ok(Some(data_chunk(self.runs.split().freeze())));
+                    }
                     self.state = if n == left {
                         State::Prefix
                     } else {
                         State::Data { left: left - n }
                     };
-                    return Ok(Some(data_chunk(piece)));
+                    if n >= VIEW_BYTES {
+                        return Ok(Some(data_chunk(self.frame.split_to(n))));
+                    }
+                    self.runs.extend_from_slice(&self.frame.split_to(n));
+                    if self.runs.len() >= VIEW_BYTES || n == left {
+                        return Ok(Some(data_chunk(self.runs.split().freeze())));
+                    }
                 }
                 State::Prefix => {
                     if !self.fill(PREFIX) {
@@ -129,25 +151,18 @@ impl<B> Inbound<B> {
                     if !self.fill(len.min(DATA_HEAD)) {
                         return Ok(None);
                     }
-                    match data_layout(&self.small, len) {
-                        Some((_, bytes)) if bytes > self.max_chunk => {
-                            let e = SessionError::too_large(
-                                "data",
-                                format!("chunk of {bytes} bytes, the limit is {}", self.max_chunk),
-                            );
-                            return Err(status(&e));
-                        }
+                    match data_layout(&self.small, len).filter(|&(_, bytes)| bytes <= self.max_chunk) {
                         Some((at, bytes)) => {
                             // What of the data came with the head, then the rest as it comes.
-                            let first = Bytes::copy_from_slice(&self.small[at..]);
-                            let left = bytes - first.len();
+                            self.runs.clear();
+                            self.runs.extend_from_slice(&self.small[at..]);
+                            let left = bytes - self.runs.len();
                             self.small.clear();
-                            self.state = if left == 0 {
-                                State::Prefix
-                            } else {
-                                State::Data { left }
-                            };
-                            return Ok(Some(data_chunk(first)));
+                            if left == 0 {
+                                self.state = State::Prefix;
+                                return Ok(Some(data_chunk(self.runs.split().freeze())));
+                            }
+                            self.state = State::Data { left };
                         }
                         None => {
                             self.whole.clear();
@@ -201,43 +216,24 @@ fn data_layout(head: &[u8], len: usize) -> Option<(usize, usize)> {
     if tag != DATA_PART_TAG {
         return None;
     }
-    let (part_len, a) = varint(rest)?;
-    if 1 + a + part_len != len {
-        return None;
-    }
-    let rest = &rest[a..];
+    let (part_len, rest) = varint(rest)?;
+    let part_at = head.len() - rest.len();
     let (&tag, rest) = rest.split_first()?;
     if tag != DATA_BYTES_TAG {
         return None;
     }
-    let (bytes, b) = varint(rest)?;
-    (1 + b + bytes == part_len).then_some((2 + a + b, bytes))
+    let (bytes, rest) = varint(rest)?;
+    let at = head.len() - rest.len();
+    // Both lengths end exactly where the message does.
+    let ends = |start: usize, n: u64| (start as u64).checked_add(n) == Some(len as u64);
+    (ends(part_at, part_len) && ends(at, bytes)).then_some((at, len - at))
 }
 
-/// A varint at the start of `b` (at most five bytes) and its length.
-fn varint(b: &[u8]) -> Option<(usize, usize)> {
-    let mut v = 0usize;
-    for (i, &byte) in b.iter().take(5).enumerate() {
-        v |= usize::from(byte & 0x7f) << (7 * i);
-        if byte & 0x80 == 0 {
-            return Some((v, i + 1));
-        }
-    }
-    None
-}
-
-/// Appends `v` as a varint.
-fn put_varint(out: &mut BytesMut, mut v: u64) {
-    while v >= 0x80 {
-        out.put_u8(v as u8 | 0x80);
-        v >>= 7;
-    }
-    out.put_u8(v as u8);
-}
-
-/// Bytes of `v` as a varint.
-fn varint_len(v: u64) -> usize {
-    prost::encoding::encoded_len_varint(v)
+/// A varint at the start of `b` and the bytes after it; None when `b` holds no whole one.
+fn varint(b: &[u8]) -> Option<(u64, &[u8])> {
+    let mut rest = b;
+    let v = decode_varint(&mut rest).ok()?;
+    Some((v, rest))
 }
 
 impl<B> Stream for Inbound<B>
@@ -311,17 +307,17 @@ fn framed(m: pb::FilteredChunk) -> (Bytes, Option<Bytes>) {
     match m.part {
         Some(filtered_chunk::Part::Data(d)) => {
             let bytes = d.data.len() as u64;
-            let part = 1 + varint_len(bytes) as u64 + bytes;
-            let len = 1 + varint_len(part) as u64 + part;
+            let part = 1 + encoded_len_varint(bytes) as u64 + bytes;
+            let len = 1 + encoded_len_varint(part) as u64 + part;
             let mut out = BytesMut::with_capacity(PREFIX + DATA_HEAD);
             out.put_u8(0);
-            // A reply chunk is at most the server's chunk size, far below 4 GiB.
+            // A reply chunk is at most `max_chunk_bytes`, which the config caps at 1 GiB.
             out.put_u32(len as u32);
             out.put_u8(DATA_PART_TAG);
-            put_varint(&mut out, part);
+            encode_varint(part, &mut out);
             out.put_u8(DATA_BYTES_TAG);
-            put_varint(&mut out, bytes);
-            (out.freeze(), Some(d.data))
+            encode_varint(bytes, &mut out);
+            (out.freeze(), Some(d.data).filter(|b| !b.is_empty()))
         }
         part => {
             let m = pb::FilteredChunk { part };
@@ -461,16 +457,27 @@ mod tests {
     /// A request body of the frames given.
     type TestBody = StreamBody<tokio_stream::Iter<std::vec::IntoIter<Result<Frame<Bytes>, Status>>>>;
 
-    /// Messages as a client's request body: each framed, the bytes cut at `cuts`.
-    fn body_of(bytes: &[u8], cuts: &[usize]) -> TestBody {
+    /// `bytes` cut into frames at `cuts`.
+    fn frames_of(bytes: &[u8], cuts: &[usize]) -> Vec<Bytes> {
         let mut frames = Vec::new();
         let mut at = 0;
         for &c in cuts.iter().chain([bytes.len()].iter()) {
             let c = c.min(bytes.len()).max(at);
-            frames.push(Ok(Frame::data(Bytes::copy_from_slice(&bytes[at..c]))));
+            frames.push(Bytes::copy_from_slice(&bytes[at..c]));
             at = c;
         }
+        frames
+    }
+
+    /// A request body of `frames`.
+    fn body(frames: &[Bytes]) -> TestBody {
+        let frames: Vec<_> = frames.iter().map(|f| Ok(Frame::data(f.clone()))).collect();
         StreamBody::new(tokio_stream::iter(frames))
+    }
+
+    /// Messages as a client's request body: each framed, the bytes cut at `cuts`.
+    fn body_of(bytes: &[u8], cuts: &[usize]) -> TestBody {
+        body(&frames_of(bytes, cuts))
     }
 
     fn framed_request(messages: &[pb::FrameChunk]) -> Vec<u8> {
@@ -570,10 +577,10 @@ mod tests {
         }
     }
 
-    /// A data chunk with an unknown field after its bytes is not prost's layout and goes
-    /// to prost; one whose length is a varint of more bytes than needed is read here.
+    /// A data chunk in another layout than prost's (an unknown field after its bytes) is
+    /// read too, and so is one whose length is a varint of more bytes than needed.
     #[tokio::test]
-    async fn other_layouts_are_decoded_by_prost() {
+    async fn other_layouts_are_read_too() {
         // part 2 { bytes 1 = "abc", unknown field 9 = 5 }, then a padded-varint length.
         let inner = [DATA_BYTES_TAG, 3, b'a', b'b', b'c', 9 << 3, 5];
         let mut m = vec![DATA_PART_TAG, inner.len() as u8];
@@ -596,9 +603,52 @@ mod tests {
         assert_eq!(data, vec![b"abc".to_vec(), b"xyz".to_vec()]);
     }
 
+    /// A data chunk's long runs in one frame go on as views of that frame, tiny frames are
+    /// copied together (a handful of pieces, not one a frame), and a chunk over the session's
+    /// chunk size comes out whole, cut as it was, for the stream to refuse.
+    #[tokio::test]
+    async fn long_runs_are_views_and_tiny_frames_are_copied_together() {
+        let data = Bytes::from((0..300_000u32).map(|i| (i % 251) as u8).collect::<Vec<u8>>());
+        let bytes = framed_request(&[data_chunk(data.clone())]);
+        let mut cuts: Vec<usize> = (1..2000).collect();
+        cuts.extend((2000..bytes.len()).step_by(100_000).skip(1));
+        let frames = frames_of(&bytes, &cuts);
+        let mut inbound = Inbound::new(body(&frames), 1 << 20, 1 << 20);
+        let mut pieces = Vec::new();
+        while let Some(m) = inbound.next().await {
+            match m.unwrap().part {
+                Some(frame_chunk::Part::Data(d)) => pieces.push(d.data),
+                other => panic!("{other:?}"),
+            }
+        }
+        assert!(
+            pieces.len() <= 6,
+            "{} pieces for {} frames",
+            pieces.len(),
+            frames.len()
+        );
+        assert_eq!(pieces.concat(), data.to_vec());
+        let within = |p: &Bytes, f: &Bytes| {
+            let (p0, f0) = (p.as_ptr() as usize, f.as_ptr() as usize);
+            f0 <= p0 && p0 + p.len() <= f0 + f.len()
+        };
+        let views = pieces
+            .iter()
+            .filter(|p| frames.iter().any(|f| within(p, f)))
+            .count();
+        let long = pieces.iter().filter(|p| p.len() >= VIEW_BYTES).count();
+        assert!(long >= 2 && views == long, "{long} long pieces, {views} views");
+
+        let big = framed_request(&[data_chunk(Bytes::from(vec![1u8; 101]))]);
+        let mut inbound = Inbound::new(body_of(&big, &[20, 60]), 1 << 20, 100);
+        let whole = inbound.next().await.unwrap().unwrap();
+        assert_eq!(whole, data_chunk(Bytes::from(vec![1u8; 101])));
+        assert!(inbound.next().await.is_none());
+    }
+
     /// Hostile framing: a compressed flag, a message over the limit (refused from its prefix,
-    /// before its bytes), the body ending inside a prefix or a message, a chunk over the
-    /// session's chunk size, bytes that are not a message.
+    /// before its bytes), the body ending inside a prefix or a message, bytes that are not
+    /// a message.
     #[tokio::test]
     async fn bad_framing_is_refused_precisely() {
         let ok = framed_request(&[header(0)]);
@@ -626,16 +676,6 @@ mod tests {
             .await
             .unwrap_err();
         assert!(e.message().contains("ended inside a message"), "{e:?}");
-
-        // A data chunk over the session's chunk size, refused from its head.
-        let big = framed_request(&[data_chunk(Bytes::from(vec![1u8; 101]))]);
-        let mut inbound = Inbound::new(body_of(&big[..20], &[]), 1 << 20, 100);
-        let e = inbound.next().await.unwrap().unwrap_err();
-        assert_eq!(e.code(), tonic::Code::ResourceExhausted);
-        assert!(
-            e.message().contains("chunk of 101 bytes, the limit is 100"),
-            "{e:?}"
-        );
 
         let garbage = [0, 0, 0, 0, 3, 0xff, 0xff, 0xff];
         let e = read_back(&garbage, &[], 1 << 20).await.unwrap_err();
@@ -668,6 +708,14 @@ mod tests {
                 assert!(data <= n, "case {case}");
             }
         }
+    }
+
+    /// The path served here is the generated service's `Stream`.
+    #[test]
+    fn the_path_is_the_generated_services() {
+        use tonic::server::NamedService;
+        let name = <crate::proto::afterimage_server::AfterimageServer<Grpc> as NamedService>::NAME;
+        assert_eq!(STREAM_PATH, format!("/{name}/Stream"));
     }
 
     /// Replies framed here decode with prost to what was sent, and the call's status ends

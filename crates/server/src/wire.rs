@@ -203,7 +203,7 @@ fn channel_kind(
 }
 
 /// Chunks at least this long are kept as they came; shorter ones are copied together.
-const KEEP_CHUNK_BYTES: usize = 64 << 10;
+pub(crate) const KEEP_CHUNK_BYTES: usize = 64 << 10;
 
 /// Collects one frame's chunks after its header: copied into its planes as they arrive
 /// when it lands ([`Assembly::land`]); else kept as they came (views of the transport's
