@@ -104,25 +104,33 @@ impl Region {
     /// Fills `dst` with frame `index`'s bytes from `offset`: straight into a plane's
     /// memory where its samples need no conversion, which saves a copy of the frame.
     pub fn read_into(&self, index: u64, offset: u64, dst: &mut [u8]) -> Result<(), SessionError> {
-        dst.par_chunks_mut(COPY_PIECE)
-            .enumerate()
-            .try_for_each(|(k, piece)| {
-                self.map
-                    .read(offset.saturating_add((k * COPY_PIECE) as u64), piece)
-            })
-            .map_err(|e| out_of_range(index, e))
+        self.read_pieces(index, offset, dst, |_| 0).map(|_| ())
     }
 
     /// Fills `dst` with frame `index`'s f32 samples from `offset`, as [`Region::read_into`],
     /// and counts the NaN and infinite ones among them piece by piece, while each piece is
     /// still in cache (a pass of its own over a colour costs as much again as reading it).
     pub fn read_counting(&self, index: u64, offset: u64, dst: &mut [f32]) -> Result<u64, SessionError> {
-        dst.par_chunks_mut(COPY_PIECE / 4)
+        // Pieces of a whole number of samples from an f32 slice's start: each casts back.
+        let count = |piece: &[u8]| count_non_finite(bytemuck::cast_slice(piece));
+        self.read_pieces(index, offset, bytemuck::cast_slice_mut(dst), count)
+    }
+
+    /// Reads `dst` from `offset` in pieces over the filter threads, summing `after` of each
+    /// piece once it is read.
+    fn read_pieces(
+        &self,
+        index: u64,
+        offset: u64,
+        dst: &mut [u8],
+        after: impl Fn(&[u8]) -> u64 + Sync + Send,
+    ) -> Result<u64, SessionError> {
+        dst.par_chunks_mut(COPY_PIECE)
             .enumerate()
             .map(|(k, piece)| {
-                let at = offset.saturating_add((k * COPY_PIECE) as u64);
-                self.map.read(at, bytemuck::cast_slice_mut(piece))?;
-                Ok(count_non_finite(piece))
+                self.map
+                    .read(offset.saturating_add((k * COPY_PIECE) as u64), piece)?;
+                Ok(after(piece))
             })
             .try_reduce(|| 0, |a, b| Ok(a + b))
             .map_err(|e| out_of_range(index, e))
