@@ -259,24 +259,22 @@ pub fn run(args: StreamArgs) -> anyhow::Result<()> {
     }
     if let Some(before) = before {
         let after = in_process(&args.filter, &values, &frames)?;
-        let local = before.bracket(&after);
-        let median = local.median_ms;
-        // Like with like: medians (a frame's period, fresh memory left out on both sides),
-        // and means over what the rate covers (every frame after the first).
-        let mean = local
-            .mean_ms
-            .map_or(String::new(), |m| format!(", {:.2}x mean to mean", rate_ms / m));
+        let local = before.pool(&after);
+        let median = local.median_ms();
+        // Like with like: medians of the same frames (every one after the first: the gaps
+        // between replies start at the first reply), and means over them.
         outln!(
-            "in process: median {median:.2} ms/frame ({:.2} before the stream, {:.2} after{}); the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x median to median{mean} ({:.2}x from the first frame sent)",
-            before.median_ms,
-            after.median_ms,
-            local.mean_ms.map_or(String::new(), |m| format!("; mean {m:.2} after the first frame")),
+            "in process: median {median:.2} ms/frame over both runs' frames after the first ({:.2} before the stream, {:.2} after; mean {:.2}); the round trip adds {:.2} ms ({:.2}x); through the server {:.2}x median to median, {:.2}x mean to mean ({:.2}x from the first frame sent)",
+            before.median_ms(),
+            after.median_ms(),
+            local.mean_ms(),
             rtt_ms - median,
             rtt_ms / median,
             median_ms / median,
+            rate_ms / local.mean_ms(),
             period_ms / median
         );
-        if let Some((cpu_ms, busy)) = local.cpu {
+        if let Some((cpu_ms, busy)) = local.cpu_per_frame() {
             outln!("in process: {cpu_ms:.2} ms of CPU per frame ({busy:.2} cores busy while filtering)");
         }
         if let Some(floor) = copy_floor_ms(&args.filter, &frames) {
@@ -541,13 +539,13 @@ fn print_figures(args: &StreamArgs, first: &Frame, replies: &[Reply], wall_s: f6
 
 /// `--compare`'s figures: the same filter over the same frames in this process.
 struct InProcess {
-    /// Median ms a frame.
-    median_ms: f64,
-    /// Mean ms a frame after the first (the span the rate through the server covers), when
-    /// there are two frames.
-    mean_ms: Option<f64>,
-    /// Mean CPU ms a frame and the cores it kept busy, where the CPU time can be read.
+    /// Ms of each frame after the first: the frames the gaps between replies cover (the
+    /// first, with no history yet, is cheaper, and fresh memory is touched in it).
+    ms: Vec<f64>,
+    /// CPU ms over the whole run and the run's wall ms, where the CPU time can be read.
     cpu: Option<(f64, f64)>,
+    /// Frames in the run.
+    frames: usize,
 }
 
 /// `--compare`: runs the filter over `frames` in this process.
@@ -570,32 +568,47 @@ fn in_process(
     let cpu_ms = cpu.zip(process_cpu_ms()).map(|(a, b)| b - a);
     f.finish()?;
     let wall_ms: f64 = ms.iter().sum();
-    let after_first = ms.get(1..).filter(|rest| !rest.is_empty());
+    // One frame: it is all there is to time.
+    let after_first = if ms.len() > 1 { ms.split_off(1) } else { ms };
     Ok(InProcess {
-        median_ms: Timing::of(&ms).median_ms,
-        mean_ms: after_first.map(|rest| rest.iter().sum::<f64>() / rest.len() as f64),
-        cpu: cpu_ms.map(|c| (c / ms.len().max(1) as f64, c / wall_ms)),
+        ms: after_first,
+        cpu: cpu_ms.map(|c| (c, wall_ms)),
+        frames: frames.len(),
     })
 }
 
 impl InProcess {
-    /// The mean of two runs' figures (each figure where both have it).
-    fn bracket(&self, other: &InProcess) -> InProcess {
-        let mid = |a: f64, b: f64| (a + b) / 2.0;
+    /// The median ms a frame.
+    fn median_ms(&self) -> f64 {
+        Timing::of(&self.ms).median_ms
+    }
+
+    /// The two runs' frames as one sample (the machine drifts over a run: the runs before
+    /// and after the stream bracket it).
+    fn pool(&self, other: &InProcess) -> InProcess {
         InProcess {
-            median_ms: mid(self.median_ms, other.median_ms),
-            mean_ms: self.mean_ms.zip(other.mean_ms).map(|(a, b)| mid(a, b)),
-            cpu: self
-                .cpu
-                .zip(other.cpu)
-                .map(|((a, x), (b, y))| (mid(a, b), mid(x, y))),
+            ms: [&self.ms[..], &other.ms].concat(),
+            cpu: self.cpu.zip(other.cpu).map(|((a, x), (b, y))| (a + b, x + y)),
+            frames: self.frames + other.frames,
         }
+    }
+
+    /// The mean ms a frame after the first (the span the rate through the server covers).
+    fn mean_ms(&self) -> f64 {
+        self.ms.iter().sum::<f64>() / self.ms.len().max(1) as f64
+    }
+
+    /// Mean CPU ms a frame, and the cores it kept busy.
+    fn cpu_per_frame(&self) -> Option<(f64, f64)> {
+        self.cpu
+            .map(|(cpu, wall)| (cpu / self.frames.max(1) as f64, cpu / wall))
     }
 }
 
 /// `--compare`'s copy floor, median ms a frame: the channels of `frames` that `filter`
-/// uses copied once into planes, and the colour once out, on this thread (the copies the
-/// shared-memory transport makes; gRPC's come on top of the socket's).
+/// uses copied once into planes, and the colour once out, on this thread, with the copy
+/// the shared-memory transport makes ([`afterimage_shm::copy_f32`]; gRPC's copies come on
+/// top of the socket's).
 fn copy_floor_ms(filter: &str, frames: &[Frame]) -> Option<f64> {
     let uses = afterimage::filters::info(filter)?.uses;
     let mut into: Vec<Vec<f32>> = Vec::new();
@@ -605,8 +618,8 @@ fn copy_floor_ms(filter: &str, frames: &[Frame]) -> Option<f64> {
             if dst.len() <= k {
                 dst.push(Vec::new());
             }
-            dst[k].clear();
-            dst[k].extend_from_slice(p.data());
+            dst[k].resize(p.data().len(), 0.0);
+            afterimage_shm::copy_f32(p.data(), &mut dst[k]);
         }
     };
     let ms: Vec<f64> = frames
@@ -671,5 +684,44 @@ mod tests {
         let dropped = kept(reply(), false);
         assert!(dropped.color.iter().all(|p| p.data().is_empty()));
         assert_eq!((dropped.index, dropped.payload_bytes), (3, 99));
+    }
+
+    /// The in-process figures time the frames the gaps between replies cover (each run's
+    /// frames after the first) and pool the runs before and after the stream.
+    #[test]
+    fn the_in_process_figures_pool_both_runs_frames_after_the_first() {
+        let frames: Vec<Frame> = (0..3)
+            .map(|_| {
+                Frame::new(std::array::from_fn(|_| {
+                    afterimage::frame::Plane::filled(8, 4, 0.5)
+                }))
+                .unwrap()
+            })
+            .collect();
+        let run = in_process("passthrough", &serde_json::Map::new(), &frames).unwrap();
+        assert_eq!((run.ms.len(), run.frames), (2, 3));
+        let lone = in_process("passthrough", &serde_json::Map::new(), &frames[..1]).unwrap();
+        assert_eq!(lone.ms.len(), 1);
+        let before = InProcess {
+            ms: vec![20.0, 22.0, 40.0],
+            cpu: Some((60.0, 100.0)),
+            frames: 4,
+        };
+        let after = InProcess {
+            ms: vec![21.0, 23.0, 24.0],
+            cpu: None,
+            frames: 4,
+        };
+        let both = before.pool(&after);
+        let close = afterimage::tolerance::Tolerance::abs(1e-9);
+        // The one slow frame moves the mean (25), not the median (22, nearest rank); each
+        // run alone has its own.
+        assert!(close.eq(both.median_ms(), 22.0), "{}", both.median_ms());
+        assert!(close.eq(both.mean_ms(), 25.0), "{}", both.mean_ms());
+        assert!(close.eq(before.median_ms(), 22.0));
+        assert!(close.eq(after.median_ms(), 23.0));
+        assert_eq!(both.cpu_per_frame(), None);
+        let (cpu, busy) = before.cpu_per_frame().unwrap();
+        assert!(close.eq(cpu, 15.0) && close.eq(busy, 0.6), "{cpu} {busy}");
     }
 }

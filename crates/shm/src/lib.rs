@@ -14,7 +14,7 @@
 //!   `ftruncate` fails, and [`Mapping::open`] refuses a file without those seals.
 //! - **No reference to it ever exists.** Another process may write the bytes at any time,
 //!   so they are only ever copied, between the mapping and this process's own memory
-//!   ([`Mapping::read`], [`Mapping::write`]), with bounds checked on every copy. A copy
+//!   ([`Mapping::read`], [`Mapping::read_f32`], [`Mapping::write`]), with bounds checked on every copy. A copy
 //!   racing a writer gives torn bytes, which every reader checks as it checks any
 //!   client's input.
 //!
@@ -85,10 +85,10 @@ pub struct Mapping {
 }
 
 // SAFETY: the mapping is plain memory owned by this value until it is dropped; the
-// pointer is only used by `read`, `write` and `drop`, which copy through raw pointers and
+// pointer is only used by `read`, `read_f32`, `write` and `drop`, which copy through raw pointers and
 // hold no reference across threads.
 unsafe impl Send for Mapping {}
-// SAFETY: as above; `read` and `write` take `&self` and only copy bytes, which another
+// SAFETY: as above; the copies take `&self` and only copy bytes, which another
 // process may change at any time anyway.
 unsafe impl Sync for Mapping {}
 
@@ -165,17 +165,112 @@ impl Mapping {
         // SAFETY: `at..at + dst.len()` lies within the mapping (checked above), which lives
         // as long as `self`; `dst` is this process's own memory, never part of a mapping
         // (no reference into one is ever made), so the two do not overlap.
-        unsafe { std::ptr::copy_nonoverlapping(self.ptr.as_ptr().add(at), dst.as_mut_ptr(), dst.len()) };
+        unsafe { copy::<false>(self.ptr.as_ptr().add(at), dst.as_mut_ptr(), dst.len()) };
         Ok(())
+    }
+
+    /// Copies the region's f32 samples from `offset` (any byte, not only a sample's) into
+    /// `dst`, and returns how many of them are NaN or infinite: counted in the same pass,
+    /// which costs nothing next to the copy where a pass of its own would read them again.
+    pub fn read_f32(&self, offset: u64, dst: &mut [f32]) -> Result<u64, Error> {
+        let at = self.at(offset, std::mem::size_of_val(dst))?;
+        // SAFETY: as in `read`; `dst` holds `size_of_val(dst)` bytes.
+        let non_finite = unsafe {
+            copy::<true>(
+                self.ptr.as_ptr().add(at),
+                dst.as_mut_ptr().cast(),
+                std::mem::size_of_val(dst),
+            )
+        };
+        Ok(non_finite)
     }
 
     /// Copies `src` into the region at `offset`.
     pub fn write(&self, offset: u64, src: &[u8]) -> Result<(), Error> {
         let at = self.at(offset, src.len())?;
         // SAFETY: as in `read`, with the copy the other way.
-        unsafe { std::ptr::copy_nonoverlapping(src.as_ptr(), self.ptr.as_ptr().add(at), src.len()) };
+        unsafe { copy::<false>(src.as_ptr(), self.ptr.as_ptr().add(at), src.len()) };
         Ok(())
     }
+}
+
+/// Copies `src` into `dst` with the loop [`Mapping::read_f32`] copies a region with, and
+/// returns how many of the samples are NaN or infinite: what that read costs, measured
+/// without a region (`afterimage stream --compare`'s copy floor).
+///
+/// # Panics
+/// When the two lengths differ.
+pub fn copy_f32(src: &[f32], dst: &mut [f32]) -> u64 {
+    assert_eq!(
+        src.len(),
+        dst.len(),
+        "copy_f32 between slices of different lengths"
+    );
+    // SAFETY: two slices of this process of `size_of_val(src)` bytes each; `dst` is the
+    // only reference to its memory, so they do not overlap.
+    unsafe {
+        copy::<true>(
+            src.as_ptr().cast(),
+            dst.as_mut_ptr().cast(),
+            std::mem::size_of_val(src),
+        )
+    }
+}
+
+/// An f32's exponent bits: all set in NaNs and infinities, and in no other value.
+const EXPONENT: u32 = 0x7f80_0000;
+
+/// Bytes copied per step of [`copy`]: one 256-bit vector.
+const BLOCK: usize = 32;
+
+/// Copies `len` bytes from `src` to `dst` a 32-byte block at a time, as loads and stores
+/// the compiler vectorises; with `COUNT`, returns how many of the 4-byte words from `src`'s
+/// start (f32 samples; `len` a multiple of 4) are NaN or infinite, else 0.
+///
+/// Why not `memcpy`: glibc copies large runs with `rep movsb`, which on the AMD EPYC
+/// machines we measured ran at two thirds of this loop's speed (22 MB: 3.1-3.9 ms against
+/// 2.0-2.9); and the count, fused into the copy, needs no second pass.
+///
+/// # Safety
+/// `src..src + len` must be readable, `dst..dst + len` writable, and the two must not
+/// overlap.
+unsafe fn copy<const COUNT: bool>(src: *const u8, dst: *mut u8, len: usize) -> u64 {
+    type Words = [u32; BLOCK / 4];
+    let blocks = len / BLOCK;
+    let mut non_finite = 0u64;
+    // Counted in u32 lanes, summed into the u64 every run of blocks (a run's count fits).
+    const RUN: usize = 1 << 16;
+    let mut start = 0;
+    while start < blocks {
+        let end = blocks.min(start + RUN);
+        let mut run = 0u32;
+        for b in start..end {
+            // SAFETY: block `b` lies within both runs (`b < len / BLOCK`); unaligned
+            // accesses, since a client chooses the region's offsets.
+            let words = unsafe { src.add(b * BLOCK).cast::<Words>().read_unaligned() };
+            // SAFETY: as above.
+            unsafe { dst.add(b * BLOCK).cast::<Words>().write_unaligned(words) };
+            if COUNT {
+                run += words
+                    .iter()
+                    .map(|&w| u32::from(w & EXPONENT == EXPONENT))
+                    .sum::<u32>();
+            }
+        }
+        non_finite += u64::from(run);
+        start = end;
+    }
+    let done = blocks * BLOCK;
+    // SAFETY: the last `len - done` (< BLOCK) bytes of both runs.
+    unsafe { std::ptr::copy_nonoverlapping(src.add(done), dst.add(done), len - done) };
+    if COUNT {
+        for w in (done..len - len % 4).step_by(4) {
+            // SAFETY: a word within `dst`'s run, just written.
+            let word = unsafe { dst.add(w).cast::<u32>().read_unaligned() };
+            non_finite += u64::from(word & EXPONENT == EXPONENT);
+        }
+    }
+    non_finite
 }
 
 /// `bytes` as a mapping's length: at least one, at most what a pointer offset allows.
@@ -237,6 +332,67 @@ mod tests {
         let mut head = [1u8; 16];
         a.read(0, &mut head).unwrap();
         assert_eq!(head, [0; 16]);
+    }
+
+    /// The block copy against `copy_nonoverlapping` and `is_finite`: every length up to a
+    /// few blocks and odd ones past them, at offsets that are not a sample's, with NaNs,
+    /// infinities, subnormals and both zeros on the blocks' edges; bit for bit.
+    #[test]
+    fn the_block_copy_copies_and_counts_as_the_plain_ones_do() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        let specials = [
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::from_bits(0x7f80_0001),
+            f32::MIN_POSITIVE / 2.0,
+            -0.0,
+            0.0,
+            f32::MAX,
+        ];
+        let region = Mapping::create("test", 1 << 20).unwrap();
+        let lens = (0..200).chain([1021, 4099, 65_537, 200_003]);
+        for (k, n) in lens.enumerate() {
+            let samples: Vec<f32> = (0..n)
+                .map(|i| match next() % 4 {
+                    0 => specials[(next() % specials.len() as u64) as usize],
+                    _ if i % 8 == 7 => specials[i % specials.len()],
+                    _ => f32::from_bits(next() as u32),
+                })
+                .collect();
+            let offset = (k * 13 % 61) as u64;
+            let bytes: Vec<u8> = samples.iter().flat_map(|v| v.to_ne_bytes()).collect();
+            region.write(offset, &bytes).unwrap();
+            let mut got = vec![1.5f32; n];
+            let bad = region.read_f32(offset, &mut got).unwrap();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&samples), "{n} samples at {offset}");
+            let expected = samples.iter().filter(|v| !v.is_finite()).count() as u64;
+            assert_eq!(bad, expected, "{n} samples at {offset}");
+            // Between two slices, from any sample on.
+            let from = k % 5;
+            let mut copied = vec![0f32; n.saturating_sub(from)];
+            let bad = copy_f32(&samples[from.min(n)..], &mut copied);
+            assert_eq!(
+                bits(&copied),
+                bits(&samples[from.min(n)..]),
+                "{n} samples from {from}"
+            );
+            let expected = samples[from.min(n)..].iter().filter(|v| !v.is_finite()).count() as u64;
+            assert_eq!(bad, expected, "{n} samples from {from}");
+            // The byte copy, to a length that is not a sample's.
+            let cut = bytes.len().saturating_sub(k % 3);
+            let mut raw = vec![7u8; cut];
+            region.read(offset, &mut raw).unwrap();
+            assert_eq!(raw, bytes[..cut], "{cut} bytes at {offset}");
+        }
     }
 
     #[test]

@@ -8,7 +8,6 @@
 //! offsets against the region and keeps the buffers a converted frame or reply is staged in.
 
 use super::{lock, Reservation, SessionError};
-use crate::frame::count_non_finite;
 use afterimage_shm::Mapping;
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -104,34 +103,31 @@ impl Region {
     /// Fills `dst` with frame `index`'s bytes from `offset`: straight into a plane's
     /// memory where its samples need no conversion, which saves a copy of the frame.
     pub fn read_into(&self, index: u64, offset: u64, dst: &mut [u8]) -> Result<(), SessionError> {
-        self.read_pieces(index, offset, dst, |_| 0).map(|_| ())
+        self.read_pieces(index, offset, dst, |map, at, piece| {
+            map.read(at, piece).map(|()| 0)
+        })
+        .map(|_| ())
     }
 
     /// Fills `dst` with frame `index`'s f32 samples from `offset`, as [`Region::read_into`],
-    /// and counts the NaN and infinite ones among them piece by piece, while each piece is
-    /// still in cache (a pass of its own over a colour costs as much again as reading it).
+    /// and counts the NaN and infinite ones among them in the same pass (a pass of its own
+    /// over a colour costs about as much again as reading it).
     pub fn read_counting(&self, index: u64, offset: u64, dst: &mut [f32]) -> Result<u64, SessionError> {
-        // Pieces of a whole number of samples from an f32 slice's start: each casts back.
-        let count = |piece: &[u8]| count_non_finite(bytemuck::cast_slice(piece));
-        self.read_pieces(index, offset, bytemuck::cast_slice_mut(dst), count)
+        self.read_pieces(index, offset, dst, Mapping::read_f32)
     }
 
-    /// Reads `dst` from `offset` in pieces over the filter threads, summing `after` of each
-    /// piece once it is read.
-    fn read_pieces(
+    /// Reads `dst` from `offset` in pieces of [`COPY_PIECE`] bytes over the filter threads
+    /// with `read`, summing what it returns.
+    fn read_pieces<T: Send>(
         &self,
         index: u64,
         offset: u64,
-        dst: &mut [u8],
-        after: impl Fn(&[u8]) -> u64 + Sync + Send,
+        dst: &mut [T],
+        read: impl Fn(&Mapping, u64, &mut [T]) -> Result<u64, afterimage_shm::Error> + Sync,
     ) -> Result<u64, SessionError> {
-        dst.par_chunks_mut(COPY_PIECE)
+        dst.par_chunks_mut(COPY_PIECE / std::mem::size_of::<T>())
             .enumerate()
-            .map(|(k, piece)| {
-                self.map
-                    .read(offset.saturating_add((k * COPY_PIECE) as u64), piece)?;
-                Ok(after(piece))
-            })
+            .map(|(k, piece)| read(&self.map, offset.saturating_add((k * COPY_PIECE) as u64), piece))
             .try_reduce(|| 0, |a, b| Ok(a + b))
             .map_err(|e| out_of_range(index, e))
     }
@@ -177,6 +173,7 @@ fn out_of_range(index: u64, e: afterimage_shm::Error) -> SessionError {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::frame::count_non_finite;
     use crate::session::Budget;
     use std::os::unix::fs::FileExt;
 
