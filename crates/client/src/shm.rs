@@ -180,11 +180,13 @@ impl SharedRegion {
                     ch.byte_length
                 )));
             }
-            let mut planes = [vec![0f32; n], vec![0f32; n], vec![0f32; n]];
-            for (k, p) in (0u64..).zip(&mut planes) {
-                self.copy_out(offset + k * (n * 4) as u64, bytemuck::cast_slice_mut(p))?;
-            }
-            return Ok(planes);
+            let plane = |k: u64| {
+                let at = offset.checked_add(k * (n * 4) as u64);
+                at.ok_or_else(|| io::Error::other(format!("reply offset {offset} overflows")))
+                    .and_then(|at| self.map.read_f32_vec(at, n).map_err(io::Error::other))
+                    .map(|(samples, _)| samples)
+            };
+            return Ok([plane(0)?, plane(1)?, plane(2)?]);
         }
         let len = usize::try_from(ch.byte_length)
             .map_err(|_| ReplyError::Header(format!("{} bytes of colour", ch.byte_length)))?;

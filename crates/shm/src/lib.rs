@@ -14,7 +14,7 @@
 //!   `ftruncate` fails, and [`Mapping::open`] refuses a file without those seals.
 //! - **No reference to it ever exists.** Another process may write the bytes at any time,
 //!   so they are only ever copied, between the mapping and this process's own memory
-//!   ([`Mapping::read`], [`Mapping::read_f32`], [`Mapping::write`]), with bounds checked on every copy. A copy
+//!   ([`Mapping::read`], [`Mapping::read_f32`], [`Mapping::read_f32_vec`], [`Mapping::write`]), with bounds checked on every copy. A copy
 //!   racing a writer gives torn bytes, which every reader checks as it checks any
 //!   client's input.
 //!
@@ -85,7 +85,7 @@ pub struct Mapping {
 }
 
 // SAFETY: the mapping is plain memory owned by this value until it is dropped; the
-// pointer is only used by `read`, `read_f32`, `write` and `drop`, which copy through raw pointers and
+// pointer is only used by the copies and `drop`, which copy through raw pointers and
 // hold no reference across threads.
 unsafe impl Send for Mapping {}
 // SAFETY: as above; the copies take `&self` and only copy bytes, which another
@@ -183,6 +183,25 @@ impl Mapping {
             )
         };
         Ok(non_finite)
+    }
+
+    /// The region's `n` f32 samples from `offset` as a new vector, and how many of them are
+    /// NaN or infinite: [`Mapping::read_f32`] into memory that is not zeroed first (a pass
+    /// as long as the copy; every sample is written by it). Nothing is allocated for a
+    /// range outside the region.
+    pub fn read_f32_vec(&self, offset: u64, n: usize) -> Result<(Vec<f32>, u64), Error> {
+        let len = n.checked_mul(4).ok_or(Error::OutOfRange {
+            offset,
+            len: usize::MAX,
+            size: self.len as u64,
+        })?;
+        let at = self.at(offset, len)?;
+        let mut samples = Vec::<f32>::with_capacity(n);
+        // SAFETY: as in `read`, into the vector's `len` bytes of spare capacity.
+        let non_finite = unsafe { copy::<true>(self.ptr.as_ptr().add(at), samples.as_mut_ptr().cast(), len) };
+        // SAFETY: the copy wrote all `n` samples.
+        unsafe { samples.set_len(n) };
+        Ok((samples, non_finite))
     }
 
     /// Copies `src` into the region at `offset`.
@@ -376,6 +395,12 @@ mod tests {
             assert_eq!(bits(&got), bits(&samples), "{n} samples at {offset}");
             let expected = samples.iter().filter(|v| !v.is_finite()).count() as u64;
             assert_eq!(bad, expected, "{n} samples at {offset}");
+            let (fresh, bad) = region.read_f32_vec(offset, n).unwrap();
+            assert_eq!(
+                (bits(&fresh), bad),
+                (bits(&samples), expected),
+                "{n} new samples at {offset}"
+            );
             // Between two slices, from any sample on.
             let from = k % 5;
             let mut copied = vec![0f32; n.saturating_sub(from)];
@@ -415,6 +440,14 @@ mod tests {
             assert!(a.write(offset, &buf).is_err(), "write at {offset}");
         }
         assert!(a.read(3996, &mut buf).is_ok());
+        for (offset, n) in [(0, 1025), (4092, 2), (0, usize::MAX), (0, usize::MAX / 4 + 1)] {
+            let e = a.read_f32_vec(offset, n).unwrap_err();
+            assert!(
+                matches!(e, Error::OutOfRange { size: 4096, .. }),
+                "{offset} {n}: {e}"
+            );
+        }
+        assert_eq!(a.read_f32_vec(4092, 1).unwrap().0.len(), 1);
         assert!(matches!(Mapping::create("test", 0), Err(Error::Size(0))));
         assert!(matches!(Mapping::create("test", u64::MAX), Err(Error::Size(_))));
     }
