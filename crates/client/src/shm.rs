@@ -173,15 +173,19 @@ impl SharedRegion {
     ) -> Result<[Vec<f32>; 3], ReplyError> {
         let n = width as usize * height as usize;
         if ch.sample == SampleType::F32 as i32 && in_host_order(ch.sample, ch.compression) {
-            if ch.byte_length != (3 * n * 4) as u64 {
+            // The header is the server's: its sizes are checked before anything is read.
+            let plane_bytes = (n as u64).checked_mul(4);
+            let total = plane_bytes.and_then(|b| b.checked_mul(3));
+            if total != Some(ch.byte_length) {
                 return Err(ReplyError::Header(format!(
                     "expected {} bytes (3 x {width}x{height} f32 samples), got {}",
-                    3 * n * 4,
+                    total.map_or("more than 2^64".to_string(), |t| t.to_string()),
                     ch.byte_length
                 )));
             }
+            let plane_bytes = plane_bytes.unwrap_or(0);
             let plane = |k: u64| {
-                let at = offset.checked_add(k * (n * 4) as u64);
+                let at = offset.checked_add(k * plane_bytes);
                 at.ok_or_else(|| io::Error::other(format!("reply offset {offset} overflows")))
                     .and_then(|at| self.map.read_f32_vec(at, n).map_err(io::Error::other))
                     .map(|(samples, _)| samples)

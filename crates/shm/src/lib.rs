@@ -14,12 +14,15 @@
 //!   `ftruncate` fails, and [`Mapping::open`] refuses a file without those seals.
 //! - **No reference to it ever exists.** Another process may write the bytes at any time,
 //!   so they are only ever copied, between the mapping and this process's own memory
-//!   ([`Mapping::read`], [`Mapping::read_f32`], [`Mapping::read_f32_vec`], [`Mapping::write`]), with bounds checked on every copy. A copy
-//!   racing a writer gives torn bytes, which every reader checks as it checks any
-//!   client's input.
+//!   ([`Mapping::read`], [`Mapping::read_f32`], [`Mapping::read_f32_vec`],
+//!   [`Mapping::write`]), with bounds checked on every copy. A copy racing a writer gives
+//!   torn bytes, which every reader checks as it checks any client's input; a counted
+//!   read counts the values it copied (each sample is loaded once, then both stored and
+//!   counted).
 //!
 //! Every other crate of afterimage forbids `unsafe`; this one keeps it to the mapping's
-//! creation, its two copies and its unmapping.
+//! creation, its copies (and the counting copy they share with [`copy_f32`]) and its
+//! unmapping.
 
 #![deny(unsafe_op_in_unsafe_fn, missing_docs)]
 #![warn(clippy::undocumented_unsafe_blocks)]
@@ -243,6 +246,10 @@ const EXPONENT: u32 = 0x7f80_0000;
 /// Bytes copied per step of [`copy_counting`]: one 256-bit vector.
 const BLOCK: usize = 32;
 
+/// Blocks whose count [`copy_counting`] keeps in u32 before adding it to the total (a
+/// run's count, at most 8 a block, fits).
+const RUN: usize = 1 << 16;
+
 /// Copies `len` bytes (a whole number of f32 samples) from `src` to `dst` a 32-byte block
 /// at a time, as loads and stores the compiler vectorises, and returns how many of the
 /// samples are NaN or infinite, counted from the values as they pass through registers.
@@ -255,17 +262,21 @@ const BLOCK: usize = 32;
 /// `src..src + len` must be readable, `dst..dst + len` writable, and the two must not
 /// overlap.
 unsafe fn copy_counting(src: *const u8, dst: *mut u8, len: usize) -> u64 {
+    debug_assert_eq!(
+        len % 4,
+        0,
+        "copy_counting of {len} bytes, not a whole number of samples"
+    );
     type Words = [u32; BLOCK / 4];
     let blocks = len / BLOCK;
     let mut non_finite = 0u64;
-    // Counted in u32 lanes, summed into the u64 every run of blocks (a run's count fits).
-    const RUN: usize = 1 << 16;
+    // Counted in u32 lanes, summed into the u64 every run of blocks.
     let mut start = 0;
     while start < blocks {
         let end = blocks.min(start + RUN);
         let mut run = 0u32;
         for b in start..end {
-            // SAFETY: block `b` lies within both runs (`b < len / BLOCK`); unaligned
+            // SAFETY: block `b` lies within both ranges (`b < len / BLOCK`); unaligned
             // accesses, since a client chooses the region's offsets.
             let words = unsafe { src.add(b * BLOCK).cast::<Words>().read_unaligned() };
             // SAFETY: as above.
@@ -279,7 +290,7 @@ unsafe fn copy_counting(src: *const u8, dst: *mut u8, len: usize) -> u64 {
         start = end;
     }
     let done = blocks * BLOCK;
-    // SAFETY: the last `len - done` (< BLOCK) bytes of both runs.
+    // SAFETY: the last `len - done` (< BLOCK) bytes of both ranges.
     unsafe { std::ptr::copy_nonoverlapping(src.add(done), dst.add(done), len - done) };
     // The samples of the last, partial block (`len` is a whole number of them).
     for w in (done..len).step_by(4) {
@@ -416,6 +427,22 @@ mod tests {
             region.read(offset, &mut raw).unwrap();
             assert_eq!(raw, bytes[..cut], "{cut} bytes at {offset}");
         }
+    }
+
+    /// A copy of more than one run of blocks (the counts are summed run by run), with
+    /// non-finite samples on both sides of each run's edge and last.
+    #[test]
+    fn a_count_across_runs_of_blocks_counts_them_all() {
+        let per_run = RUN * BLOCK / 4;
+        let n = 2 * per_run + 13;
+        let mut samples: Vec<f32> = (0..n).map(|i| i as f32 * 0.25).collect();
+        for i in [per_run - 1, per_run, 2 * per_run - 1, 2 * per_run, n - 1] {
+            samples[i] = if i % 2 == 0 { f32::NAN } else { f32::NEG_INFINITY };
+        }
+        let mut copied = vec![0f32; n];
+        assert_eq!(copy_f32(&samples, &mut copied), 5);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&copied), bits(&samples));
     }
 
     #[test]

@@ -125,9 +125,15 @@ impl Region {
         dst: &mut [T],
         read: impl Fn(&Mapping, u64, &mut [T]) -> Result<u64, afterimage_shm::Error> + Sync,
     ) -> Result<u64, SessionError> {
-        dst.par_chunks_mut(COPY_PIECE / std::mem::size_of::<T>())
+        let size = std::mem::size_of::<T>().max(1);
+        let per_piece = COPY_PIECE / size;
+        dst.par_chunks_mut(per_piece)
             .enumerate()
-            .map(|(k, piece)| read(&self.map, offset.saturating_add((k * COPY_PIECE) as u64), piece))
+            .map(|(k, piece)| {
+                // Past u64's end: refused by the mapping's range check, not wrapped.
+                let at = offset.saturating_add((k * per_piece * size) as u64);
+                read(&self.map, at, piece)
+            })
             .try_reduce(|| 0, |a, b| Ok(a + b))
             .map_err(|e| out_of_range(index, e))
     }
