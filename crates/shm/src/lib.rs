@@ -294,7 +294,7 @@ unsafe fn copy_counting(src: *const u8, dst: *mut u8, len: usize) -> u64 {
     unsafe { std::ptr::copy_nonoverlapping(src.add(done), dst.add(done), len - done) };
     // The samples of the last, partial block (`len` is a whole number of them).
     for w in (done..len).step_by(4) {
-        // SAFETY: a word within `dst`'s run, just written.
+        // SAFETY: a word within `dst`'s range, just written.
         let word = unsafe { dst.add(w).cast::<u32>().read_unaligned() };
         non_finite += u64::from(word & EXPONENT == EXPONENT);
     }
